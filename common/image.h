@@ -1,0 +1,60 @@
+// Buffers of one frame (or one tile of it), channel-first float32 in the
+// layout of the shard schema (DESIGN.md): index = ((v * C + c) * H + y) * W + x.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace dofarm {
+
+struct Rect {
+  int x = 0, y = 0, w = 0, h = 0;
+  bool operator==(const Rect&) const = default;
+};
+
+// The camera of one frame, stored with every frame (shard `camera`, EXR header).
+struct CameraState {
+  int frame = 0;
+  float time = 0;            // seconds = frame / fps
+  float position[3] = {0, 0, 0};
+  float rotation[4] = {1, 0, 0, 0};  // unit quaternion w, x, y, z
+  float fov_deg = 40;
+  float focal_distance = 1;
+  float aperture = 0;
+};
+
+struct FrameBuffers {
+  int width = 0, height = 0;  // of this rect
+  int versions = 0;
+  Rect rect;                  // where it sits in the full frame
+  CameraState camera;
+  std::vector<float> noisy;          // V, 3, H, W
+  std::vector<float> albedo;         // V, 3, H, W
+  std::vector<float> albedo_ref;     // 3, H, W
+  std::vector<float> reference;      // 3, H, W
+  std::vector<float> reference_var;  // 1, H, W: variance of the reference mean
+  std::vector<float> normal;         // 3, H, W
+  std::vector<float> depth;          // 1, H, W
+  std::vector<float> roughness;      // 1, H, W
+  std::vector<float> coc;            // 1, H, W
+
+  void allocate(int w, int h, int v);
+  size_t plane() const { return size_t(width) * height; }
+  // Copies `tile` (whose rect lies inside this frame) into place.
+  void paste(const FrameBuffers& tile);
+  // Number of NaN/Inf values over all buffers (must be 0 for anything written).
+  size_t count_non_finite() const;
+};
+
+// Names and channel counts of the buffers, in schema order.
+struct BufferInfo {
+  const char* name;
+  int channels;
+  bool per_version;
+};
+const std::vector<BufferInfo>& buffer_infos();
+std::vector<float>& buffer_data(FrameBuffers& fb, const std::string& name);
+const std::vector<float>& buffer_data(const FrameBuffers& fb, const std::string& name);
+
+}  // namespace dofarm
