@@ -1,0 +1,32 @@
+// Renders one frame (or one tile of it) of a job: the entry point that the
+// `dofarm render` command, the worker and the tests share.
+#pragma once
+
+#include <filesystem>
+#include <map>
+#include <optional>
+#include <string>
+
+#include "common/image.h"
+#include "common/jobspec.h"
+
+namespace dofarm::render {
+
+struct RenderOptions {
+  int threads = 0;          // 0 = all hardware threads
+  int block_size = 16;      // pixels per side of a thread-pool work item
+  bool progress = false;    // log progress lines / a bar on a terminal
+};
+
+// Renders `frame` of `spec`, restricted to `tile` when given (default: the
+// whole frame). Deterministic: the bytes do not depend on tile or threads.
+// Throws SpecError for bad input (missing scene, frame out of range, tile
+// outside the image) and RuntimeError for runtime failures.
+FrameBuffers render_frame(const JobSpec& spec, int frame, std::optional<Rect> tile = std::nullopt,
+                          const RenderOptions& options = {});
+
+// render_frame() then write_frame_exr() with the job's metadata in the header.
+void render_frame_to_exr(const JobSpec& spec, int frame, std::optional<Rect> tile,
+                         const std::filesystem::path& out, const RenderOptions& options = {});
+
+}  // namespace dofarm::render
