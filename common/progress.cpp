@@ -1,0 +1,98 @@
+#include "common/progress.h"
+
+#include <fmt/format.h>
+#include <spdlog/spdlog.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+
+namespace dofarm {
+
+Progress::Progress(std::string label, int64_t total, ProgressOptions options)
+    : label_(std::move(label)), total_(std::max<int64_t>(total, 0)), options_(std::move(options)) {
+  mode_ = options_.mode;
+  if (mode_ == ProgressOptions::Mode::kAuto) {
+    mode_ = isatty(fileno(stderr)) ? ProgressOptions::Mode::kBar : ProgressOptions::Mode::kLog;
+  }
+  start_s_ = now();
+  last_report_s_ = start_s_;
+}
+
+Progress::~Progress() { finish(); }
+
+double Progress::now() const {
+  if (options_.clock) return options_.clock();
+  using namespace std::chrono;
+  return duration<double>(steady_clock::now().time_since_epoch()).count();
+}
+
+void Progress::advance(int64_t n) {
+  done_.fetch_add(n, std::memory_order_relaxed);
+  if (mode_ == ProgressOptions::Mode::kOff) return;
+  // Threads that find the output busy skip drawing: the next caller shows
+  // their work anyway, and nobody waits on the terminal.
+  std::unique_lock<std::mutex> lock(mutex_, std::try_to_lock);
+  if (!lock.owns_lock() || finished_) return;
+  double interval =
+      mode_ == ProgressOptions::Mode::kBar ? options_.bar_interval_s : options_.log_interval_s;
+  if (now() - last_report_s_ < interval) return;
+  report(false);
+}
+
+void Progress::finish() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (finished_) return;
+  finished_ = true;
+  if (mode_ != ProgressOptions::Mode::kOff) report(true);
+}
+
+// Called with mutex_ held.
+void Progress::report(bool final) {
+  double t = now();
+  last_report_s_ = t;
+  int64_t done = done_.load(std::memory_order_relaxed);
+  double elapsed = t - start_s_;
+  if (mode_ == ProgressOptions::Mode::kBar) {
+    std::string line = format_progress(label_, done, total_, elapsed, options_.bar_width);
+    if (final) line += fmt::format(" done in {}", format_duration(elapsed));
+    // \r and "erase to end of line" redraw in place.
+    std::fprintf(options_.bar_out, "\r%s\x1b[K%s", line.c_str(), final ? "\n" : "");
+    std::fflush(options_.bar_out);
+  } else if (final) {
+    spdlog::info("{}: {}/{} done in {}", label_, done, total_, format_duration(elapsed));
+  } else {
+    spdlog::info("{}", format_progress(label_, done, total_, elapsed, 0));
+  }
+}
+
+std::string format_duration(double seconds) {
+  if (!(seconds >= 0) || !std::isfinite(seconds)) return "?";
+  auto s = static_cast<int64_t>(std::llround(seconds));
+  if (s < 60) return fmt::format("{}s", s);
+  if (s < 3600) return fmt::format("{}m{:02}s", s / 60, s % 60);
+  return fmt::format("{}h{:02}m", s / 3600, (s % 3600) / 60);
+}
+
+double estimate_eta(int64_t done, int64_t total, double elapsed_s) {
+  if (done <= 0 || elapsed_s < 0) return -1;
+  if (done >= total) return 0;
+  return elapsed_s * static_cast<double>(total - done) / static_cast<double>(done);
+}
+
+std::string format_progress(const std::string& label, int64_t done, int64_t total, double elapsed_s,
+                            int bar_width) {
+  double frac = total > 0 ? std::clamp(double(done) / double(total), 0.0, 1.0) : 1.0;
+  std::string bar;
+  if (bar_width > 0) {
+    int filled = static_cast<int>(frac * bar_width);
+    bar = "[" + std::string(filled, '=');
+    if (filled < bar_width) bar += ">" + std::string(bar_width - filled - 1, ' ');
+    bar += "] ";
+  }
+  return fmt::format("{} {}{:3}% {}/{} ETA {}", label, bar, static_cast<int>(frac * 100), done,
+                     total, format_duration(estimate_eta(done, total, elapsed_s)));
+}
+
+}  // namespace dofarm

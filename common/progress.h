@@ -1,0 +1,67 @@
+// Progress of long work (rendering a frame, a batch) with an ETA (DESIGN.md,
+// "Users"): on a terminal one bar line that updates in place, otherwise a
+// plain log line every few seconds and one at the end, so logs of a farm stay
+// readable. advance() may be called from any thread.
+#pragma once
+
+#include <atomic>
+#include <cstdint>
+#include <cstdio>
+#include <functional>
+#include <mutex>
+#include <string>
+
+namespace dofarm {
+
+struct ProgressOptions {
+  enum class Mode { kAuto, kBar, kLog, kOff };
+  Mode mode = Mode::kAuto;      // kAuto: kBar when stderr is a terminal, else kLog
+  double log_interval_s = 5.0;  // at most one log line this often (kLog)
+  double bar_interval_s = 0.1;  // at most one redraw this often (kBar)
+  int bar_width = 30;           // characters of the bar itself
+  // Seconds on a monotonic clock; injectable so tests need not sleep.
+  std::function<double()> clock;
+  std::FILE* bar_out = stderr;  // where the bar is drawn (kBar)
+};
+
+class Progress {
+ public:
+  Progress(std::string label, int64_t total, ProgressOptions options = {});
+  ~Progress();  // finish()
+  Progress(const Progress&) = delete;
+  Progress& operator=(const Progress&) = delete;
+
+  // Records `n` more units done; thread-safe and cheap when nothing is drawn.
+  void advance(int64_t n = 1);
+  // Prints the final line once; later calls do nothing.
+  void finish();
+
+  int64_t done() const { return done_.load(std::memory_order_relaxed); }
+  int64_t total() const { return total_; }
+
+ private:
+  double now() const;
+  void report(bool final);
+
+  std::string label_;
+  int64_t total_;
+  ProgressOptions options_;
+  ProgressOptions::Mode mode_;
+  double start_s_;
+  std::atomic<int64_t> done_{0};
+  std::mutex mutex_;  // guards what follows and the output
+  double last_report_s_;
+  bool finished_ = false;
+};
+
+// The pieces of a progress line, separate so they can be checked exactly.
+// "12s", "3m05s", "1h02m"; "?" for a negative (unknown) duration.
+std::string format_duration(double seconds);
+// Remaining seconds at the mean rate so far; -1 while nothing is done.
+double estimate_eta(int64_t done, int64_t total, double elapsed_s);
+// "label  42% 21/50 ETA 12s", with "[=====>    ] " before the percentage when
+// bar_width > 0.
+std::string format_progress(const std::string& label, int64_t done, int64_t total, double elapsed_s,
+                            int bar_width);
+
+}  // namespace dofarm
