@@ -470,13 +470,14 @@ double rmse_over_pixels(SamplerKind kind, F f, double exact, int slot) {
 
 TEST(Sampler, SobolBeatsIndependentOnASmoothIntegrand) {
   // Owen-scrambled nets converge as N^-1.5 on smooth integrands, independent
-  // samples as N^-0.5: at N = 1024 the expected ratio is ~1/30.
+  // samples as N^-0.5: at N = 1024 the ratio is of order 1/N (measured ~1/500);
+  // 1/20 leaves a margin of 25.
   auto f = [](double x, double y) { return std::exp(-x) * std::sin(y); };
   const double exact = (1.0 - std::exp(-1.0)) * (1.0 - std::cos(1.0));
   for (int slot : {0, 5}) {
     const double sobol = rmse_over_pixels(SamplerKind::kSobol, f, exact, slot);
     const double indep = rmse_over_pixels(SamplerKind::kIndependent, f, exact, slot);
-    EXPECT_LT(sobol, indep / 4) << "slot " << slot << ": " << sobol << " vs " << indep;
+    EXPECT_LT(sobol, indep / 20) << "slot " << slot << ": " << sobol << " vs " << indep;
     // Independent sampling itself must be right: its RMSE is sigma_f / sqrt(N)
     // (sigma_f ~ 0.14 here), not biased.
     EXPECT_LT(indep, 0.01);
@@ -485,7 +486,7 @@ TEST(Sampler, SobolBeatsIndependentOnASmoothIntegrand) {
 
 TEST(Sampler, SobolBeatsIndependentOnADiskIndicator) {
   // Discontinuous integrand (a lens aperture, a light's silhouette): the rate is
-  // ~N^-0.75 against N^-0.5, an expected ratio near 1/6 at N = 1024.
+  // ~N^-0.75 against N^-0.5 (constants aside, ~1/6 at N = 1024; measured 0.30).
   auto f = [](double x, double y) {
     return (x - 0.5) * (x - 0.5) + (y - 0.5) * (y - 0.5) < 0.16 ? 1.0 : 0.0;
   };

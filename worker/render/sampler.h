@@ -13,7 +13,7 @@
 // Owen scramble of the index maps every aligned block of 2^m indices onto an
 // aligned block of 2^m indices, and every such block of the (0,2)-sequence is
 // a (0,m,2)-net, the first 2^m samples of every slot are a (0,m,2)-net (for
-// any m up to 32): every 2D request (pixel jitter, lens, BSDF, light) is well
+// any m up to 24, the float resolution): every 2D request (pixel jitter, lens, BSDF, light) is well
 // stratified, while the independent per-slot shuffles keep slots uncorrelated
 // with each other ("padding"). get1d() is the first coordinate of a slot.
 // kIndependent: hashed uniform random numbers (splitmix64), for comparison.
