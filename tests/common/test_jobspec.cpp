@@ -1,0 +1,478 @@
+// Job spec parsing: every bad spec of the corpus fails with its exact location
+// and key; good specs get the struct's defaults, resolved paths, sorted camera
+// keys; --set overrides are checked like the file and located at the --set.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <regex>
+#include <string>
+#include <vector>
+
+#include "common/error.h"
+#include "common/jobspec.h"
+
+namespace dofarm {
+namespace {
+
+namespace fs = std::filesystem;
+
+// ---------------------------------------------------------------------------
+// The bad-spec corpus: tests/data/bad_specs/*.toml, each starting with
+//   # expect: LINE:COL: "dotted.key": message fragment
+// (LINE:COL and the key are left out where the error has none).
+
+struct BadSpec {
+  fs::path path;
+  int line = 0, column = 0;
+  std::string key;
+  std::string fragment;
+};
+
+// gtest prints the parameter of a failing case: the file name says it all.
+void PrintTo(const BadSpec& spec, std::ostream* os) { *os << spec.path.filename(); }
+
+std::vector<BadSpec> load_corpus() {
+  std::vector<BadSpec> out;
+  const fs::path dir = fs::path(DOFARM_TEST_DATA) / "bad_specs";
+  static const std::regex kExpect(R"re(^# expect: (?:(\d+):(\d+): )?(?:"([^"]*)": )?(.+)$)re");
+  for (const auto& entry : fs::directory_iterator(dir)) {
+    if (entry.path().extension() != ".toml") continue;
+    std::ifstream in(entry.path());
+    std::string first;
+    std::getline(in, first);
+    std::smatch m;
+    BadSpec spec;
+    spec.path = entry.path();
+    if (!std::regex_match(first, m, kExpect)) {
+      spec.fragment = "<malformed expect line: " + first + ">";
+    } else {
+      if (m[1].matched) {
+        spec.line = std::stoi(m[1]);
+        spec.column = std::stoi(m[2]);
+      }
+      spec.key = m[3];
+      spec.fragment = m[4];
+    }
+    out.push_back(spec);
+  }
+  std::sort(out.begin(), out.end(),
+            [](const BadSpec& a, const BadSpec& b) { return a.path < b.path; });
+  return out;
+}
+
+class BadSpecCorpus : public testing::TestWithParam<BadSpec> {};
+
+TEST_P(BadSpecCorpus, FailsWithExpectedLocationAndKey) {
+  const BadSpec& bad = GetParam();
+  ASSERT_EQ(bad.fragment.find("<malformed"), std::string::npos) << bad.fragment;
+  try {
+    load_job_spec(bad.path);
+    FAIL() << bad.path << " was accepted";
+  } catch (const SpecError& e) {
+    const std::string what = e.what();
+    EXPECT_EQ(e.loc().file, bad.path.string());
+    EXPECT_EQ(e.loc().line, bad.line) << what;
+    EXPECT_EQ(e.loc().column, bad.column) << what;
+    EXPECT_EQ(e.key(), bad.key) << what;
+    std::string prefix = FileLoc{bad.path.string(), bad.line, bad.column}.str() + ": ";
+    if (!bad.key.empty()) prefix += "\"" + bad.key + "\": ";
+    EXPECT_EQ(what.rfind(prefix, 0), 0u) << "expected prefix: " << prefix << "\ngot: " << what;
+    EXPECT_NE(what.find(bad.fragment, prefix.size()), std::string::npos)
+        << "expected fragment: " << bad.fragment << "\ngot: " << what;
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(JobSpec, BadSpecCorpus, testing::ValuesIn(load_corpus()),
+                         [](const testing::TestParamInfo<BadSpec>& info) {
+                           return info.param.path.stem().string();
+                         });
+
+TEST(BadSpecCorpusSize, HasAtLeast25Specs) { EXPECT_GE(load_corpus().size(), 25u); }
+
+// ---------------------------------------------------------------------------
+// Good specs, written into a fresh folder with placeholder scene files (the
+// parser only checks that they exist).
+
+class JobSpecFiles : public testing::Test {
+ protected:
+  void SetUp() override {
+    const auto* info = testing::UnitTest::GetInstance()->current_test_info();
+    dir_ = fs::path(testing::TempDir()) / (std::string("dofarm_jobspec_") + info->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+    touch("scene.gltf");
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+
+  fs::path touch(const std::string& rel) {
+    fs::path p = dir_ / rel;
+    fs::create_directories(p.parent_path());
+    std::ofstream(p) << "placeholder\n";
+    return p;
+  }
+  fs::path write(const std::string& rel, const std::string& text) {
+    fs::path p = dir_ / rel;
+    fs::create_directories(p.parent_path());
+    std::ofstream(p) << text;
+    return p;
+  }
+  // Parses `text` as dir_/job.toml.
+  JobSpec parse(const std::string& text, const std::vector<std::string>& overrides = {}) {
+    return parse_job_spec(text, dir_ / "job.toml", overrides);
+  }
+  // The SpecError that parsing throws; fails the test if none is thrown.
+  SpecError parse_error(const std::string& text, const std::vector<std::string>& overrides = {}) {
+    try {
+      parse(text, overrides);
+    } catch (const SpecError& e) {
+      return e;
+    }
+    ADD_FAILURE() << "spec was accepted";
+    return SpecError(FileLoc{}, "", "none");
+  }
+
+  fs::path dir_;
+};
+
+const char* kOneKey = R"(scene = "scene.gltf"
+[[camera.key]]
+position = [0.0, 1.0, 4.0]
+look_at = [0.0, 1.0, 0.0]
+)";
+
+TEST_F(JobSpecFiles, MinimalSpecGetsTheStructDefaults) {
+  JobSpec spec = parse(kOneKey);
+  const JobSpec d;
+  EXPECT_EQ(spec.scene, dir_ / "scene.gltf");
+  EXPECT_EQ(spec.spec_path, dir_ / "job.toml");
+  EXPECT_EQ(spec.seed, d.seed);
+  EXPECT_EQ(spec.width, d.width);
+  EXPECT_EQ(spec.height, d.height);
+  EXPECT_EQ(spec.frame_start, d.frame_start);
+  EXPECT_EQ(spec.frame_end, d.frame_end);
+  EXPECT_EQ(spec.per_shard, d.per_shard);
+  EXPECT_EQ(spec.fps, d.fps);
+  EXPECT_FALSE(spec.camera_from_scene);
+  EXPECT_FALSE(spec.environment.has_value());
+  EXPECT_EQ(spec.versions, d.versions);
+  EXPECT_EQ(spec.reference_spp, d.reference_spp);
+  EXPECT_EQ(spec.reference_error, d.reference_error);
+  EXPECT_EQ(spec.reference_max_spp, d.reference_max_spp);
+  EXPECT_EQ(spec.albedo_ref_spp, d.albedo_ref_spp);
+  EXPECT_EQ(spec.max_depth, d.max_depth);
+  EXPECT_EQ(spec.rr_start_depth, d.rr_start_depth);
+  EXPECT_EQ(spec.sampler, d.sampler);
+  EXPECT_EQ(spec.tile, d.tile);
+  EXPECT_EQ(spec.task_seconds, d.task_seconds);
+
+  ASSERT_EQ(spec.camera_keys.size(), 1u);
+  const CameraKey& k = spec.camera_keys[0];
+  const CameraKey dk;
+  EXPECT_EQ(k.frame, dk.frame);
+  EXPECT_EQ(k.position.z, 4.0f);
+  ASSERT_TRUE(k.look_at.has_value());
+  EXPECT_EQ(k.look_at->y, 1.0f);
+  EXPECT_FALSE(k.rotation_deg.has_value());
+  EXPECT_EQ(k.up.y, dk.up.y);
+  EXPECT_EQ(k.fov_deg, dk.fov_deg);
+  EXPECT_EQ(k.focal_distance, dk.focal_distance);
+  EXPECT_EQ(k.aperture, dk.aperture);
+}
+
+TEST_F(JobSpecFiles, EveryKeyIsRead) {
+  touch("sky.exr");
+  JobSpec spec = parse(R"(scene = "scene.gltf"
+seed = 123456789012
+[image]
+width = 320
+height = 200
+[frames]
+start = 5
+end = 9
+per_shard = 3
+fps = 30
+[[camera.key]]
+frame = 5
+position = [1, 2, 3]
+look_at = [0, 0, 0]
+up = [0, 0, 1]
+fov = 55.5
+focal_distance = 2.5
+aperture = 0.125
+[environment]
+map = "sky.exr"
+intensity = 2.0
+rotation = -90
+[buffers]
+versions = 4
+reference_error = 0.02
+reference_max_spp = 4096
+albedo_ref_spp = 8
+[render]
+max_depth = 7
+rr_start_depth = 2
+sampler = "independent"
+[farm]
+task_seconds = 45.0
+)");
+  EXPECT_EQ(spec.seed, 123456789012u);
+  EXPECT_EQ(spec.width, 320);
+  EXPECT_EQ(spec.height, 200);
+  EXPECT_EQ(spec.frame_start, 5);
+  EXPECT_EQ(spec.frame_end, 9);
+  EXPECT_EQ(spec.frame_count(), 5);
+  EXPECT_EQ(spec.per_shard, 3);
+  EXPECT_EQ(spec.fps, 30.0f);
+  ASSERT_EQ(spec.camera_keys.size(), 1u);
+  const CameraKey& k = spec.camera_keys[0];
+  EXPECT_EQ(k.frame, 5);
+  EXPECT_EQ(k.position.x, 1.0f);
+  EXPECT_EQ(k.position.y, 2.0f);
+  EXPECT_EQ(k.position.z, 3.0f);
+  EXPECT_EQ(k.up.z, 1.0f);
+  EXPECT_EQ(k.fov_deg, 55.5f);
+  EXPECT_EQ(k.focal_distance, 2.5f);
+  EXPECT_EQ(k.aperture, 0.125f);
+  ASSERT_TRUE(spec.environment.has_value());
+  EXPECT_EQ(spec.environment->map, dir_ / "sky.exr");
+  EXPECT_FALSE(spec.environment->color.has_value());
+  EXPECT_EQ(spec.environment->intensity, 2.0f);
+  EXPECT_EQ(spec.environment->rotation_deg, -90.0f);
+  EXPECT_EQ(spec.versions, 4);
+  EXPECT_EQ(spec.reference_error, 0.02f);
+  EXPECT_EQ(spec.reference_max_spp, 4096);
+  EXPECT_EQ(spec.albedo_ref_spp, 8);
+  EXPECT_EQ(spec.max_depth, 7);
+  EXPECT_EQ(spec.rr_start_depth, 2);
+  EXPECT_EQ(spec.sampler, SamplerKind::kIndependent);
+  EXPECT_EQ(spec.task_seconds, 45.0f);
+}
+
+TEST_F(JobSpecFiles, RelativePathsResolveAgainstTheSpecFolder) {
+  touch("scenes/room.gltf");
+  touch("assets/hdri/sky.exr");
+  fs::path spec_path = write("jobs/nested/job.toml", R"(scene = "../../scenes/room.gltf"
+[[camera.key]]
+rotation = [0, 0, 0]
+[environment]
+map = "../../assets/hdri/sky.exr"
+)");
+  JobSpec spec = load_job_spec(spec_path);
+  EXPECT_EQ(spec.scene, dir_ / "scenes/room.gltf");
+  EXPECT_TRUE(spec.scene.is_absolute());
+  EXPECT_EQ(spec.environment->map, dir_ / "assets/hdri/sky.exr");
+  EXPECT_EQ(spec.spec_path, spec_path);
+}
+
+TEST_F(JobSpecFiles, MissingSceneNamesKeyAndResolvedPath) {
+  SpecError e = parse_error(R"(scene = "scenes/nope.gltf")");
+  EXPECT_EQ(e.key(), "scene");
+  EXPECT_EQ(e.loc().line, 1);
+  EXPECT_EQ(e.loc().column, 9);
+  EXPECT_NE(std::string(e.what()).find((dir_ / "scenes/nope.gltf").string()), std::string::npos)
+      << e.what();
+}
+
+TEST_F(JobSpecFiles, MissingSpecFileIsBadInput) {
+  try {
+    load_job_spec(dir_ / "absent.toml");
+    FAIL();
+  } catch (const SpecError& e) {
+    EXPECT_EQ(e.loc().file, (dir_ / "absent.toml").string());
+    EXPECT_NE(std::string(e.what()).find("file not found"), std::string::npos) << e.what();
+  }
+}
+
+TEST_F(JobSpecFiles, CameraKeysAreSortedByFrame) {
+  JobSpec spec = parse(R"(scene = "scene.gltf"
+[[camera.key]]
+frame = 48
+rotation = [0, 0, 0]
+aperture = 0.48
+[[camera.key]]
+frame = 0
+rotation = [0, 0, 0]
+aperture = 0.0
+[[camera.key]]
+frame = 95
+rotation = [0, 0, 0]
+aperture = 0.95
+)");
+  ASSERT_EQ(spec.camera_keys.size(), 3u);
+  EXPECT_EQ(spec.camera_keys[0].frame, 0);
+  EXPECT_EQ(spec.camera_keys[1].frame, 48);
+  EXPECT_EQ(spec.camera_keys[2].frame, 95);
+  // The keys move with their frames, not just the frame numbers.
+  EXPECT_EQ(spec.camera_keys[0].aperture, 0.0f);
+  EXPECT_EQ(spec.camera_keys[1].aperture, 0.48f);
+  EXPECT_EQ(spec.camera_keys[2].aperture, 0.95f);
+  EXPECT_TRUE(spec.camera_keys[1].rotation_deg.has_value());
+  EXPECT_FALSE(spec.camera_keys[1].look_at.has_value());
+}
+
+TEST_F(JobSpecFiles, EnvironmentColourInsteadOfMap) {
+  JobSpec spec = parse(std::string(kOneKey) + "[environment]\ncolor = [0.5, 0.25, 1]\n");
+  ASSERT_TRUE(spec.environment.has_value());
+  EXPECT_TRUE(spec.environment->map.empty());
+  ASSERT_TRUE(spec.environment->color.has_value());
+  EXPECT_EQ(spec.environment->color->y, 0.25f);
+}
+
+// ---------------------------------------------------------------------------
+// camera.from_scene
+
+TEST_F(JobSpecFiles, FromSceneWithoutKeysIsAPinhole) {
+  JobSpec spec = parse("scene = \"scene.gltf\"\n[camera]\nfrom_scene = true\n");
+  EXPECT_TRUE(spec.camera_from_scene);
+  EXPECT_TRUE(spec.camera_keys.empty());
+}
+
+TEST_F(JobSpecFiles, FromSceneKeysCarryOnlyTheLens) {
+  JobSpec spec = parse(R"(scene = "scene.gltf"
+[camera]
+from_scene = true
+[[camera.key]]
+frame = 24
+focal_distance = 3.4
+aperture = 0.08
+[[camera.key]]
+frame = 0
+focal_distance = 9
+)");
+  ASSERT_EQ(spec.camera_keys.size(), 2u);
+  EXPECT_EQ(spec.camera_keys[0].frame, 0);
+  EXPECT_EQ(spec.camera_keys[0].focal_distance, 9.0f);
+  EXPECT_EQ(spec.camera_keys[0].aperture, 0.0f);
+  EXPECT_EQ(spec.camera_keys[1].aperture, 0.08f);
+  EXPECT_FALSE(spec.camera_keys[1].look_at.has_value());
+  EXPECT_FALSE(spec.camera_keys[1].rotation_deg.has_value());
+}
+
+TEST_F(JobSpecFiles, FromSceneRefusesFovAndLookAt) {
+  for (const char* key : {"fov = 40", "look_at = [0, 0, 0]", "rotation = [0, 0, 0]"}) {
+    SpecError e = parse_error(std::string("scene = \"scene.gltf\"\n[camera]\nfrom_scene = true\n"
+                                          "[[camera.key]]\n") +
+                              key + "\n");
+    EXPECT_EQ(e.loc().line, 5) << e.what();
+    EXPECT_NE(std::string(e.what()).find("camera.from_scene = true"), std::string::npos)
+        << e.what();
+  }
+}
+
+TEST_F(JobSpecFiles, WithoutFromSceneAKeyIsRequired) {
+  SpecError e = parse_error("scene = \"scene.gltf\"\n");
+  EXPECT_EQ(e.key(), "camera.key");
+  EXPECT_EQ(e.loc().line, 0);  // nothing in the file to point at
+}
+
+// ---------------------------------------------------------------------------
+// --set overrides
+
+TEST_F(JobSpecFiles, OverridesSetValuesOfEveryKind) {
+  touch("hdri/sky.exr");
+  JobSpec spec =
+      parse(kOneKey, {"image.width=64", "buffers.reference_spp=16", "camera.key.0.aperture=0.1",
+                      "camera.key.0.position=[1, 2, 3]", "environment.map=hdri/sky.exr",
+                      "render.sampler=independent", "seed=99"});
+  EXPECT_EQ(spec.width, 64);
+  EXPECT_EQ(spec.reference_spp, 16);
+  EXPECT_EQ(spec.camera_keys[0].aperture, 0.1f);
+  EXPECT_EQ(spec.camera_keys[0].position.z, 3.0f);
+  ASSERT_TRUE(spec.environment.has_value());
+  EXPECT_EQ(spec.environment->map, dir_ / "hdri/sky.exr");  // relative to the spec, not cwd
+  EXPECT_EQ(spec.sampler, SamplerKind::kIndependent);
+  EXPECT_EQ(spec.seed, 99u);
+}
+
+TEST_F(JobSpecFiles, OverrideQuotedStringAndBareWordAgree) {
+  touch("my scene.gltf");
+  JobSpec a = parse(kOneKey, {"scene=\"my scene.gltf\""});
+  JobSpec b = parse(kOneKey, {"scene=my scene.gltf"});
+  EXPECT_EQ(a.scene, dir_ / "my scene.gltf");
+  EXPECT_EQ(b.scene, a.scene);
+}
+
+TEST_F(JobSpecFiles, LaterOverrideWins) {
+  JobSpec spec = parse(kOneKey, {"image.width=64", "image.width=32"});
+  EXPECT_EQ(spec.width, 32);
+}
+
+TEST_F(JobSpecFiles, OverrideReplacesItsAlternative) {
+  // The file asks for an error target; --set reference_spp switches to a fixed spp.
+  std::string text = std::string(kOneKey) +
+                     "[buffers]\nreference_error = 0.01\n"
+                     "reference_max_spp = 512\n";
+  JobSpec spec = parse(text, {"buffers.reference_spp=16"});
+  EXPECT_EQ(spec.reference_spp, 16);
+  EXPECT_EQ(spec.reference_error, 0.0f);
+  EXPECT_EQ(spec.reference_max_spp, JobSpec{}.reference_max_spp);
+
+  JobSpec rotated = parse(kOneKey, {"camera.key.0.rotation=[0, 45, 0]"});
+  EXPECT_FALSE(rotated.camera_keys[0].look_at.has_value());
+  EXPECT_EQ(rotated.camera_keys[0].rotation_deg->y, 45.0f);
+}
+
+TEST_F(JobSpecFiles, BadOverrideValueIsLocatedAtTheSet) {
+  SpecError e = parse_error(kOneKey, {"image.width=-4"});
+  EXPECT_STREQ(e.what(),
+               "--set image.width=-4: \"image.width\": expected an integer in [1, 16384], got -4");
+  EXPECT_EQ(e.loc().file, "--set image.width=-4");
+  EXPECT_EQ(e.loc().line, 0);
+
+  SpecError nan = parse_error(kOneKey, {"camera.key.0.aperture=nan"});
+  EXPECT_EQ(nan.loc().file, "--set camera.key.0.aperture=nan");
+  EXPECT_EQ(nan.key(), "camera.key.0.aperture");
+  EXPECT_NE(std::string(nan.what()).find("finite"), std::string::npos);
+}
+
+TEST_F(JobSpecFiles, OverrideOfUnknownKeyIsAnError) {
+  SpecError e = parse_error(kOneKey, {"image.widht=64"});
+  EXPECT_EQ(e.loc().file, "--set image.widht=64");
+  EXPECT_EQ(e.key(), "image.widht");
+  EXPECT_NE(std::string(e.what()).find("unknown key"), std::string::npos);
+
+  SpecError table = parse_error(kOneKey, {"imgae.width=64"});
+  EXPECT_EQ(table.key(), "imgae");
+  EXPECT_NE(std::string(table.what()).find("unknown key"), std::string::npos);
+}
+
+TEST_F(JobSpecFiles, MalformedOverridesAreLocated) {
+  struct Case {
+    const char* set;
+    const char* key;
+    const char* fragment;
+  };
+  for (const Case& c : {
+           Case{"image.width", "", "expected KEY=VALUE"},
+           Case{"=3", "", "empty key"},
+           Case{"image..width=3", "image..width", "empty part"},
+           Case{"camera.key.3.aperture=0.1", "camera.key.3", "out of range"},
+           Case{"camera.key.first.aperture=0.1", "camera.key.first", "element index"},
+           Case{"scene.x=1", "scene", "not a table"},
+           Case{"frames.list.0=1", "frames.list", "no such array"},
+       }) {
+    SpecError e = parse_error(kOneKey, {c.set});
+    EXPECT_EQ(e.loc().file, std::string("--set ") + c.set);
+    EXPECT_EQ(e.key(), c.key) << e.what();
+    EXPECT_NE(std::string(e.what()).find(c.fragment), std::string::npos) << e.what();
+  }
+}
+
+TEST_F(JobSpecFiles, OverrideMakingDuplicateFramesBlamesTheSet) {
+  std::string two = std::string(kOneKey) + "[[camera.key]]\nframe = 10\nrotation = [0, 0, 0]\n";
+  SpecError e = parse_error(two, {"camera.key.1.frame=0"});
+  EXPECT_EQ(e.loc().file, "--set camera.key.1.frame=0");
+  EXPECT_NE(std::string(e.what()).find("duplicate camera key for frame 0"), std::string::npos);
+}
+
+TEST_F(JobSpecFiles, SyntaxErrorIsLocated) {
+  SpecError e = parse_error("scene = \"scene.gltf\"\nseed = = 3\n");
+  EXPECT_EQ(e.loc().file, (dir_ / "job.toml").string());
+  EXPECT_EQ(e.loc().line, 2);
+  EXPECT_GT(e.loc().column, 0);
+}
+
+}  // namespace
+}  // namespace dofarm
