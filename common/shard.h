@@ -168,6 +168,18 @@ class ShardReader {
 
   std::vector<CameraState> cameras() const;
 
+  // How each dataset is stored (for `dofarm inspect`), in schema order,
+  // camera last.
+  struct DatasetLayout {
+    std::string name;
+    std::vector<uint64_t> shape, chunk;
+    std::vector<std::string> filters;  // pipeline order: "shuffle", "deflate(4)", ...
+    std::string channels;              // the "channels" (or camera "columns") attribute
+    uint64_t stored_bytes = 0;         // on disk, after compression
+    uint64_t logical_bytes = 0;        // float32 values * 4
+  };
+  std::vector<DatasetLayout> layout() const;
+
   // Reads everything back and recomputes the data checksum the writer stored
   // (the same walk the writer's own verification does). Slow: whole shard.
   uint64_t compute_data_checksum() const;
