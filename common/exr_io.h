@@ -9,11 +9,29 @@
 // renamed: a reader never sees half a file. read_frame_exr() reads it back
 // exactly (bit for bit).
 //
+// The image is the buffers' own width x height (a tile is stored as a small
+// image, data window at 0,0); the header records
+//   dofarm.schema                 string  "dofarm.frame/1" (the reader refuses others)
+//   dofarm.rect                   box2i   where it sits in the frame: min (x, y),
+//                                         max (x + w - 1, y + h - 1)
+//   dofarm.versions               int     V
+//   dofarm.camera.frame           int
+//   dofarm.camera.time            float   seconds
+//   dofarm.camera.position        v3f
+//   dofarm.camera.rotation        floatvector  quaternion w, x, y, z
+//   dofarm.camera.fov             float   degrees
+//   dofarm.camera.focal_distance  float
+//   dofarm.camera.aperture        float
+// and one string attribute per entry of `attributes`, named by its key.
+//
 // Images: load_rgb_image() reads .exr (RGB or RGBA, any pixel type) and, via
 // stb_image, .hdr (linear) and .png/.jpg/.tga/.bmp (8-bit; sRGB-decoded when
 // `srgb` is true). Throws RuntimeError naming the file on failure.
+// NaN, Inf and negative values are replaced by 0 (the renderer must never see
+// them) and counted in RgbImage::sanitized_values so the caller can warn.
 #pragma once
 
+#include <cstddef>
 #include <filesystem>
 #include <map>
 #include <string>
@@ -25,11 +43,15 @@ namespace dofarm {
 
 struct RgbImage {
   int width = 0, height = 0;
-  std::vector<float> rgb;  // interleaved, row 0 = top
+  std::vector<float> rgb;       // interleaved, row 0 = top
+  size_t sanitized_values = 0;  // NaN/Inf/negative values load_rgb_image() set to 0
 };
 
 RgbImage load_rgb_image(const std::filesystem::path& path, bool srgb = true);
 
+// Throws RuntimeError, leaving no file behind, when a buffer holds NaN/Inf
+// (naming the buffers and counts), an attribute key collides with a header
+// attribute, or the write fails. Creates parent directories.
 void write_frame_exr(const std::filesystem::path& path, const FrameBuffers& fb,
                      const std::map<std::string, std::string>& attributes = {});
 
@@ -37,9 +59,12 @@ struct ExrFrame {
   FrameBuffers buffers;
   std::map<std::string, std::string> attributes;
 };
+// Throws RuntimeError naming the file when it is missing, not a dofarm frame,
+// truncated or corrupt, or lacks a channel.
 ExrFrame read_frame_exr(const std::filesystem::path& path);
 
-// Writes an RGB image as a plain EXR (debugging, reports).
+// Writes an RGB image as a plain float EXR (debugging, reports), atomically
+// like write_frame_exr(). Non-finite values are kept, to be seen.
 void write_rgb_exr(const std::filesystem::path& path, const RgbImage& img);
 
 // sRGB transfer curve (IEC 61966-2-1), per value.

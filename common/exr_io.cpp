@@ -1,0 +1,483 @@
+#include "common/exr_io.h"
+
+#include <ImfBoxAttribute.h>
+#include <ImfChannelList.h>
+#include <ImfFloatAttribute.h>
+#include <ImfFloatVectorAttribute.h>
+#include <ImfFrameBuffer.h>
+#include <ImfHeader.h>
+#include <ImfIO.h>
+#include <ImfInputFile.h>
+#include <ImfIntAttribute.h>
+#include <ImfOutputFile.h>
+#include <ImfRgbaFile.h>
+#include <ImfStringAttribute.h>
+#include <ImfVecAttribute.h>
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cerrno>
+#include <cmath>
+#include <cstring>
+#include <exception>
+#include <system_error>
+
+#include "common/error.h"
+
+#define STB_IMAGE_IMPLEMENTATION
+#define STBI_NO_PSD
+#define STBI_NO_PIC
+#define STBI_NO_PNM
+#define STBI_NO_GIF
+#include <stb_image.h>
+
+namespace dofarm {
+namespace {
+
+// Written into every frame EXR; read_frame_exr() refuses any other value, so a
+// future layout change cannot be misread silently (STYLE.md 9).
+constexpr const char* kFrameSchema = "dofarm.frame/1";
+constexpr const char* kSchemaAttr = "dofarm.schema";
+constexpr const char* kRectAttr = "dofarm.rect";
+constexpr const char* kVersionsAttr = "dofarm.versions";
+constexpr const char* kFrameAttr = "dofarm.camera.frame";
+constexpr const char* kTimeAttr = "dofarm.camera.time";
+constexpr const char* kPositionAttr = "dofarm.camera.position";
+constexpr const char* kRotationAttr = "dofarm.camera.rotation";
+constexpr const char* kFovAttr = "dofarm.camera.fov";
+constexpr const char* kFocalDistanceAttr = "dofarm.camera.focal_distance";
+constexpr const char* kApertureAttr = "dofarm.camera.aperture";
+
+// String attributes OpenEXR itself defines for multi-part and multi-view
+// files; they are never user attributes.
+bool is_openexr_string_attribute(const std::string& name) {
+  return name == "name" || name == "type" || name == "view";
+}
+
+std::string quoted(const std::filesystem::path& path) { return "'" + path.string() + "'"; }
+
+std::string errno_text(int err) { return std::error_code(err, std::generic_category()).message(); }
+
+// --- Channel layout ---------------------------------------------------------
+
+// One EXR channel and the plane of FrameBuffers it maps to.
+struct ChannelPlane {
+  std::string name;
+  const char* buffer;
+  size_t plane;  // index of the H*W plane inside the buffer
+};
+
+// Channel suffixes: scalars are Y (what viewers show as grey), colours R/G/B,
+// and the normal X/Y/Z because it is a direction, not a colour.
+const char* channel_suffix(const BufferInfo& b, int c) {
+  static const char* const kColour[] = {"R", "G", "B"};
+  static const char* const kVector[] = {"X", "Y", "Z"};
+  if (b.channels == 1) return "Y";
+  return std::string(b.name) == "normal" ? kVector[c] : kColour[c];
+}
+
+// Every channel of a frame with `versions` noisy versions, in schema order:
+// noisy.<v>.R/G/B, albedo.<v>.R/G/B, albedo_ref.R/G/B, ..., coc.Y.
+std::vector<ChannelPlane> channel_planes(int versions) {
+  std::vector<ChannelPlane> out;
+  for (const BufferInfo& b : buffer_infos()) {
+    const int layers = b.per_version ? versions : 1;
+    for (int v = 0; v < layers; ++v) {
+      const std::string layer =
+          b.per_version ? std::string(b.name) + "." + std::to_string(v) : std::string(b.name);
+      for (int c = 0; c < b.channels; ++c)
+        out.push_back({layer + "." + channel_suffix(b, c), b.name, size_t(v) * b.channels + c});
+    }
+  }
+  return out;
+}
+
+// --- Atomic file writing ----------------------------------------------------
+
+// An Imf::OStream on a POSIX file descriptor, so the bytes can be fsynced
+// before the rename (std::ofstream offers no fsync). It remembers the first
+// failure because OutputFile writes its offset table from its destructor,
+// which swallows exceptions: without the flag a failed final write would go
+// unnoticed and an incomplete file would be renamed into place.
+class FdOStream : public Imf::OStream {
+ public:
+  FdOStream(const std::string& name, int fd) : Imf::OStream(name.c_str()), fd_(fd) {}
+
+  void write(const char c[], int n) override {
+    size_t done = 0;
+    while (done < size_t(n)) {
+      ssize_t k = ::pwrite(fd_, c + done, size_t(n) - done, off_t(pos_ + done));
+      if (k < 0 && errno == EINTR) continue;
+      if (k <= 0) {
+        error_ = "write failed: " + errno_text(k < 0 ? errno : EIO);
+        throw Iex::IoExc(error_);
+      }
+      done += size_t(k);
+    }
+    pos_ += done;
+  }
+  uint64_t tellp() override { return pos_; }
+  void seekp(uint64_t pos) override { pos_ = pos; }
+
+  const std::string& error() const { return error_; }
+
+ private:
+  int fd_;
+  uint64_t pos_ = 0;
+  std::string error_;
+};
+
+// Makes a rename durable: the directory entry itself must reach the disk.
+void fsync_directory(const std::filesystem::path& dir) {
+  int fd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (fd < 0) throw RuntimeError("cannot open directory " + quoted(dir) + ": " + errno_text(errno));
+  int rc = ::fsync(fd);
+  int err = errno;
+  ::close(fd);
+  if (rc != 0) throw RuntimeError("cannot fsync directory " + quoted(dir) + ": " + errno_text(err));
+}
+
+// Writes `header` and `frame_buffer` to `path` so that a reader sees either
+// the old file or the complete new one (LevelDB-style temp, fsync, rename).
+// This is the one boundary where OpenEXR exceptions become RuntimeError.
+void write_exr_atomically(const std::filesystem::path& path, const Imf::Header& header,
+                          const Imf::FrameBuffer& frame_buffer) {
+  // The counter keeps two threads of one process writing the same path from
+  // sharing a temporary file.
+  static std::atomic<unsigned> counter{0};
+  const std::filesystem::path tmp = path.string() + ".tmp-" + std::to_string(::getpid()) + "-" +
+                                    std::to_string(counter.fetch_add(1));
+  const std::filesystem::path dir = path.has_parent_path() ? path.parent_path() : ".";
+  int fd = -1;
+  try {
+    std::filesystem::create_directories(dir);
+    fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+    if (fd < 0) throw RuntimeError("cannot create " + quoted(tmp) + ": " + errno_text(errno));
+    FdOStream stream(tmp.string(), fd);
+    {
+      Imf::OutputFile file(stream, header, 1);
+      file.setFrameBuffer(frame_buffer);
+      file.writePixels(header.dataWindow().max.y - header.dataWindow().min.y + 1);
+    }  // the destructor writes the line offset table
+    if (!stream.error().empty()) throw RuntimeError(stream.error());
+    if (::fsync(fd) != 0) throw RuntimeError("fsync failed: " + errno_text(errno));
+    int rc = ::close(fd);
+    fd = -1;
+    if (rc != 0) throw RuntimeError("close failed: " + errno_text(errno));
+    std::filesystem::rename(tmp, path);
+    fsync_directory(dir);
+  } catch (const std::exception& e) {
+    if (fd >= 0) ::close(fd);
+    std::error_code ignored;
+    std::filesystem::remove(tmp, ignored);
+    throw RuntimeError("cannot write EXR " + quoted(path) + ": " + e.what());
+  }
+}
+
+// --- Frame header -----------------------------------------------------------
+
+template <typename T>
+const T& required_attribute(const Imf::Header& header, const char* name,
+                            const std::filesystem::path& path) {
+  const T* attr = header.findTypedAttribute<T>(name);
+  if (!attr)
+    throw RuntimeError(quoted(path) + ": missing or mistyped header attribute '" + name +
+                       "' (not a dofarm frame EXR?)");
+  return *attr;
+}
+
+void write_camera(Imf::Header& header, const CameraState& cam) {
+  header.insert(kFrameAttr, Imf::IntAttribute(cam.frame));
+  header.insert(kTimeAttr, Imf::FloatAttribute(cam.time));
+  header.insert(kPositionAttr,
+                Imf::V3fAttribute(Imath::V3f(cam.position[0], cam.position[1], cam.position[2])));
+  // Imath has no quaternion attribute; a float vector keeps w, x, y, z exact.
+  header.insert(kRotationAttr,
+                Imf::FloatVectorAttribute(std::vector<float>(cam.rotation, cam.rotation + 4)));
+  header.insert(kFovAttr, Imf::FloatAttribute(cam.fov_deg));
+  header.insert(kFocalDistanceAttr, Imf::FloatAttribute(cam.focal_distance));
+  header.insert(kApertureAttr, Imf::FloatAttribute(cam.aperture));
+}
+
+CameraState read_camera(const Imf::Header& header, const std::filesystem::path& path) {
+  CameraState cam;
+  cam.frame = required_attribute<Imf::IntAttribute>(header, kFrameAttr, path).value();
+  cam.time = required_attribute<Imf::FloatAttribute>(header, kTimeAttr, path).value();
+  const Imath::V3f& p = required_attribute<Imf::V3fAttribute>(header, kPositionAttr, path).value();
+  cam.position[0] = p.x;
+  cam.position[1] = p.y;
+  cam.position[2] = p.z;
+  const std::vector<float>& q =
+      required_attribute<Imf::FloatVectorAttribute>(header, kRotationAttr, path).value();
+  if (q.size() != 4)
+    throw RuntimeError(quoted(path) + ": '" + kRotationAttr + "' has " + std::to_string(q.size()) +
+                       " values, expected 4 (w, x, y, z)");
+  std::copy(q.begin(), q.end(), cam.rotation);
+  cam.fov_deg = required_attribute<Imf::FloatAttribute>(header, kFovAttr, path).value();
+  cam.focal_distance =
+      required_attribute<Imf::FloatAttribute>(header, kFocalDistanceAttr, path).value();
+  cam.aperture = required_attribute<Imf::FloatAttribute>(header, kApertureAttr, path).value();
+  return cam;
+}
+
+// --- Image loading ----------------------------------------------------------
+
+std::string lower_extension(const std::filesystem::path& path) {
+  std::string ext = path.extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return std::tolower(c); });
+  return ext;
+}
+
+RgbImage load_exr_rgb(const std::filesystem::path& path) {
+  RgbImage img;
+  try {
+    Imf::InputFile file(path.c_str());
+    const Imf::Header& header = file.header();
+    const Imath::Box2i dw = header.dataWindow();
+    img.width = dw.max.x - dw.min.x + 1;
+    img.height = dw.max.y - dw.min.y + 1;
+    img.rgb.assign(size_t(img.width) * img.height * 3, 0.0f);
+    const Imf::ChannelList& channels = header.channels();
+    if (channels.findChannel("R") && channels.findChannel("G") && channels.findChannel("B")) {
+      // Read R, G, B as FLOAT whatever their stored type: OpenEXR converts
+      // exactly, where RgbaInputFile would round 32-bit data to half.
+      Imf::FrameBuffer fb;
+      const char* const names[] = {"R", "G", "B"};
+      for (int c = 0; c < 3; ++c)
+        fb.insert(names[c], Imf::Slice::Make(Imf::FLOAT, img.rgb.data() + c, dw, 3 * sizeof(float),
+                                             3 * sizeof(float) * size_t(img.width)));
+      file.setFrameBuffer(fb);
+      file.readPixels(dw.min.y, dw.max.y);
+    } else {
+      // Luminance or luminance/chroma files: RgbaInputFile knows how to turn
+      // them into RGB (half precision is all such files hold).
+      Imf::RgbaInputFile rgba_file(path.c_str());
+      if (!(rgba_file.channels() & Imf::WRITE_Y)) throw RuntimeError("no R, G, B or Y channels");
+      std::vector<Imf::Rgba> pixels(size_t(img.width) * img.height);
+      rgba_file.setFrameBuffer(pixels.data() - dw.min.x - size_t(dw.min.y) * img.width, 1,
+                               size_t(img.width));
+      rgba_file.readPixels(dw.min.y, dw.max.y);
+      for (size_t i = 0; i < pixels.size(); ++i) {
+        img.rgb[3 * i + 0] = pixels[i].r;
+        img.rgb[3 * i + 1] = pixels[i].g;
+        img.rgb[3 * i + 2] = pixels[i].b;
+      }
+    }
+  } catch (const std::exception& e) {
+    throw RuntimeError("cannot read image " + quoted(path) + ": " + e.what());
+  }
+  return img;
+}
+
+RgbImage load_stb_rgb(const std::filesystem::path& path, bool hdr, bool srgb) {
+  RgbImage img;
+  int channels_in_file = 0;
+  const size_t n = [&] {
+    if (hdr) {
+      // Radiance .hdr holds linear radiance; stbi_loadf returns it unchanged.
+      float* data = stbi_loadf(path.c_str(), &img.width, &img.height, &channels_in_file, 3);
+      if (!data) return size_t(0);
+      img.rgb.assign(data, data + size_t(img.width) * img.height * 3);
+      stbi_image_free(data);
+    } else if (stbi_is_16_bit(path.c_str())) {
+      // 16-bit PNGs keep their precision instead of being cut to 8 bits.
+      stbi_us* data = stbi_load_16(path.c_str(), &img.width, &img.height, &channels_in_file, 3);
+      if (!data) return size_t(0);
+      const size_t count = size_t(img.width) * img.height * 3;
+      img.rgb.resize(count);
+      for (size_t i = 0; i < count; ++i) {
+        float v = data[i] / 65535.0f;
+        img.rgb[i] = srgb ? srgb_to_linear(v) : v;
+      }
+      stbi_image_free(data);
+    } else {
+      // Not stbi_loadf: for 8-bit files it applies a pure 2.2 gamma, not the
+      // sRGB curve. Decode the exact curve through a table of the 256 codes.
+      stbi_uc* data = stbi_load(path.c_str(), &img.width, &img.height, &channels_in_file, 3);
+      if (!data) return size_t(0);
+      float table[256];
+      for (int i = 0; i < 256; ++i) table[i] = srgb ? srgb_to_linear(i / 255.0f) : i / 255.0f;
+      const size_t count = size_t(img.width) * img.height * 3;
+      img.rgb.resize(count);
+      for (size_t i = 0; i < count; ++i) img.rgb[i] = table[data[i]];
+      stbi_image_free(data);
+    }
+    return img.rgb.size();
+  }();
+  if (n == 0) {
+    const char* reason = stbi_failure_reason();
+    throw RuntimeError("cannot read image " + quoted(path) + ": " +
+                       (reason ? reason : "unknown stb_image error"));
+  }
+  return img;
+}
+
+}  // namespace
+
+// --- Public API -------------------------------------------------------------
+
+RgbImage load_rgb_image(const std::filesystem::path& path, bool srgb) {
+  const std::string ext = lower_extension(path);
+  RgbImage img;
+  if (ext == ".exr") {
+    img = load_exr_rgb(path);
+  } else if (ext == ".hdr") {
+    img = load_stb_rgb(path, /*hdr=*/true, srgb);
+  } else if (ext == ".png" || ext == ".jpg" || ext == ".jpeg" || ext == ".tga" || ext == ".bmp") {
+    img = load_stb_rgb(path, /*hdr=*/false, srgb);
+  } else {
+    throw RuntimeError("cannot read image " + quoted(path) + ": unknown extension '" + ext +
+                       "' (expected .exr, .hdr, .png, .jpg, .jpeg, .tga or .bmp)");
+  }
+  // Textures and environment maps feed the renderer, which must never see a
+  // NaN, an Inf or negative radiance; such texels are zeroed here, once, and
+  // counted so the caller can warn.
+  for (float& v : img.rgb) {
+    if (!(v >= 0.0f) || std::isinf(v)) {
+      v = 0.0f;
+      ++img.sanitized_values;
+    }
+  }
+  return img;
+}
+
+void write_frame_exr(const std::filesystem::path& path, const FrameBuffers& fb,
+                     const std::map<std::string, std::string>& attributes) {
+  if (fb.width <= 0 || fb.height <= 0 || fb.versions < 0)
+    throw RuntimeError("cannot write EXR " + quoted(path) + ": empty frame (" +
+                       std::to_string(fb.width) + "x" + std::to_string(fb.height) + ", " +
+                       std::to_string(fb.versions) + " versions)");
+  // Buffer sizes disagreeing with width/height/versions is a programmer
+  // error; checking here keeps OpenEXR from reading past a vector's end.
+  for (const BufferInfo& b : buffer_infos())
+    DOFARM_CHECK_EQ(buffer_data(fb, b.name).size(),
+                    size_t(b.channels) * fb.plane() * (b.per_version ? fb.versions : 1));
+  // Nothing non-finite is ever written (DESIGN.md: no NaN or Inf reaches a
+  // buffer); name every offending buffer so the bug can be found.
+  std::string bad;
+  for (const BufferInfo& b : buffer_infos()) {
+    size_t n = 0;
+    for (float v : buffer_data(fb, b.name)) n += !std::isfinite(v);
+    if (n) bad += std::string(bad.empty() ? "" : ", ") + b.name + " has " + std::to_string(n);
+  }
+  if (!bad.empty())
+    throw RuntimeError("refusing to write EXR " + quoted(path) + ": NaN/Inf values (" + bad + ")");
+
+  // The image is the tile itself; where it sits in the frame is dofarm.rect.
+  Imf::Header header(fb.width, fb.height);
+  header.compression() = Imf::ZIP_COMPRESSION;
+  header.insert(kSchemaAttr, Imf::StringAttribute(kFrameSchema));
+  header.insert(kRectAttr, Imf::Box2iAttribute(Imath::Box2i(
+                               Imath::V2i(fb.rect.x, fb.rect.y),
+                               Imath::V2i(fb.rect.x + fb.rect.w - 1, fb.rect.y + fb.rect.h - 1))));
+  header.insert(kVersionsAttr, Imf::IntAttribute(fb.versions));
+  write_camera(header, fb.camera);
+  for (const auto& [key, value] : attributes) {
+    if (key.empty() || header.find(key) != header.end() || is_openexr_string_attribute(key))
+      throw RuntimeError("cannot write EXR " + quoted(path) + ": attribute name '" + key +
+                         "' is empty or reserved");
+    header.insert(key, Imf::StringAttribute(value));
+  }
+
+  Imf::FrameBuffer frame_buffer;
+  const size_t plane = fb.plane();
+  for (const ChannelPlane& ch : channel_planes(fb.versions)) {
+    header.channels().insert(ch.name, Imf::Channel(Imf::FLOAT));
+    // OpenEXR only reads through the slice pointer when writing.
+    float* base = const_cast<float*>(buffer_data(fb, ch.buffer).data()) + ch.plane * plane;
+    frame_buffer.insert(ch.name, Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(base),
+                                            sizeof(float), sizeof(float) * size_t(fb.width)));
+  }
+  write_exr_atomically(path, header, frame_buffer);
+}
+
+ExrFrame read_frame_exr(const std::filesystem::path& path) {
+  ExrFrame out;
+  try {
+    Imf::InputFile file(path.c_str());
+    const Imf::Header& header = file.header();
+    const std::string schema =
+        required_attribute<Imf::StringAttribute>(header, kSchemaAttr, path).value();
+    if (schema != kFrameSchema)
+      throw RuntimeError(quoted(path) + ": unknown schema '" + schema + "', this build reads '" +
+                         kFrameSchema + "'");
+    // A truncated file still has an intact header; refuse it before reading
+    // rather than returning zero-filled pixels.
+    if (!file.isComplete()) throw RuntimeError(quoted(path) + ": file is incomplete (truncated?)");
+
+    const Imath::Box2i dw = header.dataWindow();
+    const int versions = required_attribute<Imf::IntAttribute>(header, kVersionsAttr, path).value();
+    if (versions < 0)
+      throw RuntimeError(quoted(path) + ": negative '" + kVersionsAttr + "' " +
+                         std::to_string(versions));
+    FrameBuffers& fb = out.buffers;
+    fb.allocate(dw.max.x - dw.min.x + 1, dw.max.y - dw.min.y + 1, versions);
+    const Imath::Box2i r = required_attribute<Imf::Box2iAttribute>(header, kRectAttr, path).value();
+    fb.rect = {r.min.x, r.min.y, r.max.x - r.min.x + 1, r.max.y - r.min.y + 1};
+    fb.camera = read_camera(header, path);
+
+    Imf::FrameBuffer frame_buffer;
+    const size_t plane = fb.plane();
+    std::string missing;
+    for (const ChannelPlane& ch : channel_planes(versions)) {
+      if (!header.channels().findChannel(ch.name)) {
+        missing += (missing.empty() ? "" : ", ") + ch.name;
+        continue;
+      }
+      float* base = buffer_data(fb, ch.buffer).data() + ch.plane * plane;
+      frame_buffer.insert(ch.name, Imf::Slice::Make(Imf::FLOAT, base, dw, sizeof(float),
+                                                    sizeof(float) * size_t(fb.width)));
+    }
+    if (!missing.empty()) throw RuntimeError(quoted(path) + ": missing channels " + missing);
+    file.setFrameBuffer(frame_buffer);
+    file.readPixels(dw.min.y, dw.max.y);
+
+    for (auto it = header.begin(); it != header.end(); ++it) {
+      const std::string name = it.name();
+      if (name == kSchemaAttr || is_openexr_string_attribute(name)) continue;
+      if (const auto* s = dynamic_cast<const Imf::StringAttribute*>(&it.attribute()))
+        out.attributes[name] = s->value();
+    }
+  } catch (const RuntimeError&) {
+    throw;
+  } catch (const std::exception& e) {
+    throw RuntimeError("cannot read EXR " + quoted(path) + ": " + e.what());
+  }
+  return out;
+}
+
+void write_rgb_exr(const std::filesystem::path& path, const RgbImage& img) {
+  if (img.width <= 0 || img.height <= 0)
+    throw RuntimeError("cannot write EXR " + quoted(path) + ": empty image");
+  DOFARM_CHECK_EQ(img.rgb.size(), size_t(img.width) * img.height * 3);
+  // Non-finite values are written as they are: this is for looking at
+  // images, and a debug image should show a NaN rather than hide it.
+  Imf::Header header(img.width, img.height);
+  header.compression() = Imf::ZIP_COMPRESSION;
+  Imf::FrameBuffer frame_buffer;
+  const char* const names[] = {"R", "G", "B"};
+  for (int c = 0; c < 3; ++c) {
+    header.channels().insert(names[c], Imf::Channel(Imf::FLOAT));
+    float* base = const_cast<float*>(img.rgb.data()) + c;
+    frame_buffer.insert(names[c],
+                        Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(base), 3 * sizeof(float),
+                                   3 * sizeof(float) * size_t(img.width)));
+  }
+  write_exr_atomically(path, header, frame_buffer);
+}
+
+// IEC 61966-2-1: linear segment below the knee, 2.4 power above it.
+float srgb_to_linear(float v) {
+  if (v <= 0.04045f) return v / 12.92f;
+  return std::pow((v + 0.055f) / 1.055f, 2.4f);
+}
+
+float linear_to_srgb(float v) {
+  if (v <= 0.0031308f) return v * 12.92f;
+  return 1.055f * std::pow(v, 1.0f / 2.4f) - 0.055f;
+}
+
+}  // namespace dofarm

@@ -1,0 +1,445 @@
+#include <ImfChannelList.h>
+#include <ImfFrameBuffer.h>
+#include <ImfHeader.h>
+#include <ImfInputFile.h>
+#include <ImfOutputFile.h>
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <random>
+#include <set>
+
+#include "common/error.h"
+#include "common/exr_io.h"
+
+// Static, so this test's stb_image_write cannot clash with another file's.
+#define STB_IMAGE_WRITE_STATIC
+#define STB_IMAGE_WRITE_IMPLEMENTATION
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wmissing-field-initializers"
+#pragma GCC diagnostic ignored "-Wunused-function"
+#include <stb_image_write.h>
+#pragma GCC diagnostic pop
+
+namespace dofarm {
+namespace {
+
+namespace fs = std::filesystem;
+
+// A fresh folder per test, removed afterwards.
+class ExrIo : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    dir_ = fs::temp_directory_path() /
+           ("dofarm-exrio-" + std::to_string(::getpid()) + "-" + info->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override {
+    std::error_code ignored;
+    fs::remove_all(dir_, ignored);
+  }
+  std::vector<std::string> files_in_dir() const {
+    std::vector<std::string> names;
+    for (const auto& e : fs::recursive_directory_iterator(dir_))
+      names.push_back(e.path().lexically_relative(dir_).string());
+    return names;
+  }
+  fs::path dir_;
+};
+
+uint32_t bits(float v) {
+  uint32_t b;
+  std::memcpy(&b, &v, sizeof b);
+  return b;
+}
+
+// Any finite float, denormals and negative zero included: random bit patterns
+// with the all-ones exponent (Inf/NaN) steered away.
+float finite_from_bits(uint32_t b) {
+  if (((b >> 23) & 0xff) == 0xff) b ^= 0x40000000u;
+  float v;
+  std::memcpy(&v, &b, sizeof v);
+  return v;
+}
+
+FrameBuffers make_frame(int w, int h, int versions, uint32_t seed) {
+  FrameBuffers fb;
+  fb.allocate(w, h, versions);
+  std::mt19937 rng(seed);
+  for (const BufferInfo& b : buffer_infos())
+    for (float& v : buffer_data(fb, b.name)) v = finite_from_bits(rng());
+  // The values most likely to be lost by a careless conversion.
+  const float specials[] = {-0.0f,
+                            std::numeric_limits<float>::denorm_min(),
+                            -std::numeric_limits<float>::denorm_min(),
+                            1e-40f,
+                            std::numeric_limits<float>::max(),
+                            -std::numeric_limits<float>::max(),
+                            std::numeric_limits<float>::min(),
+                            65504.0f,
+                            1e30f};
+  for (size_t i = 0; i < std::min(std::size(specials), fb.plane()); ++i) {
+    fb.noisy[i] = specials[i];
+    fb.coc[i] = specials[i];
+  }
+  fb.camera.frame = 42;
+  fb.camera.time = 1.75f;
+  fb.camera.position[0] = -1.5f;
+  fb.camera.position[1] = 0.1f;
+  fb.camera.position[2] = 1e-7f;
+  fb.camera.rotation[0] = 0.9238795f;
+  fb.camera.rotation[1] = 0.0f;
+  fb.camera.rotation[2] = -0.3826834f;
+  fb.camera.rotation[3] = -0.0f;
+  fb.camera.fov_deg = 39.6f;
+  fb.camera.focal_distance = 3.25f;
+  fb.camera.aperture = 0.0125f;
+  return fb;
+}
+
+void expect_bits_equal(const std::vector<float>& a, const std::vector<float>& b,
+                       const std::string& what) {
+  ASSERT_EQ(a.size(), b.size()) << what;
+  size_t differing = 0;
+  for (size_t i = 0; i < a.size(); ++i) differing += bits(a[i]) != bits(b[i]);
+  EXPECT_EQ(differing, 0u) << what;
+}
+
+void expect_frames_identical(const FrameBuffers& a, const FrameBuffers& b) {
+  EXPECT_EQ(a.width, b.width);
+  EXPECT_EQ(a.height, b.height);
+  EXPECT_EQ(a.versions, b.versions);
+  EXPECT_EQ(a.rect, b.rect);
+  EXPECT_EQ(a.camera.frame, b.camera.frame);
+  EXPECT_EQ(bits(a.camera.time), bits(b.camera.time));
+  for (int i = 0; i < 3; ++i) EXPECT_EQ(bits(a.camera.position[i]), bits(b.camera.position[i]));
+  for (int i = 0; i < 4; ++i) EXPECT_EQ(bits(a.camera.rotation[i]), bits(b.camera.rotation[i]));
+  EXPECT_EQ(bits(a.camera.fov_deg), bits(b.camera.fov_deg));
+  EXPECT_EQ(bits(a.camera.focal_distance), bits(b.camera.focal_distance));
+  EXPECT_EQ(bits(a.camera.aperture), bits(b.camera.aperture));
+  for (const BufferInfo& info : buffer_infos())
+    expect_bits_equal(buffer_data(a, info.name), buffer_data(b, info.name), info.name);
+}
+
+template <typename F>
+std::string error_of(F&& f) {
+  try {
+    f();
+  } catch (const RuntimeError& e) {
+    return e.what();
+  }
+  return "<no RuntimeError>";
+}
+
+TEST_F(ExrIo, FrameRoundTripIsBitExact) {
+  FrameBuffers fb = make_frame(13, 7, 3, 1234);
+  fb.rect = {0, 0, 13, 7};
+  const std::map<std::string, std::string> attrs = {
+      {"dofarm.scene", "scenes/cornell.gltf"},
+      {"dofarm.batch", "b-0017"},
+      {"comments", "spaces, = signs and \"quotes\" survive"},
+      {"dofarm.empty", ""},
+  };
+  const fs::path path = dir_ / "frame.exr";
+  write_frame_exr(path, fb, attrs);
+  const ExrFrame back = read_frame_exr(path);
+  expect_frames_identical(fb, back.buffers);
+  EXPECT_EQ(back.attributes, attrs);
+  EXPECT_EQ(files_in_dir(), std::vector<std::string>{"frame.exr"}) << "temporary file left over";
+}
+
+TEST_F(ExrIo, TileIsStoredAtItsOwnSizeWithItsRect) {
+  FrameBuffers tile = make_frame(5, 3, 2, 99);
+  tile.rect = {64, 32, 5, 3};
+  const fs::path path = dir_ / "tiles" / "f0042" / "tile-64-32.exr";  // parents made on demand
+  write_frame_exr(path, tile);
+
+  Imf::InputFile file(path.c_str());
+  const Imath::Box2i dw = file.header().dataWindow();
+  EXPECT_EQ(dw.min, Imath::V2i(0, 0));
+  EXPECT_EQ(dw.max, Imath::V2i(4, 2));
+  EXPECT_EQ(file.header().displayWindow(), dw);
+
+  const ExrFrame back = read_frame_exr(path);
+  expect_frames_identical(tile, back.buffers);
+  EXPECT_TRUE(back.attributes.empty());
+
+  // The rect read back puts the tile where it belongs in the frame.
+  FrameBuffers frame;
+  frame.allocate(80, 40, 2);
+  frame.paste(back.buffers);
+  EXPECT_EQ(bits(frame.coc[(size_t(32 + 2) * 80) + 64 + 4]), bits(tile.coc[size_t(2) * 5 + 4]));
+}
+
+TEST_F(ExrIo, ChannelNamesFollowTheSchema) {
+  const fs::path path = dir_ / "frame.exr";
+  write_frame_exr(path, make_frame(4, 4, 2, 7));
+  Imf::InputFile file(path.c_str());
+  std::set<std::string> names;
+  for (auto it = file.header().channels().begin(); it != file.header().channels().end(); ++it) {
+    names.insert(it.name());
+    EXPECT_EQ(it.channel().type, Imf::FLOAT) << it.name();
+  }
+  const std::set<std::string> expected = {
+      "noisy.0.R",   "noisy.0.G",   "noisy.0.B",    "noisy.1.R",       "noisy.1.G",
+      "noisy.1.B",   "albedo.0.R",  "albedo.0.G",   "albedo.0.B",      "albedo.1.R",
+      "albedo.1.G",  "albedo.1.B",  "albedo_ref.R", "albedo_ref.G",    "albedo_ref.B",
+      "reference.R", "reference.G", "reference.B",  "reference_var.Y", "normal.X",
+      "normal.Y",    "normal.Z",    "depth.Y",      "roughness.Y",     "coc.Y"};
+  EXPECT_EQ(names, expected);
+  EXPECT_EQ(file.header().compression(), Imf::ZIP_COMPRESSION);
+}
+
+TEST_F(ExrIo, ChannelsHoldTheirPlanes) {
+  // Bit-exact round trips would also pass if two planes were swapped in both
+  // directions; read single channels independently to pin the mapping.
+  FrameBuffers fb;
+  fb.allocate(3, 2, 2);
+  for (const BufferInfo& b : buffer_infos()) {
+    std::vector<float>& data = buffer_data(fb, b.name);
+    for (size_t i = 0; i < data.size(); ++i) data[i] = float(i);
+  }
+  const fs::path path = dir_ / "frame.exr";
+  write_frame_exr(path, fb);
+  Imf::InputFile file(path.c_str());
+  float noisy_1_g[6], normal_z[6];
+  Imf::FrameBuffer slices;
+  slices.insert("noisy.1.G", Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(noisy_1_g),
+                                        sizeof(float), 3 * sizeof(float)));
+  slices.insert("normal.Z", Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(normal_z), sizeof(float),
+                                       3 * sizeof(float)));
+  file.setFrameBuffer(slices);
+  file.readPixels(0, 1);
+  // noisy.1.G is plane v*3 + c = 4 of noisy; normal.Z is plane 2 of normal.
+  for (int i = 0; i < 6; ++i) {
+    EXPECT_EQ(noisy_1_g[i], float(4 * 6 + i));
+    EXPECT_EQ(normal_z[i], float(2 * 6 + i));
+  }
+}
+
+TEST_F(ExrIo, RefusesNonFiniteBuffersAndKeepsTheOldFile) {
+  const fs::path path = dir_ / "frame.exr";
+  const FrameBuffers good = make_frame(6, 4, 2, 5);
+  write_frame_exr(path, good);
+
+  FrameBuffers bad = make_frame(6, 4, 2, 6);
+  bad.noisy[17] = std::numeric_limits<float>::quiet_NaN();
+  bad.depth[0] = std::numeric_limits<float>::infinity();
+  bad.depth[3] = -std::numeric_limits<float>::infinity();
+  const std::string msg = error_of([&] { write_frame_exr(path, bad); });
+  EXPECT_NE(msg.find(path.string()), std::string::npos) << msg;
+  EXPECT_NE(msg.find("noisy has 1"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("depth has 2"), std::string::npos) << msg;
+  EXPECT_EQ(msg.find("albedo"), std::string::npos) << msg;
+
+  EXPECT_EQ(files_in_dir(), std::vector<std::string>{"frame.exr"});
+  expect_frames_identical(good, read_frame_exr(path).buffers);
+
+  const fs::path fresh = dir_ / "never.exr";
+  EXPECT_THROW(write_frame_exr(fresh, bad), RuntimeError);
+  EXPECT_FALSE(fs::exists(fresh));
+}
+
+TEST_F(ExrIo, RefusesAttributeNamesTheHeaderUses) {
+  const fs::path path = dir_ / "frame.exr";
+  for (const char* key : {"dofarm.rect", "dofarm.schema", "compression", "type", ""}) {
+    const std::map<std::string, std::string> attrs = {{std::string(key), "x"}};
+    const std::string msg = error_of([&] { write_frame_exr(path, make_frame(2, 2, 1, 3), attrs); });
+    EXPECT_NE(msg.find("reserved"), std::string::npos) << key << ": " << msg;
+  }
+  EXPECT_TRUE(files_in_dir().empty());
+}
+
+TEST_F(ExrIo, OverwriteReplacesTheFile) {
+  const fs::path path = dir_ / "frame.exr";
+  write_frame_exr(path, make_frame(4, 3, 1, 1), {{"dofarm.try", "1"}});
+  const FrameBuffers second = make_frame(2, 5, 2, 2);
+  write_frame_exr(path, second, {{"dofarm.try", "2"}});
+  const ExrFrame back = read_frame_exr(path);
+  expect_frames_identical(second, back.buffers);
+  EXPECT_EQ(back.attributes.at("dofarm.try"), "2");
+  EXPECT_EQ(files_in_dir(), std::vector<std::string>{"frame.exr"});
+}
+
+TEST_F(ExrIo, MissingFileNamesIt) {
+  const fs::path path = dir_ / "absent.exr";
+  const std::string msg = error_of([&] { read_frame_exr(path); });
+  EXPECT_NE(msg.find(path.string()), std::string::npos) << msg;
+}
+
+TEST_F(ExrIo, TruncatedFileNamesIt) {
+  const fs::path path = dir_ / "frame.exr";
+  write_frame_exr(path, make_frame(32, 16, 2, 11));
+  const std::uintmax_t full = fs::file_size(path);
+  for (std::uintmax_t size : {full / 2, full - 1, std::uintmax_t{40}}) {
+    write_frame_exr(path, make_frame(32, 16, 2, 11));
+    fs::resize_file(path, size);
+    const std::string msg = error_of([&] { read_frame_exr(path); });
+    EXPECT_NE(msg.find(path.string()), std::string::npos) << size << " bytes: " << msg;
+  }
+}
+
+TEST_F(ExrIo, PlainExrIsNotAFrame) {
+  const fs::path path = dir_ / "plain.exr";
+  write_rgb_exr(path, RgbImage{1, 1, {0.5f, 0.25f, 1.0f}});
+  const std::string msg = error_of([&] { read_frame_exr(path); });
+  EXPECT_NE(msg.find(path.string()), std::string::npos) << msg;
+  EXPECT_NE(msg.find("dofarm.schema"), std::string::npos) << msg;
+}
+
+TEST_F(ExrIo, MissingChannelIsNamed) {
+  // A frame EXR rewritten without coc.Y, header attributes kept.
+  const fs::path full = dir_ / "full.exr";
+  write_frame_exr(full, make_frame(3, 2, 1, 8));
+  Imf::Header header = Imf::InputFile(full.c_str()).header();
+  Imf::ChannelList kept;
+  Imf::FrameBuffer zeros;
+  std::vector<float> zero(3 * 2, 0.0f);
+  for (auto it = header.channels().begin(); it != header.channels().end(); ++it) {
+    if (std::string(it.name()) == "coc.Y") continue;
+    kept.insert(it.name(), it.channel());
+    zeros.insert(it.name(), Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(zero.data()),
+                                       sizeof(float), 3 * sizeof(float)));
+  }
+  header.channels() = kept;
+  const fs::path path = dir_ / "no-coc.exr";
+  {
+    Imf::OutputFile out(path.c_str(), header);
+    out.setFrameBuffer(zeros);
+    out.writePixels(2);
+  }
+  const std::string msg = error_of([&] { read_frame_exr(path); });
+  EXPECT_NE(msg.find(path.string()), std::string::npos) << msg;
+  EXPECT_NE(msg.find("coc.Y"), std::string::npos) << msg;
+}
+
+TEST_F(ExrIo, RgbExrLoadsExactly) {
+  RgbImage img{4, 3, {}};
+  for (int i = 0; i < 4 * 3 * 3; ++i) img.rgb.push_back(0.1f * i + 1e-3f / (i + 1));
+  img.rgb[5] = 1e6f;  // no half rounding: 1e6 is beyond half's range
+  const fs::path path = dir_ / "sub" / "rgb.exr";
+  write_rgb_exr(path, img);
+  const RgbImage back = load_rgb_image(path);
+  EXPECT_EQ(back.width, 4);
+  EXPECT_EQ(back.height, 3);
+  expect_bits_equal(back.rgb, img.rgb, "rgb");
+  EXPECT_EQ(back.sanitized_values, 0u);
+}
+
+TEST_F(ExrIo, LoadedImagesHaveNoNanInfOrNegative) {
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  const float inf = std::numeric_limits<float>::infinity();
+  const fs::path path = dir_ / "bad.exr";
+  write_rgb_exr(path, RgbImage{2, 1, {nan, 0.5f, -2.0f, inf, -inf, 3.0f}});
+  const RgbImage back = load_rgb_image(path);
+  EXPECT_EQ(back.rgb, (std::vector<float>{0.0f, 0.5f, 0.0f, 0.0f, 0.0f, 3.0f}));
+  EXPECT_EQ(back.sanitized_values, 4u);
+}
+
+TEST_F(ExrIo, HdrLoadsWithinRgbePrecision) {
+  const int w = 5, h = 2;
+  std::vector<float> rgb;
+  for (int i = 0; i < w * h; ++i) {
+    rgb.push_back(0.01f * (i + 1));
+    rgb.push_back(3.7f * i);
+    rgb.push_back(250.0f / (i + 1));
+  }
+  const fs::path path = dir_ / "env.HDR";  // extensions are case-insensitive
+  ASSERT_NE(stbi_write_hdr(path.c_str(), w, h, 3, rgb.data()), 0);
+  const RgbImage img = load_rgb_image(path, /*srgb=*/true);  // .hdr is linear regardless
+  ASSERT_EQ(img.width, w);
+  ASSERT_EQ(img.height, h);
+  ASSERT_EQ(img.rgb.size(), rgb.size());
+  for (int p = 0; p < w * h; ++p) {
+    // RGBE shares one exponent per pixel with 8-bit mantissas: each channel
+    // is within 1/128 of the pixel's largest channel.
+    const float m = std::max({rgb[3 * p], rgb[3 * p + 1], rgb[3 * p + 2]});
+    for (int c = 0; c < 3; ++c)
+      EXPECT_NEAR(img.rgb[3 * p + c], rgb[3 * p + c], m / 128) << "pixel " << p << " c " << c;
+  }
+}
+
+TEST_F(ExrIo, PngIsSrgbDecoded) {
+  // Grey + alpha: loads as RGB with alpha dropped. Top row first.
+  const unsigned char ga[] = {128, 255, 0, 7, 255, 255, 64, 0};
+  const fs::path path = dir_ / "tex.png";
+  ASSERT_NE(stbi_write_png(path.c_str(), 2, 2, 2, ga, 2 * 2), 0);
+
+  const RgbImage srgb = load_rgb_image(path, true);
+  ASSERT_EQ(srgb.width, 2);
+  ASSERT_EQ(srgb.height, 2);
+  ASSERT_EQ(srgb.rgb.size(), 12u);
+  for (int c = 0; c < 3; ++c) {
+    EXPECT_NEAR(srgb.rgb[c], 0.2158605f, 1e-6f);  // IEC 61966-2-1 at 128/255
+    EXPECT_EQ(srgb.rgb[3 + c], 0.0f);
+    EXPECT_NEAR(srgb.rgb[6 + c], 1.0f, 1e-6f);
+    EXPECT_NEAR(srgb.rgb[9 + c], 0.0512695f, 1e-6f);  // 64/255
+  }
+  const RgbImage raw = load_rgb_image(path, false);
+  EXPECT_EQ(raw.rgb[0], 128 / 255.0f);
+  EXPECT_EQ(raw.rgb[9], 64 / 255.0f);
+}
+
+TEST_F(ExrIo, UnreadableImagesNameTheFile) {
+  const fs::path unknown = dir_ / "tex.webp";
+  { std::ofstream(unknown) << "RIFF"; }
+  std::string msg = error_of([&] { load_rgb_image(unknown); });
+  EXPECT_NE(msg.find(unknown.string()), std::string::npos) << msg;
+  EXPECT_NE(msg.find("extension"), std::string::npos) << msg;
+
+  for (const char* name : {"garbage.png", "garbage.hdr", "garbage.exr", "absent.jpg"}) {
+    const fs::path path = dir_ / name;
+    if (std::string(name) != "absent.jpg") std::ofstream(path) << "not an image at all";
+    msg = error_of([&] { load_rgb_image(path); });
+    EXPECT_NE(msg.find(path.string()), std::string::npos) << msg;
+  }
+}
+
+TEST(Srgb, KnownValuesOfTheCurve) {
+  EXPECT_EQ(srgb_to_linear(0.0f), 0.0f);
+  EXPECT_NEAR(srgb_to_linear(1.0f), 1.0f, 1e-7f);
+  EXPECT_NEAR(srgb_to_linear(0.5f), 0.2140411f, 1e-6f);
+  EXPECT_NEAR(srgb_to_linear(0.02f), 0.02f / 12.92f, 1e-9f);  // linear segment
+  EXPECT_NEAR(linear_to_srgb(0.5f), 0.7353570f, 1e-6f);
+  EXPECT_NEAR(linear_to_srgb(0.001f), 0.01292f, 1e-8f);
+  // The two pieces meet at the knee (0.04045 <-> 0.0031308).
+  EXPECT_NEAR(srgb_to_linear(0.04045f), srgb_to_linear(0.04046f), 1e-6f);
+  EXPECT_NEAR(linear_to_srgb(0.0031308f), 0.04045f, 1e-6f);
+}
+
+TEST(Srgb, RoundTrip) {
+  for (int i = 0; i <= 1000; ++i) {
+    const float v = i / 1000.0f;
+    EXPECT_NEAR(linear_to_srgb(srgb_to_linear(v)), v, 2e-6f) << v;
+    EXPECT_NEAR(srgb_to_linear(linear_to_srgb(v)), v, 2e-6f) << v;
+  }
+}
+
+TEST(ExrIoAssets, StudioHdriLoads) {
+  const fs::path path = fs::path(DOFARM_SOURCE_DIR) / ".." / "shared/assets/hdri/studio.exr";
+  if (!fs::exists(path)) GTEST_SKIP() << path << " not found";
+  const RgbImage img = load_rgb_image(path);
+  EXPECT_EQ(img.width, 1024);
+  EXPECT_EQ(img.height, 512);
+  ASSERT_EQ(img.rgb.size(), size_t(1024) * 512 * 3);
+  double sum = 0;
+  size_t bad = 0;
+  for (float v : img.rgb) {
+    bad += !std::isfinite(v) || v < 0;
+    sum += v;
+  }
+  EXPECT_EQ(bad, 0u);
+  EXPECT_GT(sum, 0.0);  // not silently all black
+}
+
+}  // namespace
+}  // namespace dofarm
