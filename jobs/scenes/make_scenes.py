@@ -339,7 +339,7 @@ def make_cornell(path):
     green = g.material("green", base=(0.12, 0.45, 0.15), roughness=1.0)
     light = g.material("light", base=(0.78, 0.78, 0.78), roughness=1.0, emission=CORNELL_LIGHT)
     metal = g.material("glossy_metal", base=(0.95, 0.64, 0.54), metallic=1.0, roughness=0.2)
-    plastic = g.material("rough_dielectric", base=(0.2, 0.3, 0.8), roughness=0.35, ior=1.5)
+    plastic = g.material("rough_dielectric", base=(0.2, 0.3, 0.8), roughness=0.35, ior=1.46)
 
     # Walls face into the box. The front (z = +1) is open.
     walls = [
