@@ -158,7 +158,9 @@ class ShardReader {
   //   noisy, kAllVersions:   frame_count * V * 3 * h * w
   //   depth (version ignored): frame_count * 1 * h * w
   // Reads only the chunks the crop touches (the trainer's 7-frame 64x64
-  // crops touch at most 4 chunks per frame).
+  // crops touch at most 4 chunks per frame). A crop, frame range or version
+  // outside the shard is a caller bug (DOFARM_CHECK); an unknown buffer name
+  // throws RuntimeError.
   std::vector<float> read_crop(const std::string& buffer, int frame_begin, int frame_count,
                                int version, Rect crop) const;
   // As read_crop(), into caller memory of crop_size() floats.

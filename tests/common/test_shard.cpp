@@ -3,11 +3,13 @@
 #include <hdf5.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <cmath>
 #include <fstream>
 #include <limits>
 #include <nlohmann/json.hpp>
 #include <sstream>
+#include <thread>
 
 #include "common/checksum.h"
 #include "common/inspect.h"
@@ -247,6 +249,28 @@ TEST(Shard, CropsAtEdgesAndAcrossChunksMatchTheFrames) {
       }
     }
   }
+}
+
+// The trainer's background readers share readers across threads; the
+// process-wide HDF5 mutex must keep every crop intact.
+TEST(Shard, ConcurrentCropsFromSeveralThreadsAreIntact) {
+  TempDir dir;
+  auto frames = make_frames();
+  write_shard(dir.path() / "s.h5", make_info(), frames);
+  ShardReader r(dir.path() / "s.h5");
+  std::atomic<int> wrong{0};
+  std::vector<std::thread> threads;
+  for (int t = 0; t < 4; ++t)
+    threads.emplace_back([&, t] {
+      for (int k = 0; k < 25; ++k) {
+        Rect rc{(t * 7 + k * 3) % 40, (k * 5) % 20, 30, 30};
+        int version = (t + k) % kV;
+        if (r.read_crop("noisy", 2, 1, version, rc) != crop_of(frames[2], "noisy", version, rc))
+          ++wrong;
+      }
+    });
+  for (std::thread& th : threads) th.join();
+  EXPECT_EQ(wrong.load(), 0);
 }
 
 TEST(Shard, AttributesRoundTrip) {
