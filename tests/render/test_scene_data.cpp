@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <filesystem>
+#include <fstream>
 #include <string>
 
 #include "common/error.h"
@@ -287,6 +288,29 @@ TEST(LoadSceneData, NanVertexIsAnError) {
     EXPECT_NE(what.find("nan_vertex.gltf"), std::string::npos) << what;
     EXPECT_NE(what.find("not finite"), std::string::npos) << what;
   }
+}
+
+TEST(LoadSceneData, ObjMaterialsMapOntoMetallicRoughness) {
+  // An OBJ without normals: Kd is the base colour, Ns maps to roughness
+  // through alpha = sqrt(2 / (Ns + 2)), Ke is the emission, and smooth normals
+  // are generated.
+  const auto dir = std::filesystem::temp_directory_path() / "dofarm_test_scene_data_obj";
+  std::filesystem::create_directories(dir);
+  {
+    std::ofstream mtl(dir / "quad.mtl");
+    mtl << "newmtl lamp\nKd 0.2 0.4 0.6\nNs 98\nKe 5 4 3\n";
+    std::ofstream obj(dir / "quad.obj");
+    obj << "mtllib quad.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nusemtl lamp\nf 1 2 3 4\n";
+  }
+  SceneData s = load_scene_data(dir / "quad.obj");
+  std::filesystem::remove_all(dir);
+  ASSERT_EQ(s.triangle_count(), 2u);
+  const Material& m = s.materials[s.tri_material[0]];
+  expect_near3(m.base_color, Vec3(0.2f, 0.4f, 0.6f), 1e-6f);
+  EXPECT_NEAR(m.roughness, std::sqrt(std::sqrt(2.0f / 100.0f)), 1e-6f);
+  expect_near3(m.emission, Vec3(5, 4, 3), 1e-6f);
+  EXPECT_FLOAT_EQ(m.metallic, 0.0f);
+  for (Vec3 n : s.normals) expect_near3(n, Vec3(0, 0, 1), 1e-6f);
 }
 
 TEST(LoadSceneData, LightBoxIsClosedWithInwardNormals) {
