@@ -1,0 +1,105 @@
+#include "trainer/metrics.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <fstream>
+#include <map>
+#include <sstream>
+#include <string>
+
+namespace dofarm::trainer {
+namespace {
+
+constexpr int kH = 48, kW = 40, kC = 3;
+
+// The deterministic inputs described in data/ssim_fixture.txt (integer
+// arithmetic only, so C++ and numpy produce the same float32 values).
+struct Fixture {
+  std::vector<float> a, b, d;
+  Fixture() : a(kC * kH * kW), b(a.size()), d(a.size()) {
+    for (int c = 0; c < kC; ++c)
+      for (int y = 0; y < kH; ++y)
+        for (int x = 0; x < kW; ++x) {
+          size_t i = (size_t(c) * kH + y) * kW + x;
+          double av = ((x * 7 + y * 3 + c * 50 + (x * y) % 13) % 256) / 255.0;
+          uint64_t n =
+              (uint64_t(x) * 1103515245u + uint64_t(y) * 12345u + uint64_t(c) * 2654435761u) %
+              (uint64_t(1) << 31);
+          double noise = (double(n % 201) - 100.0) / 1000.0;
+          a[i] = float(av);
+          b[i] = float(std::clamp(double(a[i]) + noise, 0.0, 1.0));
+          d[i] = float(std::clamp(double(a[i]) * 0.5 + 0.25, 0.0, 1.0));
+        }
+  }
+  ImageView view(const std::vector<float>& v) const { return {v.data(), kC, kH, kW}; }
+};
+
+std::map<std::string, double> load_reference_values() {
+  std::ifstream in(std::string(DOFARM_TEST_DATA) + "/ssim_fixture.txt");
+  EXPECT_TRUE(in.good());
+  std::map<std::string, double> out;
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.empty() || line[0] == '#') continue;
+    std::istringstream ls(line);
+    std::string name;
+    double v;
+    ls >> name >> v;
+    out[name] = v;
+  }
+  return out;
+}
+
+TEST(Ssim, EqualsScikitImageWithin1e6) {
+  auto ref = load_reference_values();
+  ASSERT_EQ(ref.size(), 3u);
+  Fixture f;
+  EXPECT_NEAR(ssim(f.view(f.a), f.view(f.b)), ref["noisy"], 1e-6);
+  EXPECT_NEAR(ssim(f.view(f.a), f.view(f.d)), ref["contrast"], 1e-6);
+  EXPECT_NEAR(ssim(f.view(f.a), f.view(f.a)), ref["same"], 1e-12);
+}
+
+TEST(Ssim, MaskSelectsPixelsAndEmptyMaskIsNaN) {
+  Fixture f;
+  std::vector<uint8_t> all(kH * kW, 1), none(kH * kW, 0);
+  EXPECT_DOUBLE_EQ(ssim(f.view(f.a), f.view(f.b), all.data()), ssim(f.view(f.a), f.view(f.b)));
+  EXPECT_TRUE(std::isnan(ssim(f.view(f.a), f.view(f.b), none.data())));
+  // The halves of a mask average back to the whole (equal valid counts).
+  std::vector<uint8_t> left(kH * kW, 0), right(kH * kW, 0);
+  for (int y = 0; y < kH; ++y)
+    for (int x = 0; x < kW; ++x) (x < kW / 2 ? left : right)[y * kW + x] = 1;
+  double l = ssim(f.view(f.a), f.view(f.b), left.data());
+  double r = ssim(f.view(f.a), f.view(f.b), right.data());
+  EXPECT_NEAR(0.5 * (l + r), ssim(f.view(f.a), f.view(f.b)), 1e-12);
+  EXPECT_NE(l, r);
+}
+
+TEST(Psnr, KnownValueAndCapForIdenticalImages) {
+  std::vector<float> a(3 * 4 * 4, 0.5f), b(a.size(), 0.6f);
+  ImageView va{a.data(), 3, 4, 4}, vb{b.data(), 3, 4, 4};
+  EXPECT_NEAR(psnr(va, vb), 20.0, 1e-4);  // mse 0.01
+  EXPECT_EQ(psnr(va, va), kPsnrCap);
+}
+
+TEST(RelativeMse, MatchesDefinition) {
+  std::vector<float> r = {0.0f, 1.0f, 10.0f}, d = {0.1f, 1.5f, 10.0f};
+  ImageView vr{r.data(), 1, 1, 3}, vd{d.data(), 1, 1, 3};
+  double expect = (0.01 / 0.01 + 0.25 / 1.01 + 0.0) / 3.0;
+  EXPECT_NEAR(relative_mse(vd, vr), expect, 1e-6);
+  uint8_t mask[3] = {0, 1, 0};
+  EXPECT_NEAR(relative_mse(vd, vr, mask), 0.25 / 1.01, 1e-6);
+}
+
+TEST(DisplayEncode, SrgbCurveAndClamp) {
+  EXPECT_FLOAT_EQ(srgb_encode_clamped(0.0f), 0.0f);
+  EXPECT_FLOAT_EQ(srgb_encode_clamped(-1.0f), 0.0f);
+  EXPECT_FLOAT_EQ(srgb_encode_clamped(NAN), 0.0f);
+  EXPECT_FLOAT_EQ(srgb_encode_clamped(1.0f), 1.0f);
+  EXPECT_FLOAT_EQ(srgb_encode_clamped(7.0f), 1.0f);
+  EXPECT_NEAR(srgb_encode_clamped(0.18f), 0.4613f, 1e-4);    // middle grey
+  EXPECT_NEAR(srgb_encode_clamped(0.002f), 0.02584f, 1e-6);  // linear toe
+}
+
+}  // namespace
+}  // namespace dofarm::trainer

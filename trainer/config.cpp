@@ -1,0 +1,339 @@
+#include "trainer/config.h"
+
+#include <toml++/toml.h>
+
+#include <cmath>
+#include <fstream>
+#include <functional>
+#include <limits>
+#include <sstream>
+
+#include "common/error.h"
+
+namespace dofarm::trainer {
+
+std::vector<int> ModelConfig::effective_channels() const {
+  if (!channels.empty()) return channels;
+  // Thesis 4.2: the CoC model is widened so that the extra input has capacity.
+  if (dof) return {36, 48, 64, 85, 113};
+  return {32, 43, 57, 76, 101};
+}
+
+int ModelConfig::effective_bottleneck() const {
+  return bottleneck > 0 ? bottleneck : effective_channels().back();
+}
+
+namespace {
+
+// One config key: how to read it from a TOML node, how to write it back, and
+// whether changing it makes an existing checkpoint meaningless.
+struct Field {
+  std::string key;  // "section.name"
+  bool affects_model = false;
+  // Reads `node` into the config; returns an error message or "".
+  std::function<std::string(const toml::node&)> read;
+  std::function<void(toml::table&, const std::string&)> write;
+};
+
+std::string describe(const toml::node& n) {
+  std::ostringstream os;
+  if (n.is_string()) {
+    os << '"' << n.as_string()->get() << '"';
+  } else if (n.is_table()) {
+    os << "a table";
+  } else if (n.is_array()) {
+    os << "an array";
+  } else {
+    n.visit([&](auto&& v) { os << v; });
+  }
+  return os.str();
+}
+
+template <typename T>
+Field number_field(std::string key, T* p, double lo, double hi, bool affects_model) {
+  Field f;
+  f.key = std::move(key);
+  f.affects_model = affects_model;
+  f.read = [p, lo, hi](const toml::node& n) -> std::string {
+    double v = 0;
+    if constexpr (std::is_integral_v<T>) {
+      if (!n.is_integer())
+        return "expected an integer in [" + std::to_string(int64_t(lo)) + ", " +
+               std::to_string(int64_t(hi)) + "], got " + describe(n);
+      v = double(n.as_integer()->get());
+    } else {
+      if (!n.is_number()) return "expected a number, got " + describe(n);
+      v = n.is_integer() ? double(n.as_integer()->get()) : n.as_floating_point()->get();
+    }
+    if (!std::isfinite(v) || v < lo || v > hi) {
+      std::ostringstream os;
+      os << "expected a value in [" << lo << ", " << hi << "], got " << describe(n);
+      return os.str();
+    }
+    *p = static_cast<T>(v);
+    return "";
+  };
+  f.write = [p](toml::table& t, const std::string& name) {
+    if constexpr (std::is_integral_v<T>)
+      t.insert_or_assign(name, int64_t(*p));
+    else
+      t.insert_or_assign(name, double(*p));
+  };
+  return f;
+}
+
+Field bool_field(std::string key, bool* p, bool affects_model) {
+  Field f;
+  f.key = std::move(key);
+  f.affects_model = affects_model;
+  f.read = [p](const toml::node& n) -> std::string {
+    if (!n.is_boolean()) return "expected true or false, got " + describe(n);
+    *p = n.as_boolean()->get();
+    return "";
+  };
+  f.write = [p](toml::table& t, const std::string& name) { t.insert_or_assign(name, *p); };
+  return f;
+}
+
+template <typename E>
+Field enum_field(std::string key, E* p, std::vector<std::pair<std::string, E>> names,
+                 bool affects_model) {
+  Field f;
+  f.key = std::move(key);
+  f.affects_model = affects_model;
+  f.read = [p, names](const toml::node& n) -> std::string {
+    std::string allowed;
+    for (const auto& [s, e] : names) allowed += (allowed.empty() ? "" : " | ") + s;
+    if (!n.is_string()) return "expected one of " + allowed + ", got " + describe(n);
+    for (const auto& [s, e] : names) {
+      if (s == n.as_string()->get()) {
+        *p = e;
+        return "";
+      }
+    }
+    return "expected one of " + allowed + ", got " + describe(n);
+  };
+  f.write = [p, names](toml::table& t, const std::string& name) {
+    for (const auto& [s, e] : names)
+      if (e == *p) t.insert_or_assign(name, s);
+  };
+  return f;
+}
+
+Field int_list_field(std::string key, std::vector<int>* p, bool affects_model) {
+  Field f;
+  f.key = std::move(key);
+  f.affects_model = affects_model;
+  f.read = [p](const toml::node& n) -> std::string {
+    const toml::array* a = n.as_array();
+    if (!a) return "expected an array of positive integers, got " + describe(n);
+    std::vector<int> out;
+    for (const toml::node& e : *a) {
+      if (!e.is_integer() || e.as_integer()->get() < 1 || e.as_integer()->get() > 4096)
+        return "expected an array of integers in [1, 4096], got element " + describe(e);
+      out.push_back(int(e.as_integer()->get()));
+    }
+    *p = std::move(out);
+    return "";
+  };
+  f.write = [p](toml::table& t, const std::string& name) {
+    toml::array a;
+    for (int v : *p) a.push_back(int64_t(v));
+    t.insert_or_assign(name, std::move(a));
+  };
+  return f;
+}
+
+Field device_field(std::string key, std::string* p) {
+  Field f;
+  f.key = std::move(key);
+  f.read = [p](const toml::node& n) -> std::string {
+    if (!n.is_string() || (n.as_string()->get() != "auto" && n.as_string()->get() != "cpu" &&
+                           n.as_string()->get() != "cuda"))
+      return "expected \"auto\", \"cpu\" or \"cuda\", got " + describe(n);
+    *p = n.as_string()->get();
+    return "";
+  };
+  f.write = [p](toml::table& t, const std::string& name) { t.insert_or_assign(name, *p); };
+  return f;
+}
+
+// The table of every key. Ranges are the sanity limits that turn a typo into an
+// error instead of a week of wasted training.
+std::vector<Field> fields(TrainConfig& c) {
+  constexpr double kBig = 1e9;
+  std::vector<Field> f;
+  auto& m = c.model;
+  f.push_back(bool_field("model.dof", &m.dof, true));
+  f.push_back(int_list_field("model.channels", &m.channels, true));
+  f.push_back(number_field("model.bottleneck", &m.bottleneck, 0, 4096, true));
+  f.push_back(bool_field("model.recurrent", &m.recurrent, true));
+  f.push_back(number_field("model.leaky_slope", &m.leaky_slope, 0.0, 1.0, true));
+  auto& d = c.data;
+  f.push_back(number_field("data.sequence", &d.sequence, 1, 64, false));
+  f.push_back(number_field("data.crop", &d.crop, 32, 4096, false));
+  f.push_back(number_field("data.stop_probability", &d.stop_probability, 0.0, 0.95, false));
+  f.push_back(number_field("data.reverse_probability", &d.reverse_probability, 0.0, 1.0, false));
+  f.push_back(bool_field("data.rotate", &d.rotate, false));
+  f.push_back(enum_field(
+      "data.albedo", &d.albedo,
+      {{"reference", AlbedoSource::kReference}, {"version", AlbedoSource::kVersion}}, true));
+  f.push_back(number_field("data.demod_eps", &d.demod_eps, 1e-6, 1.0, true));
+  f.push_back(number_field("data.coc_log_scale", &d.coc_log_scale, 1e-3, 100.0, true));
+  f.push_back(enum_field("data.split", &d.split,
+                         {{"frames", SplitMode::kFrames}, {"shard", SplitMode::kShard}}, true));
+  f.push_back(number_field("data.val_fraction", &d.val_fraction, 0.0, 0.9, true));
+  f.push_back(number_field("data.queue", &d.queue, 1, 100000, false));
+  f.push_back(number_field("data.readers", &d.readers, 1, 256, false));
+  f.push_back(number_field("data.rescan_seconds", &d.rescan_seconds, 0.1, 86400.0, false));
+  auto& l = c.loss;
+  f.push_back(number_field("loss.l1", &l.l1, 0.0, 1e3, false));
+  f.push_back(number_field("loss.log", &l.log, 0.0, 1e3, false));
+  f.push_back(number_field("loss.log_sigma", &l.log_sigma, 0.3, 8.0, false));
+  f.push_back(number_field("loss.temporal", &l.temporal, 0.0, 1e3, false));
+  auto& o = c.train;
+  f.push_back(number_field("train.epochs", &o.epochs, 1, kBig, false));
+  f.push_back(number_field("train.steps_per_epoch", &o.steps_per_epoch, 1, kBig, false));
+  f.push_back(number_field("train.batch", &o.batch, 1, 4096, false));
+  f.push_back(number_field("train.lr", &o.lr, 1e-9, 1.0, false));
+  f.push_back(number_field("train.beta1", &o.beta1, 0.0, 0.99999, false));
+  f.push_back(number_field("train.beta2", &o.beta2, 0.0, 0.99999999, false));
+  f.push_back(number_field("train.warmup_steps", &o.warmup_steps, 0, kBig, false));
+  f.push_back(number_field("train.lr_decay", &o.lr_decay, 0.01, 1.0, false));
+  f.push_back(number_field("train.lr_min", &o.lr_min, 0.0, 1.0, false));
+  f.push_back(number_field("train.seed", &o.seed, 0, 9.0e15, true));
+  f.push_back(number_field("train.val_sequences", &o.val_sequences, 0, 1000000, false));
+  f.push_back(device_field("train.device", &o.device));
+  f.push_back(number_field("train.max_bad_steps", &o.max_bad_steps, 1, 1000000, false));
+  f.push_back(number_field("train.rollback_lr_factor", &o.rollback_lr_factor, 0.01, 1.0, false));
+  return f;
+}
+
+FileLoc loc_of(const toml::node& n, const std::filesystem::path& file) {
+  const auto& b = n.source().begin;
+  return FileLoc{file.string(), int(b.line), int(b.column)};
+}
+
+// Applies `node` to the key `key` or throws a located SpecError.
+void apply(std::vector<Field>& fs, const std::string& key, const toml::node& node,
+           const FileLoc& loc) {
+  for (Field& f : fs) {
+    if (f.key != key) continue;
+    std::string err = f.read(node);
+    if (!err.empty()) throw SpecError(loc, key.substr(key.find('.') + 1), err);
+    return;
+  }
+  throw SpecError(loc, key, "unknown key");
+}
+
+void apply_table(std::vector<Field>& fs, const toml::table& root,
+                 const std::filesystem::path& file) {
+  for (const auto& [section, node] : root) {
+    std::string s(section.str());
+    const toml::table* t = node.as_table();
+    if (!t) {
+      throw SpecError(loc_of(node, file), s,
+                      "unknown key (settings live in [model], [data], [loss] or [train])");
+    }
+    for (const auto& [name, value] : *t)
+      apply(fs, s + "." + std::string(name.str()), value, loc_of(value, file));
+  }
+}
+
+void check_consistency(const TrainConfig& c, const FileLoc& loc) {
+  if (c.data.crop % 32 != 0)
+    throw SpecError(
+        loc, "crop",
+        "must be a multiple of 32 (five 2x2 poolings), got " + std::to_string(c.data.crop));
+  if (!c.model.channels.empty() && c.model.channels.size() != 5)
+    throw SpecError(loc, "channels",
+                    "expected 5 encoder widths, got " + std::to_string(c.model.channels.size()));
+  if (c.train.lr_min > c.train.lr) throw SpecError(loc, "lr_min", "must not exceed train.lr");
+}
+
+TrainConfig parse_impl(const toml::table* root, const std::filesystem::path& file,
+                       const std::vector<std::string>& overrides) {
+  TrainConfig cfg;
+  std::vector<Field> fs = fields(cfg);
+  if (root) apply_table(fs, *root, file);
+  for (const std::string& ov : overrides) {
+    FileLoc loc{"--set " + ov};
+    size_t eq = ov.find('=');
+    if (eq == std::string::npos || eq == 0)
+      throw SpecError(loc, "", "expected KEY=VALUE, e.g. train.epochs=2");
+    std::string key = ov.substr(0, eq), value = ov.substr(eq + 1);
+    toml::table parsed;
+    try {
+      parsed = toml::parse("v = " + value);
+    } catch (const toml::parse_error&) {
+      // An unquoted word (train.device=cuda) is taken as a string.
+      parsed = toml::table{{"v", value}};
+    }
+    apply(fs, key, *parsed.get("v"), loc);
+  }
+  check_consistency(cfg, FileLoc{file.string()});
+  return cfg;
+}
+
+}  // namespace
+
+TrainConfig parse_train_config(const std::string& toml_text,
+                               const std::filesystem::path& virtual_path,
+                               const std::vector<std::string>& overrides) {
+  toml::table root;
+  try {
+    root = toml::parse(toml_text, virtual_path.string());
+  } catch (const toml::parse_error& e) {
+    const auto& b = e.source().begin;
+    throw SpecError(FileLoc{virtual_path.string(), int(b.line), int(b.column)}, "",
+                    std::string(e.description()));
+  }
+  return parse_impl(&root, virtual_path, overrides);
+}
+
+TrainConfig load_train_config(const std::filesystem::path& path,
+                              const std::vector<std::string>& overrides) {
+  if (path.empty()) return parse_impl(nullptr, "", overrides);
+  std::ifstream in(path);
+  if (!in) throw SpecError(FileLoc{path.string()}, "", "cannot open the training config");
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return parse_train_config(ss.str(), path, overrides);
+}
+
+std::string to_toml(const TrainConfig& cfg_in) {
+  TrainConfig cfg = cfg_in;  // fields() needs mutable pointers; nothing is changed
+  toml::table root;
+  for (const Field& f : fields(cfg)) {
+    size_t dot = f.key.find('.');
+    std::string section = f.key.substr(0, dot);
+    if (!root.contains(section)) root.insert(section, toml::table{});
+    f.write(*root.get_as<toml::table>(section), f.key.substr(dot + 1));
+  }
+  std::ostringstream os;
+  os << "# Effective training config of this run (written by dofarm-train).\n" << root << "\n";
+  return os.str();
+}
+
+std::string incompatible_reason(const TrainConfig& saved_in, const TrainConfig& wanted_in) {
+  TrainConfig saved = saved_in, wanted = wanted_in;
+  std::vector<Field> a = fields(saved), b = fields(wanted);
+  std::string reason;
+  for (size_t i = 0; i < a.size(); ++i) {
+    if (!a[i].affects_model) continue;
+    toml::table ta, tb;
+    a[i].write(ta, "v");
+    b[i].write(tb, "v");
+    std::ostringstream sa, sb;
+    sa << ta;
+    sb << tb;
+    if (sa.str() != sb.str()) {
+      std::string va = sa.str().substr(4), vb = sb.str().substr(4);
+      reason +=
+          (reason.empty() ? "" : "; ") + a[i].key + " is " + va + " in the run but " + vb + " now";
+    }
+  }
+  return reason;
+}
+
+}  // namespace dofarm::trainer

@@ -1,0 +1,104 @@
+// Training configuration (docs/trainer.md lists every key with its default).
+//
+// TrainConfig is a plain struct; its in-class initialisers are the defaults and
+// the only place they live (STYLE.md 2, 8). load_train_config() reads a TOML
+// file plus `--set section.key=value` overrides and throws SpecError
+// ("train.toml:12:3: "epochs": expected a positive integer, got -1") on the
+// first bad value or unknown key. The run folder keeps the effective config as
+// config.toml; resuming compares it with the new one (incompatible_reason()).
+#pragma once
+
+#include <cstdint>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+namespace dofarm::trainer {
+
+enum class AlbedoSource {
+  kReference,  // `albedo_ref` (N spp through the lens): low-noise demodulation
+  kVersion,    // the 1-spp `albedo` of the same noisy version (what a game has)
+};
+
+enum class SplitMode {
+  kFrames,  // last val_fraction of every shard's frames is validation
+  kShard,   // whole shards are validation, chosen by a hash of the file name
+};
+
+struct ModelConfig {
+  bool dof = true;            // CoC input channel (thesis ch. 4.2)
+  std::vector<int> channels;  // encoder widths; empty = thesis defaults
+  int bottleneck = 0;         // 0 = same as the last encoder width
+  bool recurrent = false;     // Chaitanya 2017 recurrent encoder blocks
+  float leaky_slope = 0.1f;   // LeakyReLU negative slope (thesis 4.2)
+
+  // Thesis defaults: 32,43,57,76,101 (RAE widths); 36,48,64,85,113 with CoC.
+  std::vector<int> effective_channels() const;
+  int effective_bottleneck() const;
+  int input_channels() const { return dof ? 12 : 11; }
+};
+
+struct DataConfig {
+  int sequence = 7;                  // frames per training sequence (thesis 4.3.3)
+  int crop = 64;                     // square crop side, pixels
+  float stop_probability = 0.25f;    // per frame: the camera "stops" (thesis 4.3.3)
+  float reverse_probability = 0.5f;  // per sequence (thesis 4.3.3)
+  bool rotate = true;                // one of 0/90/180/270 degrees per sequence
+  AlbedoSource albedo = AlbedoSource::kReference;
+  float demod_eps = 1e-3f;        // radiance / (albedo + eps)
+  float coc_log_scale = 3.4965f;  // ln(1 + 32): a 32-pixel CoC maps to 1
+  SplitMode split = SplitMode::kFrames;
+  float val_fraction = 0.1f;     // of frames (kFrames) or of shards (kShard)
+  int queue = 32;                // sequences held ready (bounds memory)
+  int readers = 2;               // background reader threads
+  float rescan_seconds = 10.0f;  // look for new shards this often
+};
+
+struct LossConfig {
+  float l1 = 0.8f;         // thesis eq. 4.2
+  float log = 0.2f;        // Laplacian-of-Gaussian gradient term, eq. 4.3-4.4
+  float log_sigma = 1.0f;  // LoG scale, pixels
+  float temporal = 0.0f;   // L1 of frame differences (recurrent model only)
+};
+
+struct OptimConfig {
+  int epochs = 100;
+  int steps_per_epoch = 250;
+  int batch = 4;       // sequences per batch (thesis 4.3)
+  float lr = 1e-3f;    // peak learning rate
+  float beta1 = 0.9f;  // Adam (thesis 4.3)
+  float beta2 = 0.99f;
+  int warmup_steps = 500;  // linear ramp up to lr (eq. 4.5, first branch)
+  float lr_decay = 0.97f;  // per epoch after warm-up (eq. 4.5, second branch)
+  float lr_min = 1e-6f;
+  uint64_t seed = 1;
+  int val_sequences = 32;       // drawn deterministically each epoch
+  std::string device = "auto";  // auto | cpu | cuda
+  int max_bad_steps = 3;        // consecutive non-finite steps before a rollback
+  float rollback_lr_factor = 0.5f;
+};
+
+struct TrainConfig {
+  ModelConfig model;
+  DataConfig data;
+  LossConfig loss;
+  OptimConfig train;
+};
+
+// Parses `path` (empty path: defaults only) and applies overrides in order.
+TrainConfig load_train_config(const std::filesystem::path& path,
+                              const std::vector<std::string>& overrides = {});
+// Parses TOML text as if it were the file `virtual_path`.
+TrainConfig parse_train_config(const std::string& toml_text,
+                               const std::filesystem::path& virtual_path,
+                               const std::vector<std::string>& overrides = {});
+
+// Every key, with its current value, as TOML (round-trips through parse).
+std::string to_toml(const TrainConfig& cfg);
+
+// Why a run saved with `saved` cannot be resumed with `wanted` (keys that change
+// the model or its inputs differ); empty when compatible. Schedule keys such as
+// train.epochs may change.
+std::string incompatible_reason(const TrainConfig& saved, const TrainConfig& wanted);
+
+}  // namespace dofarm::trainer

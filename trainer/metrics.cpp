@@ -1,0 +1,135 @@
+#include "trainer/metrics.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <limits>
+
+#include "common/error.h"
+
+namespace dofarm::trainer {
+
+float srgb_encode_clamped(float v) {
+  if (!(v > 0.0f)) return 0.0f;  // negatives and NaN display as black
+  float e = v <= 0.0031308f ? 12.92f * v : 1.055f * std::pow(v, 1.0f / 2.4f) - 0.055f;
+  return std::min(e, 1.0f);
+}
+
+std::vector<float> display_encode(ImageView img) {
+  size_t n = size_t(img.channels) * img.plane();
+  std::vector<float> out(n);
+  for (size_t i = 0; i < n; ++i) out[i] = srgb_encode_clamped(img.data[i]);
+  return out;
+}
+
+namespace {
+
+void check_same_shape(ImageView a, ImageView b) {
+  DOFARM_CHECK_EQ(a.channels, b.channels);
+  DOFARM_CHECK_EQ(a.height, b.height);
+  DOFARM_CHECK_EQ(a.width, b.width);
+}
+
+constexpr int kRadius = 5;  // 11x11 window: scipy's truncate 3.5 * sigma 1.5, rounded
+
+// Normalised 1-D Gaussian, sigma 1.5 (Wang 2004, section III-C).
+std::array<double, 2 * kRadius + 1> gaussian_window() {
+  std::array<double, 2 * kRadius + 1> w{};
+  double sum = 0;
+  for (int i = -kRadius; i <= kRadius; ++i) sum += w[i + kRadius] = std::exp(-i * i / 4.5);
+  for (double& v : w) v /= sum;
+  return w;
+}
+
+// Gaussian-filtered `src` (H, W) on the valid region only: out is
+// (H - 2r) x (W - 2r). Separable: rows, then columns.
+std::vector<double> filter_valid(const std::vector<double>& src, int h, int w) {
+  static const auto g = gaussian_window();
+  int vw = w - 2 * kRadius, vh = h - 2 * kRadius;
+  std::vector<double> rows(size_t(h) * vw);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < vw; ++x) {
+      double s = 0;
+      for (int k = 0; k <= 2 * kRadius; ++k) s += g[k] * src[size_t(y) * w + x + k];
+      rows[size_t(y) * vw + x] = s;
+    }
+  std::vector<double> out(size_t(vh) * vw);
+  for (int y = 0; y < vh; ++y)
+    for (int x = 0; x < vw; ++x) {
+      double s = 0;
+      for (int k = 0; k <= 2 * kRadius; ++k) s += g[k] * rows[size_t(y + k) * vw + x];
+      out[size_t(y) * vw + x] = s;
+    }
+  return out;
+}
+
+}  // namespace
+
+double ssim(ImageView a, ImageView b, const uint8_t* mask) {
+  check_same_shape(a, b);
+  const int h = a.height, w = a.width;
+  if (h <= 2 * kRadius || w <= 2 * kRadius) return std::numeric_limits<double>::quiet_NaN();
+  const double c1 = 0.01 * 0.01, c2 = 0.03 * 0.03;  // (K L)^2 with L = 1
+  const int vh = h - 2 * kRadius, vw = w - 2 * kRadius;
+  double total = 0;
+  size_t count = 0;
+  std::vector<double> x(size_t(h) * w), y(x.size()), xx(x.size()), yy(x.size()), xy(x.size());
+  for (int c = 0; c < a.channels; ++c) {
+    const float* pa = a.data + size_t(c) * a.plane();
+    const float* pb = b.data + size_t(c) * b.plane();
+    for (size_t i = 0; i < x.size(); ++i) {
+      x[i] = pa[i];
+      y[i] = pb[i];
+      xx[i] = x[i] * x[i];
+      yy[i] = y[i] * y[i];
+      xy[i] = x[i] * y[i];
+    }
+    auto mx = filter_valid(x, h, w), my = filter_valid(y, h, w);
+    auto mxx = filter_valid(xx, h, w), myy = filter_valid(yy, h, w), mxy = filter_valid(xy, h, w);
+    for (int j = 0; j < vh; ++j)
+      for (int i = 0; i < vw; ++i) {
+        if (mask && !mask[size_t(j + kRadius) * w + i + kRadius]) continue;
+        size_t k = size_t(j) * vw + i;
+        double vx = mxx[k] - mx[k] * mx[k], vy = myy[k] - my[k] * my[k];
+        double cxy = mxy[k] - mx[k] * my[k];
+        total += (2 * mx[k] * my[k] + c1) * (2 * cxy + c2) /
+                 ((mx[k] * mx[k] + my[k] * my[k] + c1) * (vx + vy + c2));
+        ++count;
+      }
+  }
+  return count ? total / double(count) : std::numeric_limits<double>::quiet_NaN();
+}
+
+double psnr(ImageView a, ImageView b, const uint8_t* mask) {
+  check_same_shape(a, b);
+  double se = 0;
+  size_t count = 0;
+  for (int c = 0; c < a.channels; ++c)
+    for (size_t p = 0; p < a.plane(); ++p) {
+      if (mask && !mask[p]) continue;
+      double d = double(a.data[c * a.plane() + p]) - b.data[c * b.plane() + p];
+      se += d * d;
+      ++count;
+    }
+  if (!count) return std::numeric_limits<double>::quiet_NaN();
+  double mse = se / double(count);
+  if (mse <= std::pow(10.0, -kPsnrCap / 10.0)) return kPsnrCap;
+  return -10.0 * std::log10(mse);
+}
+
+double relative_mse(ImageView d, ImageView r, const uint8_t* mask) {
+  check_same_shape(d, r);
+  double sum = 0;
+  size_t count = 0;
+  for (int c = 0; c < d.channels; ++c)
+    for (size_t p = 0; p < d.plane(); ++p) {
+      if (mask && !mask[p]) continue;
+      double ref = r.data[c * r.plane() + p];
+      double diff = double(d.data[c * d.plane() + p]) - ref;
+      sum += diff * diff / (ref * ref + 0.01);
+      ++count;
+    }
+  return count ? sum / double(count) : std::numeric_limits<double>::quiet_NaN();
+}
+
+}  // namespace dofarm::trainer

@@ -1,0 +1,45 @@
+// Image quality metrics of the evaluation (thesis 5.1, table 5.1).
+//
+// Images are channel-first float arrays (C, H, W). SSIM and PSNR are taken on
+// display values: linear radiance through the sRGB transfer curve, clamped to
+// [0, 1] (display_encode()); relative MSE on the linear HDR values. Every
+// metric takes an optional per-pixel mask (H*W bytes, non-zero = counted) so the
+// evaluation can split in-focus (CoC < 1 px) from out-of-focus pixels.
+//
+// Plain C++ on purpose: an implementation independent of the one being
+// trained, checked against scikit-image (tests/trainer/data/ssim_fixture.txt).
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+namespace dofarm::trainer {
+
+struct ImageView {
+  const float* data = nullptr;
+  int channels = 0, height = 0, width = 0;
+  size_t plane() const { return size_t(height) * width; }
+};
+
+// IEC 61966-2-1 sRGB encoding of a linear value, then clamped to [0, 1].
+float srgb_encode_clamped(float linear);
+std::vector<float> display_encode(ImageView linear);
+
+// SSIM of Wang et al. 2004: 11x11 Gaussian window, sigma 1.5, K1 0.01,
+// K2 0.03, data range 1, population (not sample) covariances, only windows that
+// lie fully inside the image ("valid"), mean over channels. Equals
+// skimage.metrics.structural_similarity(gaussian_weights=True, sigma=1.5,
+// use_sample_covariance=False, data_range=1). With a mask, the SSIM map is
+// averaged over the valid pixels whose centre is masked in; NaN when none is.
+double ssim(ImageView a, ImageView b, const uint8_t* mask = nullptr);
+
+// Peak signal-to-noise ratio for data range 1, in dB, capped at kPsnrCap for
+// identical images so that no infinity reaches a report. NaN for an empty mask.
+inline constexpr double kPsnrCap = 100.0;
+double psnr(ImageView a, ImageView b, const uint8_t* mask = nullptr);
+
+// Relative MSE on linear HDR: mean over pixels and channels of
+// (d - r)^2 / (r^2 + 0.01) (Rousselle et al. 2011's regularised form).
+double relative_mse(ImageView denoised, ImageView reference, const uint8_t* mask = nullptr);
+
+}  // namespace dofarm::trainer
