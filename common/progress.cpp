@@ -69,6 +69,8 @@ void Progress::report(bool final) {
 
 std::string format_duration(double seconds) {
   if (!(seconds >= 0) || !std::isfinite(seconds)) return "?";
+  // An early, tiny rate can predict absurd times; do not pretend precision.
+  if (seconds >= 100 * 3600.0) return ">100h";
   auto s = static_cast<int64_t>(std::llround(seconds));
   if (s < 60) return fmt::format("{}s", s);
   if (s < 3600) return fmt::format("{}m{:02}s", s / 60, s % 60);
