@@ -281,7 +281,7 @@ class Section {
     return p;
   }
 
-  // A sub-table; `what` says how it is written for the error message.
+  // A sub-table (absent: a Section whose getters all return nullopt).
   Section table(std::string_view k) const {
     const toml::node* n = find(k);
     const toml::table* t = nullptr;
