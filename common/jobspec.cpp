@@ -296,7 +296,8 @@ class Section {
     const toml::node* n = find(k);
     if (!n) return nullptr;
     const auto* a = n->as_array();
-    if (!a || !a->is_array_of_tables()) {
+    // An empty array has no element type; it is an empty list of keys.
+    if (!a || (!a->empty() && !a->is_array_of_tables())) {
       fail_at(k, "expected an array of tables ([[" + key(k) + "]]), got " +
                      (a ? std::string("an array of values") : describe(*n)));
     }
