@@ -1,0 +1,172 @@
+#include "trainer/model.h"
+
+#include <torch/script.h>
+
+#include <sstream>
+
+#include "common/error.h"
+
+namespace dofarm::trainer {
+
+DenoiserImpl::DenoiserImpl(const ModelConfig& cfg)
+    : cfg_(cfg), widths_(cfg.effective_channels()), bottleneck_(cfg.effective_bottleneck()) {
+  DOFARM_CHECK_EQ(int(widths_.size()), kLevels);
+  int in = cfg.input_channels();
+  enc_.resize(kLevels);
+  for (int i = 0; i < kLevels; ++i) {
+    const int w = widths_[i];
+    // Recurrent block (Chaitanya 2017, fig. 3): the previous frame's block
+    // output is concatenated with this frame's block input.
+    const int first_in = in + (cfg.recurrent ? w : 0);
+    enc_[i].push_back(add_conv("e" + std::to_string(i) + "_0", first_in, w));
+    enc_[i].push_back(add_conv("e" + std::to_string(i) + "_1", w, w));
+    enc_[i].push_back(add_conv("e" + std::to_string(i) + "_2", w, w));
+    in = w;
+  }
+  mid_.push_back(add_conv("m_0", in, bottleneck_));
+  mid_.push_back(add_conv("m_1", bottleneck_, bottleneck_));
+  in = bottleneck_;
+  dec_.resize(kLevels);
+  for (int i = kLevels - 1; i >= 0; --i) {
+    const int w = widths_[i];
+    dec_[i].push_back(add_conv("d" + std::to_string(i) + "_0", in + w, w));
+    dec_[i].push_back(add_conv("d" + std::to_string(i) + "_1", w, w));
+    in = w;
+  }
+  out_ = add_conv("out", in, 3);
+}
+
+DenoiserImpl::Conv DenoiserImpl::add_conv(const std::string& name, int in, int out) {
+  Conv c;
+  c.name = name;
+  c.conv =
+      register_module(name, torch::nn::Conv2d(torch::nn::Conv2dOptions(in, out, 3).padding(1)));
+  // He initialisation for leaky ReLU keeps activations at unit scale through
+  // the 24 convolutions.
+  torch::nn::init::kaiming_normal_(c.conv->weight, cfg_.leaky_slope, torch::kFanIn,
+                                   torch::kLeakyReLU);
+  torch::nn::init::zeros_(c.conv->bias);
+  return c;
+}
+
+torch::Tensor DenoiserImpl::act(const torch::Tensor& x) const {
+  return torch::leaky_relu(x, cfg_.leaky_slope);  // thesis 4.2: slope 0.1
+}
+
+torch::Tensor DenoiserImpl::forward_frame(const torch::Tensor& x,
+                                          std::vector<torch::Tensor>& state) {
+  DOFARM_CHECK_EQ(x.size(1), int64_t(cfg_.input_channels()));
+  DOFARM_CHECK_EQ(x.size(2) % kSizeMultiple, 0);
+  DOFARM_CHECK_EQ(x.size(3) % kSizeMultiple, 0);
+  std::vector<torch::Tensor> skips;
+  torch::Tensor h = x;
+  if (cfg_.recurrent && state.empty()) {
+    for (int i = 0; i < kLevels; ++i)
+      state.push_back(
+          torch::zeros({x.size(0), widths_[i], x.size(2) >> i, x.size(3) >> i}, x.options()));
+  }
+  for (int i = 0; i < kLevels; ++i) {
+    if (cfg_.recurrent) h = torch::cat({h, state[i]}, 1);
+    for (auto& c : enc_[i]) h = act(c.conv->forward(h));
+    if (cfg_.recurrent) state[i] = h;
+    skips.push_back(h);
+    h = torch::max_pool2d(h, {2, 2});
+  }
+  for (auto& c : mid_) h = act(c.conv->forward(h));
+  for (int i = kLevels - 1; i >= 0; --i) {
+    h = h.repeat_interleave(2, 2).repeat_interleave(2, 3);  // nearest upsampling x2
+    h = torch::cat({h, skips[i]}, 1);
+    for (auto& c : dec_[i]) h = act(c.conv->forward(h));
+  }
+  return out_.conv->forward(h);
+}
+
+torch::Tensor DenoiserImpl::forward(const torch::Tensor& seq) {
+  DOFARM_CHECK_EQ(seq.dim(), int64_t(5));
+  const int64_t b = seq.size(0), t = seq.size(1);
+  if (!cfg_.recurrent) {
+    torch::Tensor flat = seq.reshape({b * t, seq.size(2), seq.size(3), seq.size(4)});
+    std::vector<torch::Tensor> none;
+    torch::Tensor y = forward_frame(flat, none);
+    return y.reshape({b, t, 3, seq.size(3), seq.size(4)});
+  }
+  std::vector<torch::Tensor> state, outs;
+  for (int64_t i = 0; i < t; ++i) outs.push_back(forward_frame(seq.select(1, i), state));
+  return torch::stack(outs, 1);
+}
+
+void DenoiserImpl::export_torchscript(const std::filesystem::path& path) const {
+  torch::jit::Module m("DofarmDenoiser");
+  auto reg = [&](const Conv& c) {
+    m.register_parameter(c.name + "_w", c.conv->weight.detach().to(torch::kCPU).clone(), false);
+    m.register_parameter(c.name + "_b", c.conv->bias.detach().to(torch::kCPU).clone(), false);
+  };
+  std::ostringstream src;
+  auto conv = [&](const Conv& c, const std::string& x, bool activate) {
+    std::string e =
+        "torch.conv2d(" + x + ", self." + c.name + "_w, self." + c.name + "_b, [1, 1], [1, 1])";
+    std::ostringstream slope;
+    slope.precision(9);
+    slope << double(cfg_.leaky_slope);
+    return activate ? "torch.leaky_relu(" + e + ", " + slope.str() + ")" : e;
+  };
+  src << "def forward(self, x: Tensor";
+  if (cfg_.recurrent)
+    for (int i = 0; i < kLevels; ++i) src << ", s" << i << ": Tensor";
+  src << ")";
+  if (cfg_.recurrent) {
+    src << " -> Tuple[Tensor";
+    for (int i = 0; i < kLevels; ++i) src << ", Tensor";
+    src << "]";
+  }
+  src << ":\n  h = x\n";
+  for (int i = 0; i < kLevels; ++i) {
+    if (cfg_.recurrent) src << "  h = torch.cat([h, s" << i << "], 1)\n";
+    for (const Conv& c : enc_[i]) {
+      reg(c);
+      src << "  h = " << conv(c, "h", true) << "\n";
+    }
+    src << "  k" << i << " = h\n  h = torch.max_pool2d(h, [2, 2])\n";
+  }
+  for (const Conv& c : mid_) {
+    reg(c);
+    src << "  h = " << conv(c, "h", true) << "\n";
+  }
+  for (int i = kLevels - 1; i >= 0; --i) {
+    src << "  h = torch.cat([h.repeat_interleave(2, 2).repeat_interleave(2, 3), k" << i
+        << "], 1)\n";
+    for (const Conv& c : dec_[i]) {
+      reg(c);
+      src << "  h = " << conv(c, "h", true) << "\n";
+    }
+  }
+  reg(out_);
+  src << "  y = " << conv(out_, "h", false) << "\n";
+  if (cfg_.recurrent) {
+    src << "  return (y";
+    for (int i = 0; i < kLevels; ++i) src << ", k" << i;
+    src << ")\n";
+  } else {
+    src << "  return y\n";
+  }
+  m.define(src.str());
+  m.save(path.string());
+}
+
+torch::Tensor pad_to_multiple(const torch::Tensor& x) {
+  const int64_t h = x.size(-2), w = x.size(-1);
+  const int64_t ph = (kSizeMultiple - h % kSizeMultiple) % kSizeMultiple;
+  const int64_t pw = (kSizeMultiple - w % kSizeMultiple) % kSizeMultiple;
+  if (ph == 0 && pw == 0) return x;
+  namespace F = torch::nn::functional;
+  // Replication keeps the padded border statistically like the image edge.
+  return F::pad(x, F::PadFuncOptions({0, pw, 0, ph}).mode(torch::kReplicate));
+}
+
+int64_t parameter_count(const torch::nn::Module& m) {
+  int64_t n = 0;
+  for (const auto& p : m.parameters()) n += p.numel();
+  return n;
+}
+
+}  // namespace dofarm::trainer

@@ -1,0 +1,70 @@
+// The denoiser: the convolutional autoencoder of thesis 4.2 (after Chaitanya
+// et al. 2017), with their recurrent encoder blocks as an option.
+//
+//   encoder i = 0..4: [concat hidden_i] -> 3 x (conv3x3 + LeakyReLU) -> skip_i -> maxpool2x2
+//   bottleneck:       2 x (conv3x3 + LeakyReLU) at 1/32 resolution
+//   decoder i = 4..0: nearest upsample x2 -> concat skip_i -> 2 x (conv3x3 + LeakyReLU)
+//   output:           conv3x3 -> 3 channels, linear (transformed demodulated radiance)
+//
+// Frame sides must be multiples of 32 (five poolings); pad_to_multiple() pads
+// full frames for inference. In the recurrent model the output of encoder
+// block i at frame t is its hidden state at frame t + 1 (zeros at t = 0).
+#pragma once
+
+#include <torch/torch.h>
+
+#include <filesystem>
+#include <vector>
+
+#include "trainer/config.h"
+
+namespace dofarm::trainer {
+
+inline constexpr int kLevels = 5;
+inline constexpr int kSizeMultiple = 32;  // 2^kLevels
+
+class DenoiserImpl : public torch::nn::Module {
+ public:
+  explicit DenoiserImpl(const ModelConfig& cfg);
+
+  // seq: [B, T, C, H, W] -> [B, T, 3, H, W]. The recurrent model runs the
+  // frames in order from a zero state; the plain one treats them independently.
+  torch::Tensor forward(const torch::Tensor& seq);
+
+  // One frame [B, C, H, W]. `state` holds the hidden state per encoder level;
+  // empty on the first frame, updated in place (ignored when not recurrent).
+  torch::Tensor forward_frame(const torch::Tensor& x, std::vector<torch::Tensor>& state);
+
+  const ModelConfig& config() const { return cfg_; }
+
+  // A TorchScript module with the same weights and arithmetic, loadable by
+  // torch.jit.load in Python or torch::jit::load in C++. Its forward takes one
+  // frame [B, C, H, W]; with the recurrent model also the five hidden states
+  // (zeros on the first frame) and it returns (output, states...).
+  void export_torchscript(const std::filesystem::path& path) const;
+
+ private:
+  struct Conv {
+    torch::nn::Conv2d conv{nullptr};
+    std::string name;
+  };
+  Conv add_conv(const std::string& name, int in, int out);
+  torch::Tensor act(const torch::Tensor& x) const;
+
+  ModelConfig cfg_;
+  std::vector<int> widths_;
+  int bottleneck_ = 0;
+  std::vector<std::vector<Conv>> enc_, dec_;
+  std::vector<Conv> mid_;
+  Conv out_;
+};
+TORCH_MODULE(Denoiser);
+
+// Pads [.., H, W] with edge replication on the bottom and right to multiples
+// of kSizeMultiple; crop back with narrow().
+torch::Tensor pad_to_multiple(const torch::Tensor& x);
+
+// Number of trainable parameters.
+int64_t parameter_count(const torch::nn::Module& m);
+
+}  // namespace dofarm::trainer
