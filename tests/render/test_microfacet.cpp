@@ -313,7 +313,9 @@ namespace {
 
 // Directional albedo of the microfacet BRDF with F = 1:
 // ∫ D(h) G2(wo, wi) / (4 wo.z wi.z) wi.z dωi, by quadrature around the mirror
-// direction (independent of the sampler).
+// direction (independent of the sampler). Only for alpha >= ~0.05: h comes
+// from a float sum, and D's relative rounding noise (~1e-7 / alpha^2) would
+// otherwise keep the adaptive quadrature subdividing.
 double albedo_by_quadrature(Vec3 wo, float alpha) {
   SphereCells cells{mirror(wo), 2.0 * alpha, 20, 40};
   return dofarm::test::integrate_sphere(
@@ -322,7 +324,7 @@ double albedo_by_quadrature(Vec3 wo, float alpha) {
         Vec3 h = dofarm::normalize(wo + wi);
         return double(ggx::D(h, alpha)) * ggx::G2(wo, wi, alpha) / (4.0 * wo.z);
       },
-      cells, 1e-9);
+      cells, 1e-8);
 }
 
 // The same albedo estimated through the sampler: E[G2 / G1(wo)] over visible
@@ -346,7 +348,7 @@ double albedo_by_vndf(Vec3 wo, float alpha) {
 // at most what arrives (the rest is lost to multiple scattering, so less than
 // 1 at high roughness), and almost everything when it is smooth.
 TEST(Ggx, WhiteFurnaceNeverCreatesEnergy) {
-  for (float alpha : {0.01f, 0.05f, 0.2f, 0.5f, 1.0f}) {
+  for (float alpha : kTestAlphas) {
     for (double theta : kTestAngles) {
       Vec3 wo = incident(theta);
       double albedo = albedo_by_quadrature(wo, alpha);
