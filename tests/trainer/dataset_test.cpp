@@ -1,0 +1,120 @@
+#include "trainer/dataset.h"
+
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <cmath>
+#include <fstream>
+#include <thread>
+
+#include "tests/trainer/synthetic.h"
+
+namespace dofarm::trainer {
+namespace {
+
+namespace fs = std::filesystem;
+
+fs::path fresh_dir(const std::string& name) {
+  fs::path d = fs::temp_directory_path() / ("dofarm_trainer_" + name);
+  fs::remove_all(d);
+  fs::create_directories(d);
+  return d;
+}
+
+DataConfig small_data() {
+  DataConfig d;
+  d.crop = 32;
+  d.sequence = 4;
+  d.queue = 6;
+  d.readers = 2;
+  return d;
+}
+
+TEST(Split, TrainAndValidationNeverOverlap) {
+  DataConfig d;
+  for (int frames : {7, 13, 14, 16, 40, 100}) {
+    ShardSplit s = assign_split("shard-00001.h5", frames, d);
+    EXPECT_LE(s.train_end, s.val_begin == s.val_end ? frames : s.val_begin) << frames;
+    EXPECT_EQ(s.train_begin, 0);
+    if (s.val_end > s.val_begin) EXPECT_GE(s.val_end - s.val_begin, d.sequence);
+    EXPECT_LE(s.val_end, frames);
+  }
+  d.split = SplitMode::kShard;
+  d.val_fraction = 0.5f;
+  int val = 0;
+  for (int i = 0; i < 200; ++i) {
+    ShardSplit s = assign_split("shard-" + std::to_string(i) + ".h5", 16, d);
+    bool is_val = s.val_end > 0;
+    EXPECT_EQ(is_val ? s.train_end : s.val_end, 0);  // whole shard one side
+    val += is_val;
+    EXPECT_EQ(s, assign_split("shard-" + std::to_string(i) + ".h5", 16, d));
+  }
+  EXPECT_GT(val, 60);
+  EXPECT_LT(val, 140);
+}
+
+TEST(SequenceStream, DeterministicFiniteAndSplitPersisted) {
+  fs::path data = fresh_dir("ds_data"), run = fresh_dir("ds_run");
+  testing::write_synthetic_shard(data / "shard-00000.h5", 12, 64, 48, 3, 7);
+  DataConfig d = small_data();
+  std::vector<Sample> a, b;
+  {
+    SequenceStream s(data, run, d, true, 42);
+    for (int i = 0; i < 5; ++i) a.push_back(s.next());
+    EXPECT_EQ(s.next_index(), 5u);
+  }
+  ASSERT_TRUE(fs::exists(run / "split.json"));
+  {
+    SequenceStream s(data, run, d, true, 42, /*first_index=*/3);
+    for (int i = 0; i < 2; ++i) b.push_back(s.next());
+  }
+  EXPECT_EQ(a[3].input, b[0].input);  // sample i depends on (seed, i) only
+  EXPECT_EQ(a[4].target, b[1].target);
+  EXPECT_NE(a[0].input, a[1].input);
+  for (const Sample& smp : a) {
+    EXPECT_EQ(smp.frames, 4);
+    EXPECT_EQ(smp.channels, 12);
+    for (float v : smp.input) ASSERT_TRUE(std::isfinite(v));
+    for (float v : smp.target) ASSERT_TRUE(std::isfinite(v));
+  }
+}
+
+TEST(SequenceStream, PicksUpShardsThatAppearWhileRunning) {
+  fs::path data = fresh_dir("ds_new"), run = fresh_dir("ds_new_run");
+  testing::write_synthetic_shard(data / "shard-00000.h5", 10, 64, 64, 2, 1);
+  DataConfig d = small_data();
+  d.rescan_seconds = 0.05f;
+  SequenceStream s(data, run, d, false, 1);
+  EXPECT_EQ(s.splits().size(), 1u);
+  testing::write_synthetic_shard(data / "shard-00001.h5", 10, 64, 64, 2, 2);
+  for (int i = 0; i < 400 && s.splits().size() < 2; ++i) {
+    s.next();  // keeps training while the farm adds data
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  EXPECT_EQ(s.splits().size(), 2u);
+}
+
+TEST(SequenceStream, CorruptedShardGivesAClearError) {
+  fs::path data = fresh_dir("ds_bad"), run = fresh_dir("ds_bad_run");
+  testing::write_synthetic_shard(data / "shard-00000.h5", 10, 64, 64, 2, 1);
+  // Damage the data: keep the size, overwrite the middle of the file.
+  auto size = fs::file_size(data / "shard-00000.h5");
+  {
+    std::fstream f(data / "shard-00000.h5", std::ios::in | std::ios::out | std::ios::binary);
+    f.seekp(std::streamoff(size / 3));
+    std::string junk(size / 3, '\x5a');
+    f.write(junk.data(), std::streamsize(junk.size()));
+  }
+  { std::ofstream(data / "shard-00001.h5") << "this is not an HDF5 file"; }
+  try {
+    SequenceStream s(data, run, small_data(), true, 1);
+    for (int i = 0; i < 20; ++i) s.next();  // damage may only show when chunks are read
+    FAIL() << "no error";
+  } catch (const RuntimeError& e) {
+    std::string msg = e.what();
+    EXPECT_NE(msg.find("shard-0000"), std::string::npos) << msg;
+  }
+}
+
+}  // namespace
+}  // namespace dofarm::trainer

@@ -1,0 +1,124 @@
+#include "trainer/train.h"
+
+#include <gtest/gtest.h>
+
+#include <fstream>
+#include <sstream>
+
+#include "common/error.h"
+#include "tests/trainer/synthetic.h"
+
+namespace dofarm::trainer {
+namespace {
+
+namespace fs = std::filesystem;
+
+fs::path fresh_dir(const std::string& name) {
+  fs::path d = fs::temp_directory_path() / ("dofarm_trainer_" + name);
+  fs::remove_all(d);
+  fs::create_directories(d);
+  return d;
+}
+
+// A tiny but complete configuration: 8-channel model, 32x32 crops, 3 frames.
+TrainConfig tiny_config() {
+  TrainConfig c = load_train_config(
+      "", {"model.channels=[8, 8, 8, 8, 8]", "data.crop=32", "data.sequence=3", "data.queue=4",
+           "data.readers=1", "train.epochs=2", "train.steps_per_epoch=3", "train.batch=2",
+           "train.warmup_steps=2", "train.val_sequences=2", "train.device=cpu"});
+  return c;
+}
+
+fs::path shared_data() {
+  static fs::path d = [] {
+    fs::path p = fresh_dir("train_data");
+    testing::write_synthetic_shard(p / "shard-00000.h5", 12, 64, 64, 3, 5);
+    return p;
+  }();
+  return d;
+}
+
+torch::Tensor flat_params(const fs::path& run) {
+  LoadedRun r = load_run(run, torch::kCPU);
+  std::vector<torch::Tensor> ps;
+  for (const auto& p : r.model->parameters()) ps.push_back(p.detach().flatten());
+  return torch::cat(ps);
+}
+
+TEST(Train, ResumedRunTakesTheSameStepsAsAnUninterruptedOne) {
+  fs::path a = fresh_dir("run_a"), b = fresh_dir("run_b");
+  TrainOptions o{shared_data(), a, tiny_config()};
+  TrainResult ra = train(o);
+  EXPECT_EQ(ra.steps, 6);
+  EXPECT_EQ(ra.epochs, 2);
+
+  TrainOptions ob{shared_data(), b, tiny_config()};
+  ob.stop_at_step = 4;  // interrupted in the middle of epoch 2
+  EXPECT_EQ(train(ob).steps, 4);
+  ob.stop_at_step = -1;
+  TrainResult rb = train(ob);
+  EXPECT_TRUE(rb.resumed);
+  EXPECT_EQ(rb.steps, 6);
+  fs::copy_file(a / "checkpoints/last.pt", a / "checkpoints/best.pt",
+                fs::copy_options::overwrite_existing);
+  fs::copy_file(b / "checkpoints/last.pt", b / "checkpoints/best.pt",
+                fs::copy_options::overwrite_existing);
+  torch::Tensor pa = flat_params(a), pb = flat_params(b);
+  EXPECT_TRUE(torch::isfinite(pa).all().item<bool>());
+  EXPECT_LT((pa - pb).abs().max().item<float>(), 1e-6f);
+
+  std::ifstream csv(a / "loss.csv");
+  std::string header, row;
+  std::getline(csv, header);
+  EXPECT_EQ(header, "epoch,step,train_loss,val_loss,lr,skipped,seconds");
+  int rows = 0;
+  while (std::getline(csv, row)) ++rows;
+  EXPECT_EQ(rows, 2);
+}
+
+TEST(Train, NonFiniteLossIsSkippedThenRolledBackWithLowerLr) {
+  fs::path run = fresh_dir("run_nan");
+  TrainOptions o{shared_data(), run, tiny_config()};
+  o.config.train.max_bad_steps = 2;
+  o.loss_hook = [](int64_t step, const torch::Tensor& loss) {
+    return step == 1 || step == 2 ? loss * std::numeric_limits<float>::quiet_NaN() : loss;
+  };
+  TrainResult r = train(o);
+  EXPECT_EQ(r.skipped_steps, 2);
+  EXPECT_EQ(r.rollbacks, 1);
+  EXPECT_TRUE(torch::isfinite(flat_params(run)).all().item<bool>());
+  std::ifstream ev(run / "events.log");
+  std::stringstream ss;
+  ss << ev.rdbuf();
+  EXPECT_NE(ss.str().find("rolled back"), std::string::npos) << ss.str();
+  EXPECT_NE(ss.str().find("LR scale now 0.5"), std::string::npos) << ss.str();
+}
+
+TEST(Train, IncompatibleConfigIsRefusedWithTheReason) {
+  fs::path run = fresh_dir("run_incompatible");
+  TrainOptions o{shared_data(), run, tiny_config()};
+  o.config.train.epochs = 1;
+  o.config.train.steps_per_epoch = 1;
+  train(o);
+  o.config.model.recurrent = true;
+  try {
+    train(o);
+    FAIL() << "resumed with another model";
+  } catch (const SpecError& e) {
+    EXPECT_NE(std::string(e.what()).find("model.recurrent"), std::string::npos) << e.what();
+  }
+}
+
+TEST(LearningRate, WarmUpThenDecay) {
+  OptimConfig o;
+  o.lr = 1e-3f;
+  o.warmup_steps = 10;
+  o.lr_decay = 0.5f;
+  EXPECT_NEAR(learning_rate(o, 0, 0), 1e-4, 1e-9);
+  EXPECT_NEAR(learning_rate(o, 9, 0), 1e-3, 1e-9);
+  EXPECT_NEAR(learning_rate(o, 100, 2), 2.5e-4, 1e-9);
+  EXPECT_NEAR(learning_rate(o, 100, 100), o.lr_min, 1e-12);
+}
+
+}  // namespace
+}  // namespace dofarm::trainer

@@ -1,0 +1,337 @@
+#include "trainer/dataset.h"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <fstream>
+#include <nlohmann/json.hpp>
+
+#include "common/error.h"
+#include "common/manifest.h"
+
+namespace dofarm::trainer {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+namespace {
+
+// SplitMix64: turns (seed, index) into independent RNG seeds.
+uint64_t mix(uint64_t x) {
+  x += 0x9e3779b97f4a7c15ull;
+  x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ull;
+  x = (x ^ (x >> 27)) * 0x94d049bb133111ebull;
+  return x ^ (x >> 31);
+}
+
+uint64_t hash_name(const std::string& s) {  // FNV-1a, stable across platforms
+  uint64_t h = 1469598103934665603ull;
+  for (unsigned char c : s) h = (h ^ c) * 1099511628211ull;
+  return mix(h);
+}
+
+constexpr uint64_t kValidationStream = 0x76616c6964ull;  // separates val seeds from train
+
+}  // namespace
+
+ShardSplit assign_split(const std::string& file, int frames, const DataConfig& data) {
+  ShardSplit s;
+  s.file = file;
+  s.frames = frames;
+  s.train_end = frames;
+  if (data.val_fraction <= 0) return s;
+  if (data.split == SplitMode::kShard) {
+    double u = double(hash_name(file) >> 11) / double(uint64_t(1) << 53);
+    if (u < data.val_fraction) {
+      s.train_end = 0;
+      s.val_end = frames;
+    }
+    return s;
+  }
+  // By frames: the last part of the shard, at least one sequence long, so a
+  // validation sequence never shares a frame with a training one.
+  int n_val = std::max(data.sequence, int(std::lround(frames * data.val_fraction)));
+  if (frames - n_val < data.sequence) return s;  // too short to split: train only
+  s.train_end = frames - n_val;
+  s.val_begin = s.train_end;
+  s.val_end = frames;
+  return s;
+}
+
+std::vector<std::string> list_shards(const fs::path& dir) {
+  std::vector<std::string> out;
+  if (fs::exists(dir / kManifestFile)) {
+    for (const ManifestEntry& e : load_manifest(dir).shards) out.push_back(e.file);
+  } else {
+    std::error_code ec;
+    for (const auto& entry : fs::directory_iterator(dir, ec)) {
+      // Only finished names: writers use "<final>.tmp-<pid>" until the rename.
+      if (entry.is_regular_file() && entry.path().extension() == ".h5")
+        out.push_back(entry.path().filename().string());
+    }
+    if (ec) throw RuntimeError(dir.string() + ": cannot list the data folder: " + ec.message());
+  }
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+SequenceStream::SequenceStream(fs::path data_dir, fs::path run_dir, DataConfig data, bool dof,
+                               uint64_t seed, uint64_t first_index)
+    : data_dir_(std::move(data_dir)),
+      run_dir_(std::move(run_dir)),
+      data_(data),
+      dof_(dof),
+      seed_(seed),
+      next_(first_index),
+      claimed_(first_index) {
+  if (!fs::is_directory(data_dir_)) throw RuntimeError(data_dir_.string() + ": no such folder");
+  std::ifstream in(run_dir_ / "split.json");
+  if (in) {
+    try {
+      json j = json::parse(in);
+      for (const auto& [file, v] : j.at("shards").items()) {
+        ShardSplit s;
+        s.file = file;
+        s.frames = v.at("frames");
+        s.train_begin = v.at("train")[0];
+        s.train_end = v.at("train")[1];
+        s.val_begin = v.at("val")[0];
+        s.val_end = v.at("val")[1];
+        known_splits_[file] = s;
+      }
+    } catch (const json::exception& e) {
+      throw RuntimeError((run_dir_ / "split.json").string() + ": malformed: " + e.what());
+    }
+  }
+  rescan();
+  bool any = false;
+  for (const auto& s : shards_) any |= s->split.train_end - s->split.train_begin >= data_.sequence;
+  if (!any) {
+    std::string why = data_dir_.string() + ": no shard holds a " + std::to_string(data_.sequence) +
+                      "-frame training sequence of " + std::to_string(data_.crop) + "x" +
+                      std::to_string(data_.crop) + " pixels";
+    for (const auto& [file, reason] : problems_) why += "\n  " + reason;
+    throw RuntimeError(why);
+  }
+  for (int i = 0; i < data_.readers; ++i) threads_.emplace_back([this] { reader_loop(); });
+  scanner_ = std::thread([this] {
+    std::unique_lock lock(mu_);
+    while (!stop_) {
+      auto deadline = std::chrono::steady_clock::now() +
+                      std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                          std::chrono::duration<float>(data_.rescan_seconds));
+      if (cv_.wait_until(lock, deadline, [&] { return stop_; })) break;
+      lock.unlock();
+      try {
+        rescan();
+      } catch (const std::exception& e) {
+        spdlog::warn("rescan of {} failed: {}", data_dir_.string(), e.what());
+      }
+      lock.lock();
+    }
+  });
+}
+
+SequenceStream::~SequenceStream() {
+  {
+    std::lock_guard lock(mu_);
+    stop_ = true;
+  }
+  cv_.notify_all();
+  for (auto& t : threads_) t.join();
+  if (scanner_.joinable()) scanner_.join();
+}
+
+void SequenceStream::rescan() {
+  std::vector<std::string> files = list_shards(data_dir_);
+  std::vector<std::shared_ptr<const Shard>> added;
+  {
+    std::lock_guard lock(mu_);
+    std::erase_if(files, [&](const std::string& f) {
+      if (problems_.count(f)) return true;
+      for (const auto& s : shards_)
+        if (s->split.file == f) return true;
+      return false;
+    });
+  }
+  for (const std::string& f : files) {
+    auto shard = std::make_shared<Shard>();
+    try {
+      shard->reader = std::make_shared<ShardReader>(data_dir_ / f);
+      const ShardInfo& info = shard->reader->info();
+      if (info.width < data_.crop || info.height < data_.crop)
+        throw RuntimeError(f + ": " + std::to_string(info.width) + "x" +
+                           std::to_string(info.height) + " frames are smaller than the crop");
+      for (const CameraState& c : shard->reader->cameras())
+        shard->focal.push_back(c.focal_distance);
+    } catch (const std::exception& e) {
+      // A corrupted or foreign file must not stop training on the good ones,
+      // but it is never silent.
+      std::string reason = e.what();
+      if (reason.find(f) == std::string::npos) reason = f + ": " + reason;
+      spdlog::error("skipping shard: {}", reason);
+      std::lock_guard lock(mu_);
+      problems_[f] = reason;
+      continue;
+    }
+    std::lock_guard lock(mu_);
+    auto known = known_splits_.find(f);
+    shard->split = known != known_splits_.end()
+                       ? known->second
+                       : assign_split(f, shard->reader->frame_count(), data_);
+    known_splits_[f] = shard->split;
+    added.push_back(shard);
+  }
+  if (added.empty()) return;
+  {
+    std::lock_guard lock(mu_);
+    for (auto& s : added) shards_.push_back(s);
+    std::sort(shards_.begin(), shards_.end(),
+              [](const auto& a, const auto& b) { return a->split.file < b->split.file; });
+  }
+  spdlog::info("data: {} new shard(s), {} in total", added.size(), shards_.size());
+  save_splits();
+}
+
+void SequenceStream::save_splits() const {
+  json j;
+  {
+    std::lock_guard lock(mu_);
+    j["mode"] = data_.split == SplitMode::kShard ? "shard" : "frames";
+    j["shards"] = json::object();
+    for (const auto& [file, s] : known_splits_)
+      j["shards"][file] = {{"frames", s.frames},
+                           {"train", {s.train_begin, s.train_end}},
+                           {"val", {s.val_begin, s.val_end}}};
+  }
+  fs::create_directories(run_dir_);
+  fs::path tmp = run_dir_ / "split.json.tmp", dst = run_dir_ / "split.json";
+  {
+    std::ofstream out(tmp);
+    out << j.dump(1) << "\n";
+    if (!out) throw RuntimeError(tmp.string() + ": cannot write");
+  }
+  fs::rename(tmp, dst);
+}
+
+RawCrop SequenceStream::read_raw(const std::string& file, const SequencePlan& plan) const {
+  std::shared_ptr<const Shard> shard;
+  {
+    std::lock_guard lock(mu_);
+    for (const auto& s : shards_)
+      if (s->split.file == file) shard = s;
+  }
+  if (!shard) throw RuntimeError(file + ": not a usable shard of " + data_dir_.string());
+  const ShardReader& r = *shard->reader;
+  const Rect crop{plan.crop_x, plan.crop_y, data_.crop, data_.crop};
+  const int f0 = plan.first_frame, n = plan.span;
+  RawCrop raw;
+  raw.frames = n;
+  raw.versions = r.info().versions;
+  raw.size = data_.crop;
+  raw.noisy = r.read_crop("noisy", f0, n, ShardReader::kAllVersions, crop);
+  if (data_.albedo == AlbedoSource::kVersion)
+    raw.albedo = r.read_crop("albedo", f0, n, ShardReader::kAllVersions, crop);
+  else
+    raw.albedo_ref = r.read_crop("albedo_ref", f0, n, 0, crop);
+  raw.reference = r.read_crop("reference", f0, n, 0, crop);
+  raw.normal = r.read_crop("normal", f0, n, 0, crop);
+  raw.depth = r.read_crop("depth", f0, n, 0, crop);
+  raw.roughness = r.read_crop("roughness", f0, n, 0, crop);
+  if (dof_) raw.coc = r.read_crop("coc", f0, n, 0, crop);
+  raw.focal_distance.assign(shard->focal.begin() + f0, shard->focal.begin() + f0 + n);
+  return raw;
+}
+
+Sample SequenceStream::make_sample(uint64_t index, bool validation) const {
+  std::mt19937_64 rng(mix(seed_ ^ mix(index) ^ (validation ? kValidationStream : 0)));
+  // Pick a shard with probability proportional to the sequences it can start.
+  std::vector<std::shared_ptr<const Shard>> pool;
+  std::vector<double> weight;
+  {
+    std::lock_guard lock(mu_);
+    for (const auto& s : shards_) {
+      int len = validation ? s->split.val_end - s->split.val_begin
+                           : s->split.train_end - s->split.train_begin;
+      if (len < data_.sequence) continue;
+      pool.push_back(s);
+      weight.push_back(len - data_.sequence + 1);
+    }
+  }
+  if (pool.empty())
+    throw RuntimeError(data_dir_.string() + ": no " +
+                       std::string(validation ? "validation" : "training") + " sequences");
+  std::discrete_distribution<size_t> pick(weight.begin(), weight.end());
+  const Shard& s = *pool[pick(rng)];
+  const ShardInfo& info = s.reader->info();
+  int begin = validation ? s.split.val_begin : s.split.train_begin;
+  int end = validation ? s.split.val_end : s.split.train_end;
+  SequencePlan plan = draw_plan(rng, data_, begin, end, info.versions, info.width, info.height);
+  return build_sample(read_raw(s.split.file, plan), plan, data_, dof_);
+}
+
+void SequenceStream::reader_loop() {
+  for (;;) {
+    uint64_t index;
+    {
+      std::unique_lock lock(mu_);
+      // Bounded: never more than `queue` samples made but not handed out.
+      cv_.wait(lock, [&] { return stop_ || claimed_ < next_ + uint64_t(data_.queue); });
+      if (stop_) return;
+      index = claimed_++;
+    }
+    try {
+      Sample s = make_sample(index, false);
+      std::lock_guard lock(mu_);
+      ready_.emplace(index, std::move(s));
+    } catch (...) {
+      std::lock_guard lock(mu_);
+      if (!failure_) failure_ = std::current_exception();
+    }
+    cv_.notify_all();
+  }
+}
+
+Sample SequenceStream::next() {
+  std::unique_lock lock(mu_);
+  cv_.wait(lock, [&] { return failure_ || ready_.count(next_); });
+  if (failure_ && !ready_.count(next_)) std::rethrow_exception(failure_);
+  Sample s = std::move(ready_.at(next_));
+  ready_.erase(next_);
+  ++next_;
+  lock.unlock();
+  cv_.notify_all();
+  return s;
+}
+
+uint64_t SequenceStream::next_index() const {
+  std::lock_guard lock(mu_);
+  return next_;
+}
+
+std::vector<Sample> SequenceStream::validation(int count) {
+  std::vector<Sample> out;
+  bool any = false;
+  for (const ShardSplit& s : splits()) any |= s.val_end - s.val_begin >= data_.sequence;
+  if (!any) return out;
+  for (int i = 0; i < count; ++i) out.push_back(make_sample(uint64_t(i), true));
+  return out;
+}
+
+std::vector<ShardSplit> SequenceStream::splits() const {
+  std::lock_guard lock(mu_);
+  std::vector<ShardSplit> out;
+  for (const auto& s : shards_) out.push_back(s->split);
+  return out;
+}
+
+std::vector<std::string> SequenceStream::problems() const {
+  std::lock_guard lock(mu_);
+  std::vector<std::string> out;
+  for (const auto& [file, reason] : problems_) out.push_back(reason);
+  return out;
+}
+
+}  // namespace dofarm::trainer

@@ -1,0 +1,111 @@
+// Streaming training data from shards (DESIGN.md "The trainer").
+//
+// The data folder is a farm output folder: the shards listed in its
+// manifest.json (complete by construction), or, without a manifest, every
+// *.h5 in it. Background reader threads draw a SequencePlan, read just the
+// crop it needs (ShardReader::read_crop) and build the Sample; a rescan picks
+// up shards that the farm adds while training runs.
+//
+// Determinism: sample i is drawn from an RNG seeded by (seed, i), and next()
+// hands samples out strictly in index order whatever thread made them, so
+// with a fixed set of shards a run (and a resumed run) sees the same data.
+// Memory: at most DataConfig::queue samples exist at any time.
+//
+// Train/validation split: by frame ranges within each shard, or by whole
+// shards (DataConfig::split). The assignment of every shard is written to
+// RUN/split.json the first time the shard is seen and reused on resume, so the
+// two sets never overlap, even while new shards arrive.
+#pragma once
+
+#include <condition_variable>
+#include <cstdint>
+#include <exception>
+#include <filesystem>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "common/shard.h"
+#include "trainer/augment.h"
+#include "trainer/config.h"
+
+namespace dofarm::trainer {
+
+// Frame ranges [begin, end) of one shard; an empty range has begin == end.
+struct ShardSplit {
+  std::string file;  // name inside the data folder
+  int frames = 0;
+  int train_begin = 0, train_end = 0;
+  int val_begin = 0, val_end = 0;
+  bool operator==(const ShardSplit&) const = default;
+};
+
+// The split of a shard seen for the first time (pure: same input, same split).
+ShardSplit assign_split(const std::string& file, int frames, const DataConfig& data);
+
+// Shard file names of a data folder (manifest first), sorted.
+std::vector<std::string> list_shards(const std::filesystem::path& data_dir);
+
+class SequenceStream {
+ public:
+  // Scans `data_dir` once (synchronously), loads/extends RUN/split.json and
+  // starts the readers; the first sample handed out is `first_index`. Throws
+  // RuntimeError naming the folder when no shard holds a training sequence,
+  // with each unusable shard and why.
+  SequenceStream(std::filesystem::path data_dir, std::filesystem::path run_dir, DataConfig data,
+                 bool dof, uint64_t seed, uint64_t first_index = 0);
+  ~SequenceStream();
+  SequenceStream(const SequenceStream&) = delete;
+  SequenceStream& operator=(const SequenceStream&) = delete;
+
+  // The next sample in index order; blocks until a reader has made it.
+  // Rethrows a reader's failure.
+  Sample next();
+  uint64_t next_index() const;
+
+  // `count` validation samples, the same ones every call while the shard set
+  // is unchanged (seeded by index, independent of the training stream).
+  std::vector<Sample> validation(int count);
+
+  // Current split (for eval and for the run folder).
+  std::vector<ShardSplit> splits() const;
+  // Shards skipped because they could not be read, with the reason.
+  std::vector<std::string> problems() const;
+
+  // Reads an arbitrary plan's raw crop (also used by tests).
+  RawCrop read_raw(const std::string& file, const SequencePlan& plan) const;
+
+ private:
+  struct Shard {
+    ShardSplit split;
+    std::shared_ptr<ShardReader> reader;
+    std::vector<float> focal;  // per frame
+  };
+  void rescan();
+  void reader_loop();
+  Sample make_sample(uint64_t index, bool validation) const;
+  void save_splits() const;
+
+  std::filesystem::path data_dir_, run_dir_;
+  DataConfig data_;
+  bool dof_;
+  uint64_t seed_;
+
+  mutable std::mutex mu_;
+  std::condition_variable cv_;
+  std::vector<std::shared_ptr<const Shard>> shards_;  // sorted by file
+  std::map<std::string, ShardSplit> known_splits_;    // from split.json
+  std::map<std::string, std::string> problems_;       // file -> reason
+  std::map<uint64_t, Sample> ready_;
+  uint64_t next_ = 0;     // next index handed out
+  uint64_t claimed_ = 0;  // next index a reader will make
+  std::exception_ptr failure_;
+  bool stop_ = false;
+  std::vector<std::thread> threads_;
+  std::thread scanner_;
+};
+
+}  // namespace dofarm::trainer

@@ -1,0 +1,305 @@
+#include "trainer/train.h"
+
+#include <spdlog/spdlog.h>
+
+#include <chrono>
+#include <cmath>
+#include <fstream>
+#include <sstream>
+
+#include "common/error.h"
+#include "trainer/dataset.h"
+#include "trainer/losses.h"
+
+namespace dofarm::trainer {
+
+namespace fs = std::filesystem;
+
+double learning_rate(const OptimConfig& o, int64_t step, int epoch) {
+  double warm = o.warmup_steps > 0 ? std::min(1.0, double(step + 1) / o.warmup_steps) : 1.0;
+  double lr = double(o.lr) * warm * std::pow(double(o.lr_decay), epoch);
+  return std::max(lr, double(o.lr_min));
+}
+
+torch::Device pick_device(const std::string& device) {
+  if (device == "cpu") return torch::kCPU;
+  if (torch::cuda::is_available()) return torch::kCUDA;
+  if (device == "cuda") throw RuntimeError("train.device is \"cuda\" but no CUDA device is usable");
+  return torch::kCPU;
+}
+
+namespace {
+
+std::string read_text(const fs::path& p) {
+  std::ifstream in(p);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+void write_atomic(const fs::path& p, const std::string& text) {
+  fs::path tmp = p;
+  tmp += ".tmp";
+  {
+    std::ofstream out(tmp);
+    out << text;
+    if (!out) throw RuntimeError(tmp.string() + ": cannot write");
+  }
+  fs::rename(tmp, p);
+}
+
+// Everything that, with the config and the data, determines the rest of a run.
+struct RunState {
+  int64_t epoch = 0;         // next epoch to run
+  int64_t step = 0;          // optimizer steps taken
+  int64_t sample_index = 0;  // next training sample of the stream
+  double lr_scale = 1.0;     // lowered by rollbacks
+  double best = INFINITY;    // lowest validation loss
+};
+
+bool all_finite(const torch::nn::Module& m) {
+  for (const auto& p : m.parameters())
+    if (!torch::isfinite(p).all().item<bool>()) return false;
+  return true;
+}
+
+void save_checkpoint(const fs::path& path, Denoiser& model, torch::optim::Adam& opt,
+                     const RunState& st, const TrainConfig& cfg) {
+  // No NaN/Inf ever reaches a checkpoint: a model that diverged is not saved.
+  if (!all_finite(*model)) throw RuntimeError("refusing to checkpoint non-finite weights");
+  torch::serialize::OutputArchive ar, m, o;
+  model->save(m);
+  opt.save(o);
+  ar.write("model", m);
+  ar.write("optimizer", o);
+  ar.write("state", torch::tensor({st.epoch, st.step, st.sample_index}, torch::kInt64));
+  ar.write("state_f", torch::tensor({st.lr_scale, st.best}, torch::kFloat64));
+  ar.write("config", c10::IValue(to_toml(cfg)));
+  fs::path tmp = path;
+  tmp += ".tmp";
+  ar.save_to(tmp.string());
+  fs::rename(tmp, path);  // a crash mid-write leaves the previous checkpoint intact
+}
+
+RunState load_checkpoint(const fs::path& path, Denoiser& model, torch::optim::Adam* opt,
+                         torch::Device device) {
+  torch::serialize::InputArchive ar, m, o;
+  try {
+    ar.load_from(path.string(), device);
+  } catch (const c10::Error& e) {
+    throw RuntimeError(path.string() + ": cannot read checkpoint: " + e.what_without_backtrace());
+  }
+  ar.read("model", m);
+  model->load(m);
+  if (opt) {
+    ar.read("optimizer", o);
+    opt->load(o);
+  }
+  torch::Tensor s, f;
+  ar.read("state", s);
+  ar.read("state_f", f);
+  s = s.to(torch::kCPU);
+  f = f.to(torch::kCPU);
+  RunState st;
+  st.epoch = s[0].item<int64_t>();
+  st.step = s[1].item<int64_t>();
+  st.sample_index = s[2].item<int64_t>();
+  st.lr_scale = f[0].item<double>();
+  st.best = f[1].item<double>();
+  return st;
+}
+
+struct Batch {
+  torch::Tensor input, target;  // [B, T, C, S, S], [B, T, 3, S, S]
+};
+
+Batch to_batch(const std::vector<Sample>& samples, torch::Device device) {
+  std::vector<torch::Tensor> in, tg;
+  for (const Sample& s : samples) {
+    in.push_back(
+        torch::from_blob(const_cast<float*>(s.input.data()), {s.frames, s.channels, s.size, s.size})
+            .clone());
+    tg.push_back(
+        torch::from_blob(const_cast<float*>(s.target.data()), {s.frames, 3, s.size, s.size})
+            .clone());
+  }
+  return {torch::stack(in).to(device), torch::stack(tg).to(device)};
+}
+
+class EventLog {
+ public:
+  explicit EventLog(const fs::path& p) : out_(p, std::ios::app) {}
+  template <typename... A>
+  void operator()(spdlog::level::level_enum lvl, fmt::format_string<A...> f, A&&... a) {
+    std::string msg = fmt::format(f, std::forward<A>(a)...);
+    spdlog::log(lvl, "{}", msg);
+    auto now = std::chrono::system_clock::to_time_t(std::chrono::system_clock::now());
+    char buf[32];
+    std::strftime(buf, sizeof buf, "%Y-%m-%dT%H:%M:%SZ", std::gmtime(&now));
+    out_ << buf << " " << msg << "\n";
+    out_.flush();
+  }
+
+ private:
+  std::ofstream out_;
+};
+
+}  // namespace
+
+TrainResult train(const TrainOptions& opt_in) {
+  const TrainConfig& cfg = opt_in.config;
+  const fs::path run = opt_in.run_dir;
+  const fs::path ckpt_dir = run / "checkpoints";
+  const fs::path last = ckpt_dir / "last.pt", best = ckpt_dir / "best.pt";
+  TrainResult result;
+
+  // The run folder is the unit of resume (STYLE.md 10).
+  if (fs::exists(run / "config.toml")) {
+    TrainConfig saved = parse_train_config(read_text(run / "config.toml"), run / "config.toml");
+    std::string why = incompatible_reason(saved, cfg);
+    if (!why.empty())
+      throw SpecError(FileLoc{(run / "config.toml").string()}, "",
+                      "cannot resume this run with the given config: " + why);
+    result.resumed = fs::exists(last);
+  }
+  fs::create_directories(ckpt_dir);
+  write_atomic(run / "config.toml", to_toml(cfg));
+  EventLog log(run / "events.log");
+
+  const torch::Device device = pick_device(cfg.train.device);
+  torch::manual_seed(cfg.train.seed);
+  Denoiser model(cfg.model);
+  model->to(device);
+  torch::optim::Adam adam(
+      model->parameters(),
+      torch::optim::AdamOptions(cfg.train.lr).betas({cfg.train.beta1, cfg.train.beta2}));
+  RunState st;
+  if (result.resumed) {
+    st = load_checkpoint(last, model, &adam, device);
+    log(spdlog::level::info, "resumed at epoch {} step {} from {}", st.epoch, st.step,
+        last.string());
+  } else {
+    save_checkpoint(last, model, adam, st, cfg);  // something to roll back to from step 0
+    log(spdlog::level::info, "new run: {} parameters on {}", parameter_count(*model), device.str());
+  }
+
+  SequenceStream stream(opt_in.data_dir, run, cfg.data, cfg.model.dof, cfg.train.seed,
+                        uint64_t(st.sample_index));
+  const torch::Tensor kernel = log_kernel(cfg.loss.log_sigma).to(device);
+  const bool new_csv = !fs::exists(run / "loss.csv");
+  std::ofstream csv(run / "loss.csv", std::ios::app);
+  if (new_csv) csv << "epoch,step,train_loss,val_loss,lr,skipped,seconds\n";
+
+  int bad_in_a_row = 0;
+  while (st.epoch < cfg.train.epochs) {
+    auto t0 = std::chrono::steady_clock::now();
+    model->train();
+    double loss_sum = 0;
+    int good = 0, skipped = 0;
+    double lr = 0;
+    // Counted from the step, so an epoch interrupted mid-way resumes where it was.
+    while (st.step < (st.epoch + 1) * int64_t(cfg.train.steps_per_epoch)) {
+      if (opt_in.stop_at_step >= 0 && st.step >= opt_in.stop_at_step) break;
+      std::vector<Sample> samples;
+      for (int b = 0; b < cfg.train.batch; ++b) samples.push_back(stream.next());
+      st.sample_index = int64_t(stream.next_index());
+      Batch batch = to_batch(samples, device);
+      lr = st.lr_scale * learning_rate(cfg.train, st.step, int(st.epoch));
+      for (auto& group : adam.param_groups())
+        static_cast<torch::optim::AdamOptions&>(group.options()).lr(lr);
+
+      adam.zero_grad();
+      torch::Tensor loss =
+          denoiser_loss(model->forward(batch.input), batch.target, cfg.loss, kernel).total;
+      if (opt_in.loss_hook) loss = opt_in.loss_hook(st.step, loss);
+      bool ok = std::isfinite(loss.item<double>());
+      if (ok) {
+        loss.backward();
+        for (const auto& p : model->parameters())
+          if (p.grad().defined() && !torch::isfinite(p.grad()).all().item<bool>()) ok = false;
+      }
+      ++st.step;
+      if (ok) {
+        adam.step();
+        loss_sum += loss.item<double>();
+        ++good;
+        bad_in_a_row = 0;
+        continue;
+      }
+      // Non-finite: never let it into the weights, the CSV or a checkpoint.
+      ++skipped;
+      ++result.skipped_steps;
+      log(spdlog::level::warn, "step {}: non-finite loss or gradient, step skipped", st.step);
+      if (++bad_in_a_row >= cfg.train.max_bad_steps) {
+        RunState back = load_checkpoint(last, model, &adam, device);
+        st.lr_scale = back.lr_scale * cfg.train.rollback_lr_factor;
+        ++result.rollbacks;
+        bad_in_a_row = 0;
+        log(spdlog::level::warn,
+            "rolled back to {} (epoch {} step {}) after {} non-finite steps; LR scale now {}",
+            last.string(), back.epoch, back.step, cfg.train.max_bad_steps, st.lr_scale);
+      }
+    }
+    const bool interrupted = st.step < (st.epoch + 1) * int64_t(cfg.train.steps_per_epoch);
+    if (interrupted) break;
+
+    // Validation: the same sequences every epoch (while the shard set holds).
+    double val = NAN;
+    std::vector<Sample> vs = stream.validation(cfg.train.val_sequences);
+    if (!vs.empty()) {
+      torch::NoGradGuard no_grad;
+      model->eval();
+      double sum = 0;
+      for (size_t i = 0; i < vs.size(); i += cfg.train.batch) {
+        std::vector<Sample> part(vs.begin() + i,
+                                 vs.begin() + std::min(vs.size(), i + cfg.train.batch));
+        Batch b = to_batch(part, device);
+        sum += denoiser_loss(model->forward(b.input), b.target, cfg.loss, kernel)
+                   .total.item<double>() *
+               double(part.size());
+      }
+      val = sum / double(vs.size());
+    }
+    double train_loss = good ? loss_sum / good : NAN;
+    double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    ++st.epoch;
+    csv << st.epoch << "," << st.step << ","
+        << (std::isfinite(train_loss) ? fmt::format("{:.6g}", train_loss) : "") << ","
+        << (std::isfinite(val) ? fmt::format("{:.6g}", val) : "") << ","
+        << fmt::format("{:.6g}", lr) << "," << skipped << "," << fmt::format("{:.3f}", seconds)
+        << "\n";
+    csv.flush();
+    spdlog::info("epoch {}/{}: train {:.5f} val {:.5f} lr {:.3g} ({:.1f} s)", st.epoch,
+                 cfg.train.epochs, train_loss, val, lr, seconds);
+    // Best by validation loss; by training loss when there is no validation set.
+    double score = std::isfinite(val) ? val : train_loss;
+    bool improved = std::isfinite(score) && score < st.best;
+    if (improved) st.best = score;
+    save_checkpoint(last, model, adam, st, cfg);
+    if (improved) fs::copy_file(last, best, fs::copy_options::overwrite_existing);
+    ++result.epochs;
+  }
+  if (opt_in.stop_at_step >= 0 && st.step >= opt_in.stop_at_step && st.epoch < cfg.train.epochs)
+    save_checkpoint(last, model, adam, st, cfg);
+  result.steps = st.step;
+  result.best_val = st.best;
+  return result;
+}
+
+LoadedRun load_run(const fs::path& run_dir, torch::Device device) {
+  LoadedRun r;
+  if (!fs::exists(run_dir / "config.toml"))
+    throw SpecError(FileLoc{run_dir.string()}, "", "not a training run (no config.toml)");
+  r.config = parse_train_config(read_text(run_dir / "config.toml"), run_dir / "config.toml");
+  r.checkpoint = run_dir / "checkpoints" / "best.pt";
+  if (!fs::exists(r.checkpoint)) r.checkpoint = run_dir / "checkpoints" / "last.pt";
+  if (!fs::exists(r.checkpoint))
+    throw SpecError(FileLoc{run_dir.string()}, "", "the run has no checkpoint yet");
+  r.model = Denoiser(r.config.model);
+  r.model->to(device);
+  load_checkpoint(r.checkpoint, r.model, nullptr, device);
+  r.model->eval();
+  return r;
+}
+
+}  // namespace dofarm::trainer
