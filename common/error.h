@@ -22,8 +22,8 @@ struct FileLoc {
   int column = 0;  // 1-based; 0 = unknown
   std::string str() const {
     std::string s = file;
-    if (line > 0) s += ":" + std::to_string(line);
-    if (column > 0) s += ":" + std::to_string(column);
+    if (line > 0) s.append(":").append(std::to_string(line));
+    if (column > 0) s.append(":").append(std::to_string(column));
     return s;
   }
 };
@@ -40,9 +40,9 @@ class SpecError : public std::runtime_error {
  private:
   static std::string format(const FileLoc& loc, const std::string& key, const std::string& msg) {
     std::string s = loc.str();
-    if (!s.empty()) s += ": ";
-    if (!key.empty()) s += "\"" + key + "\": ";
-    return s + msg;
+    if (!s.empty()) s.append(": ");
+    if (!key.empty()) s.append("\"").append(key).append("\": ");
+    return s.append(msg);
   }
   FileLoc loc_;
   std::string key_;
@@ -56,7 +56,8 @@ class RuntimeError : public std::runtime_error {
 
 namespace detail {
 template <typename A, typename B>
-[[noreturn]] void check_failed(const char* file, int line, const char* expr, const A& a, const B& b) {
+[[noreturn]] void check_failed(const char* file, int line, const char* expr, const A& a,
+                               const B& b) {
   std::ostringstream os;
   os << file << ":" << line << ": check failed: " << expr << " (" << a << " vs " << b << ")";
   std::fprintf(stderr, "%s\n", os.str().c_str());
@@ -66,13 +67,12 @@ template <typename A, typename B>
 
 }  // namespace dofarm
 
-#define DOFARM_CHECK_OP(a, op, b)                                                     \
-  do {                                                                                \
-    const auto& dofarm_a_ = (a);                                                      \
-    const auto& dofarm_b_ = (b);                                                      \
-    if (!(dofarm_a_ op dofarm_b_))                                                    \
-      ::dofarm::detail::check_failed(__FILE__, __LINE__, #a " " #op " " #b, dofarm_a_, \
-                                     dofarm_b_);                                      \
+#define DOFARM_CHECK_OP(a, op, b)                                                                  \
+  do {                                                                                             \
+    const auto& dofarm_a_ = (a);                                                                   \
+    const auto& dofarm_b_ = (b);                                                                   \
+    if (!(dofarm_a_ op dofarm_b_))                                                                 \
+      ::dofarm::detail::check_failed(__FILE__, __LINE__, #a " " #op " " #b, dofarm_a_, dofarm_b_); \
   } while (0)
 #define DOFARM_CHECK_EQ(a, b) DOFARM_CHECK_OP(a, ==, b)
 #define DOFARM_CHECK_LT(a, b) DOFARM_CHECK_OP(a, <, b)

@@ -9,9 +9,9 @@ namespace dofarm {
 
 const std::vector<BufferInfo>& buffer_infos() {
   static const std::vector<BufferInfo> infos = {
-      {"noisy", 3, true},     {"albedo", 3, true},        {"albedo_ref", 3, false},
+      {"noisy", 3, true},      {"albedo", 3, true},         {"albedo_ref", 3, false},
       {"reference", 3, false}, {"reference_var", 1, false}, {"normal", 3, false},
-      {"depth", 1, false},    {"roughness", 1, false},    {"coc", 1, false},
+      {"depth", 1, false},     {"roughness", 1, false},     {"coc", 1, false},
   };
   return infos;
 }

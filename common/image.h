@@ -16,7 +16,7 @@ struct Rect {
 // The camera of one frame, stored with every frame (shard `camera`, EXR header).
 struct CameraState {
   int frame = 0;
-  float time = 0;            // seconds = frame / fps
+  float time = 0;  // seconds = frame / fps
   float position[3] = {0, 0, 0};
   float rotation[4] = {1, 0, 0, 0};  // unit quaternion w, x, y, z
   float fov_deg = 40;
@@ -27,7 +27,7 @@ struct CameraState {
 struct FrameBuffers {
   int width = 0, height = 0;  // of this rect
   int versions = 0;
-  Rect rect;                  // where it sits in the full frame
+  Rect rect;  // where it sits in the full frame
   CameraState camera;
   std::vector<float> noisy;          // V, 3, H, W
   std::vector<float> albedo;         // V, 3, H, W

@@ -36,9 +36,24 @@ struct Vec3 {
   Vec3 operator*(float s) const { return {x * s, y * s, z * s}; }
   Vec3 operator/(float s) const { return {x / s, y / s, z / s}; }
   Vec3 operator-() const { return {-x, -y, -z}; }
-  Vec3& operator+=(Vec3 o) { x += o.x; y += o.y; z += o.z; return *this; }
-  Vec3& operator*=(Vec3 o) { x *= o.x; y *= o.y; z *= o.z; return *this; }
-  Vec3& operator*=(float s) { x *= s; y *= s; z *= s; return *this; }
+  Vec3& operator+=(Vec3 o) {
+    x += o.x;
+    y += o.y;
+    z += o.z;
+    return *this;
+  }
+  Vec3& operator*=(Vec3 o) {
+    x *= o.x;
+    y *= o.y;
+    z *= o.z;
+    return *this;
+  }
+  Vec3& operator*=(float s) {
+    x *= s;
+    y *= s;
+    z *= s;
+    return *this;
+  }
 };
 inline Vec3 operator*(float s, Vec3 v) { return v * s; }
 
@@ -54,11 +69,17 @@ inline Vec3 normalize(Vec3 v, Vec3 fallback = Vec3(0, 0, 1)) {
   if (!(l2 > 0.0f) || !std::isfinite(l2)) return fallback;
   return v / std::sqrt(l2);
 }
-inline Vec3 vmin(Vec3 a, Vec3 b) { return {std::min(a.x, b.x), std::min(a.y, b.y), std::min(a.z, b.z)}; }
-inline Vec3 vmax(Vec3 a, Vec3 b) { return {std::max(a.x, b.x), std::max(a.y, b.y), std::max(a.z, b.z)}; }
+inline Vec3 vmin(Vec3 a, Vec3 b) {
+  return {std::min(a.x, b.x), std::min(a.y, b.y), std::min(a.z, b.z)};
+}
+inline Vec3 vmax(Vec3 a, Vec3 b) {
+  return {std::max(a.x, b.x), std::max(a.y, b.y), std::max(a.z, b.z)};
+}
 inline float max_component(Vec3 v) { return std::max(v.x, std::max(v.y, v.z)); }
 inline float luminance(Vec3 c) { return 0.2126f * c.x + 0.7152f * c.y + 0.0722f * c.z; }
-inline bool is_finite(Vec3 v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); }
+inline bool is_finite(Vec3 v) {
+  return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z);
+}
 inline Vec3 lerp(Vec3 a, Vec3 b, float t) { return a * (1.0f - t) + b * t; }
 inline float clamp01(float v) { return std::min(1.0f, std::max(0.0f, v)); }
 inline float safe_sqrt(float v) { return std::sqrt(std::max(0.0f, v)); }
@@ -92,6 +113,6 @@ struct Quat {
 Quat quat_from_axes(Vec3 right, Vec3 up, Vec3 back);  // columns of a rotation matrix
 Quat quat_look_at(Vec3 from, Vec3 to, Vec3 up);       // camera looks down -z
 Quat slerp(Quat a, Quat b, float t);
-Quat quat_from_euler_deg(Vec3 xyz_deg);               // intrinsic X, then Y, then Z
+Quat quat_from_euler_deg(Vec3 xyz_deg);  // intrinsic X, then Y, then Z
 
 }  // namespace dofarm

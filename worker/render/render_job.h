@@ -13,9 +13,9 @@
 namespace dofarm::render {
 
 struct RenderOptions {
-  int threads = 0;          // 0 = all hardware threads
-  int block_size = 16;      // pixels per side of a thread-pool work item
-  bool progress = false;    // log progress lines / a bar on a terminal
+  int threads = 0;        // 0 = all hardware threads
+  int block_size = 16;    // pixels per side of a thread-pool work item
+  bool progress = false;  // log progress lines / a bar on a terminal
 };
 
 // Renders `frame` of `spec`, restricted to `tile` when given (default: the
@@ -24,6 +24,16 @@ struct RenderOptions {
 // outside the image) and RuntimeError for runtime failures.
 FrameBuffers render_frame(const JobSpec& spec, int frame, std::optional<Rect> tile = std::nullopt,
                           const RenderOptions& options = {});
+
+class Scene;
+// The same with a scene already loaded (a worker keeps it across tasks).
+FrameBuffers render_frame(const Scene& scene, const JobSpec& spec, int frame,
+                          std::optional<Rect> tile = std::nullopt,
+                          const RenderOptions& options = {});
+
+// Checks that `frame` is in the job's range and `tile` inside the image;
+// throws SpecError otherwise. Returns the rect to render.
+Rect checked_rect(const JobSpec& spec, int frame, std::optional<Rect> tile);
 
 // render_frame() then write_frame_exr() with the job's metadata in the header.
 void render_frame_to_exr(const JobSpec& spec, int frame, std::optional<Rect> tile,

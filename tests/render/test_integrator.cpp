@@ -1,0 +1,160 @@
+// Known answers for the path tracer: the white furnace, energy conservation
+// of GGX, and agreement of the three light-sampling strategies.
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "tests/render/render_fixtures.h"
+#include "worker/render/integrator.h"
+
+namespace dofarm::render {
+namespace {
+
+using testing::make_scene;
+using testing::make_spec;
+
+struct Estimate {
+  double mean = 0, std_error = 0;
+  size_t n = 0;
+};
+
+// Mean luminance over the pixels whose pinhole ray hits the scene, with
+// `spp` samples each, and the standard error of that mean over all samples.
+Estimate estimate(const Scene& scene, const JobSpec& spec, int spp, LightStrategy strategy,
+                  bool only_hits = true) {
+  CameraState cs = camera_for_frame(spec, scene.data(), 0);
+  Camera cam(cs, spec.width, spec.height);
+  IntegratorSettings settings;
+  settings.max_depth = spec.max_depth;
+  settings.rr_start_depth = spec.rr_start_depth;
+  settings.strategy = strategy;
+  double sum = 0, sum2 = 0;
+  size_t n = 0;
+  for (int y = 0; y < spec.height; ++y)
+    for (int x = 0; x < spec.width; ++x) {
+      SurfaceHit hit;
+      if (only_hits && !scene.intersect(cam.pinhole_ray({x + 0.5f, y + 0.5f}), &hit)) continue;
+      PixelSampler sampler(spec.sampler, spec.seed, 0, x, y, Stream::kTest);
+      for (int s = 0; s < spp; ++s) {
+        sampler.start_sample(uint32_t(s));
+        // The pixel centre: the furnace must see the object, not its silhouette.
+        Vec3 L = trace_path(scene, cam.pinhole_ray({x + 0.5f, y + 0.5f}), sampler, settings);
+        double l = luminance(L);
+        sum += l;
+        sum2 += l * l;
+        ++n;
+      }
+    }
+  Estimate e;
+  e.n = n;
+  e.mean = sum / double(n);
+  double var = std::max(0.0, sum2 / double(n) - e.mean * e.mean);
+  e.std_error = std::sqrt(var / double(n));
+  return e;
+}
+
+JobSpec sphere_view() { return make_spec(24, 24, Vec3(0, 0, 4), Vec3(0, 0, 0), 20.0f); }
+
+TEST(Integrator, WhiteFurnaceDiffuseSphereIsOne) {
+  // Albedo 1 with IOR 1 is a pure Lambertian surface; a convex flat-shaded
+  // sphere in a uniform environment of radiance 1 reflects exactly 1.
+  SceneData d;
+  add_icosphere(d, Vec3(0), 1.0f, 3, testing::diffuse(Vec3(1), /*ior=*/1.0f), /*smooth=*/false);
+  auto scene = make_scene(std::move(d), testing::constant_env(1.0f));
+  for (LightStrategy s : {LightStrategy::kMis, LightStrategy::kNeeOnly, LightStrategy::kBsdfOnly}) {
+    Estimate e = estimate(*scene, sphere_view(), 32, s);
+    ASSERT_GT(e.n, 1000u);
+    EXPECT_NEAR(e.mean, 1.0, 3.0 * e.std_error + 1e-6) << "strategy " << int(s);
+  }
+}
+
+TEST(Integrator, WhiteFurnaceBackgroundIsExactlyTheEnvironment) {
+  SceneData d;
+  add_icosphere(d, Vec3(100, 0, 0), 0.1f, 1, testing::diffuse(Vec3(1)));
+  auto scene = make_scene(std::move(d), testing::constant_env(0.75f));
+  JobSpec spec = sphere_view();
+  FrameBuffers fb = render_frame(*scene, spec, 0);
+  for (float v : fb.reference) EXPECT_EQ(v, 0.75f);
+  for (float v : fb.noisy) EXPECT_EQ(v, 0.75f);
+}
+
+TEST(Integrator, GgxSpheresNeverCreateEnergy) {
+  // Single-scattering GGX loses energy to masking; it must never gain any.
+  for (float metallic : {1.0f, 0.0f}) {
+    for (float roughness : {0.0f, 0.05f, 0.2f, 0.5f, 0.8f, 1.0f}) {
+      SceneData d;
+      Material m;
+      m.base_color = Vec3(1);
+      m.metallic = metallic;
+      m.roughness = roughness;
+      add_icosphere(d, Vec3(0), 1.0f, 3, m, /*smooth=*/false);
+      auto scene = make_scene(std::move(d), testing::constant_env(1.0f));
+      Estimate e = estimate(*scene, sphere_view(), 16, LightStrategy::kMis);
+      EXPECT_LE(e.mean, 1.0 + 3.0 * e.std_error)
+          << "metallic " << metallic << " roughness " << roughness;
+      // Single scattering loses up to ~70% at roughness 1 (1 - ln 2 reflected at
+      // normal incidence), but never everything.
+      EXPECT_GT(e.mean, 0.25) << "metallic " << metallic << " roughness " << roughness;
+    }
+  }
+}
+
+TEST(Integrator, NeeBsdfAndMisAgree) {
+  auto scene = make_scene(testing::small_room());
+  JobSpec spec = make_spec(20, 20, Vec3(0, 1, 3.2f), Vec3(0, 0.9f, 0), 45.0f);
+  Estimate mis = estimate(*scene, spec, 128, LightStrategy::kMis);
+  Estimate nee = estimate(*scene, spec, 128, LightStrategy::kNeeOnly);
+  Estimate bsdf = estimate(*scene, spec, 128, LightStrategy::kBsdfOnly);
+  auto agree = [](const Estimate& a, const Estimate& b) {
+    return std::fabs(a.mean - b.mean) / std::hypot(a.std_error, b.std_error);
+  };
+  EXPECT_LT(agree(mis, nee), 4.0) << mis.mean << " vs " << nee.mean;
+  EXPECT_LT(agree(mis, bsdf), 4.0) << mis.mean << " vs " << bsdf.mean;
+  EXPECT_LT(agree(nee, bsdf), 4.0) << nee.mean << " vs " << bsdf.mean;
+  // MIS should be the least noisy of the three.
+  EXPECT_LE(mis.std_error, 1.05 * bsdf.std_error);
+}
+
+TEST(Integrator, NeeBsdfAndMisAgreeUnderAnEnvironmentMap) {
+  SceneData d;
+  Material m;
+  m.base_color = Vec3(0.8f);
+  m.metallic = 0.5f;
+  m.roughness = 0.3f;
+  add_icosphere(d, Vec3(0), 1.0f, 3, m);
+  add_quad(d, Vec3(0, -1, 0), Vec3(0, 0, -3), Vec3(3, 0, 0), testing::diffuse(Vec3(0.5f)));
+  RgbImage img;
+  img.width = 32;
+  img.height = 16;
+  img.rgb.assign(size_t(32) * 16 * 3, 0.2f);
+  for (int c = 0; c < 3; ++c) img.rgb[(3 * 32 + 20) * 3 + c] = 500.0f;  // a small sun
+  auto scene = make_scene(std::move(d), std::make_unique<Environment>(img, 1.0f, 30.0f));
+  JobSpec spec = make_spec(16, 16, Vec3(0, 0.5f, 4), Vec3(0, 0, 0), 35.0f);
+  Estimate mis = estimate(*scene, spec, 256, LightStrategy::kMis);
+  Estimate nee = estimate(*scene, spec, 256, LightStrategy::kNeeOnly);
+  Estimate bsdf = estimate(*scene, spec, 256, LightStrategy::kBsdfOnly);
+  EXPECT_LT(std::fabs(mis.mean - nee.mean), 4 * std::hypot(mis.std_error, nee.std_error));
+  EXPECT_LT(std::fabs(mis.mean - bsdf.mean), 4 * std::hypot(mis.std_error, bsdf.std_error));
+}
+
+TEST(Integrator, SceneWithoutLightIsRefused) {
+  SceneData d;
+  d.source = "dark.gltf";
+  add_icosphere(d, Vec3(0), 1.0f, 1, testing::diffuse(Vec3(0.5f)));
+  try {
+    Scene s(std::move(d), nullptr);
+    FAIL() << "a scene without light was accepted";
+  } catch (const SpecError& e) {
+    EXPECT_NE(std::string(e.what()).find("dark.gltf"), std::string::npos);
+    EXPECT_NE(std::string(e.what()).find("no light"), std::string::npos);
+  }
+}
+
+TEST(Integrator, EmptySceneIsRefused) {
+  SceneData d;
+  d.source = "empty.gltf";
+  EXPECT_THROW(Scene(std::move(d), testing::constant_env(1)), SpecError);
+}
+
+}  // namespace
+}  // namespace dofarm::render

@@ -1,0 +1,102 @@
+#include "worker/render/bsdf.h"
+
+#include <cmath>
+
+#include "worker/render/microfacet.h"
+
+namespace dofarm::render {
+
+Bsdf::Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, float ior)
+    : frame_(ns), ng_(ng) {
+  metallic = clamp01(metallic);
+  roughness = clamp01(roughness);
+  float f = (ior - 1.0f) / (ior + 1.0f);
+  Vec3 dielectric_f0(std::isfinite(f) ? f * f : 0.04f);
+  f0_ = lerp(dielectric_f0, base_color, metallic);
+  diffuse_color_ = base_color * (1.0f - metallic);
+  diffuse_weight_ = max_component(diffuse_color_);
+  alpha_ = ggx::alpha_from_roughness(roughness);
+  delta_specular_ = roughness * roughness < ggx::kDeltaAlpha;
+  // IOR 1 (F0 = 0) is no interface at all: Schlick's curve would still rise
+  // to 1 at grazing angles, so the specular lobe is switched off instead.
+  has_specular_ = max_component(f0_) > 0;
+}
+
+float Bsdf::specular_probability(Vec3 wo) const {
+  if (!has_specular_) return 0.0f;
+  if (diffuse_weight_ <= 0) return 1.0f;
+  float fs = luminance(ggx::fresnel_schlick(f0_, wo.z));
+  float fd = luminance(diffuse_color_) * (1.0f - fs);
+  return std::clamp(fs / (fs + fd), 0.05f, 0.95f);
+}
+
+Vec3 Bsdf::eval(Vec3 wo_w, Vec3 wi_w) const {
+  // Reflection only: both directions above the geometric surface, so light
+  // never leaks through a surface because of a bent shading normal.
+  if (dot(wi_w, ng_) <= 0 || dot(wo_w, ng_) <= 0) return Vec3(0);
+  Vec3 wo = frame_.to_local(wo_w), wi = frame_.to_local(wi_w);
+  if (wo.z <= 0 || wi.z <= 0) return Vec3(0);
+  Vec3 f(0);
+  if (diffuse_weight_ > 0) {
+    Vec3 t(1);
+    if (has_specular_)
+      t = (Vec3(1) - ggx::fresnel_schlick(f0_, wo.z)) * (Vec3(1) - ggx::fresnel_schlick(f0_, wi.z));
+    f += diffuse_color_ * t * (kInvPi * wi.z);
+  }
+  if (has_specular_ && !delta_specular_) {
+    Vec3 h = normalize(wo + wi);
+    float d = ggx::D(h, alpha_), g = ggx::G2(wo, wi, alpha_);
+    Vec3 fr = ggx::fresnel_schlick(f0_, dot(wo, h));
+    f += fr * (d * g / (4.0f * wo.z));  // times cos(wi) / cos(wi) cancels
+  }
+  return f;
+}
+
+float Bsdf::pdf(Vec3 wo_w, Vec3 wi_w) const {
+  if (dot(wi_w, ng_) <= 0 || dot(wo_w, ng_) <= 0) return 0;
+  Vec3 wo = frame_.to_local(wo_w), wi = frame_.to_local(wi_w);
+  if (wo.z <= 0 || wi.z <= 0) return 0;
+  float ps = specular_probability(wo);
+  float p = (1.0f - ps) * wi.z * kInvPi;
+  if (has_specular_ && !delta_specular_) {
+    Vec3 h = normalize(wo + wi);
+    float wo_h = dot(wo, h);
+    if (wo_h > 0) p += ps * ggx::pdf_vndf(wo, h, alpha_) / (4.0f * wo_h);
+  }
+  return p;
+}
+
+BsdfSample Bsdf::sample(Vec3 wo_w, float u_lobe, Vec2 u) const {
+  BsdfSample s;
+  Vec3 wo = frame_.to_local(wo_w);
+  if (wo.z <= 0 || dot(wo_w, ng_) <= 0) return s;
+  float ps = specular_probability(wo);
+  Vec3 wi;
+  if (u_lobe < ps) {
+    if (delta_specular_) {
+      wi = Vec3(-wo.x, -wo.y, wo.z);
+      s.wi = frame_.to_world(wi);
+      if (dot(s.wi, ng_) <= 0) return s;
+      s.weight = ggx::fresnel_schlick(f0_, wo.z) / ps;
+      s.is_delta = true;
+      s.valid = true;
+      return s;
+    }
+    Vec3 h = ggx::sample_vndf(wo, alpha_, u);
+    wi = reflect(wo, h);
+  } else {
+    // Cosine-weighted hemisphere (Malley's method).
+    float r = std::sqrt(u.x), phi = kTwoPi * u.y;
+    wi = Vec3(r * std::cos(phi), r * std::sin(phi), safe_sqrt(1.0f - u.x));
+  }
+  if (wi.z <= 0) return s;
+  s.wi = frame_.to_world(wi);
+  s.pdf = pdf(wo_w, s.wi);
+  if (!(s.pdf > 0)) return s;
+  Vec3 f = eval(wo_w, s.wi);
+  s.weight = f / s.pdf;
+  s.valid = is_finite(s.weight);
+  return s;
+}
+
+}  // namespace dofarm::render

@@ -1,0 +1,46 @@
+// The material model at one surface point: glTF metallic-roughness mapped
+// onto a Lambertian diffuse lobe plus a GGX specular lobe (Walter et al.
+// 2007; sampled through visible normals, Heitz 2018). Dielectric F0 comes
+// from the IOR, metals use the base colour as F0 (glTF 2.0 appendix B).
+// The diffuse lobe is weighted by (1 - F(n.wo)) (1 - F(n.wi)) so that no
+// combination of parameters creates energy. Below ggx::kDeltaAlpha the
+// specular lobe is a perfect mirror (a delta lobe: no eval, no NEE).
+//
+// All directions are in world space; the BSDF works in the shading frame.
+#pragma once
+
+#include "common/math.h"
+
+namespace dofarm::render {
+
+struct BsdfSample {
+  Vec3 wi;
+  Vec3 weight;    // f * |cos| / pdf (for a delta lobe: F / probability)
+  float pdf = 0;  // solid angle; 0 for a delta lobe
+  bool is_delta = false;
+  bool valid = false;
+};
+
+class Bsdf {
+ public:
+  // `ns` shading normal, `ng` geometric normal, both facing wo's side.
+  Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, float ior);
+
+  Vec3 eval(Vec3 wo, Vec3 wi) const;  // f(wo, wi) * |cos(ns, wi)|, non-delta part
+  float pdf(Vec3 wo, Vec3 wi) const;  // of sample(), non-delta part
+  BsdfSample sample(Vec3 wo, float u_lobe, Vec2 u) const;
+  bool has_non_delta() const { return diffuse_weight_ > 0 || (has_specular_ && !delta_specular_); }
+
+ private:
+  float specular_probability(Vec3 wo_local) const;
+  Frame frame_;
+  Vec3 ng_;
+  Vec3 diffuse_color_;  // (1 - metallic) * base_color
+  Vec3 f0_;
+  float alpha_;
+  float diffuse_weight_;
+  bool delta_specular_;
+  bool has_specular_;
+};
+
+}  // namespace dofarm::render

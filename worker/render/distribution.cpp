@@ -1,0 +1,91 @@
+#include "worker/render/distribution.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace dofarm::render {
+
+Distribution1D::Distribution1D(std::vector<float> weights) : func_(std::move(weights)) {
+  size_t n = func_.size();
+  cdf_.assign(n + 1, 0.0);
+  for (float& f : func_)
+    if (!(f > 0) || !std::isfinite(f)) f = 0;
+  for (size_t i = 0; i < n; ++i) cdf_[i + 1] = cdf_[i] + double(func_[i]) / double(n);
+  integral_ = cdf_[n];
+  if (integral_ <= 0) {  // nothing to importance-sample: fall back to uniform
+    for (size_t i = 0; i < n; ++i) {
+      func_[i] = 1;
+      cdf_[i + 1] = double(i + 1) / double(n);
+    }
+    integral_ = 0;
+  } else {
+    for (size_t i = 1; i <= n; ++i) cdf_[i] /= integral_;
+  }
+  if (n > 0) cdf_[n] = 1.0;
+}
+
+size_t Distribution1D::find_cell(float u) const {
+  // Largest i with cdf_[i] <= u, restricted to [0, n-1].
+  auto it = std::upper_bound(cdf_.begin(), cdf_.end(), double(u));
+  size_t i = size_t(std::max<std::ptrdiff_t>(0, (it - cdf_.begin()) - 1));
+  i = std::min(i, func_.size() - 1);
+  // Skip zero-probability cells that upper_bound can land on when u == cdf.
+  while (i + 1 < func_.size() && cdf_[i + 1] <= cdf_[i]) ++i;
+  return i;
+}
+
+float Distribution1D::pmf(size_t i) const { return float(cdf_[i + 1] - cdf_[i]); }
+
+size_t Distribution1D::sample_discrete(float u, float* pmf_out, float* remapped) const {
+  size_t i = find_cell(u);
+  double width = cdf_[i + 1] - cdf_[i];
+  if (pmf_out) *pmf_out = float(width);
+  if (remapped) {
+    double r = width > 0 ? (double(u) - cdf_[i]) / width : 0.0;
+    *remapped = float(std::clamp(r, 0.0, double(0x1.fffffep-1)));
+  }
+  return i;
+}
+
+float Distribution1D::sample_continuous(float u, float* pdf_out, size_t* cell) const {
+  size_t i = find_cell(u);
+  double width = cdf_[i + 1] - cdf_[i];
+  double du = width > 0 ? (double(u) - cdf_[i]) / width : 0.5;
+  if (cell) *cell = i;
+  if (pdf_out) *pdf_out = float(width * double(func_.size()));
+  double x = (double(i) + std::clamp(du, 0.0, 1.0)) / double(func_.size());
+  return float(std::min(x, double(0x1.fffffep-1)));
+}
+
+float Distribution1D::pdf(float x) const {
+  size_t n = func_.size();
+  size_t i = std::min(n - 1, size_t(std::max(0.0f, x) * float(n)));
+  return float((cdf_[i + 1] - cdf_[i]) * double(n));
+}
+
+Distribution2D::Distribution2D(const std::vector<float>& w, int nu, int nv) : nu_(nu), nv_(nv) {
+  std::vector<float> row_sums(nv);
+  conditional_.reserve(nv);
+  for (int v = 0; v < nv; ++v) {
+    conditional_.emplace_back(
+        std::vector<float>(w.begin() + size_t(v) * nu, w.begin() + size_t(v + 1) * nu));
+    row_sums[v] = float(conditional_.back().integral());
+  }
+  marginal_ = Distribution1D(std::move(row_sums));
+}
+
+Vec2 Distribution2D::sample(Vec2 u, float* pdf_out) const {
+  float pdf_v, pdf_u;
+  size_t row;
+  float y = marginal_.sample_continuous(u.y, &pdf_v, &row);
+  float x = conditional_[row].sample_continuous(u.x, &pdf_u);
+  *pdf_out = pdf_v * pdf_u;
+  return {x, y};
+}
+
+float Distribution2D::pdf(Vec2 p) const {
+  int row = std::clamp(int(p.y * float(nv_)), 0, nv_ - 1);
+  return marginal_.pdf(p.y) * conditional_[row].pdf(p.x);
+}
+
+}  // namespace dofarm::render

@@ -1,0 +1,105 @@
+#include "worker/render/integrator.h"
+
+#include <cmath>
+
+#include "worker/render/bsdf.h"
+
+namespace dofarm::render {
+
+namespace {
+
+float power_heuristic(float f, float g) {
+  float f2 = f * f, g2 = g * g;
+  if (std::isinf(f2)) return 1.0f;
+  return f2 + g2 > 0 ? f2 / (f2 + g2) : 0.0f;
+}
+
+}  // namespace
+
+Vec3 primary_albedo(const SurfaceHit* hit) {
+  if (!hit || max_component(hit->emission) > 0) return Vec3(1);
+  return hit->base_color;
+}
+
+Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler,
+                const IntegratorSettings& settings, Vec3* albedo) {
+  const bool use_nee = settings.strategy != LightStrategy::kBsdfOnly;
+  const bool use_bsdf_hits = settings.strategy != LightStrategy::kNeeOnly;
+  const bool use_mis = settings.strategy == LightStrategy::kMis;
+
+  Vec3 L(0), beta(1);
+  Ray ray = camera_ray;
+  bool delta_bounce = true;  // the camera ray counts as one: nothing to weigh against
+  float prev_bsdf_pdf = 0;
+  Vec3 prev_p;
+  const Environment* env = scene.environment();
+
+  for (int depth = 0;; ++depth) {
+    SurfaceHit hit;
+    bool found = scene.intersect(ray, &hit);
+    if (depth == 0 && albedo) *albedo = primary_albedo(found ? &hit : nullptr);
+
+    if (!found) {
+      if (env && (delta_bounce || use_bsdf_hits)) {
+        Vec3 le = env->eval(ray.d);
+        float w = 1.0f;
+        if (!delta_bounce && use_mis)
+          w = power_heuristic(prev_bsdf_pdf, scene.environment_pdf(ray.d));
+        L += beta * le * w;
+      }
+      break;
+    }
+    if (max_component(hit.emission) > 0 && (delta_bounce || use_bsdf_hits)) {
+      float w = 1.0f;
+      if (!delta_bounce && use_mis)
+        w = power_heuristic(prev_bsdf_pdf, scene.light_pdf(prev_p, hit));
+      L += beta * hit.emission * w;
+    }
+    if (depth >= settings.max_depth) break;
+
+    // A fixed number of dimensions per bounce keeps the sample streams of
+    // different paths aligned (better stratification with Sobol').
+    const float u_select = sampler.get1d();
+    const Vec2 u_light = sampler.get2d();
+    const float u_lobe = sampler.get1d();
+    const Vec2 u_bsdf = sampler.get2d();
+    const float u_rr = sampler.get1d();
+
+    Bsdf bsdf(hit.ns, hit.ng, hit.base_color, hit.metallic, hit.roughness, hit.ior);
+    const Vec3 wo = -ray.d;
+
+    if (use_nee && bsdf.has_non_delta()) {
+      LightSample ls;
+      if (scene.sample_light(hit.p, u_select, u_light, &ls)) {
+        Vec3 f = bsdf.eval(wo, ls.wi);
+        if (max_component(f) > 0) {
+          Vec3 origin = scene.offset_origin(hit, ls.wi);
+          float t_max = std::isinf(ls.distance) ? ls.distance : ls.distance * (1.0f - 1e-4f);
+          if (!scene.occluded(origin, ls.wi, t_max)) {
+            float w = use_mis ? power_heuristic(ls.pdf, bsdf.pdf(wo, ls.wi)) : 1.0f;
+            L += beta * f * ls.radiance * (w / ls.pdf);
+          }
+        }
+      }
+    }
+
+    BsdfSample bs = bsdf.sample(wo, u_lobe, u_bsdf);
+    if (!bs.valid) break;
+    beta *= bs.weight;
+    if (!(max_component(beta) > 0) || !is_finite(beta)) break;
+    delta_bounce = bs.is_delta;
+    prev_bsdf_pdf = bs.pdf;
+    prev_p = hit.p;
+
+    if (depth + 1 >= settings.rr_start_depth) {
+      float survive = std::min(1.0f, max_component(beta));
+      if (u_rr >= survive) break;
+      beta = beta / survive;
+    }
+    ray = {scene.offset_origin(hit, bs.wi), bs.wi};
+  }
+  if (!is_finite(L) || L.x < 0 || L.y < 0 || L.z < 0) return Vec3(0);
+  return L;
+}
+
+}  // namespace dofarm::render

@@ -1,0 +1,33 @@
+// Unidirectional path tracing with next-event estimation and multiple
+// importance sampling (Veach 1997, ch. 9, power heuristic with beta = 2),
+// Russian roulette on the path throughput.
+#pragma once
+
+#include "worker/render/camera.h"
+#include "worker/render/sampler.h"
+#include "worker/render/scene.h"
+
+namespace dofarm::render {
+
+// kMis is what the renderer uses; the other two exist so tests can check that
+// all three estimate the same integral.
+enum class LightStrategy { kMis, kNeeOnly, kBsdfOnly };
+
+struct IntegratorSettings {
+  int max_depth = 16;  // surface interactions after the camera
+  int rr_start_depth = 3;
+  LightStrategy strategy = LightStrategy::kMis;
+};
+
+// What the denoiser sees of the first surface: the reflectance used to
+// demodulate radiance. Surfaces that emit and rays that escape get 1: their
+// radiance is not reflected light.
+Vec3 primary_albedo(const SurfaceHit* hit);
+
+// Radiance along `ray`. Always finite and non-negative: a sample whose
+// estimate is NaN or infinite (it should never happen) contributes 0.
+// `albedo` (optional) receives primary_albedo() of the first hit.
+Vec3 trace_path(const Scene& scene, const Ray& ray, PixelSampler& sampler,
+                const IntegratorSettings& settings, Vec3* albedo = nullptr);
+
+}  // namespace dofarm::render

@@ -1,0 +1,218 @@
+#include "worker/render/render_job.h"
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <exception>
+#include <mutex>
+#include <thread>
+
+#include "common/error.h"
+#include "common/exr_io.h"
+#include "worker/render/integrator.h"
+#include "worker/render/scene.h"
+
+namespace dofarm::render {
+
+namespace {
+
+// Per-pixel mean and variance of luminance (Welford), in double: a reference
+// accumulates up to 2^16 samples.
+struct PixelAccumulator {
+  double sum[3] = {0, 0, 0};
+  double mean_lum = 0, m2 = 0;
+  int n = 0;
+  void add(Vec3 c) {
+    for (int i = 0; i < 3; ++i) sum[i] += c[i];
+    double l = luminance(c);
+    ++n;
+    double d = l - mean_lum;
+    mean_lum += d / n;
+    m2 += d * (l - mean_lum);
+  }
+  // Variance of the mean of the n samples.
+  double variance_of_mean() const { return n > 1 ? m2 / (double(n - 1) * n) : 0.0; }
+  double relative_error() const {
+    return std::sqrt(variance_of_mean()) / std::max(std::fabs(mean_lum), 1e-3);
+  }
+};
+
+class PixelRenderer {
+ public:
+  PixelRenderer(const Scene& scene, const JobSpec& spec, const Camera& camera, int frame)
+      : scene_(scene), spec_(spec), camera_(camera), frame_(frame) {
+    settings_.max_depth = spec.max_depth;
+    settings_.rr_start_depth = spec.rr_start_depth;
+  }
+
+  void render(int x, int y, FrameBuffers& out, size_t plane_index) const {
+    const size_t plane = out.plane();
+    const size_t i = plane_index;
+    auto put3 = [&](std::vector<float>& buf, size_t base, Vec3 v) {
+      buf[base + i] = v.x;
+      buf[base + plane + i] = v.y;
+      buf[base + 2 * plane + i] = v.z;
+    };
+
+    // Aux buffers: the pinhole ray through the pixel centre.
+    Ray center = camera_.pinhole_ray(Vec2(float(x) + 0.5f, float(y) + 0.5f));
+    SurfaceHit hit;
+    if (scene_.intersect(center, &hit)) {
+      put3(out.normal, 0, normalize(camera_.to_view(hit.ns)));
+      float z = camera_.view_depth(hit.p);
+      out.depth[i] = z;
+      out.roughness[i] = hit.roughness;
+      out.coc[i] = camera_.coc_pixels(z);
+    } else {
+      out.coc[i] = camera_.coc_pixels(0.0f);
+    }
+
+    // Noisy versions: one path each, with the albedo of the same primary ray.
+    PixelSampler noisy(spec_.sampler, spec_.seed, frame_, x, y, Stream::kNoisy);
+    for (int v = 0; v < spec_.versions; ++v) {
+      noisy.start_sample(uint32_t(v));
+      Vec3 albedo;
+      Vec3 L = trace_path(scene_, lens_ray(noisy, x, y), noisy, settings_, &albedo);
+      size_t base = size_t(v) * 3 * plane;
+      put3(out.noisy, base, L);
+      put3(out.albedo, base, albedo);
+    }
+
+    // Albedo at N samples through the lens: the primary hit only.
+    PixelSampler alb(spec_.sampler, spec_.seed, frame_, x, y, Stream::kAlbedoRef);
+    Vec3 albedo_sum(0);
+    for (int s = 0; s < spec_.albedo_ref_spp; ++s) {
+      alb.start_sample(uint32_t(s));
+      SurfaceHit h;
+      bool found = scene_.intersect(lens_ray(alb, x, y), &h);
+      albedo_sum += primary_albedo(found ? &h : nullptr);
+    }
+    put3(out.albedo_ref, 0, albedo_sum / float(spec_.albedo_ref_spp));
+
+    // Reference: a fixed sample count, or batches until the relative standard
+    // error of the pixel's mean luminance meets the target. The stopping rule
+    // only looks at this pixel's samples, so it is deterministic too.
+    PixelSampler ref(spec_.sampler, spec_.seed, frame_, x, y, Stream::kReference);
+    PixelAccumulator acc;
+    const bool adaptive = spec_.reference_error > 0;
+    const int target = adaptive ? spec_.reference_max_spp : spec_.reference_spp;
+    const int batch = 64;
+    for (int s = 0; s < target; ++s) {
+      ref.start_sample(uint32_t(s));
+      acc.add(trace_path(scene_, lens_ray(ref, x, y), ref, settings_));
+      if (adaptive && (s + 1) % batch == 0 && acc.relative_error() <= spec_.reference_error) break;
+    }
+    Vec3 mean(float(acc.sum[0] / acc.n), float(acc.sum[1] / acc.n), float(acc.sum[2] / acc.n));
+    put3(out.reference, 0, mean);
+    out.reference_var[i] = float(acc.variance_of_mean());
+  }
+
+ private:
+  // Pixel jitter (box filter), then the lens only when there is one.
+  Ray lens_ray(PixelSampler& s, int x, int y) const {
+    Vec2 j = s.get2d();
+    Vec2 film(float(x) + j.x, float(y) + j.y);
+    if (!camera_.has_lens()) return camera_.pinhole_ray(film);
+    return camera_.generate_ray(film, s.get2d());
+  }
+
+  const Scene& scene_;
+  const JobSpec& spec_;
+  const Camera& camera_;
+  int frame_;
+  IntegratorSettings settings_;
+};
+
+}  // namespace
+
+Rect checked_rect(const JobSpec& spec, int frame, std::optional<Rect> tile) {
+  const FileLoc loc{spec.spec_path.string()};
+  if (frame < spec.frame_start || frame > spec.frame_end)
+    throw SpecError(loc, "frame",
+                    "frame " + std::to_string(frame) + " is outside the job's range " +
+                        std::to_string(spec.frame_start) + ".." + std::to_string(spec.frame_end));
+  Rect r{0, 0, spec.width, spec.height};
+  if (tile) {
+    r = *tile;
+    if (r.w <= 0 || r.h <= 0 || r.x < 0 || r.y < 0 || r.x + r.w > spec.width ||
+        r.y + r.h > spec.height)
+      throw SpecError(loc, "tile",
+                      "tile " + std::to_string(r.x) + "," + std::to_string(r.y) + "," +
+                          std::to_string(r.w) + "," + std::to_string(r.h) + " is not inside the " +
+                          std::to_string(spec.width) + "x" + std::to_string(spec.height) +
+                          " image");
+  }
+  return r;
+}
+
+FrameBuffers render_frame(const Scene& scene, const JobSpec& spec, int frame,
+                          std::optional<Rect> tile, const RenderOptions& options) {
+  const Rect rect = checked_rect(spec, frame, tile);
+  FrameBuffers out;
+  out.allocate(rect.w, rect.h, spec.versions);
+  out.rect = rect;
+  out.camera = camera_for_frame(spec, scene.data(), frame);
+  const Camera camera(out.camera, spec.width, spec.height);
+  const PixelRenderer pixels(scene, spec, camera, frame);
+
+  // Blocks of block_size^2 pixels handed out to a pool of threads; each pixel
+  // writes only its own slots, so the result is the same for any schedule.
+  const int bs = std::max(1, options.block_size);
+  const int bx = (rect.w + bs - 1) / bs, by = (rect.h + bs - 1) / bs;
+  const int blocks = bx * by;
+  int threads = options.threads > 0 ? options.threads : int(std::thread::hardware_concurrency());
+  threads = std::clamp(threads, 1, std::max(1, blocks));
+  std::atomic<int> next{0};
+  std::exception_ptr error;
+  std::mutex error_mutex;
+  auto work = [&] {
+    try {
+      for (int b = next++; b < blocks; b = next++) {
+        int x0 = (b % bx) * bs, y0 = (b / bx) * bs;
+        for (int y = y0; y < std::min(y0 + bs, rect.h); ++y)
+          for (int x = x0; x < std::min(x0 + bs, rect.w); ++x)
+            pixels.render(rect.x + x, rect.y + y, out, size_t(y) * rect.w + x);
+      }
+    } catch (...) {
+      std::lock_guard<std::mutex> lock(error_mutex);
+      if (!error) error = std::current_exception();
+      next = blocks;
+    }
+  };
+  std::vector<std::thread> pool;
+  for (int t = 1; t < threads; ++t) pool.emplace_back(work);
+  work();
+  for (auto& t : pool) t.join();
+  if (error) std::rethrow_exception(error);
+  return out;
+}
+
+FrameBuffers render_frame(const JobSpec& spec, int frame, std::optional<Rect> tile,
+                          const RenderOptions& options) {
+  checked_rect(spec, frame, tile);  // fail on bad input before loading anything
+  auto scene = load_scene(spec);
+  return render_frame(*scene, spec, frame, tile, options);
+}
+
+void render_frame_to_exr(const JobSpec& spec, int frame, std::optional<Rect> tile,
+                         const std::filesystem::path& out, const RenderOptions& options) {
+  auto t0 = std::chrono::steady_clock::now();
+  FrameBuffers fb = render_frame(spec, frame, tile, options);
+  double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  std::map<std::string, std::string> attrs = {
+      {"dofarm.renderer_version", DOFARM_VERSION},
+      {"dofarm.job", spec.spec_path.string()},
+      {"dofarm.scene", spec.scene.string()},
+      {"dofarm.seed", std::to_string(spec.seed)},
+      {"dofarm.image", std::to_string(spec.width) + "x" + std::to_string(spec.height)},
+      {"dofarm.spp.reference", spec.reference_error > 0
+                                   ? "error<=" + std::to_string(spec.reference_error)
+                                   : std::to_string(spec.reference_spp)},
+      {"dofarm.spp.albedo_ref", std::to_string(spec.albedo_ref_spp)},
+      {"dofarm.render_seconds", std::to_string(seconds)},
+  };
+  write_frame_exr(out, fb, attrs);
+}
+
+}  // namespace dofarm::render

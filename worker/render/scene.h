@@ -1,0 +1,89 @@
+// The render-ready scene: SceneData in an Embree BVH, plus its lights.
+// Built once per (scene file, job) and shared read-only by all threads.
+#pragma once
+
+#include <embree3/rtcore.h>
+
+#include <memory>
+#include <vector>
+
+#include "common/jobspec.h"
+#include "worker/render/camera.h"
+#include "worker/render/distribution.h"
+#include "worker/render/environment.h"
+#include "worker/render/scene_data.h"
+
+namespace dofarm::render {
+
+// Everything the integrator needs at a ray hit, textures already applied.
+struct SurfaceHit {
+  float t = 0;
+  Vec3 p;
+  Vec3 ng;  // geometric normal, facing the incoming ray
+  Vec3 ns;  // shading normal, same side as ng
+  Vec2 uv;
+  uint32_t prim = 0;
+  Vec3 base_color;
+  float metallic = 0, roughness = 0, ior = 1.5f;
+  Vec3 emission;  // radiance leaving the surface (both faces emit)
+};
+
+struct LightSample {
+  Vec3 wi;             // towards the light
+  float distance = 0;  // to the light point (infinity for the environment)
+  Vec3 radiance;
+  float pdf = 0;  // solid angle, including the light-selection probability
+};
+
+class Scene {
+ public:
+  // Throws SpecError if the scene has no triangles or no light at all.
+  Scene(SceneData data, std::unique_ptr<Environment> environment);
+  ~Scene();
+  Scene(const Scene&) = delete;
+  Scene& operator=(const Scene&) = delete;
+
+  bool intersect(const Ray& ray, SurfaceHit* hit) const;
+  bool occluded(Vec3 origin, Vec3 dir, float t_max) const;
+  // Origin for a ray leaving `hit` in direction `dir`, pushed off the surface
+  // by an amount that scales with the coordinates (works from 1e-4 to 1e5).
+  Vec3 offset_origin(const SurfaceHit& hit, Vec3 dir) const;
+
+  const SceneData& data() const { return data_; }
+  const Environment* environment() const { return environment_.get(); }
+  bool has_lights() const { return !light_tris_.empty() || env_sampled_; }
+
+  // Next-event estimation: pick a light by power, then a point on it.
+  bool sample_light(Vec3 from, float u_select, Vec2 u, LightSample* out) const;
+  // Solid-angle pdf that sample_light() would give to reaching `hit` (an
+  // emissive triangle) from `from`.
+  float light_pdf(Vec3 from, const SurfaceHit& hit) const;
+  float environment_pdf(Vec3 dir) const;  // includes the selection probability
+
+  float radius() const { return radius_; }
+  Vec3 center() const { return center_; }
+
+ private:
+  Vec3 material_emission(const Material& m, Vec2 uv) const;
+  float triangle_area(uint32_t prim) const;
+
+  SceneData data_;
+  std::unique_ptr<Environment> environment_;
+  RTCDevice device_ = nullptr;
+  RTCScene rtc_scene_ = nullptr;
+  std::vector<float> vertex_buffer_;  // xyz + padding Embree may read past the end
+  std::vector<uint32_t> light_tris_;
+  std::vector<float> light_tri_area_;
+  std::vector<int> light_index_of_prim_;  // -1 where not a light
+  Distribution1D light_select_;           // light_tris_ then, if sampled, the environment
+  bool env_sampled_ = false;
+  float env_select_pmf_ = 0;
+  Vec3 center_{0};
+  float radius_ = 1;
+  float offset_scale_ = 1e-4f;
+};
+
+// Loads the job's scene file and environment and builds the Scene.
+std::shared_ptr<const Scene> load_scene(const JobSpec& spec);
+
+}  // namespace dofarm::render
