@@ -10,6 +10,7 @@
 
 #include "common/error.h"
 #include "common/exr_io.h"
+#include "common/progress.h"
 #include "worker/render/integrator.h"
 #include "worker/render/scene.h"
 
@@ -44,6 +45,12 @@ class PixelRenderer {
       : scene_(scene), spec_(spec), camera_(camera), frame_(frame) {
     settings_.max_depth = spec.max_depth;
     settings_.rr_start_depth = spec.rr_start_depth;
+  }
+
+  // Exact for a fixed reference spp; for an error target, the cap.
+  uint64_t paths_per_pixel_hint() const {
+    return uint64_t(spec_.versions) +
+           uint64_t(spec_.reference_error > 0 ? spec_.reference_max_spp : spec_.reference_spp);
   }
 
   void render(int x, int y, FrameBuffers& out, size_t plane_index) const {
@@ -164,27 +171,41 @@ FrameBuffers render_frame(const Scene& scene, const JobSpec& spec, int frame,
   int threads = options.threads > 0 ? options.threads : int(std::thread::hardware_concurrency());
   threads = std::clamp(threads, 1, std::max(1, blocks));
   std::atomic<int> next{0};
+  std::atomic<uint64_t> rays{0};
+  std::optional<Progress> progress;
+  if (options.progress) progress.emplace("frame " + std::to_string(frame), int64_t(blocks));
+  const auto t0 = std::chrono::steady_clock::now();
   std::exception_ptr error;
   std::mutex error_mutex;
   auto work = [&] {
+    const uint64_t rays_before = thread_ray_count().total();
     try {
       for (int b = next++; b < blocks; b = next++) {
         int x0 = (b % bx) * bs, y0 = (b / bx) * bs;
         for (int y = y0; y < std::min(y0 + bs, rect.h); ++y)
           for (int x = x0; x < std::min(x0 + bs, rect.w); ++x)
             pixels.render(rect.x + x, rect.y + y, out, size_t(y) * rect.w + x);
+        if (progress) progress->advance();
       }
     } catch (...) {
       std::lock_guard<std::mutex> lock(error_mutex);
       if (!error) error = std::current_exception();
       next = blocks;
     }
+    rays += thread_ray_count().total() - rays_before;
   };
   std::vector<std::thread> pool;
   for (int t = 1; t < threads; ++t) pool.emplace_back(work);
   work();
   for (auto& t : pool) t.join();
   if (error) std::rethrow_exception(error);
+  if (progress) progress->finish();
+  if (options.stats) {
+    options.stats->rays += rays;
+    options.stats->paths += uint64_t(rect.w) * rect.h * pixels.paths_per_pixel_hint();
+    options.stats->seconds +=
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  }
   return out;
 }
 

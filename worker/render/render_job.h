@@ -12,10 +12,18 @@
 
 namespace dofarm::render {
 
+// What a render_frame() call did, for benchmarks and logs.
+struct RenderStats {
+  uint64_t paths = 0;  // camera paths traced (noisy versions + reference samples)
+  uint64_t rays = 0;   // closest-hit + shadow rays, albedo and aux rays included
+  double seconds = 0;
+};
+
 struct RenderOptions {
-  int threads = 0;        // 0 = all hardware threads
-  int block_size = 16;    // pixels per side of a thread-pool work item
-  bool progress = false;  // log progress lines / a bar on a terminal
+  int threads = 0;               // 0 = all hardware threads
+  int block_size = 16;           // pixels per side of a thread-pool work item
+  bool progress = false;         // log progress lines / a bar on a terminal
+  RenderStats* stats = nullptr;  // filled in when set
 };
 
 // Renders `frame` of `spec`, restricted to `tile` when given (default: the

@@ -18,6 +18,8 @@ void embree_error(void* user, RTCError code, const char* str) {
   (void)code;
 }
 
+thread_local RayCount t_rays;
+
 float max_abs(Vec3 v) { return std::max(std::fabs(v.x), std::max(std::fabs(v.y), std::fabs(v.z))); }
 
 Vec3 texture_mean(const Texture& t) {
@@ -124,7 +126,10 @@ Vec3 Scene::material_emission(const Material& m, Vec2 uv) const {
   return m.emission;
 }
 
+RayCount thread_ray_count() { return t_rays; }
+
 bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
+  ++t_rays.closest;
   RTCIntersectContext ctx;
   rtcInitIntersectContext(&ctx);
   RTCRayHit rh;
@@ -187,6 +192,7 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
 }
 
 bool Scene::occluded(Vec3 origin, Vec3 dir, float t_max) const {
+  ++t_rays.shadow;
   RTCIntersectContext ctx;
   rtcInitIntersectContext(&ctx);
   RTCRay r;

@@ -83,6 +83,15 @@ class Scene {
   float offset_scale_ = 1e-4f;
 };
 
+// Rays traced by the calling thread so far (closest-hit and shadow rays);
+// per thread, so counting costs no synchronisation.
+struct RayCount {
+  uint64_t closest = 0;
+  uint64_t shadow = 0;
+  uint64_t total() const { return closest + shadow; }
+};
+RayCount thread_ray_count();
+
 // Loads the job's scene file and environment and builds the Scene.
 std::shared_ptr<const Scene> load_scene(const JobSpec& spec);
 
