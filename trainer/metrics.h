@@ -10,6 +10,7 @@
 // trained, checked against scikit-image (tests/trainer/data/ssim_fixture.txt).
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
 #include <vector>
 

@@ -36,7 +36,7 @@ struct Fixture {
 };
 
 std::map<std::string, double> load_reference_values() {
-  std::ifstream in(std::string(DOFARM_TEST_DATA) + "/ssim_fixture.txt");
+  std::ifstream in(std::string(DOFARM_SOURCE_DIR) + "/tests/trainer/data/ssim_fixture.txt");
   EXPECT_TRUE(in.good());
   std::map<std::string, double> out;
   std::string line;

@@ -1,0 +1,47 @@
+// Inference on full frames and the evaluation report (thesis 5.1, table 5.1).
+#pragma once
+
+#include <torch/torch.h>
+
+#include <filesystem>
+#include <vector>
+
+#include "common/image.h"
+#include "trainer/train.h"
+
+namespace dofarm::trainer {
+
+// Denoises full frames of any size with a trained run. Frames of one
+// sequence must come in order: the recurrent model carries its state.
+class FrameDenoiser {
+ public:
+  FrameDenoiser(const std::filesystem::path& run_dir, torch::Device device);
+  // Linear RGB (3, H, W) from noisy version `version` of `frame`.
+  // `seconds` receives the time of network + remodulation (no IO, no input
+  // preparation), synchronised with the device.
+  std::vector<float> denoise(const FrameBuffers& frame, int version, double* seconds = nullptr);
+  void reset_sequence() { state_.clear(); }
+  const TrainConfig& config() const { return run_.config; }
+
+ private:
+  LoadedRun run_;
+  torch::Device device_;
+  std::vector<torch::Tensor> state_;
+};
+
+struct EvalOptions {
+  std::filesystem::path run_dir, data_dir, out_dir;
+  int max_frames = 0;  // 0 = every validation frame
+  int max_images = 8;  // comparison PNGs written (first frames)
+  int version = 0;     // noisy version fed to the network
+};
+
+struct EvalSummary {
+  int frames = 0;
+  double ssim = 0, psnr = 0, rel_mse = 0, ms = 0;  // means over frames, denoised
+};
+
+// Writes OUT/report.md, OUT/report.json, OUT/frame-*.png, OUT/loss.png.
+EvalSummary evaluate(const EvalOptions& options);
+
+}  // namespace dofarm::trainer
