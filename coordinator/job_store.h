@@ -1,0 +1,202 @@
+// The coordinator's journal: batches, tasks, attempts, workers, blocklist and
+// events in one SQLite database (sqlite3 C API). It holds the whole state, so
+// a coordinator killed at any point restarts where it was: it opens the store
+// and goes on. The scheduler decides; the store only records.
+//
+// Durability. WAL journal with synchronous=FULL: every commit is fsynced, so a
+// transaction that returned survives a kill -9 of the coordinator *and* an OS
+// crash or power loss. (WAL + NORMAL would survive a process crash too and
+// only risk the last commits on an OS crash, but then a batch id already
+// printed by `dofarm submit` could vanish.) Commits happen once per task
+// event, a few per second on a large farm, so one fsync each costs nothing
+// that matters.
+//
+// Transactions. Every state change is one transaction: the scheduler opens a
+// Transaction, makes its reads and writes through this class and commits;
+// destroying an uncommitted Transaction rolls back. Transactions start with
+// BEGIN IMMEDIATE so that a second connection (an operator's sqlite3 shell)
+// makes us wait busy_timeout instead of failing half-way through.
+//
+// Versioning. PRAGMA user_version holds kSchemaVersion; a store of another
+// version is refused rather than guessed at.
+//
+// Errors. Every SQLite failure becomes a RuntimeError carrying sqlite3_errmsg,
+// the statement and the database path.
+//
+// Not thread-safe: one JobStore per thread (the coordinator's loop owns one).
+#pragma once
+
+#include <cstdint>
+#include <filesystem>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "common/image.h"
+#include "coordinator/planner.h"
+
+struct sqlite3;
+
+namespace dofarm::coordinator {
+
+inline constexpr int kStoreSchemaVersion = 1;
+
+enum class BatchState { kRunning, kDone, kFailed, kCancelled };
+// kFailed: every task is finished and at least one failed for good (the
+// batch went on without it, "done with failures").
+enum class TaskState { kPending, kLeased, kDone, kFailed };
+enum class AttemptOutcome { kDone, kFailed, kExpired, kReleased, kRevoked };
+// kRevoked: the coordinator took the lease back (cancel, invalidate).
+
+const char* to_string(BatchState s);
+const char* to_string(TaskState s);
+const char* to_string(AttemptOutcome s);
+
+struct BatchRow {
+  std::string id;  // "b-" + 8 hex digits
+  std::string spec_path;
+  std::vector<std::string> overrides;  // --set KEY=VALUE, in order (stored as JSON)
+  std::string out_dir;
+  BatchState state = BatchState::kRunning;
+  double created = 0;
+  std::optional<double> finished;
+  int frame_start = 0;
+  int frame_end = 0;  // inclusive
+};
+
+struct TaskRow {
+  int64_t id = 0;  // assigned by insert_task()
+  std::string batch_id;
+  TaskKind kind = TaskKind::kRenderTile;
+  int frame = -1;
+  Rect rect;
+  int shard = 0;
+  TaskState state = TaskState::kPending;
+  // Leases handed out so far; the current lease is attempt number `attempts`.
+  // Only ever grows, so a result of an earlier attempt can never pass for the
+  // current one.
+  int attempts = 0;
+  // Failures counted by the policy are those of attempts > retry_base; resume
+  // raises it to give failed tasks a fresh count without rewriting history.
+  int retry_base = 0;
+  std::string lease_worker;  // empty unless leased
+  double lease_expiry = 0;
+  double not_before = 0;    // back-off: not assigned before this time
+  std::string staged_path;  // done: the staged tile file, or the shard
+  std::string checksum;     // done: checksum_to_string() of that file
+  std::string last_error;
+  double updated = 0;  // time of the last state change
+};
+
+struct AttemptRow {
+  int64_t task_id = 0;
+  int attempt = 0;
+  std::string worker;
+  double started = 0;
+  std::optional<double> finished;
+  std::optional<AttemptOutcome> outcome;  // empty while running
+  std::string error;
+};
+
+struct WorkerRow {
+  std::string id;
+  std::string host;
+  int threads = 0;
+  double first_seen = 0;
+  double last_seen = 0;
+  bool left = false;  // said goodbye; stored as state 'live' / 'left'
+};
+
+struct EventRow {
+  int64_t id = 0;
+  double time = 0;
+  std::string batch_id;  // empty: farm-wide
+  std::string level;     // "info", "warn", "error"
+  std::string text;
+};
+
+class JobStore {
+ public:
+  // Opens `path`, creating it (and the schema) when absent. Throws
+  // RuntimeError when it is not a SQLite database or of another schema version.
+  explicit JobStore(const std::filesystem::path& path);
+  ~JobStore();
+  JobStore(const JobStore&) = delete;
+  JobStore& operator=(const JobStore&) = delete;
+
+  const std::filesystem::path& path() const { return path_; }
+
+  class Transaction {
+   public:
+    explicit Transaction(JobStore& store);
+    ~Transaction();  // rolls back unless committed
+    void commit();
+    Transaction(const Transaction&) = delete;
+    Transaction& operator=(const Transaction&) = delete;
+
+   private:
+    JobStore& store_;
+    bool done_ = false;
+  };
+
+  // Batches
+  void insert_batch(const BatchRow& batch);
+  std::optional<BatchRow> batch(const std::string& id);
+  std::vector<BatchRow> batches();  // oldest first
+  void set_batch_state(const std::string& id, BatchState state, std::optional<double> finished);
+
+  // Tasks
+  int64_t insert_task(const TaskRow& task);  // ignores task.id, returns the new one
+  void insert_dependency(int64_t task, int64_t depends_on);
+  std::optional<TaskRow> task(int64_t id);
+  std::vector<TaskRow> tasks(const std::string& batch_id);  // by id
+  void update_task(const TaskRow& task);  // every column but id, batch, kind, place
+  std::vector<int64_t> dependencies(int64_t task);
+  std::vector<int64_t> dependents(int64_t task);
+  // Pending tasks whose back-off has passed, whose dependencies are all done,
+  // of running batches that have not blocklisted `worker`; in assignment order:
+  // oldest batch first, then pack tasks (they unblock the trainer), then render
+  // tiles by frame (so shards complete early), then by id.
+  std::vector<TaskRow> runnable_tasks(const std::string& worker, double now, int limit);
+  std::vector<TaskRow> leases_expired_by(double now);
+  std::vector<TaskRow> leased_tasks(const std::string& batch_id);
+
+  // Attempts
+  void insert_attempt(const AttemptRow& attempt);
+  void finish_attempt(int64_t task, int attempt, double finished, AttemptOutcome outcome,
+                      const std::string& error);
+  std::vector<AttemptRow> attempts(int64_t task);  // by attempt number
+  // Workers whose attempts > since_attempt of `task` failed (each once).
+  std::vector<std::string> failed_workers(int64_t task, int since_attempt);
+  int failure_count(int64_t task, int since_attempt);
+  // Tasks of `batch` that `worker` failed, counting only each task's attempts
+  // after its retry_base.
+  int tasks_failed_by(const std::string& batch_id, const std::string& worker);
+
+  // Workers
+  void upsert_worker(const WorkerRow& worker);
+  std::optional<WorkerRow> worker(const std::string& id);
+  std::vector<WorkerRow> workers();
+
+  // Blocklist
+  void block(const std::string& batch_id, const std::string& worker, double since);
+  bool blocked(const std::string& batch_id, const std::string& worker);
+  std::vector<std::string> blocked_workers(const std::string& batch_id);
+  void clear_blocklist(const std::string& batch_id);
+
+  // Events
+  void add_event(double time, const std::string& batch_id, const std::string& level,
+                 const std::string& text);
+  std::vector<EventRow> events(const std::string& batch_id, int limit);  // newest first
+
+ private:
+  friend class Transaction;
+  class Statement;
+  void exec(const char* sql);
+  void create_schema();
+
+  std::filesystem::path path_;
+  sqlite3* db_ = nullptr;
+};
+
+}  // namespace dofarm::coordinator

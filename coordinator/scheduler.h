@@ -1,0 +1,213 @@
+// The scheduler: the farm's failure policy (DESIGN.md "The farm", after
+// Flamenco and Deadline) on top of the job store and an injected clock.
+// Transport-free: the ZeroMQ server turns messages into these calls and the
+// results into replies. Every call that changes state is one store
+// transaction, so the coordinator may be killed between any two calls.
+//
+// The policy:
+//  - A task is leased to one worker at a time, for lease_seconds; heartbeats
+//    extend the lease. Each lease is a new attempt number; only the current
+//    holder with the current attempt may heartbeat, complete, fail or release.
+//  - A lease that expires (a dead worker) is requeued at once and does not
+//    count as a failure. A result that arrives after its lease was taken away
+//    is ignored; a second completion of a done task is harmless.
+//  - A worker fails a task at most once before another worker gets it: after
+//    a failure the task is not leased to that worker again while any other
+//    live worker could take it (not blocklisted for the batch, not itself a
+//    failer of the task). When no such worker exists (a one-worker farm) the
+//    same worker retries it after the back-off, so a small farm still ends.
+//  - A task fails for good at its max_task_failures-th counted failure; with
+//    enough live workers those are as many distinct workers. Its error is
+//    kept, the tasks that depend on it (its shard's pack) fail with it, and
+//    the batch goes on; a batch with failed tasks ends as kFailed.
+//  - Otherwise a failed task waits backoff_base * 2^(failures-1) seconds,
+//    at most backoff_max, before it is leased again.
+//  - A worker that failed blocklist_after distinct tasks of a batch gets no
+//    more tasks of that batch.
+//  - Release (SIGTERM, preemption) hands a task back: pending at once, no
+//    failure counted.
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "common/image.h"
+#include "common/jobspec.h"
+#include "coordinator/clock.h"
+#include "coordinator/job_store.h"
+#include "coordinator/planner.h"
+
+namespace dofarm::coordinator {
+
+struct SchedulerOptions {
+  double lease_seconds = 30;
+  double backoff_base = 2;    // seconds before the first retry
+  double backoff_max = 300;   // cap of the exponential back-off
+  int max_task_failures = 3;  // distinct workers, when the farm has them
+  int blocklist_after = 3;    // failed tasks of one batch
+  double rate_window = 600;   // seconds of history behind frames/hour
+};
+
+// What a pack task merges: one done render tile.
+struct StagedTile {
+  int64_t task_id = 0;
+  int frame = 0;
+  Rect rect;
+  int shard = 0;
+  std::string staged_path;
+  std::string checksum;  // checksum_to_string() form
+};
+
+struct Assignment {
+  int64_t task_id = 0;
+  int attempt = 0;
+  TaskKind kind = TaskKind::kRenderTile;
+  std::string batch_id;
+  std::string spec_path;
+  std::vector<std::string> overrides;
+  std::string out_dir;
+  int frame = -1;  // render_tile
+  Rect rect;       // render_tile
+  int shard = 0;
+  ShardRange shard_range;          // frames and file name of `shard`
+  std::vector<StagedTile> inputs;  // pack_shard: its tiles, frame-major
+  double lease_expiry = 0;
+};
+
+enum class CompleteStatus {
+  kAccepted,   // recorded; the task is done
+  kDuplicate,  // this attempt was already recorded as done: nothing changed
+  kStale,      // the worker does not hold this attempt's lease: ignored
+  kUnknownTask,
+};
+const char* to_string(CompleteStatus s);
+
+enum class FailStatus {
+  kRetry,          // pending again after the back-off
+  kFailedForGood,  // the task failed for good
+  kStale,          // the worker does not hold this attempt's lease: ignored
+  kUnknownTask,
+};
+const char* to_string(FailStatus s);
+
+struct FailResult {
+  FailStatus status = FailStatus::kStale;
+  bool worker_blocklisted = false;  // this failure blocklisted the worker
+  double retry_at = 0;              // kRetry: not_before of the task
+};
+
+// Answer of submit-less user commands (cancel, resume, invalidate).
+struct OpResult {
+  bool ok = false;
+  std::string message;  // why not, or what was done
+};
+
+struct FailedTask {
+  int64_t task_id = 0;
+  TaskKind kind = TaskKind::kRenderTile;
+  int frame = -1;
+  Rect rect;
+  int shard = 0;
+  std::string error;
+  std::string reproduce;  // render_tile: a `dofarm render` command line; pack: empty
+};
+
+struct BatchStatus {
+  BatchRow batch;
+  int tasks_total = 0, tasks_done = 0, tasks_failed = 0, tasks_leased = 0, tasks_pending = 0;
+  int frames_total = 0;
+  // A frame is rendered when all its tiles are done (it could be packed), and
+  // packed when its shard's pack task is done (the trainer can read it).
+  int frames_rendered = 0;
+  int frames_packed = 0;
+  // Frames rendered per hour over the last rate_window seconds (or since the
+  // batch was created, if later); 0 when none were.
+  double frames_per_hour = 0;
+  // Seconds until every frame is rendered at that rate; empty at rate 0 or
+  // when the batch is not running.
+  std::optional<double> eta_seconds;
+  std::vector<FailedTask> failed;
+  std::vector<std::string> blocklisted;
+};
+
+struct WorkerStatus {
+  WorkerRow worker;
+  bool live = false;  // seen within two lease lengths and not gone
+  std::vector<int64_t> leased_tasks;
+};
+
+struct StatusReport {
+  double now = 0;
+  std::vector<BatchStatus> batches;  // oldest first
+  std::vector<WorkerStatus> workers;
+};
+
+class Scheduler {
+ public:
+  Scheduler(JobStore& store, const Clock& clock, SchedulerOptions options = {});
+
+  // Plans and records a batch; returns its id ("b-" + 8 hex digits). The
+  // spec must already be loaded and checked (load_job_spec with `overrides`).
+  std::string submit(const std::string& spec_path, const std::vector<std::string>& overrides,
+                     const std::string& out_dir, const JobSpec& spec,
+                     std::optional<double> seconds_per_pixel = std::nullopt);
+
+  // A worker said hello (or is still there); any call from a worker counts too.
+  void worker_seen(const std::string& worker, const std::string& host, int threads);
+  // A worker said goodbye. Its leases stay until released or expired.
+  void worker_left(const std::string& worker);
+
+  // The next task for `worker`, leased to it, or nothing to do now. Expires
+  // overdue leases first.
+  std::optional<Assignment> assign(const std::string& worker);
+  // Extends the lease; false when the worker no longer holds it (it should
+  // stop working on the task).
+  bool heartbeat(const std::string& worker, int64_t task, int attempt);
+  CompleteStatus complete(const std::string& worker, int64_t task, int attempt,
+                          const std::string& staged_path, const std::string& checksum);
+  FailResult fail(const std::string& worker, int64_t task, int attempt, const std::string& error);
+  bool release(const std::string& worker, int64_t task, int attempt);
+  // Requeues every lease past its expiry; returns the task ids.
+  std::vector<int64_t> expire_leases();
+
+  // Cancel: the batch gets no more tasks and its leases are revoked (their
+  // heartbeats answer false). Resume: a cancelled or finished-with-failures
+  // batch runs again; its failed tasks get a fresh failure count and its
+  // blocklist is cleared.
+  OpResult cancel(const std::string& batch_id);
+  OpResult resume(const std::string& batch_id);
+
+  // One batch, or every batch when empty; workers always.
+  StatusReport status(const std::string& batch_id = "");
+
+  // Done render tiles of `batch` whose shard is not packed yet: the caller
+  // checks each staged file against its checksum (on resume, after a
+  // restart) and calls invalidate() for those missing or corrupt.
+  std::vector<StagedTile> staged_tiles_to_verify(const std::string& batch_id);
+  // A done task becomes pending again (its output is gone); the pack task of
+  // its shard, unless already done, waits for it again.
+  OpResult invalidate(int64_t task);
+
+  const SchedulerOptions& options() const { return options_; }
+
+ private:
+  std::optional<TaskRow> held_task(const std::string& worker, int64_t task, int attempt);
+  void touch_worker(const std::string& worker);
+  bool another_worker_could_take(const TaskRow& task, const std::string& worker, double now);
+  void fail_dependents(const TaskRow& failed, double now);
+  void finish_batch_if_complete(const std::string& batch_id, double now);
+  std::vector<StagedTile> inputs_of(const TaskRow& pack);
+  std::string new_batch_id();
+
+  JobStore& store_;
+  const Clock& clock_;
+  SchedulerOptions options_;
+};
+
+// `dofarm render SPEC --frame N --tile X,Y,W,H --out repro.exr --set K=V ...`
+// with shell quoting, for a failed render tile.
+std::string reproduce_command(const BatchRow& batch, const TaskRow& task);
+
+}  // namespace dofarm::coordinator
