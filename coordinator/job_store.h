@@ -26,6 +26,7 @@
 // Not thread-safe: one JobStore per thread (the coordinator's loop owns one).
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <filesystem>
 #include <optional>
@@ -62,6 +63,7 @@ struct BatchRow {
   std::optional<double> finished;
   int frame_start = 0;
   int frame_end = 0;  // inclusive
+  int per_shard = 1;  // shard k holds frames frame_start + k*per_shard ...
 };
 
 struct TaskRow {
@@ -159,7 +161,9 @@ class JobStore {
   // tiles by frame (so shards complete early), then by id.
   std::vector<TaskRow> runnable_tasks(const std::string& worker, double now, int limit);
   std::vector<TaskRow> leases_expired_by(double now);
-  std::vector<TaskRow> leased_tasks(const std::string& batch_id);
+  std::vector<TaskRow> leased_tasks(const std::string& batch_id);  // empty: every batch
+  // Tasks of the batch per TaskState, indexed by the enum's value.
+  std::array<int, 4> task_counts(const std::string& batch_id);
 
   // Attempts
   void insert_attempt(const AttemptRow& attempt);

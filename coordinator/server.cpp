@@ -1,0 +1,347 @@
+#include "coordinator/server.h"
+
+#include <spdlog/spdlog.h>
+
+#include <fstream>
+#include <set>
+#include <thread>
+#include <zmq.hpp>
+
+#include "common/checksum.h"
+#include "common/jobspec.h"
+
+namespace dofarm::coordinator {
+
+namespace fs = std::filesystem;
+using protocol::Json;
+
+// ZAP (ZeroMQ RFC 27) handler for CURVE: lets in the client public keys
+// listed in the key file, or every client that completed the CURVE handshake
+// (i.e. knew the coordinator's public key) when none are listed.
+class ZapHandler {
+ public:
+  ZapHandler(zmq::context_t& ctx, std::set<std::string> allowed)
+      : socket_(ctx, zmq::socket_type::rep), allowed_(std::move(allowed)) {
+    socket_.bind("inproc://zeromq.zap.01");
+    thread_ = std::thread([this] { loop(); });
+  }
+  ~ZapHandler() {
+    stop_ = true;
+    thread_.join();
+  }
+
+ private:
+  void loop() {
+    while (!stop_) {
+      zmq::pollitem_t item{socket_.handle(), 0, ZMQ_POLLIN, 0};
+      zmq::poll(&item, 1, std::chrono::milliseconds(100));
+      if (!(item.revents & ZMQ_POLLIN)) continue;
+      std::vector<zmq::message_t> parts;
+      while (true) {
+        zmq::message_t m;
+        if (!socket_.recv(m, zmq::recv_flags::none)) break;
+        bool more = m.more();
+        parts.push_back(std::move(m));
+        if (!more) break;
+      }
+      // version, request id, domain, address, identity, mechanism, credentials...
+      std::string request_id = parts.size() > 1 ? parts[1].to_string() : "";
+      bool ok = false;
+      if (parts.size() >= 7 && parts[5].to_string() == "CURVE" && parts[6].size() == 32) {
+        char z85[41];
+        zmq_z85_encode(z85, static_cast<const uint8_t*>(parts[6].data()), 32);
+        ok = allowed_.empty() || allowed_.count(z85);
+        if (!ok) spdlog::warn("refused a client with an unknown CURVE key {}", z85);
+      }
+      const char* code = ok ? "200" : "400";
+      socket_.send(zmq::str_buffer("1.0"), zmq::send_flags::sndmore);
+      socket_.send(zmq::buffer(request_id), zmq::send_flags::sndmore);
+      socket_.send(zmq::buffer(std::string(code)), zmq::send_flags::sndmore);
+      socket_.send(zmq::buffer(std::string(ok ? "OK" : "unknown key")), zmq::send_flags::sndmore);
+      socket_.send(zmq::str_buffer(""), zmq::send_flags::sndmore);
+      socket_.send(zmq::str_buffer(""), zmq::send_flags::none);
+    }
+  }
+  zmq::socket_t socket_;
+  std::set<std::string> allowed_;
+  std::atomic<bool> stop_{false};
+  std::thread thread_;
+};
+
+namespace {
+
+Json rect_json(Rect r) { return Json::array({r.x, r.y, r.w, r.h}); }
+
+Json assignment_json(const Assignment& a, double lease_seconds) {
+  Json j = {{"task", a.task_id},
+            {"attempt", a.attempt},
+            {"kind", to_string(a.kind)},
+            {"batch", a.batch_id},
+            {"spec_path", a.spec_path},
+            {"overrides", a.overrides},
+            {"out_dir", a.out_dir},
+            {"frame", a.frame},
+            {"rect", rect_json(a.rect)},
+            {"shard", a.shard},
+            {"shard_file", a.shard_range.file},
+            {"frame_start", a.shard_range.frame_start},
+            {"frame_end", a.shard_range.frame_end},
+            {"lease_seconds", lease_seconds}};
+  Json inputs = Json::array();
+  for (const StagedTile& t : a.inputs)
+    inputs.push_back({{"task", t.task_id},
+                      {"frame", t.frame},
+                      {"rect", rect_json(t.rect)},
+                      {"path", t.staged_path},
+                      {"checksum", t.checksum}});
+  j["inputs"] = inputs;
+  return j;
+}
+
+std::vector<std::string> string_list(const Json& j) {
+  std::vector<std::string> out;
+  for (const Json& v : j) {
+    if (!v.is_string()) throw protocol::ProtocolError("\"overrides\" must hold strings");
+    out.push_back(v.get<std::string>());
+  }
+  return out;
+}
+
+}  // namespace
+
+Json status_to_json(const StatusReport& r) {
+  Json batches = Json::array();
+  for (const BatchStatus& b : r.batches) {
+    Json failed = Json::array();
+    for (const FailedTask& f : b.failed)
+      failed.push_back({{"task", f.task_id},
+                        {"kind", to_string(f.kind)},
+                        {"frame", f.frame},
+                        {"rect", rect_json(f.rect)},
+                        {"shard", f.shard},
+                        {"error", f.error},
+                        {"reproduce", f.reproduce}});
+    batches.push_back({{"batch", b.batch.id},
+                       {"state", to_string(b.batch.state)},
+                       {"spec_path", b.batch.spec_path},
+                       {"out_dir", b.batch.out_dir},
+                       {"created", b.batch.created},
+                       {"tasks_total", b.tasks_total},
+                       {"tasks_done", b.tasks_done},
+                       {"tasks_failed", b.tasks_failed},
+                       {"tasks_leased", b.tasks_leased},
+                       {"tasks_pending", b.tasks_pending},
+                       {"frames_total", b.frames_total},
+                       {"frames_rendered", b.frames_rendered},
+                       {"frames_packed", b.frames_packed},
+                       {"frames_per_hour", b.frames_per_hour},
+                       {"eta_seconds", b.eta_seconds ? Json(*b.eta_seconds) : Json(nullptr)},
+                       {"failed", failed},
+                       {"blocklisted", b.blocklisted}});
+  }
+  Json workers = Json::array();
+  for (const WorkerStatus& w : r.workers)
+    workers.push_back({{"worker", w.worker.id},
+                       {"host", w.worker.host},
+                       {"threads", w.worker.threads},
+                       {"last_seen", w.worker.last_seen},
+                       {"live", w.live},
+                       {"tasks", w.leased_tasks}});
+  return {{"now", r.now}, {"batches", batches}, {"workers", workers}};
+}
+
+Server::Server(ServerOptions options, const Clock& clock)
+    : options_(std::move(options)), clock_(clock) {
+  fs::create_directories(options_.state_dir);
+  store_ = std::make_unique<JobStore>(options_.state_dir / "dofarm.sqlite");
+  scheduler_ = std::make_unique<Scheduler>(*store_, clock_, options_.scheduler);
+  context_ = std::make_unique<zmq::context_t>(1);
+  socket_ = std::make_unique<zmq::socket_t>(*context_, zmq::socket_type::router);
+  socket_->set(zmq::sockopt::linger, 0);
+  socket_->set(zmq::sockopt::maxmsgsize, int64_t(protocol::kMaxMessageBytes));
+  socket_->set(zmq::sockopt::sndtimeo, 1000);
+  // A restarted worker comes back with a fresh identity; an old identity that
+  // reconnects takes over its route.
+  socket_->set(zmq::sockopt::router_handover, 1);
+  if (options_.curve_secret) {
+    std::ifstream in(*options_.curve_secret);
+    std::string secret, line;
+    if (!in || !std::getline(in, secret) || secret.size() < 40)
+      throw SpecError(FileLoc{options_.curve_secret->string(), 1}, "curve-secret",
+                      "expected a Z85 CURVE secret key (40 characters) on the first line");
+    std::set<std::string> allowed;
+    while (std::getline(in, line))
+      if (line.size() >= 40) allowed.insert(line.substr(0, 40));
+    zap_ = std::make_unique<ZapHandler>(*context_, std::move(allowed));
+    socket_->set(zmq::sockopt::curve_server, 1);
+    socket_->set(zmq::sockopt::curve_secretkey, secret.substr(0, 40));
+    socket_->set(zmq::sockopt::zap_domain, "dofarm");
+  }
+  socket_->bind(options_.listen);
+  endpoint_ = socket_->get(zmq::sockopt::last_endpoint);
+  // A restarted coordinator checks what the workers staged before it died.
+  for (const BatchRow& b : store_->batches())
+    if (b.state == BatchState::kRunning) verify_staged_tiles(b.id);
+  spdlog::info("coordinator listening on {} (state {})", endpoint_, options_.state_dir.string());
+}
+
+Server::~Server() = default;
+
+bool Server::idle() {
+  for (const BatchRow& b : store_->batches())
+    if (b.state == BatchState::kRunning) return false;
+  return true;
+}
+
+int Server::verify_staged_tiles(const std::string& batch_id) {
+  int bad = 0;
+  for (const StagedTile& t : scheduler_->staged_tiles_to_verify(batch_id)) {
+    std::string why;
+    std::error_code ec;
+    if (!fs::exists(t.staged_path, ec)) {
+      why = "missing";
+    } else {
+      try {
+        if (checksum_to_string(checksum_file(t.staged_path)) != t.checksum)
+          why = "checksum mismatch";
+      } catch (const std::exception& e) {
+        why = e.what();
+      }
+    }
+    if (!why.empty()) {
+      spdlog::warn("staged tile {} ({}): rendering it again", t.staged_path, why);
+      scheduler_->invalidate(t.task_id);
+      ++bad;
+    }
+  }
+  return bad;
+}
+
+std::string Server::handle_submit(const protocol::Message& m) {
+  std::vector<std::string> overrides = string_list(m.body["overrides"]);
+  fs::path spec_path = fs::absolute(m.str("spec_path"));
+  JobSpec spec;
+  try {
+    spec = load_job_spec(spec_path, overrides);
+  } catch (const SpecError& e) {
+    return protocol::encode("error", {{"message", e.what()}, {"bad_input", true}});
+  }
+  std::string out_dir = fs::absolute(m.str("out_dir")).string();
+  std::string id = scheduler_->submit(spec_path.string(), overrides, out_dir, spec);
+  spdlog::info("batch {} submitted: {} frames {}..{} -> {}", id, spec_path.string(),
+               spec.frame_start, spec.frame_end, out_dir);
+  return protocol::encode("submitted", {{"batch", id}});
+}
+
+std::string Server::handle_failed(const protocol::Message& m) {
+  const std::string& worker = m.str("worker");
+  int64_t task = m.integer("task");
+  int attempt = int(m.integer("attempt"));
+  // A pack task that found a bad staged tile is not the worker's fault: the
+  // tile is rendered again and the pack waits for it.
+  if (m.has("bad_tile") && m.body["bad_tile"].is_string()) {
+    const std::string bad = m.body["bad_tile"].get<std::string>();
+    if (auto t = store_->task(task)) {
+      for (const TaskRow& other : store_->tasks(t->batch_id))
+        if (other.kind == TaskKind::kRenderTile && other.staged_path == bad) {
+          spdlog::warn("task {}: staged tile {} is bad ({}); rendering it again", task, bad,
+                       m.str("error"));
+          scheduler_->release(worker, task, attempt);
+          scheduler_->invalidate(other.id);
+          return protocol::encode("ack", {{"status", "tile_requeued"}});
+        }
+    }
+  }
+  FailResult r = scheduler_->fail(worker, task, attempt, m.str("error"));
+  spdlog::warn("task {} attempt {} failed on {}: {} ({})", task, attempt, worker, m.str("error"),
+               to_string(r.status));
+  return protocol::encode("ack", {{"status", to_string(r.status)}});
+}
+
+std::string Server::handle(const protocol::Message& m) {
+  const std::string& t = m.type;
+  if (t == "request") {
+    const std::string& worker = m.str("worker");
+    scheduler_->worker_seen(worker, m.body.value("host", ""), int(m.body.value("threads", 0)));
+    if (auto a = scheduler_->assign(worker))
+      return protocol::encode("task", assignment_json(*a, scheduler_->options().lease_seconds));
+    if (options_.shutdown_when_idle && idle()) return protocol::encode("shutdown");
+    return protocol::encode("wait", {{"seconds", options_.wait_seconds}});
+  }
+  if (t == "heartbeat")
+    return protocol::encode("ack", {{"ok", scheduler_->heartbeat(m.str("worker"), m.integer("task"),
+                                                                 int(m.integer("attempt")))}});
+  if (t == "done") {
+    CompleteStatus s =
+        scheduler_->complete(m.str("worker"), m.integer("task"), int(m.integer("attempt")),
+                             m.str("staged_path"), m.str("checksum"));
+    return protocol::encode("ack", {{"status", to_string(s)}});
+  }
+  if (t == "failed") return handle_failed(m);
+  if (t == "release")
+    return protocol::encode("ack", {{"ok", scheduler_->release(m.str("worker"), m.integer("task"),
+                                                               int(m.integer("attempt")))}});
+  if (t == "submit") return handle_submit(m);
+  if (t == "status") {
+    std::string batch = m.has("batch") && m.body["batch"].is_string() ? m.str("batch") : "";
+    return protocol::encode("status_reply", status_to_json(scheduler_->status(batch)));
+  }
+  if (t == "resume") {
+    int bad = verify_staged_tiles(m.str("batch"));
+    OpResult r = scheduler_->resume(m.str("batch"));
+    return protocol::encode("ack", {{"ok", r.ok}, {"message", r.message}, {"tiles_requeued", bad}});
+  }
+  if (t == "cancel") {
+    OpResult r = scheduler_->cancel(m.str("batch"));
+    return protocol::encode("ack", {{"ok", r.ok}, {"message", r.message}});
+  }
+  return protocol::error_reply("the coordinator does not take \"" + t + "\" messages");
+}
+
+void Server::poll_once(int timeout_ms) {
+  zmq::pollitem_t item{socket_->handle(), 0, ZMQ_POLLIN, 0};
+  zmq::poll(&item, 1, std::chrono::milliseconds(timeout_ms));
+  // Drain what is there: identity frame, then one payload frame.
+  for (int n = 0; n < 1000 && (item.revents & ZMQ_POLLIN); ++n) {
+    zmq::message_t identity;
+    if (!socket_->recv(identity, zmq::recv_flags::dontwait)) break;
+    std::vector<zmq::message_t> payload;
+    bool more = identity.more();
+    while (more) {
+      zmq::message_t part;
+      if (!socket_->recv(part, zmq::recv_flags::none)) break;
+      more = part.more();
+      payload.push_back(std::move(part));
+    }
+    std::string reply;
+    try {
+      if (payload.size() != 1)
+        throw protocol::ProtocolError("expected one payload frame, got " +
+                                      std::to_string(payload.size()));
+      reply = handle(protocol::parse(payload[0].data(), payload[0].size()));
+    } catch (const protocol::ProtocolError& e) {
+      reply = protocol::error_reply(e.what());
+    } catch (const std::exception& e) {
+      spdlog::error("request failed: {}", e.what());
+      reply = protocol::error_reply(std::string("coordinator error: ") + e.what());
+    }
+    try {
+      socket_->send(identity, zmq::send_flags::sndmore);
+      socket_->send(zmq::buffer(reply), zmq::send_flags::dontwait);
+    } catch (const zmq::error_t& e) {
+      spdlog::warn("could not reply: {}", e.what());
+    }
+  }
+  try {
+    for (int64_t id : scheduler_->expire_leases())
+      spdlog::warn("task {}: lease expired, requeued", id);
+  } catch (const std::exception& e) {
+    spdlog::error("lease expiry failed: {}", e.what());
+  }
+}
+
+void Server::run(const std::atomic<bool>& stop) {
+  while (!stop) poll_once(100);
+}
+
+}  // namespace dofarm::coordinator
