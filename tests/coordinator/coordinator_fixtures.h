@@ -1,0 +1,42 @@
+// Shared by the coordinator tests: a temporary state folder and small specs.
+#pragma once
+
+#include <unistd.h>
+
+#include <atomic>
+#include <filesystem>
+#include <string>
+
+#include "common/jobspec.h"
+
+namespace dofarm::coordinator::testing {
+
+class TempDir {
+ public:
+  TempDir() {
+    static std::atomic<int> counter{0};
+    path_ = std::filesystem::temp_directory_path() /
+            ("dofarm_coordinator_" + std::to_string(::getpid()) + "_" + std::to_string(counter++));
+    std::filesystem::remove_all(path_);
+    std::filesystem::create_directories(path_);
+  }
+  ~TempDir() { std::filesystem::remove_all(path_); }
+  const std::filesystem::path& path() const { return path_; }
+
+ private:
+  std::filesystem::path path_;
+};
+
+// `frames` frames of one whole-image tile each, `per_shard` frames a shard.
+inline JobSpec tiny_spec(int frames, int per_shard, int tiles_per_side = 1) {
+  JobSpec spec;
+  spec.width = 16 * tiles_per_side;
+  spec.height = 16 * tiles_per_side;
+  spec.tile = 16;
+  spec.frame_start = 0;
+  spec.frame_end = frames - 1;
+  spec.per_shard = per_shard;
+  return spec;
+}
+
+}  // namespace dofarm::coordinator::testing
