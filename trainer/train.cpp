@@ -212,16 +212,20 @@ TrainResult train(const TrainOptions& opt_in) {
       torch::Tensor loss =
           denoiser_loss(model->forward(batch.input), batch.target, cfg.loss, kernel).total;
       if (opt_in.loss_hook) loss = opt_in.loss_hook(st.step, loss);
-      bool ok = std::isfinite(loss.item<double>());
+      const double loss_value = loss.item<double>();
+      bool ok = std::isfinite(loss_value);
       if (ok) {
         loss.backward();
+        // One device sync for all gradients, not one per parameter.
+        std::vector<torch::Tensor> finite;
         for (const auto& p : model->parameters())
-          if (p.grad().defined() && !torch::isfinite(p.grad()).all().item<bool>()) ok = false;
+          if (p.grad().defined()) finite.push_back(torch::isfinite(p.grad()).all());
+        ok = finite.empty() || torch::stack(finite).all().item<bool>();
       }
       ++st.step;
       if (ok) {
         adam.step();
-        loss_sum += loss.item<double>();
+        loss_sum += loss_value;
         ++good;
         bad_in_a_row = 0;
         continue;

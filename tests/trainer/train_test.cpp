@@ -1,12 +1,18 @@
 #include "trainer/train.h"
 
 #include <gtest/gtest.h>
+#include <sys/wait.h>
 
+#include <cmath>
+#include <cstdlib>
 #include <fstream>
+#include <nlohmann/json.hpp>
 #include <sstream>
 
 #include "common/error.h"
+#include "common/exr_io.h"
 #include "tests/trainer/synthetic.h"
+#include "trainer/eval.h"
 
 namespace dofarm::trainer {
 namespace {
@@ -118,6 +124,77 @@ TEST(LearningRate, WarmUpThenDecay) {
   EXPECT_NEAR(learning_rate(o, 9, 0), 1e-3, 1e-9);
   EXPECT_NEAR(learning_rate(o, 100, 2), 2.5e-4, 1e-9);
   EXPECT_NEAR(learning_rate(o, 100, 100), o.lr_min, 1e-12);
+}
+
+}  // namespace
+}  // namespace dofarm::trainer
+
+namespace dofarm::trainer {
+namespace {
+
+fs::path trained_run() {
+  static fs::path run = [] {
+    fs::path r = fresh_dir("run_eval");
+    TrainOptions o{shared_data(), r, tiny_config()};
+    o.config.data.sequence = 3;  // 12 frames: 9 to train, 3 to validate
+    o.config.train.epochs = 6;
+    o.config.train.steps_per_epoch = 5;
+    train(o);
+    return r;
+  }();
+  return run;
+}
+
+TEST(Eval, ReportHasEveryFrameAndBeatsTheNoisyInput) {
+  fs::path out = fresh_dir("eval_report");
+  EvalOptions e{trained_run(), shared_data(), out, 0, 1, 0};
+  EvalSummary s = evaluate(e);
+  EXPECT_EQ(s.frames, 3);
+  for (const char* f : {"report.md", "report.json", "loss.png", "frame-000.png"})
+    EXPECT_TRUE(fs::exists(out / f)) << f;
+  EXPECT_FALSE(fs::exists(out / "frame-001.png"));  // max_images = 1
+  std::ifstream in(out / "report.json");
+  nlohmann::json j = nlohmann::json::parse(in);
+  EXPECT_EQ(j["frames"].size(), 3u);
+  double noisy = j["summary"]["noisy"]["all"]["ssim"],
+         den = j["summary"]["denoised"]["all"]["ssim"];
+  EXPECT_GT(den, noisy);
+  EXPECT_TRUE(std::isfinite(s.psnr));
+  EXPECT_GT(s.ms, 0.0);
+}
+
+TEST(Denoise, ExrFrameGivesTheSameResultAsTheShardFrame) {
+  FrameBuffers fb = testing::synthetic_frame(3, 48, 40, 2, 9);  // not a multiple of 32
+  fs::path exr = fresh_dir("denoise") / "frame.exr";
+  write_frame_exr(exr, fb);
+  FrameDenoiser den(trained_run(), torch::kCPU);
+  std::vector<float> direct = den.denoise(fb, 1);
+  den.reset_sequence();
+  std::vector<float> via_exr = den.denoise(read_frame_exr(exr).buffers, 1);
+  ASSERT_EQ(direct.size(), size_t(3 * 48 * 40));
+  EXPECT_EQ(direct, via_exr);
+  for (float v : direct) ASSERT_TRUE(std::isfinite(v) && v >= 0.0f);
+}
+
+int run_cli(const std::string& args) {
+  std::string cmd = std::string(DOFARM_BINARY_DIR) + "/dofarm-train " + args + " >/dev/null 2>&1";
+  int rc = std::system(cmd.c_str());
+  return WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
+}
+
+TEST(Cli, ExitCodesSayWhatWentWrong) {
+  if (!fs::exists(fs::path(DOFARM_BINARY_DIR) / "dofarm-train")) GTEST_SKIP() << "no binary";
+  fs::path bad = fresh_dir("cli_bad_data"), run = fresh_dir("cli_run");
+  std::ofstream(bad / "shard-00000.h5") << "not a shard";
+  std::string data = shared_data().string();
+  EXPECT_EQ(run_cli("train --data " + data + " --run " + run.string() + " --set train.epoch=1"),
+            2);  // unknown key
+  EXPECT_EQ(run_cli("train --data /nonexistent/dofarm --run " + run.string()), 2);
+  EXPECT_EQ(run_cli("train --data " + bad.string() + " --run " + run.string()), 1);
+  EXPECT_EQ(
+      run_cli("export --run " + trained_run().string() + " --out " + (run / "model.pt").string()),
+      0);
+  EXPECT_TRUE(fs::exists(run / "model.pt"));
 }
 
 }  // namespace
