@@ -19,6 +19,7 @@
 #include <string>
 #include <vector>
 
+#include "apps/commands.h"
 #include "common/error.h"
 #include "common/jobspec.h"
 #include "common/log.h"
@@ -34,13 +35,8 @@ struct GlobalOptions {
   std::string log_level = "info";
 };
 
-// A parsed subcommand and what to do when it was chosen.
-struct Command {
-  CLI::App* app;
-  std::function<int()> run;
-};
+}  // namespace
 
-// --set KEY=VALUE, shared by every command that reads a job spec.
 void add_set_option(CLI::App* cmd, std::vector<std::string>& sets) {
   cmd->add_option("--set", sets,
                   "override a job-spec key, checked like the file: KEY=VALUE, e.g. "
@@ -48,6 +44,8 @@ void add_set_option(CLI::App* cmd, std::vector<std::string>& sets) {
       ->type_name("KEY=VALUE")
       ->allow_extra_args(false);
 }
+
+namespace {
 
 // ---------------------------------------------------------------------------
 // dofarm render JOB.toml --frame N [--tile X,Y,W,H] --out FRAME.exr
@@ -166,7 +164,8 @@ int run_main(int argc, char** argv) {
       ->capture_default_str();
 
   std::vector<Command> commands = {
-      add_render(app),
+      add_render(app), add_run(app),    add_coordinator(app), add_worker(app),  add_submit(app),
+      add_status(app), add_resume(app), add_cancel(app),      add_inspect(app), add_keygen(app),
   };
 
   try {

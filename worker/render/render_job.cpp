@@ -181,6 +181,7 @@ FrameBuffers render_frame(const Scene& scene, const JobSpec& spec, int frame,
     const uint64_t rays_before = thread_ray_count().total();
     try {
       for (int b = next++; b < blocks; b = next++) {
+        if (options.cancel && *options.cancel) throw Cancelled();
         int x0 = (b % bx) * bs, y0 = (b / bx) * bs;
         for (int y = y0; y < std::min(y0 + bs, rect.h); ++y)
           for (int x = x0; x < std::min(x0 + bs, rect.w); ++x)

@@ -2,7 +2,9 @@
 // `dofarm render` command, the worker and the tests share.
 #pragma once
 
+#include <atomic>
 #include <filesystem>
+#include <stdexcept>
 #include <map>
 #include <optional>
 #include <string>
@@ -24,6 +26,14 @@ struct RenderOptions {
   int block_size = 16;           // pixels per side of a thread-pool work item
   bool progress = false;         // log progress lines / a bar on a terminal
   RenderStats* stats = nullptr;  // filled in when set
+  // Checked between blocks: when it becomes true, render_frame() throws
+  // Cancelled (a worker told to stop hands its task back).
+  const std::atomic<bool>* cancel = nullptr;
+};
+
+class Cancelled : public std::runtime_error {
+ public:
+  Cancelled() : std::runtime_error("render cancelled") {}
 };
 
 // Renders `frame` of `spec`, restricted to `tile` when given (default: the

@@ -1,0 +1,35 @@
+// Shared pieces of the dofarm subcommands: each add_<name>() declares its
+// options on CLI11 and returns the action to run once parsed.
+#pragma once
+
+#include <CLI/CLI.hpp>
+#include <atomic>
+#include <functional>
+#include <string>
+#include <vector>
+
+namespace dofarm {
+
+struct Command {
+  CLI::App* app;
+  std::function<int()> run;
+};
+
+// --set KEY=VALUE, shared by every command that reads a job spec.
+void add_set_option(CLI::App* cmd, std::vector<std::string>& sets);
+
+// Set by SIGINT/SIGTERM once install_stop_signals() ran.
+std::atomic<bool>& stop_requested();
+void install_stop_signals();
+
+Command add_run(CLI::App& app);
+Command add_coordinator(CLI::App& app);
+Command add_worker(CLI::App& app);
+Command add_submit(CLI::App& app);
+Command add_status(CLI::App& app);
+Command add_resume(CLI::App& app);
+Command add_cancel(CLI::App& app);
+Command add_inspect(CLI::App& app);
+Command add_keygen(CLI::App& app);
+
+}  // namespace dofarm

@@ -1,0 +1,66 @@
+#include "common/transport.h"
+
+#include <fstream>
+
+namespace dofarm {
+
+namespace {
+std::string read_key(const std::filesystem::path& path) {
+  std::ifstream in(path);
+  std::string key;
+  if (!in || !std::getline(in, key) || key.size() < 40)
+    throw SpecError(FileLoc{path.string(), 1}, "curve-public",
+                    "expected a Z85 CURVE public key (40 characters) on the first line");
+  return key.substr(0, 40);
+}
+}  // namespace
+
+std::pair<std::string, std::string> curve_keypair() {
+  char pub[41], sec[41];
+  if (zmq_curve_keypair(pub, sec) != 0)
+    throw RuntimeError("ZeroMQ was built without CURVE support");
+  return {pub, sec};
+}
+
+CoordinatorClient::CoordinatorClient(zmq::context_t& ctx, ClientOptions options)
+    : ctx_(ctx), options_(std::move(options)) {
+  reconnect();
+}
+
+void CoordinatorClient::reconnect() {
+  socket_ = std::make_unique<zmq::socket_t>(ctx_, zmq::socket_type::dealer);
+  socket_->set(zmq::sockopt::linger, 0);
+  socket_->set(zmq::sockopt::immediate, 1);  // queue nothing for a peer that is not there
+  socket_->set(zmq::sockopt::sndtimeo, options_.timeout_ms);
+  socket_->set(zmq::sockopt::rcvtimeo, options_.timeout_ms);
+  socket_->set(zmq::sockopt::maxmsgsize, int64_t(protocol::kMaxMessageBytes));
+  if (options_.curve_public) {
+    auto [pub, sec] = curve_keypair();  // this client's own, fresh key
+    socket_->set(zmq::sockopt::curve_serverkey, read_key(*options_.curve_public));
+    socket_->set(zmq::sockopt::curve_publickey, pub);
+    socket_->set(zmq::sockopt::curve_secretkey, sec);
+  }
+  socket_->connect(options_.endpoint);
+}
+
+protocol::Message CoordinatorClient::call(const std::string& payload) {
+  if (!socket_->send(zmq::buffer(payload), zmq::send_flags::none)) {
+    reconnect();
+    throw RuntimeError("cannot reach the coordinator at " + options_.endpoint);
+  }
+  zmq::message_t reply;
+  if (!socket_->recv(reply, zmq::recv_flags::none)) {
+    reconnect();  // a late reply must not be taken for the next request's
+    throw RuntimeError("no reply from the coordinator at " + options_.endpoint + " within " +
+                       std::to_string(options_.timeout_ms) + " ms");
+  }
+  return protocol::parse(reply.data(), reply.size());
+}
+
+protocol::Message call_coordinator(const ClientOptions& options, const std::string& payload) {
+  zmq::context_t ctx(1);
+  CoordinatorClient client(ctx, options);
+  return client.call(payload);
+}
+
+}  // namespace dofarm

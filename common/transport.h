@@ -1,0 +1,46 @@
+// The client side of the farm's transport: DEALER sockets to the
+// coordinator, for workers and for the CLI (submit, status, resume, cancel).
+// Sockets are set to fail fast (immediate, send/receive timeouts, no linger)
+// so a refused or absent coordinator gives an error, not a hang.
+#pragma once
+
+#include <chrono>
+#include <filesystem>
+#include <memory>
+#include <optional>
+#include <string>
+#include <zmq.hpp>
+
+#include "common/protocol.h"
+
+namespace dofarm {
+
+struct ClientOptions {
+  std::string endpoint;                               // tcp://HOST:PORT
+  std::optional<std::filesystem::path> curve_public;  // the coordinator's Z85 public key file
+  int timeout_ms = 10000;                             // per request
+};
+
+class CoordinatorClient {
+ public:
+  CoordinatorClient(zmq::context_t& ctx, ClientOptions options);
+  // Sends one message and waits for its reply. Throws RuntimeError on a
+  // timeout (the socket is then rebuilt, dropping any late reply) and
+  // protocol::ProtocolError for a malformed reply.
+  protocol::Message call(const std::string& payload);
+  // Drops the connection and makes a new one (fresh identity).
+  void reconnect();
+
+ private:
+  zmq::context_t& ctx_;
+  ClientOptions options_;
+  std::unique_ptr<zmq::socket_t> socket_;
+};
+
+// One request and its reply on a fresh connection (the CLI commands).
+protocol::Message call_coordinator(const ClientOptions& options, const std::string& payload);
+
+// A fresh CURVE key pair, Z85-encoded (public, secret).
+std::pair<std::string, std::string> curve_keypair();
+
+}  // namespace dofarm

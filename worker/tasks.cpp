@@ -1,0 +1,137 @@
+#include "worker/tasks.h"
+
+#include <chrono>
+#include <cstdio>
+
+#include "common/checksum.h"
+#include "common/exr_io.h"
+#include "common/shard.h"
+#include "worker/render/render_job.h"
+#include "worker/render/scene.h"
+
+namespace dofarm::worker {
+
+namespace fs = std::filesystem;
+
+fs::path staging_dir(const fs::path& out_dir, const std::string& batch) {
+  return out_dir / ".staging" / batch;
+}
+
+fs::path staged_tile_path(const fs::path& out_dir, const std::string& batch, int frame, Rect r) {
+  char name[96];
+  std::snprintf(name, sizeof(name), "f%05d_x%d_y%d_w%d_h%d.exr", frame, r.x, r.y, r.w, r.h);
+  return staging_dir(out_dir, batch) / name;
+}
+
+std::shared_ptr<const render::Scene> SceneCache::get(const JobSpec& spec, const std::string& key) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (!scene_ || key != key_) {
+    scene_.reset();  // free the old BVH before building the new one
+    scene_ = render::load_scene(spec);
+    key_ = key;
+  }
+  return scene_;
+}
+
+void SceneCache::clear() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  scene_.reset();
+  key_.clear();
+}
+
+StagedTile render_tile(const JobSpec& spec, const render::Scene& scene, const std::string& batch,
+                       const fs::path& out_dir, int frame, Rect rect,
+                       const render::RenderOptions& options) {
+  auto t0 = std::chrono::steady_clock::now();
+  FrameBuffers fb = render::render_frame(scene, spec, frame, rect, options);
+  StagedTile t;
+  t.frame = frame;
+  t.rect = rect;
+  t.path = staged_tile_path(out_dir, batch, frame, rect);
+  t.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  write_frame_exr(t.path, fb,
+                  {{"dofarm.batch", batch}, {"dofarm.render_seconds", std::to_string(t.seconds)}});
+  t.checksum = checksum_file(t.path);
+  return t;
+}
+
+void verify_staged_tile(const StagedTile& tile) {
+  std::error_code ec;
+  if (!fs::exists(tile.path, ec)) throw StagedTileError(tile.path, "missing");
+  uint64_t sum;
+  try {
+    sum = checksum_file(tile.path);
+  } catch (const std::exception& e) {
+    throw StagedTileError(tile.path, e.what());
+  }
+  if (sum != tile.checksum)
+    throw StagedTileError(tile.path, "checksum " + checksum_to_string(sum) + ", expected " +
+                                         checksum_to_string(tile.checksum));
+}
+
+std::string scene_id(const JobSpec& spec) { return spec.scene.stem().string(); }
+
+std::string scene_hash(const JobSpec& spec) {
+  uint64_t h = checksum_file(spec.scene);
+  if (spec.environment && !spec.environment->map.empty())
+    h ^= checksum_file(spec.environment->map) * 0x9E3779B97F4A7C15ull;
+  return checksum_to_string(h);
+}
+
+ManifestEntry pack_shard(const JobSpec& spec, const fs::path& out_dir, const ShardJob& job) {
+  for (const StagedTile& t : job.tiles) verify_staged_tile(t);  // before anything is written
+
+  ShardInfo info;
+  info.batch_id = job.batch;
+  info.scene_id = scene_id(spec);
+  info.scene_hash = scene_hash(spec);
+  info.width = spec.width;
+  info.height = spec.height;
+  info.versions = spec.versions;
+  info.spp_reference = spec.reference_error > 0 ? spec.reference_max_spp : spec.reference_spp;
+  info.reference_error = spec.reference_error;
+  info.spp_albedo_ref = spec.albedo_ref_spp;
+  info.seed = spec.seed;
+  info.frame_start = job.frame_start;
+  info.frame_end = job.frame_end;
+  info.renderer_version = DOFARM_VERSION;
+  for (const StagedTile& t : job.tiles) info.render_seconds += t.seconds;
+
+  ShardWriter writer(out_dir / job.file, info);
+  for (int f = job.frame_start; f <= job.frame_end; ++f) {
+    FrameBuffers frame;
+    frame.allocate(spec.width, spec.height, spec.versions);
+    frame.rect = Rect{0, 0, spec.width, spec.height};
+    int64_t covered = 0;
+    for (const StagedTile& t : job.tiles) {
+      if (t.frame != f) continue;
+      ExrFrame tile;
+      try {
+        tile = read_frame_exr(t.path);
+      } catch (const RuntimeError& e) {
+        throw StagedTileError(t.path, e.what());
+      }
+      if (!(tile.buffers.rect == t.rect) || tile.buffers.versions != spec.versions)
+        throw StagedTileError(t.path, "holds another tile than its name says");
+      frame.paste(tile.buffers);
+      frame.camera = tile.buffers.camera;
+      covered += int64_t(t.rect.w) * t.rect.h;
+    }
+    if (covered != int64_t(spec.width) * spec.height)
+      throw RuntimeError("shard " + job.file + ": the staged tiles of frame " + std::to_string(f) +
+                         " cover " + std::to_string(covered) + " of " +
+                         std::to_string(int64_t(spec.width) * spec.height) + " pixels");
+    writer.add_frame(frame);
+  }
+  ShardWriteResult written = writer.commit();
+  ManifestEntry entry = manifest_entry(info, written);
+  add_to_manifest(out_dir, entry);
+  // The shard is published: its staged tiles are no longer needed.
+  for (const StagedTile& t : job.tiles) {
+    std::error_code ec;
+    fs::remove(t.path, ec);
+  }
+  return entry;
+}
+
+}  // namespace dofarm::worker

@@ -1,0 +1,236 @@
+#include "worker/worker.h"
+
+#include <spdlog/spdlog.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <condition_variable>
+#include <mutex>
+#include <random>
+#include <thread>
+
+#include "common/checksum.h"
+#include "common/jobspec.h"
+#include "common/transport.h"
+#include "worker/render/render_job.h"
+#include "worker/render/scene.h"
+#include "worker/tasks.h"
+
+namespace dofarm::worker {
+
+namespace fs = std::filesystem;
+using protocol::Json;
+
+namespace {
+
+std::string default_id() {
+  char host[256] = "host";
+  gethostname(host, sizeof(host) - 1);
+  std::random_device rd;
+  char buf[320];
+  std::snprintf(buf, sizeof(buf), "%s-%d-%04x", host, int(getpid()), unsigned(rd() & 0xffff));
+  return buf;
+}
+
+Rect rect_of(const Json& j) {
+  return Rect{j.at(0).get<int>(), j.at(1).get<int>(), j.at(2).get<int>(), j.at(3).get<int>()};
+}
+
+// Sleeps up to `seconds`, waking early when `stop` is set.
+void nap(double seconds, const std::atomic<bool>& stop) {
+  auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
+  while (!stop && std::chrono::steady_clock::now() < end)
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+}
+
+// Heartbeats for one task from its own thread and socket (a ZeroMQ socket
+// belongs to one thread). Tells the task when the lease is lost.
+class Heartbeat {
+ public:
+  Heartbeat(zmq::context_t& ctx, const WorkerOptions& o, const std::string& worker, int64_t task,
+            int attempt)
+      : thread_([&ctx, o, worker, task, attempt, this] {
+          ClientOptions co{o.endpoint, o.curve_public, o.request_timeout_ms};
+          CoordinatorClient client(ctx, co);
+          std::unique_lock<std::mutex> lock(mutex_);
+          while (!done_) {
+            cv_.wait_for(lock, std::chrono::duration<double>(o.heartbeat_seconds));
+            if (done_) break;
+            lock.unlock();
+            try {
+              protocol::Message r = client.call(protocol::encode(
+                  "heartbeat", {{"worker", worker}, {"task", task}, {"attempt", attempt}}));
+              if (r.type == "ack" && r.body.value("ok", true) == false) lost_ = true;
+            } catch (const std::exception& e) {
+              spdlog::warn("heartbeat for task {}: {}", task, e.what());
+            }
+            lock.lock();
+          }
+        }) {}
+  ~Heartbeat() {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      done_ = true;
+    }
+    cv_.notify_all();
+    thread_.join();
+  }
+  bool lost() const { return lost_; }
+
+ private:
+  std::mutex mutex_;
+  std::condition_variable cv_;
+  bool done_ = false;
+  std::atomic<bool> lost_{false};
+  std::thread thread_;
+};
+
+class Worker {
+ public:
+  Worker(const WorkerOptions& o, std::atomic<bool>& stop)
+      : options_(o), stop_(stop), id_(o.id.empty() ? default_id() : o.id), ctx_(1) {}
+
+  int run() {
+    ClientOptions co{options_.endpoint, options_.curve_public, options_.request_timeout_ms};
+    CoordinatorClient client(ctx_, co);
+    spdlog::info("worker {} connecting to {}", id_, options_.endpoint);
+    double backoff = 0.5;
+    auto last_contact = std::chrono::steady_clock::now();
+    char host[256] = "";
+    gethostname(host, sizeof(host) - 1);
+    while (!stop_) {
+      protocol::Message reply;
+      try {
+        reply = client.call(protocol::encode(
+            "request", {{"worker", id_}, {"host", host}, {"threads", options_.threads}}));
+      } catch (const std::exception& e) {
+        double since =
+            std::chrono::duration<double>(std::chrono::steady_clock::now() - last_contact).count();
+        if (options_.give_up_seconds > 0 && since > options_.give_up_seconds) {
+          spdlog::error("no coordinator for {:.0f} s, giving up: {}", since, e.what());
+          return 1;
+        }
+        spdlog::warn("{}; retrying in {:.1f} s", e.what(), backoff);
+        nap(backoff, stop_);
+        backoff = std::min(backoff * 2, options_.max_backoff_seconds);
+        continue;
+      }
+      last_contact = std::chrono::steady_clock::now();
+      backoff = 0.5;
+      if (reply.type == "task") {
+        execute(client, reply);
+      } else if (reply.type == "wait") {
+        nap(reply.number("seconds"), stop_);
+      } else if (reply.type == "shutdown") {
+        spdlog::info("worker {}: the coordinator has no more work; exiting", id_);
+        return 0;
+      } else if (reply.type == "error") {
+        spdlog::error("coordinator: {}", reply.str("message"));
+        nap(1.0, stop_);
+      }
+    }
+    spdlog::info("worker {} stopping", id_);
+    return 0;
+  }
+
+ private:
+  void send_result(CoordinatorClient& client, const std::string& payload) {
+    // A result is worth retrying: losing it costs a whole task.
+    for (int i = 0; i < 5; ++i) {
+      try {
+        client.call(payload);
+        return;
+      } catch (const std::exception& e) {
+        spdlog::warn("reporting a result: {}", e.what());
+        nap(1.0 * (i + 1), stop_);
+      }
+    }
+  }
+
+  void execute(CoordinatorClient& client, const protocol::Message& m) {
+    const int64_t task = m.integer("task");
+    const int attempt = int(m.integer("attempt"));
+    const std::string kind = m.str("kind");
+    const Json base = {{"worker", id_}, {"task", task}, {"attempt", attempt}};
+    Heartbeat heartbeat(ctx_, options_, id_, task, attempt);
+    try {
+      std::vector<std::string> overrides = m.body.at("overrides").get<std::vector<std::string>>();
+      const std::string spec_path = m.body.at("spec_path").get<std::string>();
+      JobSpec spec = load_job_spec(spec_path, overrides);
+      const fs::path out_dir = m.body.at("out_dir").get<std::string>();
+      const std::string batch = m.body.at("batch").get<std::string>();
+      if (kind == "render_tile") {
+        std::string key = spec_path;
+        for (const auto& o : overrides) key += "\n" + o;
+        auto scene = scenes_.get(spec, key);
+        const int frame = m.body.at("frame").get<int>();
+        const Rect rect = rect_of(m.body.at("rect"));
+        spdlog::info("task {}: frame {} tile {},{} {}x{}", task, frame, rect.x, rect.y, rect.w,
+                     rect.h);
+        render::RenderOptions opt;
+        opt.threads = options_.threads;
+        opt.cancel = &stop_;
+        StagedTile t = render_tile(spec, *scene, batch, out_dir, frame, rect, opt);
+        Json done = base;
+        done["staged_path"] = t.path.string();
+        done["checksum"] = checksum_to_string(t.checksum);
+        done["seconds"] = t.seconds;
+        send_result(client, protocol::encode("done", done));
+      } else if (kind == "pack_shard") {
+        ShardJob job;
+        job.batch = batch;
+        job.shard_index = m.body.at("shard").get<int>();
+        job.frame_start = m.body.at("frame_start").get<int>();
+        job.frame_end = m.body.at("frame_end").get<int>();
+        job.file = m.body.at("shard_file").get<std::string>();
+        for (const Json& in : m.body.at("inputs")) {
+          StagedTile t;
+          t.frame = in.at("frame").get<int>();
+          t.rect = rect_of(in.at("rect"));
+          t.path = in.at("path").get<std::string>();
+          t.checksum = parse_checksum(in.at("checksum").get<std::string>()).value_or(0);
+          job.tiles.push_back(t);
+        }
+        spdlog::info("task {}: packing {} (frames {}..{})", task, job.file, job.frame_start,
+                     job.frame_end);
+        ManifestEntry e = pack_shard(spec, out_dir, job);
+        Json done = base;
+        done["staged_path"] = (out_dir / e.file).string();
+        done["checksum"] = checksum_to_string(e.checksum);
+        done["seconds"] = 0.0;
+        send_result(client, protocol::encode("done", done));
+      } else {
+        throw RuntimeError("unknown task kind \"" + kind + "\"");
+      }
+    } catch (const render::Cancelled&) {
+      spdlog::info("task {}: stopping; handing the task back", task);
+      send_result(client, protocol::encode("release", base));
+    } catch (const StagedTileError& e) {
+      Json failed = base;
+      failed["error"] = e.what();
+      failed["bad_tile"] = e.path().string();
+      send_result(client, protocol::encode("failed", failed));
+    } catch (const std::exception& e) {
+      spdlog::error("task {} failed: {}", task, e.what());
+      Json failed = base;
+      failed["error"] = e.what();
+      send_result(client, protocol::encode("failed", failed));
+    }
+    if (heartbeat.lost()) spdlog::warn("task {}: the lease was taken away meanwhile", task);
+  }
+
+  WorkerOptions options_;
+  std::atomic<bool>& stop_;
+  std::string id_;
+  zmq::context_t ctx_;
+  SceneCache scenes_;
+};
+
+}  // namespace
+
+int run_worker(const WorkerOptions& options, std::atomic<bool>& stop) {
+  Worker w(options, stop);
+  return w.run();
+}
+
+}  // namespace dofarm::worker
