@@ -19,6 +19,8 @@ PKGS=(
   libstb-dev               # PNG/JPG/HDR textures
   nlohmann-json3-dev       # --json output
   zlib1g-dev
+  slurm-wlm munge          # the cluster engine the deployment is tested against
+  python3                  # scene generator (jobs/scenes/make_scenes.py)
 )
 
 missing=()
