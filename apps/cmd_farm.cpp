@@ -181,7 +181,18 @@ Command add_run_impl(CLI::App& app) {
                   spawn_worker(server.endpoint(), threads,
                                "local-" + std::to_string(getpid()) + "-" + std::to_string(i),
                                level == "info" ? "warn" : level));
-            Progress progress("batch " + batch, 0);
+            // Progress counts finished tasks (tiles and packs) against the total.
+            int64_t finished = 0;
+            auto tasks_finished = [&](int* total) {
+              auto st = server.scheduler().status(batch);
+              if (st.batches.empty()) return int64_t(0);
+              *total = st.batches[0].tasks_total;
+              return int64_t(st.batches[0].tasks_done + st.batches[0].tasks_failed);
+            };
+            int total = 0;
+            finished = tasks_finished(&total);
+            Progress progress("batch " + batch, total);
+            progress.advance(finished);
             auto last = std::chrono::steady_clock::now();
             size_t alive = children.size();
             while (alive > 0) {
@@ -198,19 +209,17 @@ Command add_run_impl(CLI::App& app) {
                 for (pid_t pid : children)
                   if (pid > 0) kill(pid, SIGTERM);
               }
-              if (std::chrono::steady_clock::now() - last > std::chrono::seconds(5)) {
+              if (std::chrono::steady_clock::now() - last > std::chrono::seconds(1)) {
                 last = std::chrono::steady_clock::now();
-                auto st = server.scheduler().status(batch);
-                if (!st.batches.empty()) {
-                  const auto& b = st.batches[0];
-                  spdlog::info("batch {}: {}/{} frames rendered, {} packed, {} failed tasks", batch,
-                               b.frames_rendered, b.frames_total, b.frames_packed, b.tasks_failed);
-                }
+                int64_t now_finished = tasks_finished(&total);
+                progress.advance(now_finished - finished);
+                finished = now_finished;
               }
-              if (alive == 0) break;
             }
             // Let the last results in before reading the final state.
             for (int i = 0; i < 5; ++i) server.poll_once(10);
+            progress.advance(tasks_finished(&total) - finished);
+            progress.finish();
             auto st = server.scheduler().status(batch);
             const auto& b = st.batches.at(0);
             std::cout << "batch " << batch << ": " << coordinator::to_string(b.batch.state) << ", "
