@@ -240,6 +240,7 @@ void run_scene(const char* name, const char* job, int frame, const Args& args) {
 
 int main(int argc, char** argv) {
   const Args args = parse_args(argc, argv);
+  std::setvbuf(stdout, nullptr, _IOLBF, 0);  // progress shows when piped to a file
   std::printf("render_throughput: size %d, %lld raw rays, threads %d (0 = all = %u)\n", args.size,
               (long long)args.rays, args.threads, std::thread::hardware_concurrency());
   try {

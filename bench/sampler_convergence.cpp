@@ -201,6 +201,7 @@ void run_scene(const std::string& name, const Args& args) {
 
 int main(int argc, char** argv) {
   const Args args = parse_args(argc, argv);
+  std::setvbuf(stdout, nullptr, _IOLBF, 0);  // progress shows when piped to a file
   std::printf("sampler_convergence: width %d, reference %d spp, threads %d (0 = all)\n", args.size,
               args.reference_spp, args.threads);
   const auto t0 = std::chrono::steady_clock::now();
