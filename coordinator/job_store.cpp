@@ -194,7 +194,7 @@ JobStore::JobStore(const std::filesystem::path& path) : path_(path) {
                          " only; use the dofarm that wrote it or start a new state folder");
     }
     exec("PRAGMA journal_mode=WAL");
-    exec("PRAGMA synchronous=FULL");  // see the header: commits survive power loss
+    exec("PRAGMA synchronous=NORMAL");  // see the header
     exec("PRAGMA foreign_keys=ON");
   } catch (...) {
     sqlite3_close(db_);
