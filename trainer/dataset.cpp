@@ -32,6 +32,14 @@ uint64_t hash_name(const std::string& s) {  // FNV-1a, stable across platforms
   return mix(h);
 }
 
+// A shard failed while being read (damaged chunk, vanished file): the shard
+// is dropped and the sample drawn again from the others.
+struct ShardReadFailure : RuntimeError {
+  ShardReadFailure(std::string f, const std::string& what)
+      : RuntimeError(what), file(std::move(f)) {}
+  std::string file;
+};
+
 constexpr uint64_t kValidationStream = 0x76616c6964ull;  // separates val seeds from train
 
 }  // namespace
@@ -269,7 +277,33 @@ Sample SequenceStream::make_sample(uint64_t index, bool validation) const {
   int begin = validation ? s.split.val_begin : s.split.train_begin;
   int end = validation ? s.split.val_end : s.split.train_end;
   SequencePlan plan = draw_plan(rng, data_, begin, end, info.versions, info.width, info.height);
-  return build_sample(read_raw(s.split.file, plan), plan, data_, dof_);
+  RawCrop raw;
+  try {
+    raw = read_raw(s.split.file, plan);
+  } catch (const std::exception& e) {
+    std::string what = e.what();
+    if (what.find(s.split.file) == std::string::npos) what = s.split.file + ": " + what;
+    throw ShardReadFailure(s.split.file, what);
+  }
+  return build_sample(raw, plan, data_, dof_);
+}
+
+Sample SequenceStream::make_sample_dropping_bad_shards(uint64_t index, bool validation) {
+  for (;;) {
+    try {
+      return make_sample(index, validation);
+    } catch (const ShardReadFailure& e) {
+      spdlog::error("dropping shard: {}", e.what());
+      std::lock_guard lock(mu_);
+      problems_[e.file] = e.what();
+      std::erase_if(shards_, [&](const auto& sh) { return sh->split.file == e.file; });
+    } catch (const RuntimeError& e) {
+      // Nothing left to draw from: say why, with every shard that was dropped.
+      std::string why = e.what();
+      for (const std::string& p : problems()) why += "\n  " + p;
+      throw RuntimeError(why);
+    }
+  }
 }
 
 void SequenceStream::reader_loop() {
@@ -283,7 +317,7 @@ void SequenceStream::reader_loop() {
       index = claimed_++;
     }
     try {
-      Sample s = make_sample(index, false);
+      Sample s = make_sample_dropping_bad_shards(index, false);
       std::lock_guard lock(mu_);
       ready_.emplace(index, std::move(s));
     } catch (...) {
@@ -316,7 +350,7 @@ std::vector<Sample> SequenceStream::validation(int count) {
   bool any = false;
   for (const ShardSplit& s : splits()) any |= s.val_end - s.val_begin >= data_.sequence;
   if (!any) return out;
-  for (int i = 0; i < count; ++i) out.push_back(make_sample(uint64_t(i), true));
+  for (int i = 0; i < count; ++i) out.push_back(make_sample_dropping_bad_shards(uint64_t(i), true));
   return out;
 }
 

@@ -9,7 +9,9 @@
 // Determinism: sample i is drawn from an RNG seeded by (seed, i), and next()
 // hands samples out strictly in index order whatever thread made them, so
 // with a fixed set of shards a run (and a resumed run) sees the same data.
-// Memory: at most DataConfig::queue samples exist at any time.
+// Memory: at most DataConfig::queue samples exist at any time. A shard that
+// fails to open or to read is logged with the reason and dropped; the stream
+// fails only when no usable shard is left.
 //
 // Train/validation split: by frame ranges within each shard, or by whole
 // shards (DataConfig::split). The assignment of every shard is written to
@@ -87,6 +89,8 @@ class SequenceStream {
   void rescan();
   void reader_loop();
   Sample make_sample(uint64_t index, bool validation) const;
+  // make_sample(), dropping (and logging) a shard that fails while read.
+  Sample make_sample_dropping_bad_shards(uint64_t index, bool validation);
   void save_splits() const;
 
   std::filesystem::path data_dir_, run_dir_;

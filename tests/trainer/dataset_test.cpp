@@ -118,3 +118,32 @@ TEST(SequenceStream, CorruptedShardGivesAClearError) {
 
 }  // namespace
 }  // namespace dofarm::trainer
+
+namespace dofarm::trainer {
+namespace {
+
+TEST(SequenceStream, DamagedShardIsDroppedAndTrainingGoesOn) {
+  fs::path data = fresh_dir("ds_mixed"), run = fresh_dir("ds_mixed_run");
+  testing::write_synthetic_shard(data / "shard-00000.h5", 10, 64, 64, 2, 1);
+  testing::write_synthetic_shard(data / "shard-00001.h5", 10, 64, 64, 2, 2);
+  auto size = fs::file_size(data / "shard-00001.h5");
+  {
+    std::fstream f(data / "shard-00001.h5", std::ios::in | std::ios::out | std::ios::binary);
+    f.seekp(std::streamoff(size / 4));
+    std::string junk(size / 2, '\x5a');
+    f.write(junk.data(), std::streamsize(junk.size()));
+  }
+  SequenceStream s(data, run, small_data(), true, 3);
+  for (int i = 0; i < 30; ++i) {
+    Sample smp = s.next();
+    for (float v : smp.target) ASSERT_TRUE(std::isfinite(v));
+  }
+  std::vector<std::string> problems = s.problems();
+  ASSERT_EQ(problems.size(), 1u);
+  EXPECT_NE(problems[0].find("shard-00001.h5"), std::string::npos) << problems[0];
+  ASSERT_EQ(s.splits().size(), 1u);
+  EXPECT_EQ(s.splits()[0].file, "shard-00000.h5");
+}
+
+}  // namespace
+}  // namespace dofarm::trainer
