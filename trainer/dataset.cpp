@@ -239,11 +239,23 @@ RawCrop SequenceStream::read_raw(const std::string& file, const SequencePlan& pl
   raw.frames = n;
   raw.versions = r.info().versions;
   raw.size = data_.crop;
-  raw.noisy = r.read_crop("noisy", f0, n, ShardReader::kAllVersions, crop);
-  if (data_.albedo == AlbedoSource::kVersion)
-    raw.albedo = r.read_crop("albedo", f0, n, ShardReader::kAllVersions, crop);
-  else
-    raw.albedo_ref = r.read_crop("albedo_ref", f0, n, 0, crop);
+  // Only the (frame, version) pairs the plan shows: at most `sequence` of the
+  // span x V noisy crops, a V-fold saving in IO and decompression.
+  const size_t plane3 = size_t(3) * raw.size * raw.size;
+  raw.noisy.assign(size_t(n) * raw.versions * plane3, 0.0f);
+  const bool version_albedo = data_.albedo == AlbedoSource::kVersion;
+  if (version_albedo) raw.albedo.assign(raw.noisy.size(), 0.0f);
+  std::vector<std::pair<int, int>> needed;
+  for (size_t i = 0; i < plan.offset.size(); ++i)
+    needed.emplace_back(plan.offset[i], plan.version[i]);
+  std::sort(needed.begin(), needed.end());
+  needed.erase(std::unique(needed.begin(), needed.end()), needed.end());
+  for (const auto& [f, v] : needed) {
+    const size_t at = (size_t(f) * raw.versions + v) * plane3;
+    r.read_crop_into("noisy", f0 + f, 1, v, crop, &raw.noisy[at]);
+    if (version_albedo) r.read_crop_into("albedo", f0 + f, 1, v, crop, &raw.albedo[at]);
+  }
+  if (!version_albedo) raw.albedo_ref = r.read_crop("albedo_ref", f0, n, 0, crop);
   raw.reference = r.read_crop("reference", f0, n, 0, crop);
   raw.normal = r.read_crop("normal", f0, n, 0, crop);
   raw.depth = r.read_crop("depth", f0, n, 0, crop);

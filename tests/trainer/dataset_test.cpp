@@ -147,3 +147,39 @@ TEST(SequenceStream, DamagedShardIsDroppedAndTrainingGoesOn) {
 
 }  // namespace
 }  // namespace dofarm::trainer
+
+namespace dofarm::trainer {
+namespace {
+
+TEST(SequenceStream, ReadsExactlyThePlannedFramesVersionsAndCrop) {
+  fs::path data = fresh_dir("ds_exact"), run = fresh_dir("ds_exact_run");
+  testing::write_synthetic_shard(data / "shard-00000.h5", 12, 96, 64, 4, 8);
+  for (AlbedoSource src : {AlbedoSource::kReference, AlbedoSource::kVersion}) {
+    DataConfig d = small_data();
+    d.albedo = src;
+    SequenceStream s(data, run, d, true, 1);
+    std::mt19937_64 rng(4);
+    SequencePlan plan = draw_plan(rng, d, 0, 12, 4, 96, 64);
+    RawCrop raw = s.read_raw("shard-00000.h5", plan);
+    ShardReader reader(data / "shard-00000.h5");
+    const int c = d.crop;
+    const size_t n = size_t(c) * c;
+    for (size_t i = 0; i < plan.offset.size(); ++i) {
+      FrameBuffers fb = reader.read_frame(plan.first_frame + plan.offset[i]);
+      const int v = plan.version[i];
+      for (int ch = 0; ch < 3; ++ch)
+        for (int y = 0; y < c; ++y)
+          for (int x = 0; x < c; ++x) {
+            size_t src_i =
+                ((size_t(v) * 3 + ch) * fb.height + plan.crop_y + y) * fb.width + plan.crop_x + x;
+            size_t dst = ((size_t(plan.offset[i]) * raw.versions + v) * 3 + ch) * n + y * c + x;
+            ASSERT_EQ(raw.noisy[dst], fb.noisy[src_i]);
+            if (src == AlbedoSource::kVersion) ASSERT_EQ(raw.albedo[dst], fb.albedo[src_i]);
+          }
+      EXPECT_EQ(raw.focal_distance[plan.offset[i]], fb.camera.focal_distance);
+    }
+  }
+}
+
+}  // namespace
+}  // namespace dofarm::trainer
