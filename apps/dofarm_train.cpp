@@ -86,7 +86,7 @@ Command add_eval(CLI::App& app) {
   cmd->add_option("--images", o->images, "comparison PNGs to write")
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
-  cmd->add_option("--version", o->version, "noisy version fed to the network")
+  cmd->add_option("--noisy-version", o->version, "noisy version fed to the network")
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
   return {cmd, [o] {
@@ -108,13 +108,22 @@ Command add_denoise(CLI::App& app) {
   cmd->add_option("--run", o->run, "run folder")->required()->check(CLI::ExistingDirectory);
   cmd->add_option("IN", o->in, "frame EXR with all buffers")->required()->check(CLI::ExistingFile);
   cmd->add_option("OUT", o->out, "denoised RGB EXR")->required();
-  cmd->add_option("--version", o->version, "noisy version to denoise")
+  cmd->add_option("--noisy-version", o->version, "noisy version to denoise")
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
   return {cmd, [o] {
             FrameDenoiser den(o->run, pick_device("auto"));
-            ExrFrame frame = read_frame_exr(o->in);
+            ExrFrame frame;
+            try {
+              frame = read_frame_exr(o->in);
+            } catch (const RuntimeError& e) {
+              // A file that is not a dofarm frame EXR is bad input, not a failure.
+              throw SpecError(FileLoc{o->in}, "", e.what());
+            }
             const FrameBuffers& fb = frame.buffers;
+            if (o->version >= fb.versions)
+              throw SpecError(FileLoc{"--noisy-version"}, "",
+                              "the frame has " + std::to_string(fb.versions) + " noisy versions");
             if (den.config().model.dof && fb.coc.empty())
               throw SpecError(FileLoc{o->in}, "coc", "the model needs a coc layer");
             double sec = 0;
@@ -153,7 +162,7 @@ Command add_export(CLI::App& app) {
 
 int run_main(int argc, char** argv) {
   CLI::App app{"dofarm-train: trains and applies the depth-of-field denoiser", "dofarm-train"};
-  app.set_version_flag("--version-info", std::string(DOFARM_VERSION));
+  app.set_version_flag("--version", std::string(DOFARM_VERSION));
   app.require_subcommand(1);
   app.fallthrough();
   std::string log_level = "info";
