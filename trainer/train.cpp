@@ -8,6 +8,7 @@
 #include <sstream>
 
 #include "common/error.h"
+#include "common/progress.h"
 #include "trainer/dataset.h"
 #include "trainer/losses.h"
 
@@ -191,6 +192,8 @@ TrainResult train(const TrainOptions& opt_in) {
   if (new_csv) csv << "epoch,step,train_loss,val_loss,lr,skipped,seconds\n";
 
   int bad_in_a_row = 0;
+  const int64_t total_steps = int64_t(cfg.train.epochs) * cfg.train.steps_per_epoch;
+  Progress progress("train", std::max<int64_t>(0, total_steps - st.step));
   while (st.epoch < cfg.train.epochs) {
     auto t0 = std::chrono::steady_clock::now();
     model->train();
@@ -223,6 +226,7 @@ TrainResult train(const TrainOptions& opt_in) {
         ok = finite.empty() || torch::stack(finite).all().item<bool>();
       }
       ++st.step;
+      progress.advance();
       if (ok) {
         adam.step();
         loss_sum += loss_value;
