@@ -1,0 +1,88 @@
+// `dofarm run` (embedded coordinator + local worker processes) end to end,
+// and bad job specs refused before anything is written or submitted.
+#include <gtest/gtest.h>
+
+#include "tests/farm/farm_fixtures.h"
+
+namespace dofarm::farm_testing {
+namespace {
+
+TEST(FarmRun, ShardsAreBitIdenticalToInProcessRenderForAnyWorkerCountAndTiling) {
+  TempDir tmp;
+  const fs::path job = write_job(tmp.path(), "job.toml", TinyJob{});
+
+  CliResult two = run_cli(
+      tmp.path(), "run2",
+      {"run", job.string(), "--out", (tmp / "A").string(), "--workers", "2", "--lease", "2"});
+  ASSERT_EQ(two.status, 0) << two.out << two.err;
+  EXPECT_NE(two.out.find(": done,"), std::string::npos) << two.out;
+  EXPECT_TRUE(shards_match_render(tmp / "A", job));
+
+  // Another tiling and one worker: the same bytes.
+  CliResult one = run_cli(tmp.path(), "run1",
+                          {"run", job.string(), "--out", (tmp / "B").string(), "--workers", "1",
+                           "--lease", "2", "--set", "farm.tile=8"});
+  ASSERT_EQ(one.status, 0) << one.out << one.err;
+  std::map<int, FrameBuffers> a, b;
+  ASSERT_TRUE(read_manifest_frames(tmp / "A", a));
+  ASSERT_TRUE(read_manifest_frames(tmp / "B", b));
+  ASSERT_EQ(a.size(), b.size());
+  for (const auto& [f, fb] : a) {
+    ASSERT_TRUE(b.count(f)) << "frame " << f;
+    EXPECT_TRUE(same_frame(fb, b.at(f))) << "frame " << f;
+  }
+  // The staged tiles are gone once packed.
+  if (fs::exists(tmp / "B" / ".staging")) {
+    for (const auto& e : fs::recursive_directory_iterator(tmp / "B" / ".staging"))
+      EXPECT_FALSE(e.is_regular_file()) << "left behind: " << e.path();
+  }
+}
+
+// A spec with image.width = 0 on line 6, column 9.
+fs::path write_bad_job(const fs::path& dir) {
+  fs::path p = dir / "bad.toml";
+  write_text(p, "scene = \"" + cornell_scene().string() +
+                    "\"\nseed = 7\n\n[image]\nheight = 24\nwidth = 0\n\n[[camera.key]]\nframe = "
+                    "0\nposition = [0.0, 1.0, 3.9]\nlook_at = [0.0, 1.0, 0.0]\naperture = 0.05\n");
+  return p;
+}
+
+TEST(FarmSubmit, BadSpecIsRefusedWithItsLocationAndNothingIsAdded) {
+  TempDir tmp;
+  CoordinatorProcess coord(tmp.path(), "coordinator", tmp / "state", 2);
+  const fs::path bad = write_bad_job(tmp.path());
+
+  CliResult r = run_cli(
+      tmp.path(), "submit_bad",
+      {"submit", bad.string(), "--coordinator", coord.endpoint(), "--out", (tmp / "out").string()});
+  EXPECT_EQ(r.status, 2) << r.out << r.err;
+  EXPECT_NE(r.err.find("bad.toml:6:9"), std::string::npos) << r.err;
+  EXPECT_TRUE(r.out.empty()) << "no batch id may be printed: " << r.out;
+
+  // A bad override of a good spec, likewise.
+  const fs::path good = write_job(tmp.path(), "good.toml", TinyJob{});
+  CliResult o = run_cli(tmp.path(), "submit_bad_set",
+                        {"submit", good.string(), "--coordinator", coord.endpoint(), "--out",
+                         (tmp / "out").string(), "--set", "image.width=-4"});
+  EXPECT_EQ(o.status, 2) << o.out << o.err;
+  EXPECT_NE(o.err.find("--set image.width=-4"), std::string::npos) << o.err;
+
+  CliResult st =
+      run_cli(tmp.path(), "status", {"status", "--coordinator", coord.endpoint(), "--json"});
+  ASSERT_EQ(st.status, 0) << st.err;
+  EXPECT_TRUE(Json::parse(st.out).at("batches").empty()) << st.out;
+  EXPECT_FALSE(fs::exists(tmp / "out"));
+}
+
+TEST(FarmRun, BadSpecExitsTwoAndWritesNothing) {
+  TempDir tmp;
+  const fs::path bad = write_bad_job(tmp.path());
+  CliResult r =
+      run_cli(tmp.path(), "run_bad", {"run", bad.string(), "--out", (tmp / "D").string()});
+  EXPECT_EQ(r.status, 2) << r.out << r.err;
+  EXPECT_NE(r.err.find("bad.toml:6:9"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(tmp / "D")) << "the output folder must not be created";
+}
+
+}  // namespace
+}  // namespace dofarm::farm_testing
