@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 #include <torch/script.h>
 #include <torch/torch.h>
+#include <unistd.h>
 
 #include <filesystem>
 
@@ -126,8 +127,9 @@ TEST(Denoiser, TorchScriptExportComputesTheSame) {
   for (bool recurrent : {false, true}) {
     torch::manual_seed(3);
     Denoiser m(tiny(recurrent));
-    auto path = std::filesystem::temp_directory_path() /
-                ("dofarm_export_" + std::to_string(recurrent) + ".pt");
+    auto path =
+        std::filesystem::temp_directory_path() /
+        ("dofarm_export_" + std::to_string(::getpid()) + "_" + std::to_string(recurrent) + ".pt");
     m->export_torchscript(path);
     torch::jit::Module loaded = torch::jit::load(path.string());
     torch::NoGradGuard ng;
