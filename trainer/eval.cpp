@@ -89,6 +89,25 @@ double mean_of(const std::vector<double>& v) {
   return n ? s / n : NAN;
 }
 
+// Per-frame scores, kept as lists so means skip frames without a region.
+struct Accumulator {
+  std::vector<double> v[2][3][3];  // [noisy, denoised][all, in, out][ssim, psnr, rel_mse]
+  std::vector<double> ms;
+  int frames = 0;
+  json summary() const {
+    const char* who[2] = {"noisy", "denoised"};
+    const char* region[3] = {"all", "in_focus", "out_of_focus"};
+    json j;
+    for (int k = 0; k < 2; ++k)
+      for (int r = 0; r < 3; ++r)
+        j[who[k]][region[r]] =
+            to_json(Scores{mean_of(v[k][r][0]), mean_of(v[k][r][1]), mean_of(v[k][r][2])});
+    j["denoise_ms_mean"] = mean_of(ms);
+    j["frames"] = frames;
+    return j;
+  }
+};
+
 std::string cell(double v, int prec) {
   if (!std::isfinite(v)) return "–";
   char buf[32];
@@ -114,13 +133,13 @@ EvalSummary evaluate(const EvalOptions& o) {
       splits[file] = ShardSplit{file,           v.at("frames"), v.at("train")[0], v.at("train")[1],
                                 v.at("val")[0], v.at("val")[1]};
   }
-  // rows[k]: k = 0 noisy input, 1 denoised; per region all / in focus / out of focus
-  std::vector<double> acc[2][3][3];
-  std::vector<double> times;
+  Accumulator all;
+  std::map<std::string, Accumulator> by_scene;  // thesis table 5.1 has a row per scene
   json frames = json::array();
   int done = 0, images = 0;
   for (const std::string& file : list_shards(o.data_dir)) {
     ShardReader reader(o.data_dir / file);
+    Accumulator& scene = by_scene[reader.info().scene_id];
     ShardSplit sp =
         splits.count(file) ? splits[file] : assign_split(file, reader.frame_count(), cfg.data);
     den.reset_sequence();
@@ -139,19 +158,26 @@ EvalSummary evaluate(const EvalOptions& o) {
         in_focus[p] = fb.coc[p] < 1.0f;
         out_focus[p] = !in_focus[p];
       }
-      json row = {
-          {"shard", file}, {"frame", reader.info().frame_start + f}, {"denoise_ms", sec * 1e3}};
+      json row = {{"shard", file},
+                  {"scene", reader.info().scene_id},
+                  {"frame", reader.info().frame_start + f},
+                  {"denoise_ms", sec * 1e3}};
       const uint8_t* masks[3] = {nullptr, in_focus.data(), out_focus.data()};
       const char* region[3] = {"all", "in_focus", "out_of_focus"};
       for (int k = 0; k < 2; ++k)
         for (int r = 0; r < 3; ++r) {
           Scores s = score(k == 0 ? noisy : out, fb.reference, w, h, masks[r]);
-          acc[k][r][0].push_back(s.ssim);
-          acc[k][r][1].push_back(s.psnr);
-          acc[k][r][2].push_back(s.rel_mse);
+          for (Accumulator* a : {&all, &scene}) {
+            a->v[k][r][0].push_back(s.ssim);
+            a->v[k][r][1].push_back(s.psnr);
+            a->v[k][r][2].push_back(s.rel_mse);
+          }
           row[k == 0 ? "noisy" : "denoised"][region[r]] = to_json(s);
         }
-      times.push_back(sec * 1e3);
+      for (Accumulator* a : {&all, &scene}) {
+        a->ms.push_back(sec * 1e3);
+        ++a->frames;
+      }
       frames.push_back(row);
       if (images < o.max_images) {
         char name[64];
@@ -168,21 +194,16 @@ EvalSummary evaluate(const EvalOptions& o) {
 
   EvalSummary sum;
   sum.frames = done;
-  sum.ssim = mean_of(acc[1][0][0]);
-  sum.psnr = mean_of(acc[1][0][1]);
-  sum.rel_mse = mean_of(acc[1][0][2]);
-  sum.ms = mean_of(times);
+  sum.ssim = mean_of(all.v[1][0][0]);
+  sum.psnr = mean_of(all.v[1][0][1]);
+  sum.rel_mse = mean_of(all.v[1][0][2]);
+  sum.ms = mean_of(all.ms);
 
   std::string caption =
       write_loss_plot_png(o.out_dir / "loss.png", read_loss_csv(o.run_dir / "loss.csv"));
-  json summary;
-  const char* who[2] = {"noisy", "denoised"};
-  const char* region[3] = {"all", "in_focus", "out_of_focus"};
-  for (int k = 0; k < 2; ++k)
-    for (int r = 0; r < 3; ++r)
-      summary[who[k]][region[r]] =
-          to_json(Scores{mean_of(acc[k][r][0]), mean_of(acc[k][r][1]), mean_of(acc[k][r][2])});
-  summary["denoise_ms_mean"] = sum.ms;
+  json summary = all.summary();
+  json scenes = json::object();
+  for (const auto& [name, a] : by_scene) scenes[name] = a.summary();
   json report = {{"run", o.run_dir.string()},
                  {"data", o.data_dir.string()},
                  {"device", device.str()},
@@ -191,6 +212,7 @@ EvalSummary evaluate(const EvalOptions& o) {
                   "SSIM and PSNR on sRGB-encoded images clamped to [0,1]; relative MSE on "
                   "linear HDR, (d-r)^2/(r^2+0.01); in focus = CoC < 1 px"},
                  {"summary", summary},
+                 {"scenes", scenes},
                  {"frames", frames}};
   std::ofstream(o.out_dir / "report.json") << report.dump(1) << "\n";
 
@@ -201,16 +223,20 @@ EvalSummary evaluate(const EvalOptions& o) {
      << "SSIM and PSNR are taken on sRGB-encoded images clamped to [0, 1]; relative MSE on "
         "linear HDR radiance, mean of (d - r)^2 / (r^2 + 0.01). In focus: CoC < 1 pixel. "
         "Time: network + remodulation per frame, no IO.\n\n"
-     << "| input | SSIM all | SSIM in focus | SSIM out of focus | PSNR all (dB) | PSNR in | "
-        "PSNR out | relMSE all | relMSE in | relMSE out |\n"
-     << "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n";
-  for (int k = 0; k < 2; ++k) {
-    md << "| " << (k == 0 ? "noisy (1 spp)" : "denoised");
-    for (int m = 0; m < 3; ++m)
-      for (int r = 0; r < 3; ++r)
-        md << " | " << cell(mean_of(acc[k][r][m]), m == 0 ? 4 : (m == 1 ? 2 : 4));
-    md << " |\n";
-  }
+     << "| scene | input | SSIM all | SSIM in focus | SSIM out of focus | PSNR all (dB) | "
+        "PSNR in | PSNR out | relMSE all | relMSE in | relMSE out | ms/frame |\n"
+     << "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n";
+  auto table_rows = [&](const std::string& name, const Accumulator& a) {
+    for (int k = 0; k < 2; ++k) {
+      md << "| " << name << " (" << a.frames << " frames) | "
+         << (k == 0 ? "noisy (1 spp)" : "denoised");
+      for (int m = 0; m < 3; ++m)
+        for (int r = 0; r < 3; ++r) md << " | " << cell(mean_of(a.v[k][r][m]), m == 1 ? 2 : 4);
+      md << " | " << (k == 1 ? cell(mean_of(a.ms), 2) : std::string("–")) << " |\n";
+    }
+  };
+  for (const auto& [name, a] : by_scene) table_rows(name.empty() ? "(unnamed)" : name, a);
+  if (by_scene.size() > 1) table_rows("all scenes", all);
   md << "\nMean denoise time: " << cell(sum.ms, 2) << " ms per frame.\n\n"
      << "![loss](loss.png)\n\nLoss curves: " << caption << ".\n\n"
      << "Comparison images (`frame-NNN.png`): noisy | denoised | reference | 4x error.\n\n"
