@@ -60,10 +60,24 @@ protocol::Message checked(protocol::Message m) {
   return m;
 }
 
-void add_coordinator_option(CLI::App* cmd, std::string& endpoint) {
-  cmd->add_option("--coordinator", endpoint, "the coordinator's endpoint")
+// --coordinator and --curve-public, for every command that talks to one.
+struct CoordinatorArgs {
+  std::string endpoint;
+  std::string curve_public;
+  ClientOptions client() const {
+    ClientOptions o{endpoint, std::nullopt, 10000};
+    if (!curve_public.empty()) o.curve_public = curve_public;
+    return o;
+  }
+};
+
+void add_coordinator_option(CLI::App* cmd, CoordinatorArgs& c) {
+  cmd->add_option("--coordinator", c.endpoint, "the coordinator's endpoint")
       ->type_name("tcp://HOST:PORT")
       ->required();
+  cmd->add_option("--curve-public", c.curve_public,
+                  "the coordinator's CURVE public key file, when it has one")
+      ->type_name("FILE");
 }
 
 std::string format_eta(const Json& eta) {
@@ -292,14 +306,15 @@ Command add_worker(CLI::App& app) {
 
 Command add_submit(CLI::App& app) {
   struct Args {
-    std::string job, endpoint, out;
+    std::string job, out;
+    CoordinatorArgs coordinator;
     std::vector<std::string> sets;
   };
   auto a = std::make_shared<Args>();
   CLI::App* cmd =
       app.add_subcommand("submit", "Submit a job to a coordinator; prints the batch id");
   cmd->add_option("job", a->job, "job spec")->type_name("JOB.toml")->required();
-  add_coordinator_option(cmd, a->endpoint);
+  add_coordinator_option(cmd, a->coordinator);
   cmd->add_option("--out", a->out, "output folder (on a filesystem every node shares)")
       ->type_name("DIR")
       ->required();
@@ -307,7 +322,7 @@ Command add_submit(CLI::App& app) {
   return {cmd, [a]() {
             load_job_spec(a->job, a->sets);  // located errors before anything is sent
             auto r = checked(call_coordinator(
-                {a->endpoint, std::nullopt, 10000},
+                a->coordinator.client(),
                 protocol::encode("submit", {{"spec_path", fs::absolute(a->job).string()},
                                             {"overrides", a->sets},
                                             {"out_dir", fs::absolute(a->out).string()}})));
@@ -318,19 +333,20 @@ Command add_submit(CLI::App& app) {
 
 Command add_status(CLI::App& app) {
   struct Args {
-    std::string batch, endpoint;
+    std::string batch;
+    CoordinatorArgs coordinator;
     bool json = false;
   };
   auto a = std::make_shared<Args>();
   CLI::App* cmd = app.add_subcommand("status", "Progress, rate, ETA, failures and workers");
   cmd->add_option("batch", a->batch, "one batch (default: all)");
-  add_coordinator_option(cmd, a->endpoint);
+  add_coordinator_option(cmd, a->coordinator);
   cmd->add_flag("--json", a->json, "print JSON");
   return {cmd, [a]() {
             Json req = Json::object();
             if (!a->batch.empty()) req["batch"] = a->batch;
-            auto r = checked(call_coordinator({a->endpoint, std::nullopt, 10000},
-                                              protocol::encode("status", req)));
+            auto r =
+                checked(call_coordinator(a->coordinator.client(), protocol::encode("status", req)));
             r.body.erase("v");
             r.body.erase("type");
             if (a->json)
@@ -344,15 +360,16 @@ Command add_status(CLI::App& app) {
 namespace {
 Command add_batch_op(CLI::App& app, const char* name, const char* help) {
   struct Args {
-    std::string batch, endpoint;
+    std::string batch;
+    CoordinatorArgs coordinator;
   };
   auto a = std::make_shared<Args>();
   CLI::App* cmd = app.add_subcommand(name, help);
   cmd->add_option("batch", a->batch, "batch id")->required();
-  add_coordinator_option(cmd, a->endpoint);
+  add_coordinator_option(cmd, a->coordinator);
   std::string type = name;
   return {cmd, [a, type]() {
-            auto r = checked(call_coordinator({a->endpoint, std::nullopt, 10000},
+            auto r = checked(call_coordinator(a->coordinator.client(),
                                               protocol::encode(type, {{"batch", a->batch}})));
             std::cout << r.body.value("message", std::string()) << std::endl;
             return r.body.value("ok", false) ? kExitOk : kExitBadInput;

@@ -34,7 +34,11 @@ class ZapHandler {
   void loop() {
     while (!stop_) {
       zmq::pollitem_t item{socket_.handle(), 0, ZMQ_POLLIN, 0};
-      zmq::poll(&item, 1, std::chrono::milliseconds(100));
+      try {
+        zmq::poll(&item, 1, std::chrono::milliseconds(100));
+      } catch (const zmq::error_t&) {
+        continue;  // EINTR; anything else shows again on the next poll
+      }
       if (!(item.revents & ZMQ_POLLIN)) continue;
       std::vector<zmq::message_t> parts;
       while (true) {
@@ -300,11 +304,21 @@ std::string Server::handle(const protocol::Message& m) {
 
 void Server::poll_once(int timeout_ms) {
   zmq::pollitem_t item{socket_->handle(), 0, ZMQ_POLLIN, 0};
-  zmq::poll(&item, 1, std::chrono::milliseconds(timeout_ms));
+  try {
+    zmq::poll(&item, 1, std::chrono::milliseconds(timeout_ms));
+  } catch (const zmq::error_t& e) {
+    if (e.num() != EINTR) throw;
+    return;  // a signal (SIGTERM to stop): the caller checks its stop flag
+  }
   // Drain what is there: identity frame, then one payload frame.
   for (int n = 0; n < 1000 && (item.revents & ZMQ_POLLIN); ++n) {
     zmq::message_t identity;
-    if (!socket_->recv(identity, zmq::recv_flags::dontwait)) break;
+    try {
+      if (!socket_->recv(identity, zmq::recv_flags::dontwait)) break;
+    } catch (const zmq::error_t& e) {
+      if (e.num() != EINTR) throw;
+      break;
+    }
     std::vector<zmq::message_t> payload;
     bool more = identity.more();
     while (more) {
