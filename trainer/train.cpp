@@ -240,7 +240,8 @@ TrainResult train(const TrainOptions& opt_in) {
       log(spdlog::level::warn, "step {}: non-finite loss or gradient, step skipped", st.step);
       if (++bad_in_a_row >= cfg.train.max_bad_steps) {
         RunState back = load_checkpoint(last, model, &adam, device);
-        st.lr_scale = back.lr_scale * cfg.train.rollback_lr_factor;
+        // From the current scale: repeated rollbacks within an epoch keep lowering it.
+        st.lr_scale = std::min(st.lr_scale, back.lr_scale) * cfg.train.rollback_lr_factor;
         ++result.rollbacks;
         bad_in_a_row = 0;
         log(spdlog::level::warn,
@@ -280,7 +281,10 @@ TrainResult train(const TrainOptions& opt_in) {
     spdlog::info("epoch {}/{}: train {:.5f} val {:.5f} lr {:.3g} ({:.1f} s)", st.epoch,
                  cfg.train.epochs, train_loss, val, lr, seconds);
     // Best by validation loss; by training loss when there is no validation set.
-    double score = std::isfinite(val) ? val : train_loss;
+    // A non-finite validation loss never makes a model "best".
+    if (!vs.empty() && !std::isfinite(val))
+      log(spdlog::level::warn, "epoch {}: non-finite validation loss", st.epoch);
+    double score = vs.empty() ? train_loss : val;
     bool improved = std::isfinite(score) && score < st.best;
     if (improved) st.best = score;
     save_checkpoint(last, model, adam, st, cfg);

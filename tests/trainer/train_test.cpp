@@ -90,17 +90,22 @@ TEST(Train, NonFiniteLossIsSkippedThenRolledBackWithLowerLr) {
   TrainOptions o{shared_data(), run, tiny_config()};
   o.config.train.max_bad_steps = 2;
   o.loss_hook = [](int64_t step, const torch::Tensor& loss) {
-    return step == 1 || step == 2 ? loss * std::numeric_limits<float>::quiet_NaN() : loss;
+    return step >= 1 && step <= 4 ? loss * std::numeric_limits<float>::quiet_NaN() : loss;
   };
   TrainResult r = train(o);
-  EXPECT_EQ(r.skipped_steps, 2);
-  EXPECT_EQ(r.rollbacks, 1);
+  EXPECT_EQ(r.skipped_steps, 4);
+  EXPECT_EQ(r.rollbacks, 2);  // each rollback lowers the LR again
   EXPECT_TRUE(torch::isfinite(flat_params(run)).all().item<bool>());
   std::ifstream ev(run / "events.log");
   std::stringstream ss;
   ss << ev.rdbuf();
   EXPECT_NE(ss.str().find("rolled back"), std::string::npos) << ss.str();
   EXPECT_NE(ss.str().find("LR scale now 0.5"), std::string::npos) << ss.str();
+  EXPECT_NE(ss.str().find("LR scale now 0.25"), std::string::npos) << ss.str();
+  // The CSV holds only finite losses of the steps taken.
+  std::ifstream csv(run / "loss.csv");
+  std::string all((std::istreambuf_iterator<char>(csv)), std::istreambuf_iterator<char>());
+  EXPECT_EQ(all.find("nan"), std::string::npos) << all;
 }
 
 TEST(Train, IncompatibleConfigIsRefusedWithTheReason) {
