@@ -199,6 +199,9 @@ EOF
 # batch every second, the coordinator stops 5 s after it (sbatch passes the
 # environment on).
 export DOFARM_SLURM_POLL=1 DOFARM_SLURM_LINGER=5
+# Workers reach the coordinator by the node's host name; a container whose
+# name does not resolve uses the loopback address (the node is this machine).
+getent hosts "$(hostname)" >/dev/null || export DOFARM_SLURM_HOST=127.0.0.1
 out=$T/farm
 start=$SECONDS
 batch=$("$dofarm_slurm" submit "$T/job.toml" --workers 2 --out "$out" --dofarm "$dofarm" \
