@@ -5,7 +5,7 @@
 // no rendering in between. Prints messages/s handled by the coordinator and
 // the request latency p50/p99 seen by the workers. Never asserts.
 //
-//   build/bench/farm_throughput [workers=32] [seconds=5] [heartbeats_per_task=8]
+//   build/bench/farm_throughput [workers=32] [seconds=5] [heartbeats_per_task=8] [frames=4000]
 #include <algorithm>
 #include <atomic>
 #include <chrono>
@@ -25,6 +25,7 @@ int main(int argc, char** argv) {
   const int workers = argc > 1 ? std::atoi(argv[1]) : 32;
   const double seconds = argc > 2 ? std::atof(argv[2]) : 5.0;
   const int heartbeats = argc > 3 ? std::atoi(argv[3]) : 8;
+  const int frames = argc > 4 ? std::atoi(argv[4]) : 4000;
   namespace fs = std::filesystem;
   fs::path dir = fs::temp_directory_path() / ("dofarm-bench-farm-" + std::to_string(getpid()));
   fs::remove_all(dir);
@@ -35,10 +36,10 @@ int main(int argc, char** argv) {
   so.state_dir = dir / "state";
   so.wait_seconds = 0.01;
   coordinator::Server server(so, clock);
-  // A batch with plenty of tasks: 4000 frames of 2x2 tiles.
+  // A batch of `frames` frames of 2x2 tiles, 16 frames per shard.
   JobSpec spec = load_job_spec(fs::path(DOFARM_SOURCE_DIR) / "jobs/cornell.toml",
                                {"image.width=128", "image.height=128", "farm.tile=64",
-                                "frames.end=3999", "frames.per_shard=16"});
+                                "frames.end=" + std::to_string(std::max(16, frames) - 1), "frames.per_shard=16"});
   server.scheduler().submit(spec.spec_path.string(), {}, (dir / "out").string(), spec);
 
   std::atomic<bool> stop{false};
@@ -93,7 +94,8 @@ int main(int argc, char** argv) {
   std::sort(all.begin(), all.end());
   auto pct = [&](double p) { return all.empty() ? 0.0 : all[size_t(p * (all.size() - 1))] * 1e3; };
   auto st = server.scheduler().status();
-  std::printf("workers %d, heartbeats/task %d, %.1f s\n", workers, heartbeats, elapsed);
+  std::printf("workers %d, heartbeats/task %d, batch of %d frames, %.1f s\n", workers, heartbeats,
+              frames, elapsed);
   std::printf("messages handled: %llu  (%.0f messages/s)\n", (unsigned long long)total,
               double(total) / elapsed);
   std::printf("tasks completed: %d\n", st.batches.empty() ? 0 : st.batches[0].tasks_done);
