@@ -55,10 +55,12 @@ struct DataConfig {
 };
 
 struct LossConfig {
-  float l1 = 0.8f;         // thesis eq. 4.2
-  float log = 0.2f;        // Laplacian-of-Gaussian gradient term, eq. 4.3-4.4
-  float log_sigma = 1.0f;  // LoG scale, pixels
-  float temporal = 0.0f;   // L1 of frame differences (Chaitanya 2017; for the recurrent model)
+  float l1 = 0.8f;   // thesis eq. 4.2
+  float log = 0.2f;  // Laplacian-of-Gaussian gradient term, eq. 4.3-4.4
+  // LoG scale in pixels: the usual sigma of HFEN (Ravishankar and Bresler 2011),
+  // the LoG error the RAE's gradient loss is built on.
+  float log_sigma = 1.5f;
+  float temporal = 0.0f;  // L1 of frame differences (Chaitanya 2017; for the recurrent model)
 };
 
 struct OptimConfig {
