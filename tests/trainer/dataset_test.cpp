@@ -1,7 +1,6 @@
 #include "trainer/dataset.h"
 
 #include <gtest/gtest.h>
-#include <unistd.h>
 
 #include <chrono>
 #include <cmath>
@@ -15,14 +14,7 @@ namespace {
 
 namespace fs = std::filesystem;
 
-fs::path fresh_dir(const std::string& name) {
-  // Per process: ctest runs tests of this binary in parallel processes.
-  fs::path d =
-      fs::temp_directory_path() / ("dofarm_trainer_" + std::to_string(::getpid()) + "_" + name);
-  fs::remove_all(d);
-  fs::create_directories(d);
-  return d;
-}
+fs::path fresh_dir(const std::string& name) { return testing::scratch_dir(name); }
 
 DataConfig small_data() {
   DataConfig d;

@@ -3,6 +3,8 @@
 // per-pixel noise, aux buffers are simple analytic fields.
 #pragma once
 
+#include <unistd.h>
+
 #include <cmath>
 #include <filesystem>
 #include <random>
@@ -13,6 +15,25 @@
 #include "common/shard.h"
 
 namespace dofarm::trainer::testing {
+
+// An empty folder for one test, removed when the process exits. Named per
+// process: ctest runs the tests of one binary in parallel processes.
+inline std::filesystem::path scratch_dir(const std::string& name) {
+  struct Registry {
+    std::vector<std::filesystem::path> dirs;
+    ~Registry() {
+      std::error_code ec;
+      for (const auto& d : dirs) std::filesystem::remove_all(d, ec);
+    }
+  };
+  static Registry registry;
+  std::filesystem::path d = std::filesystem::temp_directory_path() /
+                            ("dofarm_trainer_" + std::to_string(::getpid()) + "_" + name);
+  std::filesystem::remove_all(d);
+  std::filesystem::create_directories(d);
+  registry.dirs.push_back(d);
+  return d;
+}
 
 inline FrameBuffers synthetic_frame(int frame, int w, int h, int versions, uint64_t seed) {
   FrameBuffers fb;

@@ -20,14 +20,7 @@ namespace {
 
 namespace fs = std::filesystem;
 
-fs::path fresh_dir(const std::string& name) {
-  // Per process: ctest runs tests of this binary in parallel processes.
-  fs::path d =
-      fs::temp_directory_path() / ("dofarm_trainer_" + std::to_string(::getpid()) + "_" + name);
-  fs::remove_all(d);
-  fs::create_directories(d);
-  return d;
-}
+fs::path fresh_dir(const std::string& name) { return testing::scratch_dir(name); }
 
 // A tiny but complete configuration: 8-channel model, 32x32 crops, 3 frames.
 TrainConfig tiny_config() {
