@@ -8,12 +8,9 @@
 #include <string>
 #include <vector>
 
-namespace dofarm {
+#include "apps/cli_main.h"
 
-struct Command {
-  CLI::App* app;
-  std::function<int()> run;
-};
+namespace dofarm {
 
 // --set KEY=VALUE, shared by every command that reads a job spec.
 void add_set_option(CLI::App* cmd, std::vector<std::string>& sets);

@@ -1,12 +1,10 @@
 // dofarm: the render-farm executable (DESIGN.md, "Command line").
 //
 // Each subcommand is one add_<name>() function that declares its options on
-// CLI11 and returns the action to run once the command line is parsed; main()
-// only dispatches and maps failures to exit statuses (STYLE.md 3):
-//   0 success, 2 bad input (SpecError, CLI11 parse errors), 1 anything else,
-// with the error as one line "dofarm: error: <message>" on stderr.
-// To add a subcommand (run, coordinator, worker, submit, ...), write its
-// add_<name>() and list it in main().
+// CLI11 and returns the action to run once the command line is parsed
+// (render here, the farm's in cmd_farm.cpp); run_cli() (apps/cli_main.h)
+// dispatches and maps failures to exit statuses. To add a subcommand, write
+// its add_<name>() and list it in run_main().
 #include <spdlog/spdlog.h>
 
 #include <CLI/CLI.hpp>
@@ -29,11 +27,6 @@ namespace dofarm {
 namespace {
 
 namespace fs = std::filesystem;
-
-// Options every subcommand sees (they may be given before or after it).
-struct GlobalOptions {
-  std::string log_level = "info";
-};
 
 }  // namespace
 
@@ -142,58 +135,17 @@ Command add_render(CLI::App& app) {
       }};
 }
 
-// ---------------------------------------------------------------------------
-
-void print_error(const std::string& message) {
-  std::fprintf(stderr, "dofarm: error: %s\n", message.c_str());
-}
-
 int run_main(int argc, char** argv) {
   CLI::App app{
       "dofarm: renders depth-of-field training data for a neural denoiser, locally or "
       "as a render farm",
       "dofarm"};
-  app.set_version_flag("--version", std::string(DOFARM_VERSION));
-  app.require_subcommand(1);
-  // Global options are also accepted after the subcommand's name.
-  app.fallthrough();
-
-  GlobalOptions global;
-  app.add_option("--log-level", global.log_level, "log verbosity")
-      ->check(CLI::IsMember(log_level_names()))
-      ->capture_default_str();
-
-  std::vector<Command> commands = {
-      add_render(app), add_run(app),    add_coordinator(app), add_worker(app),  add_submit(app),
-      add_status(app), add_resume(app), add_cancel(app),      add_inspect(app), add_keygen(app),
-  };
-
-  try {
-    app.parse(argc, argv);
-  } catch (const CLI::ParseError& e) {
-    // --help and --version arrive as "errors" with exit code 0.
-    if (e.get_exit_code() == static_cast<int>(CLI::ExitCodes::Success)) return app.exit(e);
-    print_error(e.what());
-    return kExitBadInput;
-  }
-
-  try {
-    init_logging(global.log_level, /*to_stderr=*/true);
-    for (const Command& c : commands) {
-      if (c.app->parsed()) return c.run();
-    }
-    print_error("no command given (see dofarm --help)");
-    return kExitBadInput;
-  } catch (const SpecError& e) {
-    print_error(e.what());
-    return kExitBadInput;
-  } catch (const std::exception& e) {
-    print_error(e.what());
-    return kExitRuntime;
-  } catch (...) {
-    print_error("unknown failure");
-    return kExitRuntime;
-  }
+  return run_cli(app, "dofarm", argc, argv, [](CLI::App& a) {
+    return std::vector<Command>{
+        add_render(a), add_run(a),    add_coordinator(a), add_worker(a),  add_submit(a),
+        add_status(a), add_resume(a), add_cancel(a),      add_inspect(a), add_keygen(a),
+    };
+  });
 }
 
 }  // namespace

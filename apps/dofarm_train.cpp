@@ -16,6 +16,7 @@
 #include <string>
 #include <vector>
 
+#include "apps/cli_main.h"
 #include "common/error.h"
 #include "common/exr_io.h"
 #include "common/log.h"
@@ -28,15 +29,6 @@ namespace {
 
 namespace fs = std::filesystem;
 using namespace dofarm::trainer;
-
-struct Command {
-  CLI::App* app;
-  std::function<int()> run;
-};
-
-void print_error(const std::string& msg) {
-  std::fprintf(stderr, "dofarm-train: error: %s\n", msg.c_str());
-}
 
 Command add_train(CLI::App& app) {
   auto* cmd = app.add_subcommand("train", "train a denoiser; resumes when RUNDIR holds a run");
@@ -162,38 +154,9 @@ Command add_export(CLI::App& app) {
 
 int run_main(int argc, char** argv) {
   CLI::App app{"dofarm-train: trains and applies the depth-of-field denoiser", "dofarm-train"};
-  app.set_version_flag("--version", std::string(DOFARM_VERSION));
-  app.require_subcommand(1);
-  app.fallthrough();
-  std::string log_level = "info";
-  app.add_option("--log-level", log_level, "log verbosity")
-      ->check(CLI::IsMember(log_level_names()))
-      ->capture_default_str();
-  std::vector<Command> commands = {add_train(app), add_eval(app), add_denoise(app),
-                                   add_export(app)};
-  try {
-    app.parse(argc, argv);
-  } catch (const CLI::ParseError& e) {
-    if (e.get_exit_code() == static_cast<int>(CLI::ExitCodes::Success)) return app.exit(e);
-    print_error(e.what());
-    return kExitBadInput;
-  }
-  try {
-    init_logging(log_level, /*to_stderr=*/true);
-    for (const Command& c : commands)
-      if (c.app->parsed()) return c.run();
-    print_error("no command given (see dofarm-train --help)");
-    return kExitBadInput;
-  } catch (const SpecError& e) {
-    print_error(e.what());
-    return kExitBadInput;
-  } catch (const std::exception& e) {
-    print_error(e.what());
-    return kExitRuntime;
-  } catch (...) {
-    print_error("unknown failure");
-    return kExitRuntime;
-  }
+  return run_cli(app, "dofarm-train", argc, argv, [](CLI::App& a) {
+    return std::vector<Command>{add_train(a), add_eval(a), add_denoise(a), add_export(a)};
+  });
 }
 
 }  // namespace
