@@ -196,12 +196,18 @@ Command add_run_impl(CLI::App& app) {
                                "local-" + std::to_string(getpid()) + "-" + std::to_string(i),
                                level == "info" ? "warn" : level));
             // Progress counts finished tasks (tiles and packs) against the total.
+            // Every local worker blocklisted for the batch means nobody is left
+            // to render it: stop rather than wait for a worker that never comes.
             int64_t finished = 0;
+            bool stranded = false;
             auto tasks_finished = [&](int* total) {
               auto st = server.scheduler().status(batch);
               if (st.batches.empty()) return int64_t(0);
-              *total = st.batches[0].tasks_total;
-              return int64_t(st.batches[0].tasks_done + st.batches[0].tasks_failed);
+              const auto& b = st.batches[0];
+              *total = b.tasks_total;
+              stranded = b.batch.state == coordinator::BatchState::kRunning &&
+                         int(b.blocklisted.size()) >= a->workers;
+              return int64_t(b.tasks_done + b.tasks_failed);
             };
             int total = 0;
             finished = tasks_finished(&total);
@@ -219,7 +225,7 @@ Command add_run_impl(CLI::App& app) {
                   --alive;
                 }
               }
-              if (stop_requested()) {
+              if (stop_requested() || stranded) {
                 for (pid_t pid : children)
                   if (pid > 0) kill(pid, SIGTERM);
               }
@@ -236,6 +242,10 @@ Command add_run_impl(CLI::App& app) {
             progress.finish();
             auto st = server.scheduler().status(batch);
             const auto& b = st.batches.at(0);
+            if (stranded)
+              std::cerr << "every worker (" << a->workers << ") is blocklisted for batch " << batch
+                        << " after failing tasks; stopped. Fix the cause and run again to "
+                           "resume.\n";
             std::cout << "batch " << batch << ": " << coordinator::to_string(b.batch.state) << ", "
                       << b.frames_packed << "/" << b.frames_total << " frames in shards under "
                       << out.string() << "\n";

@@ -84,5 +84,23 @@ TEST(FarmRun, BadSpecExitsTwoAndWritesNothing) {
   EXPECT_FALSE(fs::exists(tmp / "D")) << "the output folder must not be created";
 }
 
+TEST(FarmRun, StopsWhenEveryWorkerIsBlocklisted) {
+  // A scene file that exists (so the spec is valid) but cannot be read: every
+  // task fails on every worker, both local workers get blocklisted, and
+  // nobody is left to render. `run` must say so and exit 1, not wait forever.
+  TempDir tmp;
+  write_text(tmp / "broken.gltf", "this is not glTF {");
+  TinyJob job;
+  job.scene = tmp / "broken.gltf";
+  job.tile = 8;  // 12 tiles a frame: more failing tasks than the blocklist needs
+  const fs::path spec = write_job(tmp.path(), "broken.toml", job);
+  CliResult r = run_cli(tmp.path(), "run_broken",
+                        {"run", spec.string(), "--out", (tmp / "out").string(), "--workers", "2"},
+                        /*deadline_seconds=*/60);
+  EXPECT_EQ(r.status, 1) << r.out << r.err;
+  EXPECT_NE(r.err.find("blocklisted"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(tmp / "out" / "manifest.json"));
+}
+
 }  // namespace
 }  // namespace dofarm::farm_testing
