@@ -62,6 +62,9 @@ struct ExrFrame {
 // Throws RuntimeError naming the file when it is missing, not a dofarm frame,
 // truncated or corrupt, or lacks a channel.
 ExrFrame read_frame_exr(const std::filesystem::path& path);
+// The string attributes of an EXR's header (as read_frame_exr() returns
+// them) without reading any pixels. Throws RuntimeError naming the file.
+std::map<std::string, std::string> read_exr_string_attributes(const std::filesystem::path& path);
 
 // Writes an RGB image as a plain float EXR (debugging, reports), atomically
 // like write_frame_exr(). Non-finite values are kept, to be seen.

@@ -1,7 +1,9 @@
 #include "worker/tasks.h"
 
 #include <chrono>
+#include <cmath>
 #include <cstdio>
+#include <cstdlib>
 
 #include "common/checksum.h"
 #include "common/exr_io.h"
@@ -95,7 +97,16 @@ ManifestEntry pack_shard(const JobSpec& spec, const fs::path& out_dir, const Sha
   info.frame_start = job.frame_start;
   info.frame_end = job.frame_end;
   info.renderer_version = DOFARM_VERSION;
-  for (const StagedTile& t : job.tiles) info.render_seconds += t.seconds;
+  // The render time of each tile travels in its staged file's header.
+  for (const StagedTile& t : job.tiles) {
+    double seconds = t.seconds;
+    if (seconds <= 0) {
+      auto attrs = read_exr_string_attributes(t.path);
+      auto it = attrs.find("dofarm.render_seconds");
+      if (it != attrs.end()) seconds = std::strtod(it->second.c_str(), nullptr);
+    }
+    if (std::isfinite(seconds) && seconds > 0) info.render_seconds += seconds;
+  }
 
   ShardWriter writer(out_dir / job.file, info);
   for (int f = job.frame_start; f <= job.frame_end; ++f) {
