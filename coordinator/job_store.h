@@ -163,6 +163,8 @@ class JobStore {
   std::vector<TaskRow> leased_tasks(const std::string& batch_id);  // empty: every batch
   // Tasks of the batch per TaskState, indexed by the enum's value.
   std::array<int, 4> task_counts(const std::string& batch_id);
+  // Whether any task of the batch is pending or leased.
+  bool has_unfinished_tasks(const std::string& batch_id);
 
   // Attempts
   void insert_attempt(const AttemptRow& attempt);

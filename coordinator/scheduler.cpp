@@ -386,6 +386,9 @@ std::vector<int64_t> Scheduler::expire_leases() {
 void Scheduler::finish_batch_if_complete(const std::string& batch_id, double now) {
   const BatchRow batch = *store_.batch(batch_id);
   if (batch.state != BatchState::kRunning) return;
+  // An index seek answers the common case (work left) without counting the
+  // whole batch on every completion.
+  if (store_.has_unfinished_tasks(batch_id)) return;
   const auto counts = store_.task_counts(batch_id);
   if (counts[static_cast<int>(TaskState::kPending)] > 0 ||
       counts[static_cast<int>(TaskState::kLeased)] > 0) {
