@@ -30,13 +30,16 @@ float Bsdf::specular_probability(Vec3 wo) const {
   return std::clamp(fs / (fs + fd), 0.05f, 0.95f);
 }
 
-Vec3 Bsdf::eval(Vec3 wo_w, Vec3 wi_w) const {
+Vec3 Bsdf::evaluate(Vec3 wo_w, Vec3 wi_w, float* pdf_out) const {
+  *pdf_out = 0;
   // Reflection only: both directions above the geometric surface, so light
   // never leaks through a surface because of a bent shading normal.
   if (dot(wi_w, ng_) <= 0 || dot(wo_w, ng_) <= 0) return Vec3(0);
   Vec3 wo = frame_.to_local(wo_w), wi = frame_.to_local(wi_w);
   if (wo.z <= 0 || wi.z <= 0) return Vec3(0);
+  const float ps = specular_probability(wo);
   Vec3 f(0);
+  float p = (1.0f - ps) * wi.z * kInvPi;
   if (diffuse_weight_ > 0) {
     Vec3 t(1);
     if (has_specular_)
@@ -46,23 +49,23 @@ Vec3 Bsdf::eval(Vec3 wo_w, Vec3 wi_w) const {
   if (has_specular_ && !delta_specular_) {
     Vec3 h = normalize(wo + wi);
     float d = ggx::D(h, alpha_), g = ggx::G2(wo, wi, alpha_);
-    Vec3 fr = ggx::fresnel_schlick(f0_, dot(wo, h));
+    float wo_h = dot(wo, h);
+    Vec3 fr = ggx::fresnel_schlick(f0_, wo_h);
     f += fr * (d * g / (4.0f * wo.z));  // times cos(wi) / cos(wi) cancels
+    if (wo_h > 0) p += ps * ggx::pdf_vndf(wo, h, alpha_) / (4.0f * wo_h);
   }
+  *pdf_out = p;
   return f;
 }
 
-float Bsdf::pdf(Vec3 wo_w, Vec3 wi_w) const {
-  if (dot(wi_w, ng_) <= 0 || dot(wo_w, ng_) <= 0) return 0;
-  Vec3 wo = frame_.to_local(wo_w), wi = frame_.to_local(wi_w);
-  if (wo.z <= 0 || wi.z <= 0) return 0;
-  float ps = specular_probability(wo);
-  float p = (1.0f - ps) * wi.z * kInvPi;
-  if (has_specular_ && !delta_specular_) {
-    Vec3 h = normalize(wo + wi);
-    float wo_h = dot(wo, h);
-    if (wo_h > 0) p += ps * ggx::pdf_vndf(wo, h, alpha_) / (4.0f * wo_h);
-  }
+Vec3 Bsdf::eval(Vec3 wo, Vec3 wi) const {
+  float unused;
+  return evaluate(wo, wi, &unused);
+}
+
+float Bsdf::pdf(Vec3 wo, Vec3 wi) const {
+  float p;
+  evaluate(wo, wi, &p);
   return p;
 }
 
@@ -91,9 +94,8 @@ BsdfSample Bsdf::sample(Vec3 wo_w, float u_lobe, Vec2 u) const {
   }
   if (wi.z <= 0) return s;
   s.wi = frame_.to_world(wi);
-  s.pdf = pdf(wo_w, s.wi);
+  Vec3 f = evaluate(wo_w, s.wi, &s.pdf);
   if (!(s.pdf > 0)) return s;
-  Vec3 f = eval(wo_w, s.wi);
   s.weight = f / s.pdf;
   s.valid = is_finite(s.weight);
   return s;

@@ -28,6 +28,9 @@ class Bsdf {
 
   Vec3 eval(Vec3 wo, Vec3 wi) const;  // f(wo, wi) * |cos(ns, wi)|, non-delta part
   float pdf(Vec3 wo, Vec3 wi) const;  // of sample(), non-delta part
+  // Both at once, sharing the half-vector, D, G and Fresnel terms (NEE needs
+  // both for every light sample).
+  Vec3 evaluate(Vec3 wo, Vec3 wi, float* pdf) const;
   BsdfSample sample(Vec3 wo, float u_lobe, Vec2 u) const;
   bool has_non_delta() const { return diffuse_weight_ > 0 || (has_specular_ && !delta_specular_); }
 

@@ -71,12 +71,13 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
     if (use_nee && bsdf.has_non_delta()) {
       LightSample ls;
       if (scene.sample_light(hit.p, u_select, u_light, &ls)) {
-        Vec3 f = bsdf.eval(wo, ls.wi);
+        float bsdf_pdf;
+        Vec3 f = bsdf.evaluate(wo, ls.wi, &bsdf_pdf);
         if (max_component(f) > 0) {
           Vec3 origin = scene.offset_origin(hit, ls.wi);
           float t_max = std::isinf(ls.distance) ? ls.distance : ls.distance * (1.0f - 1e-4f);
           if (!scene.occluded(origin, ls.wi, t_max)) {
-            float w = use_mis ? power_heuristic(ls.pdf, bsdf.pdf(wo, ls.wi)) : 1.0f;
+            float w = use_mis ? power_heuristic(ls.pdf, bsdf_pdf) : 1.0f;
             L += beta * f * ls.radiance * (w / ls.pdf);
           }
         }
