@@ -46,4 +46,14 @@ ls "$TMP/report"/*.png > /dev/null || fail "no images in the report"
 [ -s "$TMP/denoised.exr" ] || fail "no denoised EXR"
 "$TRAIN" --log-level warn export --run "$TMP/run" --out "$TMP/model.pt"
 [ -s "$TMP/model.pt" ] || fail "no TorchScript export"
+# Where Debian's python3-torch is installed, the export must load and run there.
+if /usr/bin/python3 -c "import torch" 2> /dev/null; then
+  /usr/bin/python3 - "$TMP/model.pt" <<'PY' || fail "torch.jit.load of the export"
+import sys, torch
+m = torch.jit.load(sys.argv[1])
+y = m(torch.rand(1, 12, 64, 64))
+assert tuple(y.shape) == (1, 3, 64, 64) and bool(torch.isfinite(y).all()), y.shape
+print("torch.jit.load in Python: ok")
+PY
+fi
 echo "PASS: farm -> shard -> training -> eval report, denoise, export"
