@@ -10,6 +10,7 @@
 #include <atomic>
 #include <chrono>
 #include <cstdio>
+#include <ctime>
 #include <filesystem>
 #include <thread>
 #include <vector>
@@ -37,13 +38,26 @@ int main(int argc, char** argv) {
   so.wait_seconds = 0.01;
   coordinator::Server server(so, clock);
   // A batch of `frames` frames of 2x2 tiles, 16 frames per shard.
-  JobSpec spec = load_job_spec(fs::path(DOFARM_SOURCE_DIR) / "jobs/cornell.toml",
-                               {"image.width=128", "image.height=128", "farm.tile=64",
-                                "frames.end=" + std::to_string(std::max(16, frames) - 1), "frames.per_shard=16"});
+  JobSpec spec = load_job_spec(
+      fs::path(DOFARM_SOURCE_DIR) / "jobs/cornell.toml",
+      {"image.width=128", "image.height=128", "farm.tile=64",
+       "frames.end=" + std::to_string(std::max(16, frames) - 1), "frames.per_shard=16"});
   server.scheduler().submit(spec.spec_path.string(), {}, (dir / "out").string(), spec);
 
   std::atomic<bool> stop{false};
-  std::thread serve([&] { server.run(stop); });
+  // The coordinator's own CPU time: the simulated workers share the machine,
+  // so messages per coordinator CPU-second is what one core would sustain.
+  double serve_cpu_seconds = 0;
+  std::thread serve([&] {
+    auto cpu = [] {
+      timespec ts;
+      clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+      return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
+    };
+    double c0 = cpu();
+    server.run(stop);
+    serve_cpu_seconds = cpu() - c0;
+  });
 
   std::atomic<bool> go{false}, done{false};
   std::vector<std::vector<double>> latencies(workers);
@@ -65,8 +79,8 @@ int main(int argc, char** argv) {
       while (!done) {
         protocol::Message m = call(protocol::encode("request", {{"worker", id}}));
         if (m.type != "task") continue;
-        protocol::Json base = {{"worker", id}, {"task", m.integer("task")},
-                               {"attempt", m.integer("attempt")}};
+        protocol::Json base = {
+            {"worker", id}, {"task", m.integer("task")}, {"attempt", m.integer("attempt")}};
         for (int h = 0; h < heartbeats && !done; ++h) call(protocol::encode("heartbeat", base));
         protocol::Json d = base;
         d["staged_path"] = "/nonexistent";
@@ -98,6 +112,8 @@ int main(int argc, char** argv) {
               frames, elapsed);
   std::printf("messages handled: %llu  (%.0f messages/s)\n", (unsigned long long)total,
               double(total) / elapsed);
+  std::printf("coordinator CPU: %.2f s of one core = %.0f messages per CPU-second\n",
+              serve_cpu_seconds, double(total) / std::max(serve_cpu_seconds, 1e-9));
   std::printf("tasks completed: %d\n", st.batches.empty() ? 0 : st.batches[0].tasks_done);
   std::printf("latency ms: p50 %.3f  p99 %.3f  max %.3f\n", pct(0.5), pct(0.99), pct(1.0));
   fs::remove_all(dir);

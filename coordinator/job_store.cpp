@@ -106,10 +106,24 @@ const char* to_string(AttemptOutcome s) { return kOutcomes[static_cast<int>(s)];
 // database.
 class JobStore::Statement {
  public:
+  // Takes the prepared statement for `sql` from the store's cache, or
+  // prepares it; gives it back, reset, when done (preparing costs more than
+  // running most of these statements).
   Statement(JobStore& store, std::string sql) : store_(store), sql_(std::move(sql)) {
-    if (sqlite3_prepare_v2(store_.db_, sql_.c_str(), -1, &stmt_, nullptr) != SQLITE_OK) fail();
+    auto it = store_.statements_.find(sql_);
+    if (it != store_.statements_.end()) {
+      stmt_ = it->second;
+      store_.statements_.erase(it);
+    } else if (sqlite3_prepare_v2(store_.db_, sql_.c_str(), -1, &stmt_, nullptr) != SQLITE_OK) {
+      fail();
+    }
   }
-  ~Statement() { sqlite3_finalize(stmt_); }
+  ~Statement() {
+    if (!stmt_) return;
+    sqlite3_reset(stmt_);
+    sqlite3_clear_bindings(stmt_);
+    if (!store_.statements_.emplace(sql_, stmt_).second) sqlite3_finalize(stmt_);
+  }
   Statement(const Statement&) = delete;
   Statement& operator=(const Statement&) = delete;
 
@@ -198,12 +212,16 @@ JobStore::JobStore(const std::filesystem::path& path) : path_(path) {
     exec("PRAGMA synchronous=NORMAL");  // see the header
     exec("PRAGMA foreign_keys=ON");
   } catch (...) {
+    for (auto& [sql, stmt] : statements_) sqlite3_finalize(stmt);
     sqlite3_close(db_);
     throw;
   }
 }
 
-JobStore::~JobStore() { sqlite3_close(db_); }
+JobStore::~JobStore() {
+  for (auto& [sql, stmt] : statements_) sqlite3_finalize(stmt);
+  sqlite3_close(db_);
+}
 
 void JobStore::exec(const char* sql) {
   char* err = nullptr;

@@ -30,12 +30,14 @@
 #include <filesystem>
 #include <optional>
 #include <string>
+#include <unordered_map>
 #include <vector>
 
 #include "common/image.h"
 #include "coordinator/planner.h"
 
 struct sqlite3;
+struct sqlite3_stmt;
 
 namespace dofarm::coordinator {
 
@@ -202,6 +204,9 @@ class JobStore {
 
   std::filesystem::path path_;
   sqlite3* db_ = nullptr;
+  // Prepared statements kept for reuse, by SQL text; one that is in use is
+  // out of the map, so a nested use of the same SQL prepares its own.
+  std::unordered_map<std::string, sqlite3_stmt*> statements_;
 };
 
 }  // namespace dofarm::coordinator

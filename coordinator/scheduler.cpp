@@ -366,6 +366,8 @@ bool Scheduler::release(const std::string& worker, int64_t task, int attempt) {
 
 std::vector<int64_t> Scheduler::expire_leases() {
   const double now = clock_.now();
+  // Called on every request and poll: look before taking the write lock.
+  if (store_.leases_expired_by(now).empty()) return {};
   Transaction tx(store_);
   std::vector<int64_t> ids;
   for (TaskRow t : store_.leases_expired_by(now)) {
