@@ -20,6 +20,23 @@ void embree_error(void* user, RTCError code, const char* str) {
 
 thread_local RayCount t_rays;
 
+// An Embree ray from o along d over [0, t_max], visible to every geometry.
+RTCRay embree_ray(Vec3 o, Vec3 d, float t_max) {
+  RTCRay r;
+  r.org_x = o.x;
+  r.org_y = o.y;
+  r.org_z = o.z;
+  r.dir_x = d.x;
+  r.dir_y = d.y;
+  r.dir_z = d.z;
+  r.tnear = 0.0f;
+  r.tfar = t_max;
+  r.mask = 0xffffffffu;
+  r.flags = 0;
+  r.time = 0;
+  return r;
+}
+
 float max_abs(Vec3 v) { return std::max(std::fabs(v.x), std::max(std::fabs(v.y), std::fabs(v.z))); }
 
 Vec3 texture_mean(const Texture& t) {
@@ -114,6 +131,11 @@ Scene::~Scene() {
   if (device_) rtcReleaseDevice(device_);
 }
 
+Vec2 Scene::texcoord(const uint32_t* idx, float b0, float b1, float b2) const {
+  if (data_.uvs.empty()) return {b1, b2};  // no texture coordinates: barycentrics
+  return data_.uvs[idx[0]] * b0 + data_.uvs[idx[1]] * b1 + data_.uvs[idx[2]] * b2;
+}
+
 float Scene::triangle_area(uint32_t t) const {
   const uint32_t* idx = &data_.indices[size_t(t) * 3];
   Vec3 p0 = data_.positions[idx[0]], p1 = data_.positions[idx[1]], p2 = data_.positions[idx[2]];
@@ -133,17 +155,7 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
   RTCIntersectContext ctx;
   rtcInitIntersectContext(&ctx);
   RTCRayHit rh;
-  rh.ray.org_x = ray.o.x;
-  rh.ray.org_y = ray.o.y;
-  rh.ray.org_z = ray.o.z;
-  rh.ray.dir_x = ray.d.x;
-  rh.ray.dir_y = ray.d.y;
-  rh.ray.dir_z = ray.d.z;
-  rh.ray.tnear = 0.0f;
-  rh.ray.tfar = std::numeric_limits<float>::infinity();
-  rh.ray.mask = 0xffffffffu;
-  rh.ray.flags = 0;
-  rh.ray.time = 0;
+  rh.ray = embree_ray(ray.o, ray.d, std::numeric_limits<float>::infinity());
   rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
   rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
   rtcIntersect1(rtc_scene_, &ctx, &rh);
@@ -171,9 +183,7 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
     if (dot(ns, ray.d) >= 0) ns = ng;
   }
   hit->ns = ns;
-  hit->uv = data_.uvs.empty()
-                ? Vec2(b1, b2)
-                : data_.uvs[idx[0]] * b0 + data_.uvs[idx[1]] * b1 + data_.uvs[idx[2]] * b2;
+  hit->uv = texcoord(idx, b0, b1, b2);
   const Material& m = data_.materials[data_.tri_material[prim]];
   hit->base_color = m.base_color;
   hit->metallic = m.metallic;
@@ -195,18 +205,7 @@ bool Scene::occluded(Vec3 origin, Vec3 dir, float t_max) const {
   ++t_rays.shadow;
   RTCIntersectContext ctx;
   rtcInitIntersectContext(&ctx);
-  RTCRay r;
-  r.org_x = origin.x;
-  r.org_y = origin.y;
-  r.org_z = origin.z;
-  r.dir_x = dir.x;
-  r.dir_y = dir.y;
-  r.dir_z = dir.z;
-  r.tnear = 0.0f;
-  r.tfar = t_max;
-  r.mask = 0xffffffffu;
-  r.flags = 0;
-  r.time = 0;
+  RTCRay r = embree_ray(origin, dir, t_max);
   rtcOccluded1(rtc_scene_, &ctx, &r);
   return r.tfar < 0;  // Embree sets tfar to -inf on a hit
 }
@@ -243,9 +242,7 @@ bool Scene::sample_light(Vec3 from, float u_select, Vec2 u, LightSample* out) co
   Vec3 wi = d / dist;
   float cos_l = std::fabs(dot(n, wi));
   if (!(cos_l > 1e-7f)) return false;
-  Vec2 uv = data_.uvs.empty()
-                ? Vec2(b1, b2)
-                : data_.uvs[idx[0]] * b0 + data_.uvs[idx[1]] * b1 + data_.uvs[idx[2]] * b2;
+  Vec2 uv = texcoord(idx, b0, b1, b2);
   out->wi = wi;
   out->distance = dist;
   out->radiance = material_emission(data_.materials[data_.tri_material[t]], uv);

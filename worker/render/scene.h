@@ -66,6 +66,8 @@ class Scene {
  private:
   Vec3 material_emission(const Material& m, Vec2 uv) const;
   float triangle_area(uint32_t prim) const;
+  // Texture coordinates at barycentrics (b0, b1, b2) of the triangle `idx`.
+  Vec2 texcoord(const uint32_t* idx, float b0, float b1, float b2) const;
 
   SceneData data_;
   std::unique_ptr<Environment> environment_;
