@@ -1,0 +1,264 @@
+// ShardWriter: streams frames into a new shard, verifies it and publishes
+// it atomically (see common/shard.h).
+#include <map>
+
+#include "common/checksum.h"
+#include "common/shard.h"
+#include "common/shard_hdf5.h"
+
+namespace dofarm {
+
+namespace fs = std::filesystem;
+using namespace shard_detail;
+
+// ---------------------------------------------------------------------------
+// ShardWriter
+
+struct ShardWriter::Impl {
+  fs::path final_path, temp_path;
+  ShardInfo info;
+  Handle file;
+  std::map<std::string, Handle> datasets;
+  int next_frame = 0;
+  bool failed = false, committed = false;
+  Checksum64 sum;
+  std::chrono::steady_clock::time_point started = std::chrono::steady_clock::now();
+
+  Handle create_dataset(const std::string& name, const std::vector<hsize_t>& dims,
+                        const std::vector<hsize_t>& chunk, const char* dim_names,
+                        const char* channels_attr, const char* channels) {
+    const fs::path& p = temp_path;
+    Handle space = checked(H5Screate_simple(int(dims.size()), dims.data(), nullptr), H5Sclose, p,
+                           "creating dataspace for '" + name + "'");
+    Handle dcpl = checked(H5Pcreate(H5P_DATASET_CREATE), H5Pclose, p, "creating dcpl");
+    // Shuffle groups the bytes of the floats so deflate sees runs of similar
+    // exponents; Fletcher-32 last, so it covers the stored (compressed) bytes
+    // and a damaged chunk fails the read instead of decoding to wrong values.
+    if (H5Pset_chunk(dcpl.get(), int(chunk.size()), chunk.data()) < 0 ||
+        H5Pset_shuffle(dcpl.get()) < 0 || H5Pset_deflate(dcpl.get(), 4) < 0 ||
+        H5Pset_fletcher32(dcpl.get()) < 0 || H5Pset_fill_time(dcpl.get(), H5D_FILL_TIME_NEVER) < 0)
+      h5_fail(p, "setting up chunking and filters for '" + name + "'");
+    Handle ds = checked(H5Dcreate2(file.get(), name.c_str(), H5T_IEEE_F32LE, space.get(),
+                                   H5P_DEFAULT, dcpl.get(), H5P_DEFAULT),
+                        H5Dclose, p, "creating dataset '" + name + "'");
+    write_attr_string(ds.get(), "dims", dim_names, p);
+    write_attr_string(ds.get(), channels_attr, channels, p);
+    return ds;
+  }
+
+  void write(const std::string& name, const BufferInfo* b, const float* data, size_t count) {
+    const Handle& ds = datasets.at(name);
+    Rect full{0, 0, info.width, info.height};
+    Handle fspace = select_crop(ds.get(), b, next_frame, 1, ShardReader::kAllVersions, full,
+                                info.versions, temp_path);
+    hsize_t dim = count;
+    Handle mspace =
+        checked(H5Screate_simple(1, &dim, nullptr), H5Sclose, temp_path, "memory space");
+    if (H5Dwrite(ds.get(), H5T_NATIVE_FLOAT, mspace.get(), fspace.get(), H5P_DEFAULT, data) < 0)
+      h5_fail(temp_path, "writing '" + name + "' of frame index " + std::to_string(next_frame));
+  }
+
+  void write_root_attributes() {
+    hid_t f = file.get();
+    const fs::path& p = temp_path;
+    write_attr_string(f, "schema", kShardSchema, p);
+    write_attr_string(f, "batch_id", info.batch_id, p);
+    write_attr_string(f, "scene_id", info.scene_id, p);
+    write_attr_string(f, "scene_hash", info.scene_hash, p);
+    write_attr_i64(f, "width", info.width, p);
+    write_attr_i64(f, "height", info.height, p);
+    write_attr_i64(f, "versions", info.versions, p);
+    write_attr_i64(f, "spp_noisy", info.spp_noisy, p);
+    write_attr_i64(f, "spp_reference", info.spp_reference, p);
+    write_attr_f64(f, "reference_error", info.reference_error, p);
+    write_attr_i64(f, "spp_albedo_ref", info.spp_albedo_ref, p);
+    write_attr_u64(f, "seed", info.seed, p);
+    write_attr_i64(f, "frame_start", info.frame_start, p);
+    write_attr_i64(f, "frame_end", info.frame_end, p);
+    write_attr_string(f, "renderer_version", info.renderer_version, p);
+    write_attr_f64(f, "render_seconds", info.render_seconds, p);
+    write_attr_f64(f, "pack_seconds", info.pack_seconds, p);
+    write_attr_string(f, "created", info.created, p);
+    write_attr_string(f, "data_checksum", checksum_to_string(info.data_checksum), p);
+  }
+
+  void close_all() {
+    datasets.clear();
+    file.reset();
+  }
+
+  void remove_temp() {
+    close_all();
+    std::error_code ec;
+    fs::remove(temp_path, ec);  // best effort: we are already failing
+  }
+};
+
+ShardWriter::ShardWriter(fs::path final_path, ShardInfo info) : impl_(std::make_unique<Impl>()) {
+  DOFARM_CHECK_GE(info.width, 1);
+  DOFARM_CHECK_GE(info.height, 1);
+  DOFARM_CHECK_GE(info.versions, 1);
+  DOFARM_CHECK_GE(info.frame_count(), 1);
+  H5Lock lock;
+  Impl& m = *impl_;
+  m.final_path = std::move(final_path);
+  m.temp_path = m.final_path;
+  m.temp_path += ".tmp-" + std::to_string(::getpid());
+  m.info = std::move(info);
+  m.info.schema = kShardSchema;
+  try {
+    const fs::path& p = m.temp_path;
+    Handle fapl = checked(H5Pcreate(H5P_FILE_ACCESS), H5Pclose, p, "creating fapl");
+    // The 1.8 object format carries checksums on all metadata, so a damaged
+    // header is reported instead of misread; h5py of any current version reads it.
+    H5Pset_libver_bounds(fapl.get(), H5F_LIBVER_V18, H5F_LIBVER_LATEST);
+    H5Pset_fclose_degree(fapl.get(), H5F_CLOSE_STRONG);
+    m.file = checked(H5Fcreate(p.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, fapl.get()), H5Fclose, p,
+                     "cannot create file");
+    const ShardInfo& i = m.info;
+    hsize_t th = hsize_t(std::min(i.height, kShardTile));
+    hsize_t tw = hsize_t(std::min(i.width, kShardTile));
+    for (const BufferInfo& b : buffer_infos()) {
+      // One chunk = one frame, one version, all channels, one 64x64 tile: the
+      // unit the trainer's crops read.
+      std::vector<hsize_t> chunk = {1};
+      if (b.per_version) chunk.push_back(1);
+      chunk.insert(chunk.end(), {hsize_t(b.channels), th, tw});
+      const char* dims = b.per_version ? "frame,version,channel,y,x" : "frame,channel,y,x";
+      m.datasets.emplace(b.name, m.create_dataset(b.name, dataset_dims(b, i), chunk, dims,
+                                                  "channels", buffer_channel_names(b.name)));
+    }
+    std::string columns;
+    for (const char* c : camera_columns()) columns += (columns.empty() ? "" : ",") + std::string(c);
+    m.datasets.emplace("camera",
+                       m.create_dataset("camera", {hsize_t(i.frame_count()), kCameraColumns},
+                                        {hsize_t(i.frame_count()), kCameraColumns}, "frame,column",
+                                        "columns", columns.c_str()));
+  } catch (...) {
+    m.remove_temp();
+    throw;
+  }
+}
+
+ShardWriter::~ShardWriter() {
+  if (!impl_->committed) abort();
+}
+
+const fs::path& ShardWriter::temp_path() const { return impl_->temp_path; }
+
+void ShardWriter::abort() {
+  H5Lock lock;
+  impl_->failed = true;
+  impl_->remove_temp();
+}
+
+void ShardWriter::add_frame(const FrameBuffers& fb) {
+  H5Lock lock;
+  Impl& m = *impl_;
+  if (m.failed || m.committed)
+    throw RuntimeError("shard " + m.final_path.string() + ": writer is no longer usable");
+  try {
+    const ShardInfo& i = m.info;
+    if (m.next_frame >= i.frame_count())
+      throw RuntimeError("shard " + m.final_path.string() + ": more frames than the " +
+                         std::to_string(i.frame_count()) + " the shard was created for");
+    if (fb.width != i.width || fb.height != i.height || fb.versions != i.versions)
+      throw RuntimeError("shard " + m.final_path.string() + ": frame " +
+                         std::to_string(fb.camera.frame) + " is " + std::to_string(fb.width) + "x" +
+                         std::to_string(fb.height) + " with " + std::to_string(fb.versions) +
+                         " versions; the shard is " + std::to_string(i.width) + "x" +
+                         std::to_string(i.height) + " with " + std::to_string(i.versions));
+    for (const BufferInfo& b : buffer_infos()) {
+      size_t want = size_t(b.channels) * fb.plane() * (b.per_version ? i.versions : 1);
+      if (buffer_data(fb, b.name).size() != want)
+        throw RuntimeError("shard " + m.final_path.string() + ": frame " +
+                           std::to_string(fb.camera.frame) + ", buffer '" + b.name + "' holds " +
+                           std::to_string(buffer_data(fb, b.name).size()) + " values, expected " +
+                           std::to_string(want));
+    }
+    check_finite(fb, m.final_path);
+    for (const BufferInfo& b : buffer_infos()) {
+      const std::vector<float>& data = buffer_data(fb, b.name);
+      m.write(b.name, &b, data.data(), data.size());
+      m.sum.update(data.data(), data.size() * sizeof(float));
+    }
+    auto row = camera_to_row(fb.camera);
+    m.write("camera", nullptr, row.data(), row.size());
+    m.sum.update(row.data(), sizeof row);
+    ++m.next_frame;
+  } catch (...) {
+    m.failed = true;
+    m.remove_temp();
+    throw;
+  }
+}
+
+ShardWriteResult ShardWriter::commit() {
+  H5Lock lock;
+  Impl& m = *impl_;
+  const std::string where = "shard " + m.final_path.string();
+  if (m.failed || m.committed) throw RuntimeError(where + ": writer is no longer usable");
+  try {
+    if (m.next_frame != m.info.frame_count())
+      throw RuntimeError(where + ": commit after " + std::to_string(m.next_frame) + " of " +
+                         std::to_string(m.info.frame_count()) + " frames");
+    m.info.data_checksum = m.sum.digest();
+    if (m.info.created.empty()) m.info.created = utc_now_iso8601();
+    m.info.pack_seconds =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - m.started).count();
+    m.write_root_attributes();
+    if (H5Fflush(m.file.get(), H5F_SCOPE_GLOBAL) < 0) h5_fail(m.temp_path, "flushing");
+    m.datasets.clear();
+    if (m.file.reset() < 0) h5_fail(m.temp_path, "closing");
+    fsync_path(m.temp_path, false);
+
+    // Read everything back through the reader: the file must open as a shard,
+    // carry what we meant to write and decode to the same bytes.
+    ShardWriteResult result;
+    {
+      ShardReader check(m.temp_path);
+      const ShardInfo& got = check.info();
+      if (got.width != m.info.width || got.height != m.info.height ||
+          got.versions != m.info.versions || got.frame_start != m.info.frame_start ||
+          got.frame_end != m.info.frame_end || got.data_checksum != m.info.data_checksum)
+        throw RuntimeError(where + ": verification failed: attributes read back differ");
+      uint64_t back = check.compute_data_checksum();
+      if (back != m.info.data_checksum)
+        throw RuntimeError(where + ": verification failed: data read back has checksum " +
+                           checksum_to_string(back) + ", written " +
+                           checksum_to_string(m.info.data_checksum));
+    }
+    result.path = m.final_path;
+    result.data_checksum = m.info.data_checksum;
+    result.file_size = fs::file_size(m.temp_path);
+    result.file_checksum = checksum_file(m.temp_path);
+    std::error_code ec;
+    fs::rename(m.temp_path, m.final_path, ec);
+    if (ec) throw RuntimeError(where + ": rename from temporary failed: " + ec.message());
+    m.committed = true;
+    fs::path dir = m.final_path.parent_path();
+    fsync_path(dir.empty() ? fs::path(".") : dir, true);
+    return result;
+  } catch (...) {
+    if (!m.committed) {
+      m.failed = true;
+      m.remove_temp();
+    }
+    throw;
+  }
+}
+
+ShardWriteResult write_shard(const fs::path& final_path, const ShardInfo& info,
+                             const std::vector<FrameBuffers>& frames) {
+  // Everything is checked before the file exists, so bad input leaves nothing.
+  for (const FrameBuffers& fb : frames) check_finite(fb, final_path);
+  if (int(frames.size()) != info.frame_count())
+    throw RuntimeError("shard " + final_path.string() + ": " + std::to_string(frames.size()) +
+                       " frames given for range " + std::to_string(info.frame_start) + ".." +
+                       std::to_string(info.frame_end));
+  ShardWriter w(final_path, info);
+  for (const FrameBuffers& fb : frames) w.add_frame(fb);
+  return w.commit();
+}
+
+}  // namespace dofarm
