@@ -14,6 +14,7 @@
 #include <ImfStringAttribute.h>
 #include <ImfVecAttribute.h>
 #include <fcntl.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -24,6 +25,7 @@
 #include <exception>
 #include <system_error>
 
+#include "common/checksum.h"
 #include "common/error.h"
 
 #define STB_IMAGE_IMPLEMENTATION
@@ -96,38 +98,101 @@ std::vector<ChannelPlane> channel_planes(int versions) {
 
 // --- Atomic file writing ----------------------------------------------------
 
-// An Imf::OStream on a POSIX file descriptor, so the bytes can be fsynced
-// before the rename (std::ofstream offers no fsync). It remembers the first
-// failure because OutputFile writes its offset table from its destructor,
-// which swallows exceptions: without the flag a failed final write would go
-// unnoticed and an incomplete file would be renamed into place.
-class FdOStream : public Imf::OStream {
+// An Imf::OStream into memory. A frame is encoded whole before any byte
+// reaches the disk, so its checksum is computed over the very bytes written
+// and nobody has to read the file back for it. OutputFile writes its offset
+// table from its destructor, which swallows exceptions, so the first failure
+// (out of memory) is remembered: an incomplete encoding must not be written.
+class MemOStream : public Imf::OStream {
  public:
-  FdOStream(const std::string& name, int fd) : Imf::OStream(name.c_str()), fd_(fd) {}
+  explicit MemOStream(const std::string& name) : Imf::OStream(name.c_str()) {}
 
   void write(const char c[], int n) override {
-    size_t done = 0;
-    while (done < size_t(n)) {
-      ssize_t k = ::pwrite(fd_, c + done, size_t(n) - done, off_t(pos_ + done));
-      if (k < 0 && errno == EINTR) continue;
-      if (k <= 0) {
-        error_ = "write failed: " + errno_text(k < 0 ? errno : EIO);
-        throw Iex::IoExc(error_);
-      }
-      done += size_t(k);
+    try {
+      if (pos_ + size_t(n) > bytes_.size()) bytes_.resize(pos_ + size_t(n));
+    } catch (const std::exception& e) {
+      error_ = std::string("out of memory encoding the image: ") + e.what();
+      throw Iex::IoExc(error_);
     }
-    pos_ += done;
+    std::memcpy(bytes_.data() + pos_, c, size_t(n));
+    pos_ += size_t(n);
   }
   uint64_t tellp() override { return pos_; }
   void seekp(uint64_t pos) override { pos_ = pos; }
 
+  const std::vector<char>& bytes() const { return bytes_; }
   const std::string& error() const { return error_; }
 
  private:
-  int fd_;
-  uint64_t pos_ = 0;
+  std::vector<char> bytes_;
+  size_t pos_ = 0;
   std::string error_;
 };
+
+// An Imf::IStream over bytes already in memory (memory-mapped in OpenEXR's
+// sense: the decoder reads them in place).
+class MemIStream : public Imf::IStream {
+ public:
+  MemIStream(const std::string& name, const std::vector<char>& bytes)
+      : Imf::IStream(name.c_str()), bytes_(bytes) {}
+
+  bool isMemoryMapped() const override { return true; }
+  char* readMemoryMapped(int n) override {
+    if (n < 0 || pos_ + size_t(n) > bytes_.size())
+      throw Iex::InputExc("unexpected end of file");
+    char* p = const_cast<char*>(bytes_.data()) + pos_;
+    pos_ += size_t(n);
+    return p;
+  }
+  bool read(char c[], int n) override {
+    std::memcpy(c, readMemoryMapped(n), size_t(n));
+    return pos_ < bytes_.size();
+  }
+  uint64_t tellg() override { return pos_; }
+  void seekg(uint64_t pos) override { pos_ = pos; }
+  void clear() override {}
+
+ private:
+  const std::vector<char>& bytes_;
+  size_t pos_ = 0;
+};
+
+// The whole file in one read. Throws RuntimeError naming it.
+std::vector<char> read_whole_file(const std::filesystem::path& path) {
+  int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) throw RuntimeError("cannot open " + quoted(path) + ": " + errno_text(errno));
+  std::vector<char> bytes;
+  try {
+    struct stat st {};
+    if (::fstat(fd, &st) != 0) throw RuntimeError("cannot stat " + quoted(path) + ": " + errno_text(errno));
+    bytes.resize(size_t(st.st_size));
+    size_t done = 0;
+    while (done < bytes.size()) {
+      ssize_t k = ::pread(fd, bytes.data() + done, bytes.size() - done, off_t(done));
+      if (k < 0 && errno == EINTR) continue;
+      if (k < 0) throw RuntimeError("cannot read " + quoted(path) + ": " + errno_text(errno));
+      if (k == 0) break;  // shrank meanwhile: decode what is there, the reader reports it
+      done += size_t(k);
+    }
+    bytes.resize(done);
+  } catch (...) {
+    ::close(fd);
+    throw;
+  }
+  ::close(fd);
+  return bytes;
+}
+
+// Writes all of `bytes` to `fd`. Throws RuntimeError.
+void write_all(int fd, const std::vector<char>& bytes) {
+  size_t done = 0;
+  while (done < bytes.size()) {
+    ssize_t k = ::write(fd, bytes.data() + done, bytes.size() - done);
+    if (k < 0 && errno == EINTR) continue;
+    if (k <= 0) throw RuntimeError("write failed: " + errno_text(k < 0 ? errno : EIO));
+    done += size_t(k);
+  }
+}
 
 // Makes a rename durable: the directory entry itself must reach the disk.
 void fsync_directory(const std::filesystem::path& dir) {
@@ -142,8 +207,8 @@ void fsync_directory(const std::filesystem::path& dir) {
 // Writes `header` and `frame_buffer` to `path` so that a reader sees either
 // the old file or the complete new one (LevelDB-style temp, fsync, rename).
 // This is the one boundary where OpenEXR exceptions become RuntimeError.
-void write_exr_atomically(const std::filesystem::path& path, const Imf::Header& header,
-                          const Imf::FrameBuffer& frame_buffer) {
+uint64_t write_exr_atomically(const std::filesystem::path& path, const Imf::Header& header,
+                              const Imf::FrameBuffer& frame_buffer) {
   // The counter keeps two threads of one process writing the same path from
   // sharing a temporary file.
   static std::atomic<unsigned> counter{0};
@@ -152,22 +217,25 @@ void write_exr_atomically(const std::filesystem::path& path, const Imf::Header& 
   const std::filesystem::path dir = path.has_parent_path() ? path.parent_path() : ".";
   int fd = -1;
   try {
-    std::filesystem::create_directories(dir);
-    fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-    if (fd < 0) throw RuntimeError("cannot create " + quoted(tmp) + ": " + errno_text(errno));
-    FdOStream stream(tmp.string(), fd);
+    MemOStream stream(tmp.string());
     {
       Imf::OutputFile file(stream, header, 1);
       file.setFrameBuffer(frame_buffer);
       file.writePixels(header.dataWindow().max.y - header.dataWindow().min.y + 1);
     }  // the destructor writes the line offset table
     if (!stream.error().empty()) throw RuntimeError(stream.error());
+    const uint64_t sum = checksum64(stream.bytes().data(), stream.bytes().size());
+    std::filesystem::create_directories(dir);
+    fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+    if (fd < 0) throw RuntimeError("cannot create " + quoted(tmp) + ": " + errno_text(errno));
+    write_all(fd, stream.bytes());
     if (::fsync(fd) != 0) throw RuntimeError("fsync failed: " + errno_text(errno));
     int rc = ::close(fd);
     fd = -1;
     if (rc != 0) throw RuntimeError("close failed: " + errno_text(errno));
     std::filesystem::rename(tmp, path);
     fsync_directory(dir);
+    return sum;
   } catch (const std::exception& e) {
     if (fd >= 0) ::close(fd);
     std::error_code ignored;
@@ -344,7 +412,7 @@ RgbImage load_rgb_image(const std::filesystem::path& path, bool srgb) {
   return img;
 }
 
-void write_frame_exr(const std::filesystem::path& path, const FrameBuffers& fb,
+uint64_t write_frame_exr(const std::filesystem::path& path, const FrameBuffers& fb,
                      const std::map<std::string, std::string>& attributes) {
   if (fb.width <= 0 || fb.height <= 0 || fb.versions < 0)
     throw RuntimeError("cannot write EXR " + quoted(path) + ": empty frame (" +
@@ -391,13 +459,17 @@ void write_frame_exr(const std::filesystem::path& path, const FrameBuffers& fb,
     frame_buffer.insert(ch.name, Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(base),
                                             sizeof(float), sizeof(float) * size_t(fb.width)));
   }
-  write_exr_atomically(path, header, frame_buffer);
+  return write_exr_atomically(path, header, frame_buffer);
 }
 
-ExrFrame read_frame_exr(const std::filesystem::path& path) {
+ExrFrame read_frame_exr(const std::filesystem::path& path, uint64_t* file_checksum) {
   ExrFrame out;
   try {
-    Imf::InputFile file(path.c_str());
+    // One read: the same bytes are checksummed and decoded.
+    const std::vector<char> bytes = read_whole_file(path);
+    if (file_checksum) *file_checksum = checksum64(bytes.data(), bytes.size());
+    MemIStream stream(path.string(), bytes);
+    Imf::InputFile file(stream);
     const Imf::Header& header = file.header();
     const std::string schema =
         required_attribute<Imf::StringAttribute>(header, kSchemaAttr, path).value();

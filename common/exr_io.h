@@ -32,6 +32,7 @@
 #pragma once
 
 #include <cstddef>
+#include <cstdint>
 #include <filesystem>
 #include <map>
 #include <string>
@@ -49,10 +50,13 @@ struct RgbImage {
 
 RgbImage load_rgb_image(const std::filesystem::path& path, bool srgb = true);
 
+// Returns the XXH64 checksum (common/checksum.h) of the file's bytes, computed
+// over the encoded bytes before they are written, so that checksum_file() of
+// the result gives the same value without reading it back.
 // Throws RuntimeError, leaving no file behind, when a buffer holds NaN/Inf
 // (naming the buffers and counts), an attribute key collides with a header
 // attribute, or the write fails. Creates parent directories.
-void write_frame_exr(const std::filesystem::path& path, const FrameBuffers& fb,
+uint64_t write_frame_exr(const std::filesystem::path& path, const FrameBuffers& fb,
                      const std::map<std::string, std::string>& attributes = {});
 
 struct ExrFrame {
@@ -60,8 +64,10 @@ struct ExrFrame {
   std::map<std::string, std::string> attributes;
 };
 // Throws RuntimeError naming the file when it is missing, not a dofarm frame,
-// truncated or corrupt, or lacks a channel.
-ExrFrame read_frame_exr(const std::filesystem::path& path);
+// truncated or corrupt, or lacks a channel. The file is read once; when
+// `file_checksum` is given it receives the XXH64 of exactly the bytes decoded
+// (the staged-tile check of a pack costs no second read).
+ExrFrame read_frame_exr(const std::filesystem::path& path, uint64_t* file_checksum = nullptr);
 // The string attributes of an EXR's header (as read_frame_exr() returns
 // them) without reading any pixels. Throws RuntimeError naming the file.
 std::map<std::string, std::string> read_exr_string_attributes(const std::filesystem::path& path);

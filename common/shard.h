@@ -115,6 +115,9 @@ class ShardWriter {
   void add_frame(const FrameBuffers& frame);
   // After exactly info.frame_count() frames: flush, fsync, verify, rename.
   ShardWriteResult commit();
+  // Sets the root attribute render_seconds, which commit() writes; a pack
+  // learns the tiles' render times while it reads them.
+  void set_render_seconds(double seconds);
   // Drops the temporary file now (the destructor does it too).
   void abort();
 

@@ -1,5 +1,6 @@
 // ShardWriter: streams frames into a new shard, verifies it and publishes
 // it atomically (see common/shard.h).
+#include <cmath>
 #include <map>
 
 #include "common/checksum.h"
@@ -142,6 +143,10 @@ ShardWriter::ShardWriter(fs::path final_path, ShardInfo info) : impl_(std::make_
 
 ShardWriter::~ShardWriter() {
   if (!impl_->committed) abort();
+}
+
+void ShardWriter::set_render_seconds(double seconds) {
+  impl_->info.render_seconds = std::isfinite(seconds) && seconds > 0 ? seconds : 0;
 }
 
 const fs::path& ShardWriter::temp_path() const { return impl_->temp_path; }

@@ -51,24 +51,9 @@ StagedTile render_tile(const JobSpec& spec, const render::Scene& scene, const st
   t.rect = rect;
   t.path = staged_tile_path(out_dir, batch, frame, rect);
   t.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  write_frame_exr(t.path, fb,
-                  {{"dofarm.batch", batch}, {"dofarm.render_seconds", std::to_string(t.seconds)}});
-  t.checksum = checksum_file(t.path);
+  t.checksum = write_frame_exr(
+      t.path, fb, {{"dofarm.batch", batch}, {"dofarm.render_seconds", std::to_string(t.seconds)}});
   return t;
-}
-
-void verify_staged_tile(const StagedTile& tile) {
-  std::error_code ec;
-  if (!fs::exists(tile.path, ec)) throw StagedTileError(tile.path, "missing");
-  uint64_t sum;
-  try {
-    sum = checksum_file(tile.path);
-  } catch (const std::exception& e) {
-    throw StagedTileError(tile.path, e.what());
-  }
-  if (sum != tile.checksum)
-    throw StagedTileError(tile.path, "checksum " + checksum_to_string(sum) + ", expected " +
-                                         checksum_to_string(tile.checksum));
 }
 
 std::string scene_id(const JobSpec& spec) { return spec.scene.stem().string(); }
@@ -80,8 +65,36 @@ std::string scene_hash(const JobSpec& spec) {
   return checksum_to_string(h);
 }
 
+// Reads one staged tile once: the bytes are checksummed and decoded together.
+// Anything wrong with it is a StagedTileError, which the coordinator answers
+// by rendering the tile again.
+ExrFrame read_staged_tile(const StagedTile& t, int versions) {
+  std::error_code ec;
+  if (!fs::exists(t.path, ec)) throw StagedTileError(t.path, "missing");
+  uint64_t sum = 0;
+  ExrFrame tile;
+  try {
+    tile = read_frame_exr(t.path, &sum);
+  } catch (const RuntimeError& e) {
+    throw StagedTileError(t.path, e.what());
+  }
+  if (sum != t.checksum)
+    throw StagedTileError(t.path, "checksum " + checksum_to_string(sum) + ", expected " +
+                                      checksum_to_string(t.checksum));
+  if (!(tile.buffers.rect == t.rect) || tile.buffers.versions != versions)
+    throw StagedTileError(t.path, "holds another tile than its name says");
+  return tile;
+}
+
 ManifestEntry pack_shard(const JobSpec& spec, const fs::path& out_dir, const ShardJob& job) {
-  for (const StagedTile& t : job.tiles) verify_staged_tile(t);  // before anything is written
+  // Every staged tile must exist before the shard's temporary file is
+  // created; their contents are checked as they are read, once each. A bad
+  // tile aborts the writer, which removes its temporary file: nothing is
+  // published and nothing already published is touched.
+  for (const StagedTile& t : job.tiles) {
+    std::error_code ec;
+    if (!fs::exists(t.path, ec)) throw StagedTileError(t.path, "missing");
+  }
 
   ShardInfo info;
   info.batch_id = job.batch;
@@ -97,18 +110,9 @@ ManifestEntry pack_shard(const JobSpec& spec, const fs::path& out_dir, const Sha
   info.frame_start = job.frame_start;
   info.frame_end = job.frame_end;
   info.renderer_version = DOFARM_VERSION;
-  // The render time of each tile travels in its staged file's header.
-  for (const StagedTile& t : job.tiles) {
-    double seconds = t.seconds;
-    if (seconds <= 0) {
-      auto attrs = read_exr_string_attributes(t.path);
-      auto it = attrs.find("dofarm.render_seconds");
-      if (it != attrs.end()) seconds = std::strtod(it->second.c_str(), nullptr);
-    }
-    if (std::isfinite(seconds) && seconds > 0) info.render_seconds += seconds;
-  }
 
   ShardWriter writer(out_dir / job.file, info);
+  double render_seconds = 0;
   for (int f = job.frame_start; f <= job.frame_end; ++f) {
     FrameBuffers frame;
     frame.allocate(spec.width, spec.height, spec.versions);
@@ -116,17 +120,17 @@ ManifestEntry pack_shard(const JobSpec& spec, const fs::path& out_dir, const Sha
     int64_t covered = 0;
     for (const StagedTile& t : job.tiles) {
       if (t.frame != f) continue;
-      ExrFrame tile;
-      try {
-        tile = read_frame_exr(t.path);
-      } catch (const RuntimeError& e) {
-        throw StagedTileError(t.path, e.what());
-      }
-      if (!(tile.buffers.rect == t.rect) || tile.buffers.versions != spec.versions)
-        throw StagedTileError(t.path, "holds another tile than its name says");
+      ExrFrame tile = read_staged_tile(t, spec.versions);
       frame.paste(tile.buffers);
       frame.camera = tile.buffers.camera;
       covered += int64_t(t.rect.w) * t.rect.h;
+      // The render time of each tile travels in its staged file's header.
+      double seconds = t.seconds;
+      if (seconds <= 0) {
+        auto it = tile.attributes.find("dofarm.render_seconds");
+        if (it != tile.attributes.end()) seconds = std::strtod(it->second.c_str(), nullptr);
+      }
+      if (std::isfinite(seconds) && seconds > 0) render_seconds += seconds;
     }
     if (covered != int64_t(spec.width) * spec.height)
       throw RuntimeError("shard " + job.file + ": the staged tiles of frame " + std::to_string(f) +
@@ -134,6 +138,7 @@ ManifestEntry pack_shard(const JobSpec& spec, const fs::path& out_dir, const Sha
                          std::to_string(int64_t(spec.width) * spec.height) + " pixels");
     writer.add_frame(frame);
   }
+  writer.set_render_seconds(render_seconds);
   ShardWriteResult written = writer.commit();
   ManifestEntry entry = manifest_entry(info, written);
   add_to_manifest(out_dir, entry);

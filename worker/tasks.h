@@ -72,8 +72,6 @@ class StagedTileError : public RuntimeError {
   std::filesystem::path path_;
 };
 
-// Checks a staged tile against its checksum; throws StagedTileError.
-void verify_staged_tile(const StagedTile& tile);
 
 struct ShardJob {
   std::string batch;

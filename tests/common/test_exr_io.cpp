@@ -17,6 +17,7 @@
 #include <set>
 
 #include "common/error.h"
+#include "common/checksum.h"
 #include "common/exr_io.h"
 
 // Static, so this test's stb_image_write cannot clash with another file's.
@@ -155,6 +156,23 @@ TEST_F(ExrIo, FrameRoundTripIsBitExact) {
   expect_frames_identical(fb, back.buffers);
   EXPECT_EQ(back.attributes, attrs);
   EXPECT_EQ(files_in_dir(), std::vector<std::string>{"frame.exr"}) << "temporary file left over";
+}
+
+// The checksum returned by the writer and the one the reader computes are both
+// the XXH64 of the file's bytes, so a staged tile is checked without a second
+// read.
+TEST_F(ExrIo, ChecksumsAreThoseOfTheFileBytes) {
+  const fs::path path = dir_ / "frame.exr";
+  const uint64_t written = write_frame_exr(path, make_frame(24, 8, 2, 77));
+  EXPECT_EQ(written, checksum_file(path));
+  uint64_t read = 0;
+  read_frame_exr(path, &read);
+  EXPECT_EQ(read, written);
+
+  // Another frame, another checksum.
+  EXPECT_NE(write_frame_exr(path, make_frame(24, 8, 2, 78)), written);
+  read_frame_exr(path, &read);
+  EXPECT_EQ(read, checksum_file(path));
 }
 
 TEST_F(ExrIo, TileIsStoredAtItsOwnSizeWithItsRect) {
