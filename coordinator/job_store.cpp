@@ -260,7 +260,7 @@ void JobStore::Transaction::commit() {
 namespace {
 constexpr const char* kBatchColumns =
     "id, spec_path, overrides, out_dir, state, created, finished, frame_start, frame_end, "
-    "per_shard";
+    "per_shard, rowid";
 }
 
 template <typename S>
@@ -276,6 +276,7 @@ static BatchRow read_batch(const S& s) {
   b.frame_start = s.integer(7);
   b.frame_end = s.integer(8);
   b.per_shard = s.integer(9);
+  b.seq = s.int64(10);
   return b;
 }
 
@@ -403,6 +404,36 @@ std::vector<int64_t> JobStore::dependents(int64_t task) {
   return out;
 }
 
+std::vector<std::pair<int64_t, int64_t>> JobStore::dependency_pairs(const std::string& batch_id) {
+  Statement s(*this,
+              "SELECT d.task, d.depends_on FROM tasks t JOIN task_deps d ON d.task = t.id "
+              "WHERE t.batch_id=? ORDER BY d.task, d.depends_on");
+  s.bind(1, batch_id);
+  std::vector<std::pair<int64_t, int64_t>> out;
+  while (s.step()) out.emplace_back(s.int64(0), s.int64(1));
+  return out;
+}
+
+std::optional<int64_t> JobStore::input_with_staged_path(int64_t pack,
+                                                        const std::string& staged_path) {
+  // The primary key of task_deps (task, depends_on) finds the pack's inputs;
+  // each is one row lookup.
+  Statement s(*this,
+              "SELECT t.id FROM task_deps d JOIN tasks t ON t.id = d.depends_on "
+              "WHERE d.task=? AND t.staged_path=? ORDER BY t.id LIMIT 1");
+  s.bind(1, pack).bind(2, staged_path);
+  if (!s.step()) return std::nullopt;
+  return s.int64(0);
+}
+
+bool JobStore::extend_lease(int64_t task, int attempt, const std::string& worker, double expiry) {
+  Statement s(*this,
+              "UPDATE tasks SET lease_expiry=?1 WHERE id=?2 AND state='leased' AND attempts=?3 "
+              "AND lease_worker=?4 AND lease_expiry < ?1");
+  s.bind(1, expiry).bind(2, task).bind(3, attempt).bind(4, worker).run();
+  return sqlite3_changes(db_) == 1;
+}
+
 std::vector<TaskRow> JobStore::runnable_tasks(const std::string& worker, double now, int limit) {
   // Batch by batch in submission order, each walked along tasks_queue in
   // assignment order (packs before tiles, 'pack_shard' < 'render_tile', then
@@ -527,6 +558,18 @@ int JobStore::failure_count(int64_t task, int since_attempt) {
   s.bind(1, task).bind(2, since_attempt);
   s.step();
   return s.integer(0);
+}
+
+std::vector<std::pair<int64_t, std::string>> JobStore::counted_failures(
+    const std::string& batch_id) {
+  Statement s(*this, R"sql(
+    SELECT a.task_id, a.worker FROM tasks t JOIN attempts a ON a.task_id = t.id
+    WHERE t.batch_id = ? AND a.outcome = 'failed' AND a.attempt > t.retry_base
+    ORDER BY a.task_id, a.attempt)sql");
+  s.bind(1, batch_id);
+  std::vector<std::pair<int64_t, std::string>> out;
+  while (s.step()) out.emplace_back(s.int64(0), s.text(1));
+  return out;
 }
 
 int JobStore::tasks_failed_by(const std::string& batch_id, const std::string& worker) {

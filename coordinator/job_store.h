@@ -31,6 +31,7 @@
 #include <optional>
 #include <string>
 #include <unordered_map>
+#include <utility>
 #include <vector>
 
 #include "common/image.h"
@@ -65,6 +66,9 @@ struct BatchRow {
   int frame_start = 0;
   int frame_end = 0;  // inclusive
   int per_shard = 1;  // shard k holds frames frame_start + k*per_shard ...
+  // Submission order (the row id): ties of `created` are broken by it. Read
+  // only; insert_batch ignores it.
+  int64_t seq = 0;
 };
 
 struct TaskRow {
@@ -156,6 +160,16 @@ class JobStore {
   void update_task(const TaskRow& task);  // every column but id, batch, kind, place
   std::vector<int64_t> dependencies(int64_t task);
   std::vector<int64_t> dependents(int64_t task);
+  // Every (task, depends_on) pair of the batch's tasks, for loading the
+  // scheduler's in-memory queue in one query.
+  std::vector<std::pair<int64_t, int64_t>> dependency_pairs(const std::string& batch_id);
+  // The input of `pack` whose staged file is `staged_path` (a pack that found
+  // a bad staged tile names it by path).
+  std::optional<int64_t> input_with_staged_path(int64_t pack, const std::string& staged_path);
+  // Extends the lease of `task` to `expiry` if `worker` still holds attempt
+  // `attempt` and the stored expiry is earlier; false when nothing changed.
+  // (Heartbeats are written in groups: this never revives a lost lease.)
+  bool extend_lease(int64_t task, int attempt, const std::string& worker, double expiry);
   // Pending tasks whose back-off has passed, whose dependencies are all done,
   // of running batches that have not blocklisted `worker`; in assignment order:
   // oldest batch first, then pack tasks (they unblock the trainer), then render
@@ -176,6 +190,9 @@ class JobStore {
   // Workers whose attempts > since_attempt of `task` failed (each once).
   std::vector<std::string> failed_workers(int64_t task, int since_attempt);
   int failure_count(int64_t task, int since_attempt);
+  // (task, worker) of every failed attempt counted by the policy (attempt >
+  // the task's retry_base) of the batch's tasks.
+  std::vector<std::pair<int64_t, std::string>> counted_failures(const std::string& batch_id);
   // Tasks of `batch` that `worker` failed, counting only each task's attempts
   // after its retry_base.
   int tasks_failed_by(const std::string& batch_id, const std::string& worker);

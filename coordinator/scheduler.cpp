@@ -81,256 +81,353 @@ const char* to_string(FailStatus s) {
 }
 
 Scheduler::Scheduler(JobStore& store, const Clock& clock, SchedulerOptions options)
-    : store_(store), clock_(clock), options_(options) {}
+    : store_(store), clock_(clock), options_(options) {
+  rebuild();
+}
+
+Scheduler::~Scheduler() {
+  // A clean shutdown keeps the last heartbeats; a crash loses at most
+  // heartbeat_flush_seconds of them, which only shortens leases.
+  try {
+    flush();
+  } catch (...) {
+  }
+}
+
+template <typename F>
+auto Scheduler::guarded(F&& f) -> decltype(f()) {
+  try {
+    return f();
+  } catch (...) {
+    // The transaction rolled back, so the memory may be ahead of the store:
+    // load it again from the store, which is the record.
+    try {
+      rebuild();
+    } catch (...) {
+    }
+    throw;
+  }
+}
+
+void Scheduler::rebuild() {
+  const double now = clock_.now();
+  queue_.clear();
+  workers_.clear();
+  dirty_leases_.clear();
+  dirty_workers_.clear();
+  last_flush_ = now;
+  for (const BatchRow& b : store_.batches()) {
+    if (b.state == BatchState::kRunning) load_batch(b, now);
+  }
+  for (const WorkerRow& w : store_.workers()) workers_[w.id] = w;
+}
+
+void Scheduler::load_batch(const BatchRow& batch, double now) {
+  queue_.load_batch(batch, store_.tasks(batch.id), store_.dependency_pairs(batch.id),
+                    store_.counted_failures(batch.id), store_.blocked_workers(batch.id), now);
+}
+
+std::vector<int64_t> Scheduler::runnable(const std::string& worker) {
+  return queue_.runnable(worker, clock_.now());
+}
 
 std::string Scheduler::submit(const std::string& spec_path,
                               const std::vector<std::string>& overrides, const std::string& out_dir,
                               const JobSpec& spec, std::optional<double> seconds_per_pixel) {
   const double now = clock_.now();
   const Plan plan = plan_batch(spec, seconds_per_pixel);
-  Transaction tx(store_);
-  BatchRow batch;
-  batch.id = new_batch_id();
-  batch.spec_path = spec_path;
-  batch.overrides = overrides;
-  batch.out_dir = out_dir;
-  batch.created = now;
-  batch.frame_start = spec.frame_start;
-  batch.frame_end = spec.frame_end;
-  batch.per_shard = spec.per_shard;
-  store_.insert_batch(batch);
-  std::vector<int64_t> ids;
-  ids.reserve(plan.tasks.size());
-  for (const PlannedTask& p : plan.tasks) {
-    TaskRow row;
-    row.batch_id = batch.id;
-    row.kind = p.kind;
-    row.frame = p.frame;
-    row.rect = p.rect;
-    row.shard = p.shard;
-    row.updated = now;
-    ids.push_back(store_.insert_task(row));
-    for (int dep : p.depends_on) store_.insert_dependency(ids.back(), ids[dep]);
-  }
-  store_.add_event(now, batch.id, "info",
-                   "submitted " + spec_path + ": " + std::to_string(spec.frame_count()) +
-                       " frames, " + std::to_string(plan.shards.size()) + " shards, " +
-                       std::to_string(plan.tasks.size()) + " tasks, tile side " +
-                       std::to_string(plan.tile_side));
-  tx.commit();
-  return batch.id;
+  return guarded([&] {
+    Transaction tx(store_);
+    BatchRow batch;
+    batch.id = new_batch_id();
+    batch.spec_path = spec_path;
+    batch.overrides = overrides;
+    batch.out_dir = out_dir;
+    batch.created = now;
+    batch.frame_start = spec.frame_start;
+    batch.frame_end = spec.frame_end;
+    batch.per_shard = spec.per_shard;
+    store_.insert_batch(batch);
+    std::vector<int64_t> ids;
+    ids.reserve(plan.tasks.size());
+    for (const PlannedTask& p : plan.tasks) {
+      TaskRow row;
+      row.batch_id = batch.id;
+      row.kind = p.kind;
+      row.frame = p.frame;
+      row.rect = p.rect;
+      row.shard = p.shard;
+      row.updated = now;
+      ids.push_back(store_.insert_task(row));
+      for (int dep : p.depends_on) store_.insert_dependency(ids.back(), ids[dep]);
+    }
+    store_.add_event(now, batch.id, "info",
+                     "submitted " + spec_path + ": " + std::to_string(spec.frame_count()) +
+                         " frames, " + std::to_string(plan.shards.size()) + " shards, " +
+                         std::to_string(plan.tasks.size()) + " tasks, tile side " +
+                         std::to_string(plan.tile_side));
+    load_batch(*store_.batch(batch.id), now);  // read back: the row id orders batches
+    tx.commit();
+    return batch.id;
+  });
 }
 
 void Scheduler::worker_seen(const std::string& worker, const std::string& host, int threads) {
   const double now = clock_.now();
-  Transaction tx(store_);
-  WorkerRow row;
-  row.id = worker;
-  row.host = host;
-  row.threads = threads;
-  row.first_seen = now;  // kept by the upsert for a known worker
-  row.last_seen = now;
-  store_.upsert_worker(row);
-  tx.commit();
+  auto it = workers_.find(worker);
+  if (it != workers_.end() && !it->second.left && it->second.host == host &&
+      it->second.threads == threads) {
+    it->second.last_seen = now;  // nothing new but the time: group-committed
+    dirty_workers_.insert(worker);
+    return;
+  }
+  guarded([&] {
+    Transaction tx(store_);
+    WorkerRow row;
+    row.id = worker;
+    row.host = host;
+    row.threads = threads;
+    row.first_seen = it != workers_.end() ? it->second.first_seen : now;  // as the upsert keeps it
+    row.last_seen = now;
+    store_.upsert_worker(row);
+    workers_[worker] = row;
+    dirty_workers_.erase(worker);
+    tx.commit();
+  });
 }
 
 void Scheduler::worker_left(const std::string& worker) {
-  Transaction tx(store_);
-  if (auto row = store_.worker(worker)) {
-    row->left = true;
-    row->last_seen = clock_.now();
-    store_.upsert_worker(*row);
-  }
-  tx.commit();
+  guarded([&] {
+    Transaction tx(store_);
+    auto it = workers_.find(worker);
+    if (it != workers_.end()) {
+      it->second.left = true;
+      it->second.last_seen = clock_.now();
+      store_.upsert_worker(it->second);
+      dirty_workers_.erase(worker);
+    }
+    tx.commit();
+  });
 }
 
-void Scheduler::touch_worker(const std::string& worker) {
-  const double now = clock_.now();
+bool Scheduler::touch_worker_in_memory(const std::string& worker, double now) {
+  auto it = workers_.find(worker);
+  if (it == workers_.end() || it->second.left) return false;
+  it->second.last_seen = now;
+  dirty_workers_.insert(worker);
+  return true;
+}
+
+void Scheduler::touch_worker(const std::string& worker, double now) {
+  if (touch_worker_in_memory(worker, now)) return;
   WorkerRow row;
-  if (auto known = store_.worker(worker)) {
-    row = *known;
-  } else {  // first heard of by a task message (e.g. across a coordinator restart)
+  if (auto known = workers_.find(worker); known != workers_.end()) {
+    row = known->second;  // it had said goodbye and is back
+  } else {                // first heard of by a task message (e.g. across a coordinator restart)
     row.id = worker;
     row.first_seen = now;
   }
   row.last_seen = now;
   row.left = false;
   store_.upsert_worker(row);
+  workers_[worker] = row;
+  dirty_workers_.erase(worker);
+}
+
+void Scheduler::touch(const std::string& worker, double now) {
+  if (touch_worker_in_memory(worker, now)) return;
+  guarded([&] {
+    Transaction tx(store_);
+    touch_worker(worker, now);
+    tx.commit();
+  });
 }
 
 std::optional<Assignment> Scheduler::assign(const std::string& worker) {
   expire_leases();
   const double now = clock_.now();
-  Transaction tx(store_);
-  touch_worker(worker);
-  // Candidates come in assignment order; most are taken at the first look,
-  // so a short page usually suffices. Skipped ones are those this worker
+  // The queue is in assignment order; skipped are only the tasks this worker
   // already failed while another worker could take them.
-  for (int limit = 64;; limit *= 4) {
-    const std::vector<TaskRow> candidates = store_.runnable_tasks(worker, now, limit);
-    for (TaskRow t : candidates) {
-      if (contains(store_.failed_workers(t.id, t.retry_base), worker) &&
-          another_worker_could_take(t, worker, now)) {
-        continue;
-      }
-      t.state = TaskState::kLeased;
-      t.attempts += 1;
-      t.lease_worker = worker;
-      t.lease_expiry = now + options_.lease_seconds;
-      t.updated = now;
-      store_.update_task(t);
-      AttemptRow attempt;
-      attempt.task_id = t.id;
-      attempt.attempt = t.attempts;
-      attempt.worker = worker;
-      attempt.started = now;
-      store_.insert_attempt(attempt);
-
-      const BatchRow batch = *store_.batch(t.batch_id);
-      Assignment a;
-      a.task_id = t.id;
-      a.attempt = t.attempts;
-      a.kind = t.kind;
-      a.batch_id = batch.id;
-      a.spec_path = batch.spec_path;
-      a.overrides = batch.overrides;
-      a.out_dir = batch.out_dir;
-      a.frame = t.frame;
-      a.rect = t.rect;
-      a.shard = t.shard;
-      a.shard_range = shard_ranges(batch.frame_start, batch.frame_end, batch.per_shard)[t.shard];
-      if (t.kind == TaskKind::kPackShard) a.inputs = inputs_of(t);
-      a.lease_expiry = t.lease_expiry;
-      tx.commit();
-      return a;
-    }
-    if (static_cast<int>(candidates.size()) < limit) break;
+  RunQueue::Task* t = queue_.find(worker, now, [&](const RunQueue::Task& c) {
+    return !(contains(c.failed_by, worker) && another_worker_could_take(c, worker, now));
+  });
+  if (!t) {
+    touch(worker, now);
+    return std::nullopt;
   }
-  tx.commit();  // the worker's last_seen
-  return std::nullopt;
+  return guarded([&] {
+    Transaction tx(store_);
+    touch_worker(worker, now);
+    TaskRow row = *store_.task(t->id);
+    DOFARM_CHECK_EQ(static_cast<int>(row.state), static_cast<int>(TaskState::kPending));
+    DOFARM_CHECK_EQ(row.attempts, t->attempts);
+    row.state = TaskState::kLeased;
+    row.attempts += 1;
+    row.lease_worker = worker;
+    row.lease_expiry = now + options_.lease_seconds;
+    row.updated = now;
+    store_.update_task(row);
+    AttemptRow attempt;
+    attempt.task_id = row.id;
+    attempt.attempt = row.attempts;
+    attempt.worker = worker;
+    attempt.started = now;
+    store_.insert_attempt(attempt);
+
+    const RunQueue::Batch& batch = *t->batch;
+    Assignment a;
+    a.task_id = row.id;
+    a.attempt = row.attempts;
+    a.kind = row.kind;
+    a.batch_id = batch.row.id;
+    a.spec_path = batch.row.spec_path;
+    a.overrides = batch.row.overrides;
+    a.out_dir = batch.row.out_dir;
+    a.frame = row.frame;
+    a.rect = row.rect;
+    a.shard = row.shard;
+    a.shard_range = batch.shards.at(row.shard);
+    if (row.kind == TaskKind::kPackShard) a.inputs = inputs_of(row);
+    a.lease_expiry = row.lease_expiry;
+    queue_.lease(*t, worker, row.attempts, row.lease_expiry);
+    tx.commit();
+    return std::optional<Assignment>(std::move(a));
+  });
 }
 
-bool Scheduler::another_worker_could_take(const TaskRow& task, const std::string& worker,
-                                          double now) {
-  const std::vector<std::string> failed = store_.failed_workers(task.id, task.retry_base);
-  for (const WorkerRow& w : store_.workers()) {
-    if (w.id == worker || w.left || now - w.last_seen > 2 * options_.lease_seconds) continue;
-    if (contains(failed, w.id) || store_.blocked(task.batch_id, w.id)) continue;
+bool Scheduler::another_worker_could_take(const RunQueue::Task& task, const std::string& worker,
+                                          double now) const {
+  for (const auto& [id, w] : workers_) {
+    if (id == worker || w.left || now - w.last_seen > 2 * options_.lease_seconds) continue;
+    if (contains(task.failed_by, id) || task.batch->blocked.count(id)) continue;
     return true;
   }
   return false;
 }
 
-std::optional<TaskRow> Scheduler::held_task(const std::string& worker, int64_t task, int attempt) {
-  std::optional<TaskRow> t = store_.task(task);
+RunQueue::Task* Scheduler::held(const std::string& worker, int64_t task, int attempt) {
+  RunQueue::Task* t = queue_.task(task);
   if (!t || t->state != TaskState::kLeased || t->lease_worker != worker || t->attempts != attempt) {
-    return std::nullopt;
+    return nullptr;
   }
   return t;
 }
 
 bool Scheduler::heartbeat(const std::string& worker, int64_t task, int attempt) {
   const double now = clock_.now();
-  Transaction tx(store_);
-  touch_worker(worker);
-  std::optional<TaskRow> t = held_task(worker, task, attempt);
-  if (t) {
-    t->lease_expiry = now + options_.lease_seconds;
-    store_.update_task(*t);
-  }
-  tx.commit();
-  return t.has_value();
+  touch(worker, now);
+  RunQueue::Task* t = held(worker, task, attempt);
+  if (!t) return false;
+  // Group commit: the new expiry is written by the next flush. Losing it in
+  // a crash only gives the lease its previous, earlier expiry.
+  queue_.extend(*t, now + options_.lease_seconds);
+  dirty_leases_.insert(task);
+  return true;
 }
 
 CompleteStatus Scheduler::complete(const std::string& worker, int64_t task, int attempt,
                                    const std::string& staged_path, const std::string& checksum) {
   const double now = clock_.now();
-  Transaction tx(store_);
-  touch_worker(worker);
-  std::optional<TaskRow> t = held_task(worker, task, attempt);
-  if (!t) {
-    CompleteStatus status = CompleteStatus::kUnknownTask;
-    if (store_.task(task)) {
-      status = CompleteStatus::kStale;
-      for (const AttemptRow& a : store_.attempts(task)) {
-        if (a.attempt == attempt && a.worker == worker && a.outcome == AttemptOutcome::kDone) {
-          status = CompleteStatus::kDuplicate;
+  return guarded([&] {
+    Transaction tx(store_);
+    touch_worker(worker, now);
+    RunQueue::Task* t = held(worker, task, attempt);
+    if (!t) {
+      CompleteStatus status = CompleteStatus::kUnknownTask;
+      const std::optional<TaskRow> row = store_.task(task);
+      if (row) {
+        status = CompleteStatus::kStale;
+        for (const AttemptRow& a : store_.attempts(task)) {
+          if (a.attempt == attempt && a.worker == worker && a.outcome == AttemptOutcome::kDone) {
+            status = CompleteStatus::kDuplicate;
+          }
         }
       }
+      if (status == CompleteStatus::kStale) {
+        store_.add_event(now, row->batch_id, "info",
+                         "ignored a late result of task " + std::to_string(task) + " attempt " +
+                             std::to_string(attempt) + " from " + worker);
+      }
+      tx.commit();
+      return status;
     }
-    if (status == CompleteStatus::kStale) {
-      store_.add_event(now, store_.task(task)->batch_id, "info",
-                       "ignored a late result of task " + std::to_string(task) + " attempt " +
-                           std::to_string(attempt) + " from " + worker);
-    }
+    TaskRow row = *store_.task(task);
+    row.state = TaskState::kDone;
+    clear_lease(row);
+    row.staged_path = staged_path;
+    row.checksum = checksum;
+    row.updated = now;
+    store_.update_task(row);
+    store_.finish_attempt(task, attempt, now, AttemptOutcome::kDone, "");
+    queue_.set_state(*t, TaskState::kDone, 0, now);  // its pack may become runnable
+    dirty_leases_.erase(task);
+    finish_batch_if_complete(row.batch_id, now);
     tx.commit();
-    return status;
-  }
-  t->state = TaskState::kDone;
-  clear_lease(*t);
-  t->staged_path = staged_path;
-  t->checksum = checksum;
-  t->updated = now;
-  store_.update_task(*t);
-  store_.finish_attempt(task, attempt, now, AttemptOutcome::kDone, "");
-  finish_batch_if_complete(t->batch_id, now);
-  tx.commit();
-  return CompleteStatus::kAccepted;
+    return CompleteStatus::kAccepted;
+  });
 }
 
 FailResult Scheduler::fail(const std::string& worker, int64_t task, int attempt,
                            const std::string& error) {
   const double now = clock_.now();
-  Transaction tx(store_);
-  touch_worker(worker);
-  FailResult result;
-  std::optional<TaskRow> t = held_task(worker, task, attempt);
-  if (!t) {
-    result.status = store_.task(task) ? FailStatus::kStale : FailStatus::kUnknownTask;
+  return guarded([&] {
+    Transaction tx(store_);
+    touch_worker(worker, now);
+    FailResult result;
+    RunQueue::Task* m = held(worker, task, attempt);
+    if (!m) {
+      result.status = store_.task(task) ? FailStatus::kStale : FailStatus::kUnknownTask;
+      tx.commit();
+      return result;
+    }
+    TaskRow t = *store_.task(task);
+    store_.finish_attempt(task, attempt, now, AttemptOutcome::kFailed, error);
+    m->failed_by.push_back(worker);
+    dirty_leases_.erase(task);
+    const int failures = store_.failure_count(task, t.retry_base);
+    clear_lease(t);
+    t.last_error = error;
+    t.updated = now;
+    if (failures >= options_.max_task_failures) {
+      t.state = TaskState::kFailed;
+      store_.update_task(t);
+      queue_.set_state(*m, TaskState::kFailed, 0, now);
+      std::string by;
+      for (const std::string& w : store_.failed_workers(task, t.retry_base)) {
+        by += (by.empty() ? "" : ", ") + w;
+      }
+      store_.add_event(now, t.batch_id, "error",
+                       describe(t) + " failed for good after " + std::to_string(failures) +
+                           " failures (" + by + "): " + error);
+      fail_dependents(t, now);
+      result.status = FailStatus::kFailedForGood;
+    } else {
+      t.state = TaskState::kPending;
+      const double wait =
+          std::min(options_.backoff_max, options_.backoff_base * std::ldexp(1.0, failures - 1));
+      t.not_before = now + wait;
+      store_.update_task(t);
+      queue_.set_state(*m, TaskState::kPending, t.not_before, now);
+      store_.add_event(now, t.batch_id, "warn",
+                       describe(t) + " failed on " + worker + " (failure " +
+                           std::to_string(failures) + "), retry in " + std::to_string(wait) +
+                           " s: " + error);
+      result.status = FailStatus::kRetry;
+      result.retry_at = t.not_before;
+    }
+    if (!m->batch->blocked.count(worker) &&
+        store_.tasks_failed_by(t.batch_id, worker) >= options_.blocklist_after) {
+      store_.block(t.batch_id, worker, now);
+      m->batch->blocked.insert(worker);
+      store_.add_event(now, t.batch_id, "warn",
+                       worker + " blocklisted for the batch after failing " +
+                           std::to_string(options_.blocklist_after) + " of its tasks");
+      result.worker_blocklisted = true;
+    }
+    finish_batch_if_complete(t.batch_id, now);
     tx.commit();
     return result;
-  }
-  store_.finish_attempt(task, attempt, now, AttemptOutcome::kFailed, error);
-  const int failures = store_.failure_count(task, t->retry_base);
-  clear_lease(*t);
-  t->last_error = error;
-  t->updated = now;
-  if (failures >= options_.max_task_failures) {
-    t->state = TaskState::kFailed;
-    store_.update_task(*t);
-    std::string by;
-    for (const std::string& w : store_.failed_workers(task, t->retry_base)) {
-      by += (by.empty() ? "" : ", ") + w;
-    }
-    store_.add_event(now, t->batch_id, "error",
-                     describe(*t) + " failed for good after " + std::to_string(failures) +
-                         " failures (" + by + "): " + error);
-    fail_dependents(*t, now);
-    result.status = FailStatus::kFailedForGood;
-  } else {
-    t->state = TaskState::kPending;
-    const double wait =
-        std::min(options_.backoff_max, options_.backoff_base * std::ldexp(1.0, failures - 1));
-    t->not_before = now + wait;
-    store_.update_task(*t);
-    store_.add_event(now, t->batch_id, "warn",
-                     describe(*t) + " failed on " + worker + " (failure " +
-                         std::to_string(failures) + "), retry in " + std::to_string(wait) +
-                         " s: " + error);
-    result.status = FailStatus::kRetry;
-    result.retry_at = t->not_before;
-  }
-  if (!store_.blocked(t->batch_id, worker) &&
-      store_.tasks_failed_by(t->batch_id, worker) >= options_.blocklist_after) {
-    store_.block(t->batch_id, worker, now);
-    store_.add_event(now, t->batch_id, "warn",
-                     worker + " blocklisted for the batch after failing " +
-                         std::to_string(options_.blocklist_after) + " of its tasks");
-    result.worker_blocklisted = true;
-  }
-  finish_batch_if_complete(t->batch_id, now);
-  tx.commit();
-  return result;
+  });
 }
 
 void Scheduler::fail_dependents(const TaskRow& failed, double now) {
@@ -343,115 +440,160 @@ void Scheduler::fail_dependents(const TaskRow& failed, double now) {
     d.last_error = "needs " + describe(failed) + ", which failed: " + failed.last_error;
     d.updated = now;
     store_.update_task(d);
+    if (RunQueue::Task* m = queue_.task(id)) queue_.set_state(*m, TaskState::kFailed, 0, now);
     fail_dependents(d, now);
   }
 }
 
 bool Scheduler::release(const std::string& worker, int64_t task, int attempt) {
   const double now = clock_.now();
-  Transaction tx(store_);
-  touch_worker(worker);
-  std::optional<TaskRow> t = held_task(worker, task, attempt);
-  if (t) {
-    store_.finish_attempt(task, attempt, now, AttemptOutcome::kReleased, "");
-    t->state = TaskState::kPending;
-    clear_lease(*t);
-    t->not_before = now;
-    t->updated = now;
-    store_.update_task(*t);
-  }
-  tx.commit();
-  return t.has_value();
+  return guarded([&] {
+    Transaction tx(store_);
+    touch_worker(worker, now);
+    RunQueue::Task* m = held(worker, task, attempt);
+    if (m) {
+      TaskRow t = *store_.task(task);
+      store_.finish_attempt(task, attempt, now, AttemptOutcome::kReleased, "");
+      t.state = TaskState::kPending;
+      clear_lease(t);
+      t.not_before = now;
+      t.updated = now;
+      store_.update_task(t);
+      queue_.set_state(*m, TaskState::kPending, now, now);
+      dirty_leases_.erase(task);
+    }
+    tx.commit();
+    return m != nullptr;
+  });
 }
 
 std::vector<int64_t> Scheduler::expire_leases() {
   const double now = clock_.now();
-  // Called on every request and poll: look before taking the write lock.
-  if (store_.leases_expired_by(now).empty()) return {};
-  Transaction tx(store_);
-  std::vector<int64_t> ids;
-  for (TaskRow t : store_.leases_expired_by(now)) {
-    store_.finish_attempt(t.id, t.attempts, now, AttemptOutcome::kExpired, "lease expired");
-    store_.add_event(now, t.batch_id, "warn",
-                     "lease of " + t.lease_worker + " on " + describe(t) + " expired; requeued");
-    t.state = TaskState::kPending;
-    clear_lease(t);
-    t.not_before = now;  // a dead worker says nothing about the task: no back-off
-    t.updated = now;
-    store_.update_task(t);
-    ids.push_back(t.id);
-  }
-  tx.commit();
-  return ids;
+  // Called on every request and poll: the memory answers the common case.
+  const std::vector<int64_t> ids = queue_.expired(now);
+  if (ids.empty()) return {};
+  return guarded([&] {
+    Transaction tx(store_);
+    for (int64_t id : ids) {
+      RunQueue::Task& m = *queue_.task(id);
+      TaskRow t = *store_.task(id);
+      DOFARM_CHECK_EQ(t.attempts, m.attempts);
+      store_.finish_attempt(t.id, t.attempts, now, AttemptOutcome::kExpired, "lease expired");
+      store_.add_event(now, t.batch_id, "warn",
+                       "lease of " + m.lease_worker + " on " + describe(t) + " expired; requeued");
+      t.state = TaskState::kPending;
+      clear_lease(t);
+      t.not_before = now;  // a dead worker says nothing about the task: no back-off
+      t.updated = now;
+      store_.update_task(t);
+      queue_.set_state(m, TaskState::kPending, now, now);
+      dirty_leases_.erase(id);
+    }
+    tx.commit();
+    return ids;
+  });
+}
+
+void Scheduler::flush() {
+  const double now = clock_.now();
+  last_flush_ = now;
+  if (dirty_leases_.empty() && dirty_workers_.empty()) return;
+  guarded([&] {
+    Transaction tx(store_);
+    for (int64_t id : dirty_leases_) {
+      // Written only while the same worker holds the same attempt, and only
+      // forward (JobStore::extend_lease).
+      const RunQueue::Task* t = queue_.task(id);
+      if (t && t->state == TaskState::kLeased) {
+        store_.extend_lease(id, t->attempts, t->lease_worker, t->lease_expiry);
+      }
+    }
+    for (const std::string& w : dirty_workers_) store_.upsert_worker(workers_.at(w));
+    tx.commit();
+    dirty_leases_.clear();
+    dirty_workers_.clear();
+  });
+}
+
+void Scheduler::flush_if_due() {
+  if (clock_.now() - last_flush_ >= options_.heartbeat_flush_seconds) flush();
 }
 
 void Scheduler::finish_batch_if_complete(const std::string& batch_id, double now) {
-  const BatchRow batch = *store_.batch(batch_id);
-  if (batch.state != BatchState::kRunning) return;
-  // An index seek answers the common case (work left) without counting the
-  // whole batch on every completion.
-  if (store_.has_unfinished_tasks(batch_id)) return;
+  // The running batch's count in memory answers the common case (work left)
+  // without a query on every completion.
+  const RunQueue::Batch* b = queue_.batch(batch_id);
+  if (!b || b->unfinished > 0) return;
   const auto counts = store_.task_counts(batch_id);
-  if (counts[static_cast<int>(TaskState::kPending)] > 0 ||
-      counts[static_cast<int>(TaskState::kLeased)] > 0) {
-    return;
-  }
+  DOFARM_CHECK_EQ(
+      counts[static_cast<int>(TaskState::kPending)] + counts[static_cast<int>(TaskState::kLeased)],
+      0);
   const int failed = counts[static_cast<int>(TaskState::kFailed)];
   store_.set_batch_state(batch_id, failed > 0 ? BatchState::kFailed : BatchState::kDone, now);
   store_.add_event(
       now, batch_id, failed > 0 ? "error" : "info",
       failed > 0 ? "finished with " + std::to_string(failed) + " failed tasks" : "finished");
+  queue_.drop_batch(batch_id);
 }
 
 OpResult Scheduler::cancel(const std::string& batch_id) {
   const double now = clock_.now();
-  Transaction tx(store_);
-  const std::optional<BatchRow> batch = store_.batch(batch_id);
-  if (!batch) return {false, "no batch " + batch_id};
-  if (batch->state != BatchState::kRunning) {
-    return {false, "batch " + batch_id + " is " + to_string(batch->state) + ", not running"};
-  }
-  int revoked = 0;
-  for (TaskRow t : store_.leased_tasks(batch_id)) {
-    store_.finish_attempt(t.id, t.attempts, now, AttemptOutcome::kRevoked, "batch cancelled");
-    t.state = TaskState::kPending;
-    clear_lease(t);
-    t.updated = now;
-    store_.update_task(t);
-    ++revoked;
-  }
-  store_.set_batch_state(batch_id, BatchState::kCancelled, now);
-  store_.add_event(now, batch_id, "info", "cancelled");
-  tx.commit();
-  return {true, "cancelled " + batch_id + "; " + std::to_string(revoked) + " leases revoked"};
+  return guarded([&]() -> OpResult {
+    Transaction tx(store_);
+    const std::optional<BatchRow> batch = store_.batch(batch_id);
+    if (!batch) return {false, "no batch " + batch_id};
+    if (batch->state != BatchState::kRunning) {
+      return {false, "batch " + batch_id + " is " + to_string(batch->state) + ", not running"};
+    }
+    int revoked = 0;
+    for (TaskRow t : store_.leased_tasks(batch_id)) {
+      store_.finish_attempt(t.id, t.attempts, now, AttemptOutcome::kRevoked, "batch cancelled");
+      t.state = TaskState::kPending;
+      clear_lease(t);
+      t.updated = now;
+      store_.update_task(t);
+      dirty_leases_.erase(t.id);
+      ++revoked;
+    }
+    store_.set_batch_state(batch_id, BatchState::kCancelled, now);
+    store_.add_event(now, batch_id, "info", "cancelled");
+    queue_.drop_batch(batch_id);
+    tx.commit();
+    return {true, "cancelled " + batch_id + "; " + std::to_string(revoked) + " leases revoked"};
+  });
 }
 
 OpResult Scheduler::resume(const std::string& batch_id) {
   const double now = clock_.now();
-  Transaction tx(store_);
-  const std::optional<BatchRow> batch = store_.batch(batch_id);
-  if (!batch) return {false, "no batch " + batch_id};
-  if (batch->state == BatchState::kDone) return {false, "batch " + batch_id + " is done"};
-  int requeued = 0;
-  for (TaskRow t : store_.tasks(batch_id)) {
-    if (t.state != TaskState::kFailed) continue;
-    t.state = TaskState::kPending;
-    t.retry_base = t.attempts;  // a fresh failure count; the history stays
-    t.not_before = now;
-    t.updated = now;
-    store_.update_task(t);
-    ++requeued;
-  }
-  store_.clear_blocklist(batch_id);
-  store_.set_batch_state(batch_id, BatchState::kRunning, std::nullopt);
-  store_.add_event(now, batch_id, "info",
-                   "resumed; " + std::to_string(requeued) + " failed tasks requeued");
-  finish_batch_if_complete(batch_id, now);  // nothing left to do: done at once
-  tx.commit();
-  return {true, "resumed " + batch_id + "; " + std::to_string(requeued) + " failed tasks requeued"};
+  return guarded([&]() -> OpResult {
+    Transaction tx(store_);
+    const std::optional<BatchRow> batch = store_.batch(batch_id);
+    if (!batch) return {false, "no batch " + batch_id};
+    if (batch->state == BatchState::kDone) return {false, "batch " + batch_id + " is done"};
+    int requeued = 0;
+    for (TaskRow t : store_.tasks(batch_id)) {
+      if (t.state != TaskState::kFailed) continue;
+      t.state = TaskState::kPending;
+      t.retry_base = t.attempts;  // a fresh failure count; the history stays
+      t.not_before = now;
+      t.updated = now;
+      store_.update_task(t);
+      ++requeued;
+    }
+    store_.clear_blocklist(batch_id);
+    store_.set_batch_state(batch_id, BatchState::kRunning, std::nullopt);
+    store_.add_event(now, batch_id, "info",
+                     "resumed; " + std::to_string(requeued) + " failed tasks requeued");
+    load_batch(*store_.batch(batch_id), now);
+    finish_batch_if_complete(batch_id, now);  // nothing left to do: done at once
+    tx.commit();
+    return {true,
+            "resumed " + batch_id + "; " + std::to_string(requeued) + " failed tasks requeued"};
+  });
 }
 
 StatusReport Scheduler::status(const std::string& batch_id) {
+  flush();  // last_seen of the workers, as of now
   const double now = clock_.now();
   StatusReport report;
   report.now = now;
@@ -549,38 +691,47 @@ std::vector<StagedTile> Scheduler::staged_tiles_to_verify(const std::string& bat
 
 OpResult Scheduler::invalidate(int64_t task) {
   const double now = clock_.now();
-  Transaction tx(store_);
-  std::optional<TaskRow> t = store_.task(task);
-  if (!t) return {false, "no task " + std::to_string(task)};
-  if (t->state != TaskState::kDone) {
-    return {false, describe(*t) + " is " + to_string(t->state) + ", not done"};
-  }
-  t->state = TaskState::kPending;
-  t->staged_path.clear();
-  t->checksum.clear();
-  t->not_before = now;
-  t->updated = now;
-  store_.update_task(*t);
-  // A pack already running with the lost tile as input would fail or, worse,
-  // read a half-written replacement: take it back. It is runnable again only
-  // when the tile is done again.
-  for (int64_t id : store_.dependents(task)) {
-    TaskRow d = *store_.task(id);
-    if (d.state != TaskState::kLeased) continue;
-    store_.finish_attempt(d.id, d.attempts, now, AttemptOutcome::kRevoked,
-                          "input task " + std::to_string(task) + " invalidated");
-    d.state = TaskState::kPending;
-    clear_lease(d);
-    d.updated = now;
-    store_.update_task(d);
-  }
-  const BatchRow batch = *store_.batch(t->batch_id);
-  if (batch.state == BatchState::kDone || batch.state == BatchState::kFailed) {
-    store_.set_batch_state(batch.id, BatchState::kRunning, std::nullopt);
-  }
-  store_.add_event(now, t->batch_id, "warn", describe(*t) + " invalidated; requeued");
-  tx.commit();
-  return {true, describe(*t) + " requeued"};
+  return guarded([&]() -> OpResult {
+    Transaction tx(store_);
+    std::optional<TaskRow> t = store_.task(task);
+    if (!t) return {false, "no task " + std::to_string(task)};
+    if (t->state != TaskState::kDone) {
+      return {false, describe(*t) + " is " + to_string(t->state) + ", not done"};
+    }
+    t->state = TaskState::kPending;
+    t->staged_path.clear();
+    t->checksum.clear();
+    t->not_before = now;
+    t->updated = now;
+    store_.update_task(*t);
+    // Its dependents count it as not done again, so its pack leaves the queue.
+    if (RunQueue::Task* m = queue_.task(task)) queue_.set_state(*m, TaskState::kPending, now, now);
+    // A pack already running with the lost tile as input would fail or, worse,
+    // read a half-written replacement: take it back. It is runnable again only
+    // when the tile is done again.
+    for (int64_t id : store_.dependents(task)) {
+      TaskRow d = *store_.task(id);
+      if (d.state != TaskState::kLeased) continue;
+      store_.finish_attempt(d.id, d.attempts, now, AttemptOutcome::kRevoked,
+                            "input task " + std::to_string(task) + " invalidated");
+      d.state = TaskState::kPending;
+      clear_lease(d);
+      d.updated = now;
+      store_.update_task(d);
+      if (RunQueue::Task* m = queue_.task(id)) {
+        queue_.set_state(*m, TaskState::kPending, d.not_before, now);
+      }
+      dirty_leases_.erase(id);
+    }
+    const BatchRow batch = *store_.batch(t->batch_id);
+    if (batch.state == BatchState::kDone || batch.state == BatchState::kFailed) {
+      store_.set_batch_state(batch.id, BatchState::kRunning, std::nullopt);
+      load_batch(*store_.batch(batch.id), now);  // it runs again
+    }
+    store_.add_event(now, t->batch_id, "warn", describe(*t) + " invalidated; requeued");
+    tx.commit();
+    return {true, describe(*t) + " requeued"};
+  });
 }
 
 std::vector<StagedTile> Scheduler::inputs_of(const TaskRow& pack) {

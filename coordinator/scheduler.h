@@ -26,10 +26,26 @@
 //    more tasks of that batch.
 //  - Release (SIGTERM, preemption) hands a task back: pending at once, no
 //    failure counted.
+//
+// Speed without giving up the journal. The store is the record; a RunQueue
+// in memory (rebuilt from the store on start, and after any failed
+// transaction) answers "what runs next" without a query and turns a
+// completion into a runnable pack in O(1). Every state change is still
+// committed to the store before the call returns, with two exceptions that
+// are safe to lose in a crash, so they are group-committed (flush(), at most
+// every heartbeat_flush_seconds, and on destruction):
+//  - heartbeat lease renewals: a lost renewal leaves the stored expiry at
+//    the previous, earlier value, so a restarted coordinator can only end a
+//    lease early (the task is rendered again), never keep a dead worker's
+//    lease; and a renewal is written only while the same worker still holds
+//    the same attempt, and only forward (JobStore::extend_lease);
+//  - a known worker's last_seen, which only decides who counts as live.
 #pragma once
 
 #include <cstdint>
+#include <map>
 #include <optional>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -38,6 +54,7 @@
 #include "coordinator/clock.h"
 #include "coordinator/job_store.h"
 #include "coordinator/planner.h"
+#include "coordinator/run_queue.h"
 
 namespace dofarm::coordinator {
 
@@ -48,6 +65,9 @@ struct SchedulerOptions {
   int max_task_failures = 3;  // distinct workers, when the farm has them
   int blocklist_after = 3;    // failed tasks of one batch
   double rate_window = 600;   // seconds of history behind frames/hour
+  // Heartbeat renewals and last_seen times are written at most this long
+  // after they happen (group commit; see the header comment).
+  double heartbeat_flush_seconds = 1;
 };
 
 // What a pack task merges: one done render tile.
@@ -146,7 +166,11 @@ struct StatusReport {
 
 class Scheduler {
  public:
+  // Loads the running batches from the store (a restart goes on from there).
   Scheduler(JobStore& store, const Clock& clock, SchedulerOptions options = {});
+  ~Scheduler();  // flushes
+  Scheduler(const Scheduler&) = delete;
+  Scheduler& operator=(const Scheduler&) = delete;
 
   // Plans and records a batch; returns its id ("b-" + 8 hex digits). The
   // spec must already be loaded and checked (load_job_spec with `overrides`).
@@ -171,6 +195,11 @@ class Scheduler {
   bool release(const std::string& worker, int64_t task, int attempt);
   // Requeues every lease past its expiry; returns the task ids.
   std::vector<int64_t> expire_leases();
+  // Writes the group-committed heartbeats and last_seen times (one
+  // transaction); flush_if_due() does so when heartbeat_flush_seconds passed
+  // since the last flush.
+  void flush();
+  void flush_if_due();
 
   // Cancel: the batch gets no more tasks and its leases are revoked (their
   // heartbeats answer false). Resume: a cancelled or finished-with-failures
@@ -190,12 +219,36 @@ class Scheduler {
   // its shard, unless already done, waits for it again.
   OpResult invalidate(int64_t task);
 
+  // Runnable task ids for `worker` now, in assignment order, from memory:
+  // what JobStore::runnable_tasks answers from the store.
+  std::vector<int64_t> runnable(const std::string& worker);
+  // For callers waiting for work (the server's parked requests): the count
+  // grows whenever a task may have become runnable; next_due() is when the
+  // next back-off ends (infinity when none).
+  uint64_t generation() const { return queue_.generation(); }
+  double next_due() const { return queue_.next_due(); }
+  // Batches still running (done, failed and cancelled ones are not).
+  size_t running_batches() const { return queue_.batch_count(); }
+  // Drops the memory and loads it again from the store.
+  void rebuild();
+
   const SchedulerOptions& options() const { return options_; }
 
  private:
-  std::optional<TaskRow> held_task(const std::string& worker, int64_t task, int attempt);
-  void touch_worker(const std::string& worker);
-  bool another_worker_could_take(const TaskRow& task, const std::string& worker, double now);
+  // Runs `f`; when it throws (its transaction rolled back), rebuilds the
+  // memory from the store before passing the exception on.
+  template <typename F>
+  auto guarded(F&& f) -> decltype(f());
+  void load_batch(const BatchRow& batch, double now);
+  RunQueue::Task* held(const std::string& worker, int64_t task, int attempt);
+  // last_seen of a known, live worker, in memory only; false otherwise.
+  bool touch_worker_in_memory(const std::string& worker, double now);
+  // Within a transaction: a new or returning worker is written at once.
+  void touch_worker(const std::string& worker, double now);
+  // Outside one: opens a transaction only when touch_worker must write.
+  void touch(const std::string& worker, double now);
+  bool another_worker_could_take(const RunQueue::Task& task, const std::string& worker,
+                                 double now) const;
   void fail_dependents(const TaskRow& failed, double now);
   void finish_batch_if_complete(const std::string& batch_id, double now);
   std::vector<StagedTile> inputs_of(const TaskRow& pack);
@@ -204,6 +257,11 @@ class Scheduler {
   JobStore& store_;
   const Clock& clock_;
   SchedulerOptions options_;
+  RunQueue queue_;
+  std::map<std::string, WorkerRow> workers_;  // every worker the store knows
+  std::set<int64_t> dirty_leases_;            // renewed since the last flush
+  std::set<std::string> dirty_workers_;       // seen since the last flush
+  double last_flush_ = 0;
 };
 
 // `dofarm render SPEC --frame N --tile X,Y,W,H --out repro.exr --set K=V ...`

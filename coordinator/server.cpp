@@ -2,6 +2,8 @@
 
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
+#include <cmath>
 #include <fstream>
 #include <set>
 #include <thread>
@@ -191,11 +193,7 @@ Server::Server(ServerOptions options, const Clock& clock)
 
 Server::~Server() = default;
 
-bool Server::idle() {
-  for (const BatchRow& b : store_->batches())
-    if (b.state == BatchState::kRunning) return false;
-  return true;
-}
+bool Server::idle() { return scheduler_->running_batches() == 0; }
 
 int Server::verify_staged_tiles(const std::string& batch_id) {
   int bad = 0;
@@ -245,15 +243,12 @@ std::string Server::handle_failed(const protocol::Message& m) {
   // tile is rendered again and the pack waits for it.
   if (m.has("bad_tile") && m.body["bad_tile"].is_string()) {
     const std::string bad = m.body["bad_tile"].get<std::string>();
-    if (auto t = store_->task(task)) {
-      for (const TaskRow& other : store_->tasks(t->batch_id))
-        if (other.kind == TaskKind::kRenderTile && other.staged_path == bad) {
-          spdlog::warn("task {}: staged tile {} is bad ({}); rendering it again", task, bad,
-                       m.str("error"));
-          scheduler_->release(worker, task, attempt);
-          scheduler_->invalidate(other.id);
-          return protocol::encode("ack", {{"status", "tile_requeued"}});
-        }
+    if (std::optional<int64_t> tile = store_->input_with_staged_path(task, bad)) {
+      spdlog::warn("task {}: staged tile {} is bad ({}); rendering it again", task, bad,
+                   m.str("error"));
+      scheduler_->release(worker, task, attempt);
+      scheduler_->invalidate(*tile);
+      return protocol::encode("ack", {{"status", "tile_requeued"}});
     }
   }
   FailResult r = scheduler_->fail(worker, task, attempt, m.str("error"));
@@ -262,14 +257,19 @@ std::string Server::handle_failed(const protocol::Message& m) {
   return protocol::encode("ack", {{"status", to_string(r.status)}});
 }
 
+std::optional<std::string> Server::answer_request(const protocol::Message& m) {
+  const std::string& worker = m.str("worker");
+  scheduler_->worker_seen(worker, m.body.value("host", ""), int(m.body.value("threads", 0)));
+  if (auto a = scheduler_->assign(worker))
+    return protocol::encode("task", assignment_json(*a, scheduler_->options().lease_seconds));
+  if (options_.shutdown_when_idle && idle()) return protocol::encode("shutdown");
+  return std::nullopt;
+}
+
 std::string Server::handle(const protocol::Message& m) {
   const std::string& t = m.type;
   if (t == "request") {
-    const std::string& worker = m.str("worker");
-    scheduler_->worker_seen(worker, m.body.value("host", ""), int(m.body.value("threads", 0)));
-    if (auto a = scheduler_->assign(worker))
-      return protocol::encode("task", assignment_json(*a, scheduler_->options().lease_seconds));
-    if (options_.shutdown_when_idle && idle()) return protocol::encode("shutdown");
+    if (std::optional<std::string> reply = answer_request(m)) return *reply;
     return protocol::encode("wait", {{"seconds", options_.wait_seconds}});
   }
   if (t == "heartbeat")
@@ -302,7 +302,70 @@ std::string Server::handle(const protocol::Message& m) {
   return protocol::error_reply("the coordinator does not take \"" + t + "\" messages");
 }
 
+void Server::send(const std::string& identity, const std::string& reply) {
+  try {
+    socket_->send(zmq::buffer(identity), zmq::send_flags::sndmore);
+    socket_->send(zmq::buffer(reply), zmq::send_flags::dontwait);
+  } catch (const zmq::error_t& e) {
+    spdlog::warn("could not reply: {}", e.what());
+  }
+}
+
+void Server::park(std::string identity, const std::string& worker) {
+  // A worker asks from one socket at a time: an older parked request of the
+  // same worker came from a socket it gave up on.
+  std::erase_if(parked_, [&](const Parked& p) { return p.worker == worker; });
+  parked_.push_back({std::move(identity), worker, clock_.now() + options_.wait_seconds});
+}
+
+void Server::serve_parked() {
+  if (parked_.empty()) return;
+  if (options_.shutdown_when_idle && idle()) {
+    for (const Parked& p : parked_) send(p.identity, protocol::encode("shutdown"));
+    parked_.clear();
+    return;
+  }
+  const double now = clock_.now();
+  // Only when something may have become runnable: a task joined the queue,
+  // or a back-off ended.
+  if (scheduler_->generation() != parked_generation_ || now >= scheduler_->next_due()) {
+    std::erase_if(parked_, [&](const Parked& p) {
+      try {
+        if (std::optional<Assignment> a = scheduler_->assign(p.worker)) {
+          send(p.identity,
+               protocol::encode("task", assignment_json(*a, scheduler_->options().lease_seconds)));
+          return true;
+        }
+      } catch (const std::exception& e) {
+        spdlog::error("assigning to parked {} failed: {}", p.worker, e.what());
+        send(p.identity, protocol::error_reply(std::string("coordinator error: ") + e.what()));
+        return true;
+      }
+      return false;
+    });
+    parked_generation_ = scheduler_->generation();
+  }
+  std::erase_if(parked_, [&](const Parked& p) {
+    if (p.deadline > now) return false;
+    send(p.identity, protocol::encode("wait", {{"seconds", 0.0}}));  // ask again at once
+    return true;
+  });
+}
+
+void Server::unpark_all() {
+  for (const Parked& p : parked_)
+    send(p.identity, protocol::encode("wait", {{"seconds", options_.wait_seconds}}));
+  parked_.clear();
+}
+
 void Server::poll_once(int timeout_ms) {
+  if (!parked_.empty()) {
+    // Wake for the first parked deadline or the end of a back-off.
+    double wake = scheduler_->next_due();
+    for (const Parked& p : parked_) wake = std::min(wake, p.deadline);
+    const double ms = std::ceil((wake - clock_.now()) * 1000.0);
+    timeout_ms = int(std::clamp(ms, 0.0, double(timeout_ms)));
+  }
   zmq::pollitem_t item{socket_->handle(), 0, ZMQ_POLLIN, 0};
   try {
     zmq::poll(&item, 1, std::chrono::milliseconds(timeout_ms));
@@ -332,30 +395,38 @@ void Server::poll_once(int timeout_ms) {
       if (payload.size() != 1)
         throw protocol::ProtocolError("expected one payload frame, got " +
                                       std::to_string(payload.size()));
-      reply = handle(protocol::parse(payload[0].data(), payload[0].size()));
+      const protocol::Message m = protocol::parse(payload[0].data(), payload[0].size());
+      if (m.type == "request") {
+        std::optional<std::string> answer = answer_request(m);
+        if (!answer) {
+          park(identity.to_string(), m.str("worker"));
+          continue;
+        }
+        reply = std::move(*answer);
+      } else {
+        reply = handle(m);
+      }
     } catch (const protocol::ProtocolError& e) {
       reply = protocol::error_reply(e.what());
     } catch (const std::exception& e) {
       spdlog::error("request failed: {}", e.what());
       reply = protocol::error_reply(std::string("coordinator error: ") + e.what());
     }
-    try {
-      socket_->send(identity, zmq::send_flags::sndmore);
-      socket_->send(zmq::buffer(reply), zmq::send_flags::dontwait);
-    } catch (const zmq::error_t& e) {
-      spdlog::warn("could not reply: {}", e.what());
-    }
+    send(identity.to_string(), reply);
   }
   try {
     for (int64_t id : scheduler_->expire_leases())
       spdlog::warn("task {}: lease expired, requeued", id);
+    scheduler_->flush_if_due();
   } catch (const std::exception& e) {
-    spdlog::error("lease expiry failed: {}", e.what());
+    spdlog::error("lease expiry or heartbeat flush failed: {}", e.what());
   }
+  serve_parked();
 }
 
 void Server::run(const std::atomic<bool>& stop) {
   while (!stop) poll_once(100);
+  unpark_all();  // nobody waits for a reply that will not come
 }
 
 }  // namespace dofarm::coordinator

@@ -2,6 +2,16 @@
 // One receive loop (STYLE.md 4): every incoming frame goes through
 // protocol::parse(); a bad one gets an "error" reply and the loop goes on.
 // Workers are DEALERs; CLI clients (submit, status, resume, cancel) too.
+//
+// Long poll. A worker's `request` that finds nothing runnable is parked: the
+// server keeps its ROUTER identity and answers it as soon as a task becomes
+// runnable (a `task`), the embedded run has nothing left (`shutdown`), or
+// after wait_seconds (`wait` with seconds 0: ask again at once). So an idle
+// worker starts the moment work appears instead of sleeping through a poll
+// interval, and the tail of a batch loses nothing to polling. wait_seconds
+// must stay well below the workers' request timeout (10 s by default) so a
+// parked request never times out; a worker that asks again from another
+// socket replaces its parked request.
 #pragma once
 
 #include <atomic>
@@ -9,6 +19,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "common/protocol.h"
 #include "coordinator/clock.h"
@@ -31,7 +42,7 @@ struct ServerOptions {
   // there are let in (ZAP).
   std::optional<std::filesystem::path> curve_secret;
   SchedulerOptions scheduler;
-  double wait_seconds = 0.5;        // how long an idle worker waits before asking again
+  double wait_seconds = 0.5;        // longest a request is parked before it gets `wait`
   bool shutdown_when_idle = false;  // embedded run: tell workers to exit when nothing runs
 };
 
@@ -44,8 +55,12 @@ class Server {
   const std::string& endpoint() const { return endpoint_; }
   // Serves until `stop` is set. Never throws for a bad message.
   void run(const std::atomic<bool>& stop);
-  // One poll of at most `timeout_ms`, then lease expiry (for tests and run()).
+  // One poll of at most `timeout_ms` (less when a parked request or a
+  // back-off is due sooner), the replies, lease expiry, the group commit of
+  // heartbeats and the parked requests (for tests and run()).
   void poll_once(int timeout_ms);
+  // Requests parked now (tests).
+  size_t parked() const { return parked_.size(); }
 
   Scheduler& scheduler() { return *scheduler_; }
   // True when no batch is running (every batch done, failed or cancelled).
@@ -54,12 +69,27 @@ class Server {
   // corrupt ones (on start and on resume).
   int verify_staged_tiles(const std::string& batch_id);
 
-  // Handles one decoded request; public for tests.
+  // Handles one decoded request; public for tests. A `request` with nothing
+  // to do gets `wait` at once here (only the receive loop parks).
   std::string handle(const protocol::Message& m);
 
  private:
+  struct Parked {
+    std::string identity;  // the ROUTER routing id of the asking socket
+    std::string worker;
+    double deadline = 0;  // clock time of the `wait` answer
+  };
+
+  // A task or `shutdown` for a worker's request; nothing when it must wait.
+  std::optional<std::string> answer_request(const protocol::Message& m);
   std::string handle_submit(const protocol::Message& m);
   std::string handle_failed(const protocol::Message& m);
+  void park(std::string identity, const std::string& worker);
+  // Answers the parked requests that can be answered now.
+  void serve_parked();
+  // Answers every parked request with `wait` (the server stops).
+  void unpark_all();
+  void send(const std::string& identity, const std::string& reply);
 
   ServerOptions options_;
   const Clock& clock_;
@@ -69,6 +99,8 @@ class Server {
   std::unique_ptr<zmq::socket_t> socket_;
   std::unique_ptr<class ZapHandler> zap_;
   std::string endpoint_;
+  std::vector<Parked> parked_;      // oldest first
+  uint64_t parked_generation_ = 0;  // scheduler generation they last tried
 };
 
 // The status report as JSON (the `status --json` output and the wire form).
