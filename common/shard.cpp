@@ -3,7 +3,9 @@
 #include <fcntl.h>
 #include <hdf5.h>
 #include <unistd.h>
+#include <zlib.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -66,32 +68,260 @@ using namespace shard_detail;
 // ---------------------------------------------------------------------------
 // ShardReader
 
+// Reading chunks without HDF5's filter pipeline. HDF5 decompresses inside
+// H5Dread, under the process-wide lock (see hdf5_mutex()), so several reader
+// threads decode one chunk at a time. For the layout the writer makes
+// (docs/shard_format.md: one chunk per frame, version and tile; shuffle ->
+// deflate -> Fletcher-32) the reader instead fetches the stored bytes with
+// H5Dread_chunk under the lock and verifies, inflates and unshuffles them
+// outside it, so reader threads decode in parallel. A dataset stored any other
+// way is read with H5Dread. zlib is HDF5's own deflate library (hdf5::hdf5
+// links it).
+namespace {
+
+// Filter order of the shard format; bit i of H5Dread_chunk's filter mask set
+// means filter i was skipped for that chunk.
+constexpr int kShuffleFilter = 0, kDeflateFilter = 1, kFletcherFilter = 2;
+
+// HDF5's Fletcher-32 (H5checksum.c): 16-bit big-endian words, sums folded
+// every 360 words.
+uint32_t fletcher32(const uint8_t* data, size_t bytes) {
+  size_t len = bytes / 2;
+  uint32_t sum1 = 0, sum2 = 0;
+  while (len) {
+    size_t t = len > 360 ? 360 : len;
+    len -= t;
+    do {
+      sum1 += (uint32_t(data[0]) << 8) | uint32_t(data[1]);
+      data += 2;
+      sum2 += sum1;
+    } while (--t);
+    sum1 = (sum1 & 0xffff) + (sum1 >> 16);
+    sum2 = (sum2 & 0xffff) + (sum2 >> 16);
+  }
+  if (bytes % 2) {
+    sum1 += uint32_t(*data) << 8;
+    sum2 += sum1;
+    sum1 = (sum1 & 0xffff) + (sum1 >> 16);
+    sum2 = (sum2 & 0xffff) + (sum2 >> 16);
+  }
+  sum1 = (sum1 & 0xffff) + (sum1 >> 16);
+  sum2 = (sum2 & 0xffff) + (sum2 >> 16);
+  return (sum2 << 16) | sum1;
+}
+
+// Two zlib streams per thread, reset per chunk (no allocation per chunk).
+// When Fletcher-32 has verified the stored bytes, the zlib wrapper's adler32
+// of the inflated bytes cannot tell anything more (inflate is deterministic),
+// so the deflate body is inflated raw and the adler32 skipped (~10% of the
+// decoding time); a chunk without the checksum is inflated with it.
+struct Inflater {
+  z_stream wrapped{}, raw{};
+  bool ok = false;
+  Inflater() { ok = inflateInit(&wrapped) == Z_OK && inflateInit2(&raw, -MAX_WBITS) == Z_OK; }
+  ~Inflater() {
+    inflateEnd(&wrapped);
+    inflateEnd(&raw);
+  }
+  // True when `in` (a zlib stream) inflates to exactly `out_bytes` bytes.
+  bool run(const uint8_t* in, size_t in_bytes, uint8_t* out, size_t out_bytes, bool verified) {
+    z_stream* z = &wrapped;
+    if (verified) {
+      // RFC 1950 header: CM 8 (deflate), no preset dictionary, FCHECK.
+      if (in_bytes < 2 || (in[0] & 0x0f) != 8 || (in[1] & 0x20) || (in[0] * 256 + in[1]) % 31)
+        return false;
+      in += 2;
+      in_bytes -= 2;
+      z = &raw;
+    }
+    if (!ok || inflateReset(z) != Z_OK) return false;
+    z->next_in = const_cast<Bytef*>(in);
+    z->avail_in = uInt(in_bytes);
+    z->next_out = out;
+    z->avail_out = uInt(out_bytes);
+    return inflate(z, Z_FINISH) == Z_STREAM_END && z->avail_out == 0;
+  }
+};
+
+}  // namespace
+
 struct ShardReader::Impl {
   fs::path path;
   ShardInfo info;
+  ShardReaderOptions options;
   Handle file;
   std::map<std::string, Handle> datasets;  // buffers and "camera"
+  // Image datasets stored as the writer stores them: chunk shape (rank of the
+  // dataset) per name; absent = read through H5Dread.
+  std::map<std::string, std::vector<hsize_t>> direct;
 
   void open(const fs::path& path);
+  void probe_direct(const std::string& name, const BufferInfo& b);
 
   // Reads a hyperslab of one dataset into `out` (exactly its element count).
   void read(const std::string& name, const BufferInfo* b, int f0, int n, int version, Rect r,
             float* out, size_t count) const {
-    const Handle& ds = datasets.at(name);
-    Handle fspace = select_crop(ds.get(), b, f0, n, version, r, info.versions, path);
-    hsize_t dim = count;
-    Handle mspace = checked(H5Screate_simple(1, &dim, nullptr), H5Sclose, path, "memory space");
-    if (H5Dread(ds.get(), H5T_NATIVE_FLOAT, mspace.get(), fspace.get(), H5P_DEFAULT, out) < 0) {
-      std::ostringstream os;
-      os << "reading '" << name << "' frames " << f0 << ".." << f0 + n - 1;
-      if (b) os << " rect " << r.x << "," << r.y << "," << r.w << "," << r.h;
-      os << " failed (damaged file?)";
-      h5_fail(path, os.str());
+    if (b && options.direct_chunks) {
+      auto it = direct.find(name);
+      if (it != direct.end()) return read_direct(name, *b, it->second, f0, n, version, r, out);
     }
+    H5Lock lock;
+    const Handle& ds = datasets.at(name);
+    std::vector<hsize_t> shape;
+    Handle fspace = select_crop(ds.get(), b, f0, n, version, r, info.versions, path, &shape);
+    hsize_t elements = 1;
+    for (hsize_t d : shape) elements *= d;
+    DOFARM_CHECK_EQ(elements, hsize_t(count));
+    Handle mspace = checked(H5Screate_simple(int(shape.size()), shape.data(), nullptr), H5Sclose,
+                            path, "memory space");
+    if (H5Dread(ds.get(), H5T_NATIVE_FLOAT, mspace.get(), fspace.get(), H5P_DEFAULT, out) < 0)
+      h5_fail(path, describe(name, b, f0, n, r) + " failed (damaged file?)");
   }
+
+  std::string describe(const std::string& name, const BufferInfo* b, int f0, int n, Rect r) const {
+    std::ostringstream os;
+    os << "reading '" << name << "' frames " << f0 << ".." << f0 + n - 1;
+    if (b) os << " rect " << r.x << "," << r.y << "," << r.w << "," << r.h;
+    return os.str();
+  }
+
+  void read_direct(const std::string& name, const BufferInfo& b, const std::vector<hsize_t>& chunk,
+                   int f0, int n, int version, Rect r, float* out) const;
 };
 
-ShardReader::ShardReader(const fs::path& path) : impl_(std::make_unique<Impl>()) {
+void ShardReader::Impl::probe_direct(const std::string& name, const BufferInfo& b) {
+  hid_t ds = datasets.at(name).get();
+  Handle dcpl = checked(H5Dget_create_plist(ds), H5Pclose, path, "creation properties of " + name);
+  if (H5Pget_layout(dcpl.get()) != H5D_CHUNKED) return;
+  const std::vector<hsize_t> dims = dataset_dims(b, info);
+  std::vector<hsize_t> chunk(dims.size());
+  if (H5Pget_chunk(dcpl.get(), int(chunk.size()), chunk.data()) != int(chunk.size())) return;
+  // One frame (and version) per chunk, all channels: the layout read_direct decodes.
+  const size_t lead = b.per_version ? 2 : 1;
+  for (size_t k = 0; k < lead; ++k)
+    if (chunk[k] != 1) return;
+  if (chunk[lead] != hsize_t(b.channels) || chunk[lead + 1] == 0 || chunk[lead + 2] == 0) return;
+  if (H5Pget_nfilters(dcpl.get()) != 3) return;
+  const H5Z_filter_t expect[3] = {H5Z_FILTER_SHUFFLE, H5Z_FILTER_DEFLATE, H5Z_FILTER_FLETCHER32};
+  for (unsigned k = 0; k < 3; ++k) {
+    unsigned flags = 0, values[8] = {0};
+    size_t nvalues = 8;
+    H5Z_filter_t id = H5Pget_filter2(dcpl.get(), k, &flags, &nvalues, values, 0, nullptr, nullptr);
+    if (id != expect[k]) return;
+    // HDF5 fills in the shuffle element size when the dataset is created.
+    if (id == H5Z_FILTER_SHUFFLE && nvalues >= 1 && values[0] != sizeof(float)) return;
+  }
+  direct.emplace(name, chunk);
+}
+
+void ShardReader::Impl::read_direct(const std::string& name, const BufferInfo& b,
+                                    const std::vector<hsize_t>& chunk, int f0, int n, int version,
+                                    Rect r, float* out) const {
+  const size_t rank = chunk.size();
+  const int th = int(chunk[rank - 2]), tw = int(chunk[rank - 1]);
+  const int channels = b.channels;
+  const bool all = b.per_version && version == ShardReader::kAllVersions;
+  const int v0 = b.per_version && !all ? version : 0;
+  const int nv = all ? info.versions : 1;
+  const int ty0 = r.y / th, ty1 = (r.y + r.h - 1) / th;
+  const int tx0 = r.x / tw, tx1 = (r.x + r.w - 1) / tw;
+  const size_t chunk_floats = size_t(channels) * th * tw;
+  const size_t chunk_bytes = chunk_floats * sizeof(float);
+
+  struct Stored {
+    int f, v, ty, tx;
+    size_t at, bytes;
+    uint32_t mask;
+  };
+  thread_local std::vector<uint8_t> stored_bytes;
+  thread_local std::vector<uint8_t> inflated, floats;
+  std::vector<Stored> stored;
+  stored.reserve(size_t(n) * nv * (ty1 - ty0 + 1) * (tx1 - tx0 + 1));
+  stored_bytes.clear();
+  {
+    // Only the file reads hold the lock; decoding below runs in parallel.
+    H5Lock lock;
+    hid_t ds = datasets.at(name).get();
+    for (int f = f0; f < f0 + n; ++f)
+      for (int v = v0; v < v0 + nv; ++v)
+        for (int ty = ty0; ty <= ty1; ++ty)
+          for (int tx = tx0; tx <= tx1; ++tx) {
+            std::vector<hsize_t> offset = {hsize_t(f)};
+            if (b.per_version) offset.push_back(hsize_t(v));
+            offset.insert(offset.end(), {0, hsize_t(ty) * th, hsize_t(tx) * tw});
+            hsize_t bytes = 0;
+            if (H5Dget_chunk_storage_size(ds, offset.data(), &bytes) < 0 || bytes == 0)
+              h5_fail(path, describe(name, &b, f0, n, r) + ": chunk of frame " + std::to_string(f) +
+                                " is missing (damaged file?)");
+            Stored s{f, v, ty, tx, stored_bytes.size(), size_t(bytes), 0};
+            stored_bytes.resize(s.at + s.bytes);
+            if (H5Dread_chunk(ds, H5P_DEFAULT, offset.data(), &s.mask, &stored_bytes[s.at]) < 0)
+              h5_fail(path, describe(name, &b, f0, n, r) + " failed (damaged file?)");
+            stored.push_back(s);
+          }
+  }
+  thread_local Inflater inflater;
+  inflated.resize(chunk_bytes);
+  floats.resize(chunk_bytes);
+  const size_t plane = size_t(r.w) * r.h;
+  for (const Stored& s : stored) {
+    auto damaged = [&](const std::string& why) {
+      throw RuntimeError("shard " + path.string() + ": " + describe(name, &b, f0, n, r) +
+                         ": chunk of frame " + std::to_string(s.f) + " at x " +
+                         std::to_string(s.tx * tw) + ", y " + std::to_string(s.ty * th) + ": " +
+                         why + " (damaged file?)");
+    };
+    const uint8_t* p = &stored_bytes[s.at];
+    size_t bytes = s.bytes;
+    const bool verified = !(s.mask & (1u << kFletcherFilter));
+    if (verified) {
+      if (bytes < 4) damaged("shorter than its checksum");
+      bytes -= 4;
+      const uint32_t want = uint32_t(p[bytes]) | uint32_t(p[bytes + 1]) << 8 |
+                            uint32_t(p[bytes + 2]) << 16 | uint32_t(p[bytes + 3]) << 24;
+      if (fletcher32(p, bytes) != want) damaged("data error detected by Fletcher32 checksum");
+    }
+    const uint8_t* plain = p;
+    if (!(s.mask & (1u << kDeflateFilter))) {
+      if (!inflater.run(p, bytes, inflated.data(), chunk_bytes, verified))
+        damaged("inflate failed");
+      plain = inflated.data();
+    } else if (bytes != chunk_bytes) {
+      damaged("stored size " + std::to_string(bytes) + " is not the chunk size");
+    }
+    const float* values = reinterpret_cast<const float*>(plain);
+    if (!(s.mask & (1u << kShuffleFilter))) {
+      // Shuffle stored byte k of every float together: undo it.
+      uint8_t* dst = floats.data();
+      const uint8_t* b0 = plain;
+      const uint8_t* b1 = b0 + chunk_floats;
+      const uint8_t* b2 = b1 + chunk_floats;
+      const uint8_t* b3 = b2 + chunk_floats;
+      for (size_t i = 0; i < chunk_floats; ++i) {
+        dst[4 * i] = b0[i];
+        dst[4 * i + 1] = b1[i];
+        dst[4 * i + 2] = b2[i];
+        dst[4 * i + 3] = b3[i];
+      }
+      values = reinterpret_cast<const float*>(floats.data());
+    }
+    // The part of this tile inside the crop, into (frame, version, channel, y, x).
+    const int y_begin = std::max(r.y, s.ty * th), y_end = std::min(r.y + r.h, (s.ty + 1) * th);
+    const int x_begin = std::max(r.x, s.tx * tw), x_end = std::min(r.x + r.w, (s.tx + 1) * tw);
+    for (int c = 0; c < channels; ++c) {
+      float* dst = out + ((size_t(s.f - f0) * nv + (s.v - v0)) * channels + c) * plane;
+      const float* src = values + size_t(c) * th * tw;
+      for (int y = y_begin; y < y_end; ++y)
+        std::memcpy(dst + size_t(y - r.y) * r.w + (x_begin - r.x),
+                    src + size_t(y - s.ty * th) * tw + (x_begin - s.tx * tw),
+                    size_t(x_end - x_begin) * sizeof(float));
+    }
+  }
+}
+
+ShardReader::ShardReader(const fs::path& path, ShardReaderOptions options)
+    : impl_(std::make_unique<Impl>()) {
+  impl_->options = options;
   H5Lock lock;
   try {
     impl_->open(path);
@@ -168,6 +398,7 @@ void ShardReader::Impl::open(const fs::path& path_in) {
   };
   for (const BufferInfo& b : buffer_infos()) open_checked(b.name, dataset_dims(b, i));
   open_checked("camera", {hsize_t(i.frame_count()), hsize_t(kCameraColumns)});
+  for (const BufferInfo& b : buffer_infos()) probe_direct(b.name, b);
 }
 
 ShardReader::~ShardReader() {
@@ -203,7 +434,8 @@ void ShardReader::read_crop_into(const std::string& buffer, int frame_begin, int
     DOFARM_CHECK_GE(version, 0);
     DOFARM_CHECK_LT(version, i.versions);
   }
-  H5Lock lock;
+  // No lock here: read() holds it for the HDF5 calls only, so chunk decoding
+  // of several reader threads overlaps.
   impl_->read(buffer, &b, frame_begin, frame_count, version, crop, out,
               crop_size(buffer, frame_count, version, crop));
 }
@@ -213,6 +445,10 @@ std::vector<float> ShardReader::read_crop(const std::string& buffer, int frame_b
   std::vector<float> out(crop_size(buffer, frame_count, version, crop));
   read_crop_into(buffer, frame_begin, frame_count, version, crop, out.data());
   return out;
+}
+
+bool ShardReader::decodes_chunks(const std::string& buffer) const {
+  return impl_->options.direct_chunks && impl_->direct.count(buffer) > 0;
 }
 
 std::vector<CameraState> ShardReader::cameras() const {

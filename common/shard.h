@@ -16,8 +16,9 @@
 //
 // Thread safety: Debian's HDF5 is built without --enable-threadsafe, so every
 // HDF5 call in the process must be serialized. ShardWriter and ShardReader take
-// hdf5_mutex() around each public call; they may be used from any thread. Any
-// other code in the process that calls HDF5 directly must take it too.
+// hdf5_mutex() around their HDF5 calls; they may be used from any thread. The
+// reader decodes crop chunks outside the lock (ShardReaderOptions). Any other
+// code in the process that calls HDF5 directly must take it too.
 #pragma once
 
 #include <array>
@@ -133,6 +134,15 @@ class ShardWriter {
 ShardWriteResult write_shard(const std::filesystem::path& final_path, const ShardInfo& info,
                              const std::vector<FrameBuffers>& frames);
 
+struct ShardReaderOptions {
+  // Image datasets stored in the writer's layout are read chunk by chunk with
+  // H5Dread_chunk under hdf5_mutex() and decoded (Fletcher-32 check, inflate,
+  // unshuffle) outside it, so several threads reading crops decode in
+  // parallel. false: everything through H5Dread (HDF5 decodes under the lock).
+  // Both give the same values and the same damaged-chunk errors.
+  bool direct_chunks = true;
+};
+
 // Read access to one shard. Frame indices are 0-based within the shard.
 class ShardReader {
  public:
@@ -141,7 +151,7 @@ class ShardReader {
   // Opens and checks schema, attributes and dataset shapes. Throws
   // ShardFormatError (not a shard, unknown schema) or RuntimeError (IO,
   // truncated or damaged file), naming the file.
-  explicit ShardReader(const std::filesystem::path& path);
+  explicit ShardReader(const std::filesystem::path& path, ShardReaderOptions options = {});
   ~ShardReader();
   ShardReader(const ShardReader&) = delete;
   ShardReader& operator=(const ShardReader&) = delete;
@@ -172,6 +182,10 @@ class ShardReader {
   size_t crop_size(const std::string& buffer, int frame_count, int version, Rect crop) const;
 
   std::vector<CameraState> cameras() const;
+
+  // Whether crops of `buffer` are decoded by the reader itself
+  // (ShardReaderOptions::direct_chunks and a dataset in the writer's layout).
+  bool decodes_chunks(const std::string& buffer) const;
 
   // How each dataset is stored (for `dofarm inspect`), in schema order,
   // camera last.

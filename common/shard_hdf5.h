@@ -230,8 +230,12 @@ inline void check_finite(const FrameBuffers& fb, const fs::path& path) {
 }
 
 // Selects frames [f0, f0+n), the given version (or all) and rect of a dataset.
+// `count_out`, when given, receives the selection's shape: a memory space of
+// that shape lets HDF5 map the selection chunk by chunk (a flat 1-D memory
+// space sends it down an element-by-element path several times slower).
 inline Handle select_crop(hid_t dataset, const BufferInfo* b, int f0, int n, int version, Rect r,
-                          int versions, const fs::path& path) {
+                          int versions, const fs::path& path,
+                          std::vector<hsize_t>* count_out = nullptr) {
   Handle space = checked(H5Dget_space(dataset), H5Sclose, path, "getting dataspace");
   std::vector<hsize_t> start, count;
   if (!b) {  // camera
@@ -251,6 +255,7 @@ inline Handle select_crop(hid_t dataset, const BufferInfo* b, int f0, int n, int
   if (H5Sselect_hyperslab(space.get(), H5S_SELECT_SET, start.data(), nullptr, count.data(),
                           nullptr) < 0)
     h5_fail(path, "selecting hyperslab");
+  if (count_out) *count_out = count;
   return space;
 }
 

@@ -86,10 +86,12 @@ std::vector<std::string> list_shards(const fs::path& dir) {
 }
 
 SequenceStream::SequenceStream(fs::path data_dir, fs::path run_dir, DataConfig data, bool dof,
-                               uint64_t seed, uint64_t first_index)
+                               uint64_t seed, uint64_t first_index,
+                               ShardReaderOptions reader_options)
     : data_dir_(std::move(data_dir)),
       run_dir_(std::move(run_dir)),
       data_(data),
+      reader_options_(reader_options),
       dof_(dof),
       seed_(seed),
       next_(first_index),
@@ -167,7 +169,7 @@ void SequenceStream::rescan() {
   for (const std::string& f : files) {
     auto shard = std::make_shared<Shard>();
     try {
-      shard->reader = std::make_shared<ShardReader>(data_dir_ / f);
+      shard->reader = std::make_shared<ShardReader>(data_dir_ / f, reader_options_);
       const ShardInfo& info = shard->reader->info();
       if (info.width < data_.crop || info.height < data_.crop)
         throw RuntimeError(f + ": " + std::to_string(info.width) + "x" +

@@ -58,7 +58,8 @@ class SequenceStream {
   // RuntimeError naming the folder when no shard holds a training sequence,
   // with each unusable shard and why.
   SequenceStream(std::filesystem::path data_dir, std::filesystem::path run_dir, DataConfig data,
-                 bool dof, uint64_t seed, uint64_t first_index = 0);
+                 bool dof, uint64_t seed, uint64_t first_index = 0,
+                 ShardReaderOptions reader_options = {});
   ~SequenceStream();
   SequenceStream(const SequenceStream&) = delete;
   SequenceStream& operator=(const SequenceStream&) = delete;
@@ -95,6 +96,7 @@ class SequenceStream {
 
   std::filesystem::path data_dir_, run_dir_;
   DataConfig data_;
+  ShardReaderOptions reader_options_;
   bool dof_;
   uint64_t seed_;
 

@@ -45,7 +45,8 @@ std::vector<float> FrameDenoiser::denoise(const FrameBuffers& f, int version, do
   std::vector<float> input(size_t(c) * n);
   make_input(view, cfg.data, cfg.model.dof, input.data());
 
-  torch::NoGradGuard no_grad;
+  // Inference only: no autograd bookkeeping, no version counters.
+  c10::InferenceMode inference;
   auto t0 = std::chrono::steady_clock::now();
   torch::Tensor x = torch::from_blob(input.data(), {1, c, f.height, f.width}).to(device_);
   torch::Tensor y = run_.model->forward_frame(pad_to_multiple(x), state_);

@@ -49,6 +49,13 @@ DenoiserImpl::Conv DenoiserImpl::add_conv(const std::string& name, int in, int o
   return c;
 }
 
+void DenoiserImpl::set_memory_format(torch::MemoryFormat format) {
+  format_ = format;
+  torch::NoGradGuard no_grad;
+  for (auto& p : parameters())
+    if (p.dim() == 4) p.set_data(p.data().contiguous(format));
+}
+
 torch::Tensor DenoiserImpl::act(const torch::Tensor& x) const {
   return torch::leaky_relu(x, cfg_.leaky_slope);  // thesis 4.2: slope 0.1
 }
@@ -59,11 +66,11 @@ torch::Tensor DenoiserImpl::forward_frame(const torch::Tensor& x,
   DOFARM_CHECK_EQ(x.size(2) % kSizeMultiple, 0);
   DOFARM_CHECK_EQ(x.size(3) % kSizeMultiple, 0);
   std::vector<torch::Tensor> skips;
-  torch::Tensor h = x;
+  torch::Tensor h = x.contiguous(format_);  // no copy when already in the format
   if (cfg_.recurrent && state.empty()) {
     for (int i = 0; i < kLevels; ++i)
-      state.push_back(
-          torch::zeros({x.size(0), widths_[i], x.size(2) >> i, x.size(3) >> i}, x.options()));
+      state.push_back(torch::zeros({x.size(0), widths_[i], x.size(2) >> i, x.size(3) >> i},
+                                   x.options().memory_format(format_)));
   }
   for (int i = 0; i < kLevels; ++i) {
     if (cfg_.recurrent) h = torch::cat({h, state[i]}, 1);
@@ -74,7 +81,7 @@ torch::Tensor DenoiserImpl::forward_frame(const torch::Tensor& x,
   }
   for (auto& c : mid_) h = act(c.conv->forward(h));
   for (int i = kLevels - 1; i >= 0; --i) {
-    h = h.repeat_interleave(2, 2).repeat_interleave(2, 3);  // nearest upsampling x2
+    h = torch::upsample_nearest2d(h, {h.size(2) * 2, h.size(3) * 2});  // nearest x2
     h = torch::cat({h, skips[i]}, 1);
     for (auto& c : dec_[i]) h = act(c.conv->forward(h));
   }
@@ -98,8 +105,11 @@ torch::Tensor DenoiserImpl::forward(const torch::Tensor& seq) {
 void DenoiserImpl::export_torchscript(const std::filesystem::path& path) const {
   torch::jit::Module m("DofarmDenoiser");
   auto reg = [&](const Conv& c) {
-    m.register_parameter(c.name + "_w", c.conv->weight.detach().to(torch::kCPU).clone(), false);
-    m.register_parameter(c.name + "_b", c.conv->bias.detach().to(torch::kCPU).clone(), false);
+    // NCHW weights: the export does not depend on the training layout.
+    m.register_parameter(c.name + "_w",
+                         c.conv->weight.detach().to(torch::kCPU).contiguous().clone(), false);
+    m.register_parameter(c.name + "_b", c.conv->bias.detach().to(torch::kCPU).contiguous().clone(),
+                         false);
   };
   std::ostringstream src;
   auto conv = [&](const Conv& c, const std::string& x, bool activate) {
@@ -133,7 +143,7 @@ void DenoiserImpl::export_torchscript(const std::filesystem::path& path) const {
     src << "  h = " << conv(c, "h", true) << "\n";
   }
   for (int i = kLevels - 1; i >= 0; --i) {
-    src << "  h = torch.cat([h.repeat_interleave(2, 2).repeat_interleave(2, 3), k" << i
+    src << "  h = torch.cat([torch.upsample_nearest2d(h, [h.size(2) * 2, h.size(3) * 2]), k" << i
         << "], 1)\n";
     for (const Conv& c : dec_[i]) {
       reg(c);
@@ -151,6 +161,10 @@ void DenoiserImpl::export_torchscript(const std::filesystem::path& path) const {
   }
   m.define(src.str());
   m.save(path.string());
+}
+
+torch::MemoryFormat preferred_memory_format(torch::Device device) {
+  return device.is_cpu() ? torch::MemoryFormat::ChannelsLast : torch::MemoryFormat::Contiguous;
 }
 
 torch::Tensor pad_to_multiple(const torch::Tensor& x) {

@@ -92,6 +92,8 @@ RunState load_checkpoint(const fs::path& path, Denoiser& model, torch::optim::Ad
   }
   ar.read("model", m);
   model->load(m);
+  // load() adopts the stored tensors' strides: back to the model's format.
+  model->set_memory_format(model->memory_format());
   if (opt) {
     ar.read("optimizer", o);
     opt->load(o);
@@ -108,23 +110,6 @@ RunState load_checkpoint(const fs::path& path, Denoiser& model, torch::optim::Ad
   st.lr_scale = f[0].item<double>();
   st.best = f[1].item<double>();
   return st;
-}
-
-struct Batch {
-  torch::Tensor input, target;  // [B, T, C, S, S], [B, T, 3, S, S]
-};
-
-Batch to_batch(const std::vector<Sample>& samples, torch::Device device) {
-  std::vector<torch::Tensor> in, tg;
-  for (const Sample& s : samples) {
-    in.push_back(
-        torch::from_blob(const_cast<float*>(s.input.data()), {s.frames, s.channels, s.size, s.size})
-            .clone());
-    tg.push_back(
-        torch::from_blob(const_cast<float*>(s.target.data()), {s.frames, 3, s.size, s.size})
-            .clone());
-  }
-  return {torch::stack(in).to(device), torch::stack(tg).to(device)};
 }
 
 class EventLog {
@@ -145,7 +130,100 @@ class EventLog {
   std::ofstream out_;
 };
 
+// Planar (C, S, S) frames into `n` frames of a [N, C, S, S] tensor in
+// `format`: NHWC is a transposing copy, NCHW a plain one. Plain loops: this
+// runs beside the training step and must not take its intra-op threads.
+void copy_frames(const float* src, int frames, int channels, int size, torch::MemoryFormat format,
+                 float* dst) {
+  const size_t plane = size_t(size) * size;
+  if (format != torch::MemoryFormat::ChannelsLast) {
+    std::copy(src, src + size_t(frames) * channels * plane, dst);
+    return;
+  }
+  for (int f = 0; f < frames; ++f) {
+    const float* s = src + size_t(f) * channels * plane;
+    float* d = dst + size_t(f) * channels * plane;
+    for (size_t p = 0; p < plane; ++p)
+      for (int c = 0; c < channels; ++c) d[p * channels + c] = s[size_t(c) * plane + p];
+  }
+}
+
 }  // namespace
+
+Batch make_batch(const std::vector<Sample>& samples, torch::Device device,
+                 torch::MemoryFormat format) {
+  DOFARM_CHECK(!samples.empty());
+  const Sample& first = samples[0];
+  const int64_t b = int64_t(samples.size()), t = first.frames, s = first.size;
+  const int64_t c = first.channels;
+  auto frames = [&](int64_t channels) {
+    return torch::empty({b * t, channels, s, s},
+                        torch::TensorOptions().dtype(torch::kFloat32).memory_format(format));
+  };
+  torch::Tensor in = frames(c), tg = frames(3);
+  const size_t in_stride = size_t(t) * c * s * s, tg_stride = size_t(t) * 3 * s * s;
+  for (int64_t i = 0; i < b; ++i) {
+    const Sample& x = samples[size_t(i)];
+    DOFARM_CHECK(x.frames == t && x.channels == c && x.size == s);
+    copy_frames(x.input.data(), int(t), int(c), int(s), format,
+                in.data_ptr<float>() + size_t(i) * in_stride);
+    copy_frames(x.target.data(), int(t), 3, int(s), format,
+                tg.data_ptr<float>() + size_t(i) * tg_stride);
+  }
+  // [B*T, C, S, S] -> [B, T, C, S, S] splits the outer dimension: a view in
+  // either format.
+  Batch out;
+  out.input = in.view({b, t, c, s, s}).to(device);
+  out.target = tg.view({b, t, 3, s, s}).to(device);
+  return out;
+}
+
+BatchPrefetcher::BatchPrefetcher(SequenceStream& stream, int batch, torch::Device device,
+                                 torch::MemoryFormat format)
+    : stream_(stream), batch_(batch), device_(device), format_(format) {
+  pending_ = std::async(std::launch::async, [this] { return assemble(); });
+}
+
+BatchPrefetcher::~BatchPrefetcher() {
+  if (pending_.valid()) pending_.wait();
+}
+
+Batch BatchPrefetcher::assemble() {
+  std::vector<Sample> samples;
+  for (int i = 0; i < batch_; ++i) samples.push_back(stream_.next());
+  Batch b = make_batch(samples, device_, format_);
+  b.next_index = stream_.next_index();
+  return b;
+}
+
+Batch BatchPrefetcher::next() {
+  auto t0 = std::chrono::steady_clock::now();
+  Batch b = pending_.get();  // rethrows the stream's failure
+  waited_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  pending_ = std::async(std::launch::async, [this] { return assemble(); });
+  return b;
+}
+
+StepOutcome compute_gradients(Denoiser& model, const Batch& batch, const LossConfig& loss_cfg,
+                              const torch::Tensor& kernel,
+                              const std::function<torch::Tensor(const torch::Tensor&)>& hook) {
+  // Gradients set, not added to zeros: no memset and no accumulation pass.
+  model->zero_grad(/*set_to_none=*/true);
+  torch::Tensor loss =
+      denoiser_loss(model->forward(batch.input), batch.target, loss_cfg, kernel).total;
+  if (hook) loss = hook(loss);
+  StepOutcome r;
+  r.loss = loss.item<double>();
+  r.finite = std::isfinite(r.loss);
+  if (!r.finite) return r;
+  loss.backward();
+  // One device sync for all gradients, not one per parameter.
+  std::vector<torch::Tensor> finite;
+  for (const auto& p : model->parameters())
+    if (p.grad().defined()) finite.push_back(torch::isfinite(p.grad()).all());
+  r.finite = finite.empty() || torch::stack(finite).all().item<bool>();
+  return r;
+}
 
 TrainResult train(const TrainOptions& opt_in) {
   const TrainConfig& cfg = opt_in.config;
@@ -171,6 +249,8 @@ TrainResult train(const TrainOptions& opt_in) {
   torch::manual_seed(cfg.train.seed);
   Denoiser model(cfg.model);
   model->to(device);
+  const torch::MemoryFormat format = preferred_memory_format(device);
+  model->set_memory_format(format);
   torch::optim::Adam adam(
       model->parameters(),
       torch::optim::AdamOptions(cfg.train.lr).betas({cfg.train.beta1, cfg.train.beta2}));
@@ -194,6 +274,7 @@ TrainResult train(const TrainOptions& opt_in) {
   int bad_in_a_row = 0;
   const int64_t total_steps = int64_t(cfg.train.epochs) * cfg.train.steps_per_epoch;
   Progress progress("train", std::max<int64_t>(0, total_steps - st.step));
+  BatchPrefetcher batches(stream, cfg.train.batch, device, format);
   while (st.epoch < cfg.train.epochs) {
     auto t0 = std::chrono::steady_clock::now();
     model->train();
@@ -203,28 +284,18 @@ TrainResult train(const TrainOptions& opt_in) {
     // Counted from the step, so an epoch interrupted mid-way resumes where it was.
     while (st.step < (st.epoch + 1) * int64_t(cfg.train.steps_per_epoch)) {
       if (opt_in.stop_at_step >= 0 && st.step >= opt_in.stop_at_step) break;
-      std::vector<Sample> samples;
-      for (int b = 0; b < cfg.train.batch; ++b) samples.push_back(stream.next());
-      st.sample_index = int64_t(stream.next_index());
-      Batch batch = to_batch(samples, device);
+      Batch batch = batches.next();  // the one after it is assembled meanwhile
+      st.sample_index = int64_t(batch.next_index);
       lr = st.lr_scale * learning_rate(cfg.train, st.step, int(st.epoch));
       for (auto& group : adam.param_groups())
         static_cast<torch::optim::AdamOptions&>(group.options()).lr(lr);
 
-      adam.zero_grad();
-      torch::Tensor loss =
-          denoiser_loss(model->forward(batch.input), batch.target, cfg.loss, kernel).total;
-      if (opt_in.loss_hook) loss = opt_in.loss_hook(st.step, loss);
-      const double loss_value = loss.item<double>();
-      bool ok = std::isfinite(loss_value);
-      if (ok) {
-        loss.backward();
-        // One device sync for all gradients, not one per parameter.
-        std::vector<torch::Tensor> finite;
-        for (const auto& p : model->parameters())
-          if (p.grad().defined()) finite.push_back(torch::isfinite(p.grad()).all());
-        ok = finite.empty() || torch::stack(finite).all().item<bool>();
-      }
+      std::function<torch::Tensor(const torch::Tensor&)> hook;
+      if (opt_in.loss_hook)
+        hook = [&](const torch::Tensor& l) { return opt_in.loss_hook(st.step, l); };
+      const StepOutcome outcome = compute_gradients(model, batch, cfg.loss, kernel, hook);
+      const double loss_value = outcome.loss;
+      const bool ok = outcome.finite;
       ++st.step;
       progress.advance();
       if (ok) {
@@ -262,7 +333,7 @@ TrainResult train(const TrainOptions& opt_in) {
       for (size_t i = 0; i < vs.size(); i += cfg.train.batch) {
         std::vector<Sample> part(vs.begin() + i,
                                  vs.begin() + std::min(vs.size(), i + cfg.train.batch));
-        Batch b = to_batch(part, device);
+        Batch b = make_batch(part, device, format);
         sum += denoiser_loss(model->forward(b.input), b.target, cfg.loss, kernel)
                    .total.item<double>() *
                double(part.size());
@@ -309,6 +380,7 @@ LoadedRun load_run(const fs::path& run_dir, torch::Device device) {
     throw SpecError(FileLoc{run_dir.string()}, "", "the run has no checkpoint yet");
   r.model = Denoiser(r.config.model);
   r.model->to(device);
+  r.model->set_memory_format(preferred_memory_format(device));
   load_checkpoint(r.checkpoint, r.model, nullptr, device);
   r.model->eval();
   return r;

@@ -162,5 +162,48 @@ TEST(Denoiser, PadToMultipleReplicatesEdges) {
   EXPECT_TRUE(p.select(2, 63).equal(p.select(2, 32)));
 }
 
+// Channels-last (NHWC) activations and weights change the speed on the CPU,
+// not the values: outputs, loss and every gradient match the NCHW model up to
+// float summation order.
+TEST(Denoiser, ChannelsLastComputesTheSameOutputLossAndGradients) {
+  for (bool recurrent : {false, true}) {
+    ModelConfig cfg = tiny(recurrent);
+    cfg.channels = {12, 16, 16, 20, 24};
+    torch::manual_seed(3);
+    Denoiser nchw(cfg);
+    Denoiser nhwc(cfg);
+    {
+      torch::NoGradGuard ng;
+      auto a = nchw->parameters(), b = nhwc->parameters();
+      for (size_t i = 0; i < a.size(); ++i) b[i].copy_(a[i]);
+    }
+    nhwc->set_memory_format(torch::MemoryFormat::ChannelsLast);
+    ASSERT_TRUE(
+        nhwc->named_parameters()["e0_0.weight"].is_contiguous(torch::MemoryFormat::ChannelsLast));
+    torch::Tensor x = torch::rand({2, 3, cfg.input_channels(), 64, 64});
+    torch::Tensor t = torch::rand({2, 3, 3, 64, 64});
+    LossConfig lc;
+    lc.temporal = 0.1f;
+    torch::Tensor k = log_kernel(lc.log_sigma);
+    torch::Tensor la = denoiser_loss(nchw->forward(x), t, lc, k).total;
+    torch::Tensor ya = nchw->forward(x);
+    torch::Tensor yb = nhwc->forward(x);
+    torch::Tensor lb = denoiser_loss(nhwc->forward(x), t, lc, k).total;
+    EXPECT_TRUE(torch::allclose(ya, yb, 1e-4, 1e-5)) << (ya - yb).abs().max().item<float>();
+    EXPECT_NEAR(la.item<float>(), lb.item<float>(), 1e-5f * std::abs(la.item<float>()));
+    la.backward();
+    lb.backward();
+    auto ga = nchw->named_parameters(), gb = nhwc->named_parameters();
+    for (const auto& p : ga) {
+      torch::Tensor g1 = p.value().grad(), g2 = gb[p.key()].grad();
+      ASSERT_TRUE(g1.defined() && g2.defined()) << p.key();
+      EXPECT_TRUE(torch::isfinite(g2).all().item<bool>()) << p.key();
+      double scale = g1.abs().max().item<double>() + 1e-12;
+      EXPECT_LT((g1 - g2).abs().max().item<double>() / scale, 1e-4)
+          << p.key() << " recurrent " << recurrent;
+    }
+  }
+}
+
 }  // namespace
 }  // namespace dofarm::trainer
