@@ -240,19 +240,56 @@ void JobStore::create_schema() {
 }
 
 JobStore::Transaction::Transaction(JobStore& store) : store_(store) {
-  store_.exec("BEGIN IMMEDIATE");
+  if (store_.group_ && !store_.group_open_) {
+    store_.exec("BEGIN IMMEDIATE");
+    store_.group_open_ = true;
+  }
+  savepoint_ = store_.group_ || store_.depth_ > 0;
+  store_.exec(savepoint_ ? "SAVEPOINT tx" : "BEGIN IMMEDIATE");
+  ++store_.depth_;
 }
 
 JobStore::Transaction::~Transaction() {
   if (done_) return;
+  --store_.depth_;
   // A failed ROLLBACK (the transaction was already rolled back by SQLite)
   // must not escape a destructor.
-  sqlite3_exec(store_.db_, "ROLLBACK", nullptr, nullptr, nullptr);
+  if (savepoint_) {
+    sqlite3_exec(store_.db_, "ROLLBACK TO tx; RELEASE tx", nullptr, nullptr, nullptr);
+  } else {
+    sqlite3_exec(store_.db_, "ROLLBACK", nullptr, nullptr, nullptr);
+  }
 }
 
 void JobStore::Transaction::commit() {
-  store_.exec("COMMIT");
+  store_.exec(savepoint_ ? "RELEASE tx" : "COMMIT");
   done_ = true;
+  --store_.depth_;
+}
+
+void JobStore::begin_group() {
+  DOFARM_CHECK_EQ(depth_, 0);
+  group_ = true;
+  group_open_ = false;
+}
+
+void JobStore::commit_group() {
+  const bool open = group_open_;
+  group_ = false;
+  group_open_ = false;
+  if (!open) return;  // nothing was written
+  try {
+    exec("COMMIT");
+  } catch (...) {
+    sqlite3_exec(db_, "ROLLBACK", nullptr, nullptr, nullptr);
+    throw;
+  }
+}
+
+void JobStore::rollback_group() {
+  if (group_open_) sqlite3_exec(db_, "ROLLBACK", nullptr, nullptr, nullptr);
+  group_ = false;
+  group_open_ = false;
 }
 
 // --- Batches

@@ -14,7 +14,15 @@
 // Transaction, makes its reads and writes through this class and commits;
 // destroying an uncommitted Transaction rolls back. Transactions start with
 // BEGIN IMMEDIATE so that a second connection (an operator's sqlite3 shell)
-// makes us wait busy_timeout instead of failing half-way through.
+// makes us wait busy_timeout instead of failing half-way through. A
+// Transaction opened inside another is a savepoint of it: it commits or rolls
+// back its own changes only, and they reach the disk with the outer one.
+//
+// Group commit. Between begin_group() and commit_group() every Transaction is
+// such a savepoint of one transaction, begun by the first of them: the
+// coordinator's loop handles all the messages it received at once, commits
+// them with one write to the WAL, and only then sends the replies. A message
+// whose handling fails rolls back its savepoint alone.
 //
 // Versioning. PRAGMA user_version holds kSchemaVersion; a store of another
 // version is refused rather than guessed at.
@@ -143,8 +151,15 @@ class JobStore {
 
    private:
     JobStore& store_;
+    bool savepoint_ = false;  // nested, or within a group
     bool done_ = false;
   };
+
+  // See "Group commit" above. commit_group() throws when the commit fails;
+  // then nothing of the group is in the store. rollback_group() never throws.
+  void begin_group();
+  void commit_group();
+  void rollback_group();
 
   // Batches
   void insert_batch(const BatchRow& batch);
@@ -221,6 +236,9 @@ class JobStore {
 
   std::filesystem::path path_;
   sqlite3* db_ = nullptr;
+  int depth_ = 0;            // open Transactions
+  bool group_ = false;       // between begin_group() and commit_group()
+  bool group_open_ = false;  // the group's transaction has begun
   // Prepared statements kept for reuse, by SQL text; one that is in use is
   // out of the map, so a nested use of the same SQL prepares its own.
   std::unordered_map<std::string, sqlite3_stmt*> statements_;

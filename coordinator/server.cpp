@@ -303,12 +303,19 @@ std::string Server::handle(const protocol::Message& m) {
 }
 
 void Server::send(const std::string& identity, const std::string& reply) {
-  try {
-    socket_->send(zmq::buffer(identity), zmq::send_flags::sndmore);
-    socket_->send(zmq::buffer(reply), zmq::send_flags::dontwait);
-  } catch (const zmq::error_t& e) {
-    spdlog::warn("could not reply: {}", e.what());
+  outbox_.emplace_back(identity, reply);
+}
+
+void Server::send_outbox() {
+  for (const auto& [identity, reply] : outbox_) {
+    try {
+      socket_->send(zmq::buffer(identity), zmq::send_flags::sndmore);
+      socket_->send(zmq::buffer(reply), zmq::send_flags::dontwait);
+    } catch (const zmq::error_t& e) {
+      spdlog::warn("could not reply: {}", e.what());
+    }
   }
+  outbox_.clear();
 }
 
 void Server::park(std::string identity, const std::string& worker) {
@@ -373,6 +380,9 @@ void Server::poll_once(int timeout_ms) {
     if (e.num() != EINTR) throw;
     return;  // a signal (SIGTERM to stop): the caller checks its stop flag
   }
+  // Group commit: everything below is one store transaction, committed
+  // before any reply leaves (JobStore "Group commit").
+  store_->begin_group();
   // Drain what is there: identity frame, then one payload frame.
   for (int n = 0; n < 1000 && (item.revents & ZMQ_POLLIN); ++n) {
     zmq::message_t identity;
@@ -422,11 +432,26 @@ void Server::poll_once(int timeout_ms) {
     spdlog::error("lease expiry or heartbeat flush failed: {}", e.what());
   }
   serve_parked();
+  try {
+    store_->commit_group();
+  } catch (const std::exception& e) {
+    // Nothing of this round reached the store: no reply may say it did.
+    spdlog::error("job store commit failed: {}", e.what());
+    try {
+      scheduler_->rebuild();
+    } catch (const std::exception& r) {
+      spdlog::error("reloading the job store failed: {}", r.what());
+    }
+    for (auto& [identity, reply] : outbox_)
+      reply = protocol::error_reply(std::string("coordinator error: ") + e.what());
+  }
+  send_outbox();
 }
 
 void Server::run(const std::atomic<bool>& stop) {
   while (!stop) poll_once(100);
   unpark_all();  // nobody waits for a reply that will not come
+  send_outbox();
 }
 
 }  // namespace dofarm::coordinator

@@ -19,6 +19,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "common/protocol.h"
@@ -89,7 +90,9 @@ class Server {
   void serve_parked();
   // Answers every parked request with `wait` (the server stops).
   void unpark_all();
+  // Queues a reply; send_outbox() sends the queue (after the group commit).
   void send(const std::string& identity, const std::string& reply);
+  void send_outbox();
 
   ServerOptions options_;
   const Clock& clock_;
@@ -99,8 +102,9 @@ class Server {
   std::unique_ptr<zmq::socket_t> socket_;
   std::unique_ptr<class ZapHandler> zap_;
   std::string endpoint_;
-  std::vector<Parked> parked_;      // oldest first
-  uint64_t parked_generation_ = 0;  // scheduler generation they last tried
+  std::vector<Parked> parked_;                               // oldest first
+  std::vector<std::pair<std::string, std::string>> outbox_;  // (identity, reply)
+  uint64_t parked_generation_ = 0;                           // scheduler generation they last tried
 };
 
 // The status report as JSON (the `status --json` output and the wire form).

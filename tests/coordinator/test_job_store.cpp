@@ -112,6 +112,79 @@ TEST(JobStore, CommittedChangesAreSeenByASecondConnectionAndRolledBackOnesAreNot
   EXPECT_EQ(reader.batch("b-0123abcd")->finished, 200);
 }
 
+TEST(JobStore, NestedTransactionRollsBackItsOwnChangesOnly) {
+  TempDir dir;
+  const auto path = dir.path() / "state.db";
+  JobStore writer(path);
+  JobStore reader(path);
+  {
+    JobStore::Transaction outer(writer);
+    writer.insert_batch(sample_batch());
+    {
+      JobStore::Transaction inner(writer);
+      writer.set_batch_state("b-0123abcd", BatchState::kCancelled, 200);
+      // Not committed: back to the outer transaction's state.
+    }
+    EXPECT_EQ(writer.batch("b-0123abcd")->state, BatchState::kRunning);
+    {
+      JobStore::Transaction inner(writer);
+      writer.add_event(201, "b-0123abcd", "info", "kept");
+      inner.commit();
+    }
+    EXPECT_FALSE(reader.batch("b-0123abcd").has_value()) << "visible before the outer commit";
+    outer.commit();
+  }
+  EXPECT_EQ(reader.batch("b-0123abcd")->state, BatchState::kRunning);
+  EXPECT_EQ(reader.events("b-0123abcd", 10).size(), 1u);
+}
+
+TEST(JobStore, GroupIsCommittedOnceAndAFailedMemberIsLeftOut) {
+  TempDir dir;
+  const auto path = dir.path() / "state.db";
+  JobStore writer(path);
+  JobStore reader(path);
+  writer.begin_group();
+  {
+    JobStore::Transaction tx(writer);
+    writer.insert_batch(sample_batch());
+    tx.commit();
+  }
+  try {
+    JobStore::Transaction tx(writer);
+    writer.add_event(1, "b-0123abcd", "info", "lost with its failing member");
+    writer.insert_batch(sample_batch());  // the same primary key: throws
+    tx.commit();
+  } catch (const RuntimeError&) {
+  }
+  {
+    JobStore::Transaction tx(writer);
+    writer.add_event(2, "b-0123abcd", "info", "kept");
+    tx.commit();
+  }
+  EXPECT_FALSE(reader.batch("b-0123abcd").has_value()) << "visible before the group commit";
+  writer.commit_group();
+  ASSERT_TRUE(reader.batch("b-0123abcd").has_value());
+  const std::vector<EventRow> events = reader.events("b-0123abcd", 10);
+  ASSERT_EQ(events.size(), 1u);
+  EXPECT_EQ(events[0].text, "kept");
+  // After the group, transactions commit on their own again.
+  {
+    JobStore::Transaction tx(writer);
+    writer.set_batch_state("b-0123abcd", BatchState::kDone, 300);
+    tx.commit();
+  }
+  EXPECT_EQ(reader.batch("b-0123abcd")->state, BatchState::kDone);
+  // A group rolled back leaves nothing.
+  writer.begin_group();
+  {
+    JobStore::Transaction tx(writer);
+    writer.set_batch_state("b-0123abcd", BatchState::kCancelled, 400);
+    tx.commit();
+  }
+  writer.rollback_group();
+  EXPECT_EQ(reader.batch("b-0123abcd")->state, BatchState::kDone);
+}
+
 TEST(JobStore, UsesWalAndRecordsTheSchemaVersion) {
   TempDir dir;
   const auto path = dir.path() / "state.db";
