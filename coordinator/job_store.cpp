@@ -477,8 +477,8 @@ std::vector<TaskRow> JobStore::runnable_tasks(const std::string& worker, double 
   // frame and id), so the query stops after `limit` rows instead of sorting
   // every pending task of the farm on every request. INDEXED BY: left alone,
   // the planner prefers tasks_by_state (state, not_before) and then sorts
-  // every pending task. (The walk still checks the dependencies of every
-  // waiting pack on the way: see bench/README.md.)
+  // every pending task. (The walk checks the dependencies of every waiting
+  // pack on the way, which is why the scheduler keeps this answer in memory.)
   std::vector<std::string> running;
   {
     Statement b(*this, "SELECT id FROM batches WHERE state='running' ORDER BY created, rowid");

@@ -188,7 +188,9 @@ class JobStore {
   // Pending tasks whose back-off has passed, whose dependencies are all done,
   // of running batches that have not blocklisted `worker`; in assignment order:
   // oldest batch first, then pack tasks (they unblock the trainer), then render
-  // tiles by frame (so shards complete early), then by id.
+  // tiles by frame (so shards complete early), then by id. The scheduler
+  // answers this from memory (RunQueue); this query is the reference its
+  // tests hold the memory to.
   std::vector<TaskRow> runnable_tasks(const std::string& worker, double now, int limit);
   std::vector<TaskRow> leases_expired_by(double now);
   std::vector<TaskRow> leased_tasks(const std::string& batch_id);  // empty: every batch

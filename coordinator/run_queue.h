@@ -4,7 +4,7 @@
 //
 // It is a cache of the job store, never the record: the scheduler changes it
 // in the same call as the store, and rebuilds it from the store on start and
-// whenever a transaction fails (load_batch). It lets a request find its task
+// whenever a transaction fails (Scheduler::rebuild). It lets a request find its task
 // without a query and a completion make its pack runnable in O(1):
 //
 //  - runnable: pending tasks whose dependencies are all done and whose
