@@ -56,8 +56,10 @@ void DenoiserImpl::set_memory_format(torch::MemoryFormat format) {
     if (p.dim() == 4) p.set_data(p.data().contiguous(format));
 }
 
-torch::Tensor DenoiserImpl::act(const torch::Tensor& x) const {
-  return torch::leaky_relu(x, cfg_.leaky_slope);  // thesis 4.2: slope 0.1
+torch::Tensor DenoiserImpl::act(torch::Tensor x) const {
+  // In place on the convolution's fresh output (which the convolution's
+  // backward does not need): one activation buffer fewer per layer.
+  return torch::leaky_relu_(x, cfg_.leaky_slope);  // thesis 4.2: slope 0.1
 }
 
 torch::Tensor DenoiserImpl::forward_frame(const torch::Tensor& x,

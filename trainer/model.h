@@ -59,7 +59,7 @@ class DenoiserImpl : public torch::nn::Module {
     std::string name;
   };
   Conv add_conv(const std::string& name, int in, int out);
-  torch::Tensor act(const torch::Tensor& x) const;
+  torch::Tensor act(torch::Tensor x) const;  // on a convolution output, in place
 
   ModelConfig cfg_;
   torch::MemoryFormat format_ = torch::MemoryFormat::Contiguous;

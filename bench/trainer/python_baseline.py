@@ -6,9 +6,13 @@ python3-h5py, demodulated, log1p, depth and CoC transforms, random crop,
 rotation, reversal). Prints the median milliseconds of one training step and
 of one batch of the data pipeline, so bench/trainer/python_vs_cpp.sh can
 compare them with bench/trainer/trainer_speed and data_stream on one machine.
-Never asserts.
+With --loop N it also runs N steps of a plain synchronous training loop (an
+h5py batch, then the step, as a Python training script without a DataLoader
+does) and prints the mean milliseconds per step. --channels-last converts the
+model and its inputs to torch.channels_last (NHWC), which dofarm-train does on
+the CPU; without it the model is PyTorch's default NCHW. Never asserts.
 
-    python_baseline.py [--shard SHARD.h5] [--reps 5]
+    python_baseline.py [--shard SHARD.h5] [--reps 5] [--loop N] [--channels-last]
 """
 import argparse
 import math
@@ -61,7 +65,7 @@ class Denoiser(nn.Module):
         return self.out(x)
 
 
-def log_kernel(sigma=1.0):
+def log_kernel(sigma=1.5):
     """Laplacian of Gaussian (thesis eq. 4.3), zero sum, unit L1 norm."""
     r = int(math.ceil(3 * sigma))
     ax = torch.arange(-r, r + 1, dtype=torch.float64)
@@ -87,7 +91,7 @@ def median_ms(fn, reps):
         t0 = time.perf_counter()
         fn()
         times.append(time.perf_counter() - t0)
-    return statistics.median(times) * 1e3
+    return statistics.median(times) * 1e3, min(times) * 1e3
 
 
 def data_batch(f, rng, eps=1e-3, crop=64, seq=7, batch=4):
@@ -134,29 +138,42 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--shard", help="a dofarm shard (>= 7 frames, >= 64x64) for the data pipeline")
     ap.add_argument("--reps", type=int, default=5)
+    ap.add_argument("--loop", type=int, default=0, help="steps of the full loop (needs --shard)")
+    ap.add_argument("--channels-last", action="store_true")
     args = ap.parse_args()
+    fmt = torch.channels_last if args.channels_last else torch.contiguous_format
     torch.manual_seed(0)
-    model = Denoiser()
+    model = Denoiser().to(memory_format=fmt)
     opt = torch.optim.Adam(model.parameters(), lr=1e-4, betas=(0.9, 0.99))
-    kernel = log_kernel(1.0)
+    kernel = log_kernel()  # sigma 1.5, dofarm-train's loss.log_sigma default
     x = torch.rand(4, 7, IN_CHANNELS_DOF, 64, 64)
     t = torch.rand(4, 7, 3, 64, 64)
 
-    def step():
+    def step(x, t):
         opt.zero_grad()
-        out = model(x.reshape(28, IN_CHANNELS_DOF, 64, 64))
-        loss_fn(out, t.reshape(28, 3, 64, 64), kernel).backward()
+        out = model(x.reshape(28, IN_CHANNELS_DOF, 64, 64).contiguous(memory_format=fmt))
+        loss_fn(out, t.reshape(28, 3, 64, 64).contiguous(memory_format=fmt), kernel).backward()
         opt.step()
 
-    print(f"python {torch.__version__}, {torch.get_num_threads()} intra-op threads, median of {args.reps}")
-    print(f"python train step ms (DOF, 4 x 7 x 64^2): {median_ms(step, args.reps):.1f}")
+    name = "NHWC" if args.channels_last else "NCHW"
+    print(f"python {torch.__version__}, {torch.get_num_threads()} intra-op threads, {name}, median of {args.reps}")
+    med, best = median_ms(lambda: step(x, t), args.reps)
+    print(f"python train step ms (DOF, 4 x 7 x 64^2): {med:.1f} (min {best:.1f})")
     if args.shard:
         import h5py
         import numpy as np
         rng = np.random.default_rng(1)
         with h5py.File(args.shard, "r") as f:
-            ms = median_ms(lambda: data_batch(f, rng), args.reps)
-        print(f"python data batch ms (4 sequences x 7 frames): {ms:.1f}  ({4000.0 / ms:.1f} samples/s)")
+            ms, _ = median_ms(lambda: data_batch(f, rng), args.reps)
+            print(f"python data batch ms (4 sequences x 7 frames): {ms:.1f}  ({4000.0 / ms:.1f} samples/s)")
+            if args.loop > 0:
+                for _ in range(2):  # warm-up, as trainer_speed --loop
+                    step(*data_batch(f, rng))
+                t0 = time.perf_counter()
+                for _ in range(args.loop):
+                    step(*data_batch(f, rng))
+                ms = (time.perf_counter() - t0) / args.loop * 1e3
+                print(f"python loop ms/step (h5py batch + step, mean of {args.loop}): {ms:.1f}")
 
 
 if __name__ == "__main__":

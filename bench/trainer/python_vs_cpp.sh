@@ -1,22 +1,52 @@
 #!/usr/bin/env bash
-# Training-step time of dofarm-train's model (bench/trainer/trainer_speed)
-# against the same network, loss and Adam step in Python with Debian's
-# python3-torch (bench/trainer/python_baseline.py), one after the other on
-# this machine and with the same number of intra-op threads, and the data
-# pipelines of both on one shard. Needs: apt-get install python3-torch
-# python3-h5py. Prints figures; never asserts.
-#   bench/trainer/python_vs_cpp.sh BUILD_DIR SHARD.h5 [threads=1]
+# dofarm-train's training speed against the same network, loss, Adam step and
+# data pipeline in Python with Debian's python3-torch and python3-h5py
+# (bench/trainer/python_baseline.py), one after the other on this machine with
+# the same number of intra-op threads:
+#   step only  trainer_speed (random inputs) vs python_baseline.py
+#   full loop  trainer_speed --loop SHARD (dofarm-train's readers, prefetch and
+#              step) vs python_baseline.py --loop (h5py batch, then the step)
+#   loaders    data_stream --shard SHARD vs the h5py pipeline, same shard
+# Python is run in PyTorch's default layout (NCHW) and with channels_last
+# (NHWC), the layout dofarm-train uses on the CPU, so the ratios say how much
+# of the gain is the layout and how much the rest. Needs: apt-get install
+# python3-torch python3-h5py. Prints figures; never asserts.
+#   bench/trainer/python_vs_cpp.sh BUILD_DIR SHARD.h5 [threads=1] [reps=5] [loop_steps=10]
 set -euo pipefail
 BUILD=${1:?build folder}
 SHARD=${2:?a dofarm shard with >= 7 frames of >= 64x64}
 export OMP_NUM_THREADS=${3:-1}
+REPS=${4:-5}
+STEPS=${5:-10}
 HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
-cpp=$("$BUILD/bench/trainer/trainer_speed" 3 | awk -F'|' '/DOF \(CoC input\)/ { print $6 + 0 }')
-py=$(/usr/bin/python3 "$HERE/python_baseline.py" --reps 3 --shard "$SHARD")
-py_step=$(echo "$py" | awk -F': ' '/train step/ { print $2 + 0 }')
-echo "$py"
-echo "C++ train step ms (DOF, 4 x 7 x 64^2): $cpp"
-awk -v c="$cpp" -v p="$py_step" -v t="$OMP_NUM_THREADS" \
-  'BEGIN { printf "threads %d: C++ steps/s / Python steps/s = %.2f (target >= 1.5)\n", t, p / c }'
-# C++ data stream on synthetic shards of the same kind (samples/s by reader count):
-if [ -x "$BUILD/bench/trainer/data_stream" ]; then "$BUILD/bench/trainer/data_stream" 100 256 | tail -5; fi
+PY=/usr/bin/python3
+field() { awk -F': ' -v k="$1" 'index($0, k) == 1 { print $2 + 0 }'; }
+
+cpp=$("$BUILD/bench/trainer/trainer_speed" --reps "$REPS" --models dof --no-infer \
+  --loop "$SHARD" --steps "$STEPS" --formats nchw,nhwc)
+echo "$cpp"
+c_step_nchw=$(echo "$cpp" | awk -F'|' '/DOF \(CoC input\).*NCHW/ { print $7 + 0 }')
+c_step=$(echo "$cpp" | awk -F'|' '/DOF \(CoC input\).*NHWC/ { print $7 + 0 }')
+c_loop=$(echo "$cpp" | awk -F'|' '$2 ~ /NHWC/ && NF == 5 { print $3 + 0 }')
+py_nchw=$($PY "$HERE/python_baseline.py" --reps "$REPS" --shard "$SHARD" --loop "$STEPS")
+echo "$py_nchw"
+py_nhwc=$($PY "$HERE/python_baseline.py" --reps "$REPS" --shard "$SHARD" --loop "$STEPS" --channels-last)
+echo "$py_nhwc"
+p_step=$(echo "$py_nchw" | field "python train step ms")
+p_loop=$(echo "$py_nchw" | field "python loop ms/step")
+p_step_cl=$(echo "$py_nhwc" | field "python train step ms")
+p_loop_cl=$(echo "$py_nhwc" | field "python loop ms/step")
+p_data=$(echo "$py_nchw" | field "python data batch ms")
+echo
+echo "| threads | measure | Python NCHW ms | Python NHWC ms | C++ ms | C++ / Python NCHW | C++ / Python NHWC |"
+echo "| --- | --- | --- | --- | --- | --- | --- |"
+awk -v t="$OMP_NUM_THREADS" -v a="$p_step" -v b="$p_step_cl" -v c="$c_step" -v d="$c_step_nchw" \
+  -v e="$p_loop" -v f="$p_loop_cl" -v g="$c_loop" 'BEGIN {
+  printf "| %d | step only | %.0f | %.0f | %.0f | **%.2fx** | %.2fx |\n", t, a, b, c, a / c, b / c
+  printf "| %d | full loop | %.0f | %.0f | %.0f | **%.2fx** | %.2fx |\n", t, e, f, g, e / g, f / g
+  printf "| %d | step only, C++ in NCHW | %.0f | | %.0f | %.2fx | |\n", t, a, d, a / d
+}'
+echo "(steps/s ratios; the target is >= 1.5x the Python loop)"
+echo
+echo "loaders on $SHARD: h5py $(awk -v m="$p_data" 'BEGIN { printf "%.1f", 4000 / m }') samples/s (one process)"
+"$BUILD/bench/trainer/data_stream" --shard "$SHARD" --samples 200 --readers 1,2 | tail -4
