@@ -6,6 +6,7 @@
 #include <zlib.h>
 
 #include <algorithm>
+#include <bit>
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -201,6 +202,10 @@ void ShardReader::Impl::probe_direct(const std::string& name, const BufferInfo& 
   for (size_t k = 0; k < lead; ++k)
     if (chunk[k] != 1) return;
   if (chunk[lead] != hsize_t(b.channels) || chunk[lead + 1] == 0 || chunk[lead + 2] == 0) return;
+  // Decoded bytes are used as floats as they are: float32 little-endian only.
+  if constexpr (std::endian::native != std::endian::little) return;
+  Handle type = checked(H5Dget_type(ds), H5Tclose, path, "type of " + name);
+  if (H5Tequal(type.get(), H5T_IEEE_F32LE) <= 0) return;
   if (H5Pget_nfilters(dcpl.get()) != 3) return;
   const H5Z_filter_t expect[3] = {H5Z_FILTER_SHUFFLE, H5Z_FILTER_DEFLATE, H5Z_FILTER_FLETCHER32};
   for (unsigned k = 0; k < 3; ++k) {

@@ -7,9 +7,11 @@
 #   full loop  trainer_speed --loop SHARD (dofarm-train's readers, prefetch and
 #              step) vs python_baseline.py --loop (h5py batch, then the step)
 #   loaders    data_stream --shard SHARD vs the h5py pipeline, same shard
-# Python is run in PyTorch's default layout (NCHW) and with channels_last
-# (NHWC), the layout dofarm-train uses on the CPU, so the ratios say how much
-# of the gain is the layout and how much the rest. Needs: apt-get install
+# Python is run in PyTorch's default layout (NCHW), with channels_last (NHWC,
+# the layout dofarm-train uses on the CPU), and with channels_last plus the
+# malloc setting dofarm-train makes (keep_freed_memory(), here through
+# GLIBC_TUNABLES), so the ratios say how much of the gain is the layout, the
+# allocator, and the rest (the loop's overlapped data). Needs: apt-get install
 # python3-torch python3-h5py. Prints figures; never asserts.
 #   bench/trainer/python_vs_cpp.sh BUILD_DIR SHARD.h5 [threads=1] [reps=5] [loop_steps=10]
 set -euo pipefail
@@ -32,19 +34,25 @@ py_nchw=$($PY "$HERE/python_baseline.py" --reps "$REPS" --shard "$SHARD" --loop 
 echo "$py_nchw"
 py_nhwc=$($PY "$HERE/python_baseline.py" --reps "$REPS" --shard "$SHARD" --loop "$STEPS" --channels-last)
 echo "$py_nhwc"
+py_heap=$(GLIBC_TUNABLES=glibc.malloc.mmap_threshold=33554432:glibc.malloc.trim_threshold=1073741824 \
+  $PY "$HERE/python_baseline.py" --reps "$REPS" --shard "$SHARD" --loop "$STEPS" --channels-last)
+echo "$py_heap (GLIBC_TUNABLES as keep_freed_memory())"
 p_step=$(echo "$py_nchw" | field "python train step ms")
 p_loop=$(echo "$py_nchw" | field "python loop ms/step")
 p_step_cl=$(echo "$py_nhwc" | field "python train step ms")
 p_loop_cl=$(echo "$py_nhwc" | field "python loop ms/step")
+p_step_h=$(echo "$py_heap" | field "python train step ms")
+p_loop_h=$(echo "$py_heap" | field "python loop ms/step")
 p_data=$(echo "$py_nchw" | field "python data batch ms")
 echo
-echo "| threads | measure | Python NCHW ms | Python NHWC ms | C++ ms | C++ / Python NCHW | C++ / Python NHWC |"
-echo "| --- | --- | --- | --- | --- | --- | --- |"
-awk -v t="$OMP_NUM_THREADS" -v a="$p_step" -v b="$p_step_cl" -v c="$c_step" -v d="$c_step_nchw" \
-  -v e="$p_loop" -v f="$p_loop_cl" -v g="$c_loop" 'BEGIN {
-  printf "| %d | step only | %.0f | %.0f | %.0f | **%.2fx** | %.2fx |\n", t, a, b, c, a / c, b / c
-  printf "| %d | full loop | %.0f | %.0f | %.0f | **%.2fx** | %.2fx |\n", t, e, f, g, e / g, f / g
-  printf "| %d | step only, C++ in NCHW | %.0f | | %.0f | %.2fx | |\n", t, a, d, a / d
+echo "| threads | measure | Python NCHW ms | Python NHWC ms | Python NHWC + heap ms | C++ ms |" \
+  "C++ / Python NCHW | C++ / Python NHWC | C++ / Python NHWC + heap |"
+echo "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"
+awk -v t="$OMP_NUM_THREADS" -v a="$p_step" -v b="$p_step_cl" -v h="$p_step_h" -v c="$c_step" \
+  -v d="$c_step_nchw" -v e="$p_loop" -v f="$p_loop_cl" -v i="$p_loop_h" -v g="$c_loop" 'BEGIN {
+  printf "| %d | step only | %.0f | %.0f | %.0f | %.0f | **%.2fx** | %.2fx | %.2fx |\n", t, a, b, h, c, a / c, b / c, h / c
+  printf "| %d | full loop | %.0f | %.0f | %.0f | %.0f | **%.2fx** | %.2fx | %.2fx |\n", t, e, f, i, g, e / g, f / g, i / g
+  printf "| %d | step only, C++ in NCHW | %.0f | | | %.0f | %.2fx | | |\n", t, a, d, a / d
 }'
 echo "(steps/s ratios; the target is >= 1.5x the Python loop)"
 echo
