@@ -50,11 +50,19 @@ struct ShardWriter::Impl {
   void write(const std::string& name, const BufferInfo* b, const float* data, size_t count) {
     const Handle& ds = datasets.at(name);
     Rect full{0, 0, info.width, info.height};
+    std::vector<hsize_t> shape;
     Handle fspace = select_crop(ds.get(), b, next_frame, 1, ShardReader::kAllVersions, full,
-                                info.versions, temp_path);
-    hsize_t dim = count;
-    Handle mspace =
-        checked(H5Screate_simple(1, &dim, nullptr), H5Sclose, temp_path, "memory space");
+                                info.versions, temp_path, &shape);
+    // A memory space shaped like the file selection: with a flat one HDF5
+    // maps every element through its general (slow) path.
+    hsize_t elements = 1;
+    for (hsize_t d : shape) elements *= d;
+    if (elements != count)
+      throw RuntimeError("shard " + temp_path.string() + ": '" + name + "' gets " +
+                         std::to_string(count) + " values for " + std::to_string(elements) +
+                         " places");
+    Handle mspace = checked(H5Screate_simple(int(shape.size()), shape.data(), nullptr), H5Sclose,
+                            temp_path, "memory space");
     if (H5Dwrite(ds.get(), H5T_NATIVE_FLOAT, mspace.get(), fspace.get(), H5P_DEFAULT, data) < 0)
       h5_fail(temp_path, "writing '" + name + "' of frame index " + std::to_string(next_frame));
   }
