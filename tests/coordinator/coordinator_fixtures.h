@@ -5,9 +5,13 @@
 
 #include <atomic>
 #include <filesystem>
+#include <optional>
 #include <string>
 
+#include <gtest/gtest.h>
+
 #include "common/jobspec.h"
+#include "coordinator/scheduler.h"
 
 namespace dofarm::coordinator::testing {
 
@@ -37,6 +41,20 @@ inline JobSpec tiny_spec(int frames, int per_shard, int tiles_per_side = 1) {
   spec.frame_end = frames - 1;
   spec.per_shard = per_shard;
   return spec;
+}
+
+// The next task for `worker`; a test failure (and an empty assignment) when
+// there is none.
+inline Assignment take(Scheduler& sched, const std::string& worker) {
+  std::optional<Assignment> a = sched.assign(worker);
+  EXPECT_TRUE(a.has_value()) << worker << " got nothing";
+  return a.value_or(Assignment{});
+}
+
+// Completes `a` as `worker`, which must be accepted.
+inline void done(Scheduler& sched, const std::string& worker, const Assignment& a) {
+  ASSERT_EQ(sched.complete(worker, a.task_id, a.attempt, "/out/t.exr", "xxh64:00"),
+            CompleteStatus::kAccepted);
 }
 
 }  // namespace dofarm::coordinator::testing

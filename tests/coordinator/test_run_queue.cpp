@@ -22,15 +22,8 @@ class RunQueueTest : public ::testing::Test {
   std::string submit(const JobSpec& spec) {
     return sched_.submit("/jobs/a.toml", {}, "/out", spec);
   }
-  Assignment take(const std::string& worker) {
-    std::optional<Assignment> a = sched_.assign(worker);
-    EXPECT_TRUE(a.has_value()) << worker << " got nothing";
-    return a.value_or(Assignment{});
-  }
-  void done(const std::string& worker, const Assignment& a) {
-    ASSERT_EQ(sched_.complete(worker, a.task_id, a.attempt, "/out/t.exr", "xxh64:00"),
-              CompleteStatus::kAccepted);
-  }
+  Assignment take(const std::string& worker) { return testing::take(sched_, worker); }
+  void done(const std::string& worker, const Assignment& a) { testing::done(sched_, worker, a); }
   bool runnable(int64_t task, const std::string& worker = "w1") {
     const std::vector<int64_t> r = sched_.runnable(worker);
     return std::find(r.begin(), r.end(), task) != r.end();

@@ -31,15 +31,8 @@ class SchedulerTest : public ::testing::Test {
   void hello(std::initializer_list<const char*> workers) {
     for (const char* w : workers) sched_.worker_seen(w, "host", 4);
   }
-  Assignment take(const std::string& worker) {
-    std::optional<Assignment> a = sched_.assign(worker);
-    EXPECT_TRUE(a.has_value()) << worker << " got nothing";
-    return a.value_or(Assignment{});
-  }
-  void done(const std::string& worker, const Assignment& a) {
-    ASSERT_EQ(sched_.complete(worker, a.task_id, a.attempt, "/out/t.exr", "xxh64:00"),
-              CompleteStatus::kAccepted);
-  }
+  Assignment take(const std::string& worker) { return testing::take(sched_, worker); }
+  void done(const std::string& worker, const Assignment& a) { testing::done(sched_, worker, a); }
   BatchStatus status(const std::string& batch) { return sched_.status(batch).batches.at(0); }
 
   TempDir dir_;
