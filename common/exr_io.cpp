@@ -521,23 +521,6 @@ ExrFrame read_frame_exr(const std::filesystem::path& path, uint64_t* file_checks
   return out;
 }
 
-std::map<std::string, std::string> read_exr_string_attributes(const std::filesystem::path& path) {
-  std::map<std::string, std::string> out;
-  try {
-    Imf::InputFile file(path.c_str());  // reads the header only
-    const Imf::Header& header = file.header();
-    for (auto it = header.begin(); it != header.end(); ++it) {
-      const std::string name = it.name();
-      if (name == kSchemaAttr || is_openexr_string_attribute(name)) continue;
-      if (const auto* s = dynamic_cast<const Imf::StringAttribute*>(&it.attribute()))
-        out[name] = s->value();
-    }
-  } catch (const std::exception& e) {
-    throw RuntimeError("cannot read EXR " + quoted(path) + ": " + e.what());
-  }
-  return out;
-}
-
 void write_rgb_exr(const std::filesystem::path& path, const RgbImage& img) {
   if (img.width <= 0 || img.height <= 0)
     throw RuntimeError("cannot write EXR " + quoted(path) + ": empty image");

@@ -68,9 +68,6 @@ struct ExrFrame {
 // `file_checksum` is given it receives the XXH64 of exactly the bytes decoded
 // (the staged-tile check of a pack costs no second read).
 ExrFrame read_frame_exr(const std::filesystem::path& path, uint64_t* file_checksum = nullptr);
-// The string attributes of an EXR's header (as read_frame_exr() returns
-// them) without reading any pixels. Throws RuntimeError naming the file.
-std::map<std::string, std::string> read_exr_string_attributes(const std::filesystem::path& path);
 
 // Writes an RGB image as a plain float EXR (debugging, reports), atomically
 // like write_frame_exr(). Non-finite values are kept, to be seen.

@@ -69,8 +69,6 @@ std::string scene_hash(const JobSpec& spec) {
 // Anything wrong with it is a StagedTileError, which the coordinator answers
 // by rendering the tile again.
 ExrFrame read_staged_tile(const StagedTile& t, int versions) {
-  std::error_code ec;
-  if (!fs::exists(t.path, ec)) throw StagedTileError(t.path, "missing");
   uint64_t sum = 0;
   ExrFrame tile;
   try {
