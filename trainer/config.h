@@ -78,6 +78,10 @@ struct OptimConfig {
   std::string device = "auto";  // auto | cpu | cuda
   int max_bad_steps = 3;        // consecutive non-finite steps before a rollback
   float rollback_lr_factor = 0.5f;
+  // Model copies a CPU step is split across, one thread each (StepRunner in
+  // train.h); 0 = auto: 2 when on the CPU with >= 2 intra-op threads and a
+  // batch of >= 2, else 1. Changes the float summation order, not the step.
+  int cpu_replicas = 0;
 };
 
 struct TrainConfig {

@@ -1,12 +1,17 @@
 #include "trainer/train.h"
 
+#include <ATen/Parallel.h>
 #include <malloc.h>
 #include <spdlog/spdlog.h>
 
 #include <chrono>
 #include <cmath>
+#include <condition_variable>
+#include <exception>
 #include <fstream>
+#include <mutex>
 #include <sstream>
+#include <thread>
 
 #include "common/error.h"
 #include "common/progress.h"
@@ -226,6 +231,159 @@ StepOutcome compute_gradients(Denoiser& model, const Batch& batch, const LossCon
   return r;
 }
 
+// One replica's thread: runs one job at a time, handed over by start().
+struct StepRunner::Worker {
+  explicit Worker(int threads) : thread_([this, threads] { loop(threads); }) {}
+  ~Worker() {
+    {
+      std::lock_guard<std::mutex> l(mu_);
+      quit_ = true;
+    }
+    cv_.notify_all();
+    thread_.join();
+  }
+  void start(std::function<void()> job) {
+    std::lock_guard<std::mutex> l(mu_);
+    job_ = std::move(job);
+    error_ = nullptr;
+    pending_ = busy_ = true;
+    cv_.notify_all();
+  }
+  void wait() {
+    std::unique_lock<std::mutex> l(mu_);
+    cv_.wait(l, [this] { return !busy_; });
+    if (error_) std::rethrow_exception(error_);
+  }
+
+ private:
+  void loop(int threads) {
+    // This thread's own OpenMP team size, before its first kernel (oneDNN
+    // reads it from the calling thread, not from ATen's global setting).
+    at::set_num_threads(threads);
+    std::unique_lock<std::mutex> l(mu_);
+    for (;;) {
+      cv_.wait(l, [this] { return pending_ || quit_; });
+      if (!pending_) return;
+      pending_ = false;
+      std::function<void()> job = std::move(job_);
+      l.unlock();
+      std::exception_ptr error;
+      try {
+        job();
+      } catch (...) {
+        error = std::current_exception();
+      }
+      l.lock();
+      error_ = error;
+      busy_ = false;
+      cv_.notify_all();
+    }
+  }
+
+  std::mutex mu_;
+  std::condition_variable cv_;
+  std::function<void()> job_;
+  std::exception_ptr error_;
+  bool pending_ = false, busy_ = false, quit_ = false;
+  std::thread thread_;  // last: started once the state above exists
+};
+
+int step_replicas(int configured, torch::Device device, int threads, int batch) {
+  if (!device.is_cpu()) return 1;
+  int r = configured > 0 ? configured : (threads >= 2 ? 2 : 1);
+  return std::max(1, std::min(r, batch));
+}
+
+StepRunner::StepRunner(Denoiser model, int replicas) : model_(std::move(model)) {
+  DOFARM_CHECK(replicas >= 1);
+  if (replicas == 1) return;
+  saved_threads_ = at::get_num_threads();
+  const int per = std::max(1, saved_threads_ / replicas);
+  at::set_num_threads(per);
+  const torch::Device device = model_->parameters().front().device();
+  for (int k = 1; k < replicas; ++k) {
+    Denoiser copy(model_->config());
+    copy->to(device);
+    copy->set_memory_format(model_->memory_format());
+    copies_.push_back(copy);
+    workers_.push_back(std::make_unique<Worker>(per));
+  }
+}
+
+StepRunner::~StepRunner() {
+  workers_.clear();  // joins the threads
+  if (saved_threads_ > 0) at::set_num_threads(saved_threads_);
+}
+
+StepOutcome StepRunner::run(const Batch& batch, const LossConfig& loss, const torch::Tensor& kernel,
+                            const std::function<torch::Tensor(const torch::Tensor&)>& hook) {
+  if (copies_.empty()) return compute_gradients(model_, batch, loss, kernel, hook);
+  const int r = replicas();
+  const int64_t b = batch.input.size(0);
+  DOFARM_CHECK(b >= r);
+  std::vector<int64_t> begin(static_cast<size_t>(r) + 1);
+  for (int k = 0; k <= r; ++k) begin[size_t(k)] = b * k / r;
+  auto part = [&](int k) {
+    Batch p;
+    p.input = batch.input.narrow(0, begin[size_t(k)], begin[size_t(k) + 1] - begin[size_t(k)]);
+    p.target = batch.target.narrow(0, begin[size_t(k)], begin[size_t(k) + 1] - begin[size_t(k)]);
+    return p;
+  };
+  const std::vector<torch::Tensor> params = model_->parameters();
+  std::vector<StepOutcome> out(static_cast<size_t>(r));
+  for (int k = 1; k < r; ++k) {
+    workers_[size_t(k) - 1]->start([&, k] {
+      Denoiser& copy = copies_[size_t(k) - 1];
+      {
+        torch::NoGradGuard no_grad;  // the replica takes the model's current weights
+        std::vector<torch::Tensor> dst = copy->parameters();
+        for (size_t i = 0; i < params.size(); ++i) dst[i].copy_(params[i]);
+      }
+      out[size_t(k)] = compute_gradients(copy, part(k), loss, kernel, hook);
+    });
+  }
+  std::exception_ptr error;
+  try {
+    out[0] = compute_gradients(model_, part(0), loss, kernel, hook);
+  } catch (...) {
+    error = std::current_exception();
+  }
+  for (auto& w : workers_) {
+    try {
+      w->wait();
+    } catch (...) {
+      if (!error) error = std::current_exception();
+    }
+  }
+  if (error) std::rethrow_exception(error);
+
+  StepOutcome total;
+  total.finite = true;
+  for (int k = 0; k < r; ++k) {
+    const double weight = double(begin[size_t(k) + 1] - begin[size_t(k)]) / double(b);
+    total.loss += weight * out[size_t(k)].loss;
+    total.finite = total.finite && out[size_t(k)].finite;
+  }
+  if (!total.finite) return total;
+  // g = sum_k (n_k / n) g_k, in replica order.
+  torch::NoGradGuard no_grad;
+  std::vector<std::vector<torch::Tensor>> copy_params;
+  for (auto& c : copies_) copy_params.push_back(c->parameters());
+  std::vector<torch::Tensor> finite;
+  for (size_t i = 0; i < params.size(); ++i) {
+    torch::Tensor g = params[i].grad();
+    if (!g.defined()) continue;
+    g.mul_(double(begin[1] - begin[0]) / double(b));
+    for (int k = 1; k < r; ++k) {
+      const double weight = double(begin[size_t(k) + 1] - begin[size_t(k)]) / double(b);
+      g.add_(copy_params[size_t(k) - 1][i].grad(), weight);
+    }
+    finite.push_back(torch::isfinite(g).all());
+  }
+  total.finite = finite.empty() || torch::stack(finite).all().item<bool>();
+  return total;
+}
+
 void keep_freed_memory() {
   // 32 MiB is glibc's largest mmap threshold; the largest activation of the
   // thesis model at 4 x 7 x 64^2 is 16.5 MB.
@@ -284,6 +442,11 @@ TrainResult train(const TrainOptions& opt_in) {
   const int64_t total_steps = int64_t(cfg.train.epochs) * cfg.train.steps_per_epoch;
   Progress progress("train", std::max<int64_t>(0, total_steps - st.step));
   BatchPrefetcher batches(stream, cfg.train.batch, device, format);
+  const int threads = at::get_num_threads();
+  StepRunner runner(model, step_replicas(cfg.train.cpu_replicas, device, threads, cfg.train.batch));
+  if (runner.replicas() > 1)
+    spdlog::info("training step split across {} model replicas, {} intra-op thread(s) each",
+                 runner.replicas(), std::max(1, threads / runner.replicas()));
   while (st.epoch < cfg.train.epochs) {
     auto t0 = std::chrono::steady_clock::now();
     model->train();
@@ -302,7 +465,7 @@ TrainResult train(const TrainOptions& opt_in) {
       std::function<torch::Tensor(const torch::Tensor&)> hook;
       if (opt_in.loss_hook)
         hook = [&](const torch::Tensor& l) { return opt_in.loss_hook(st.step, l); };
-      const StepOutcome outcome = compute_gradients(model, batch, cfg.loss, kernel, hook);
+      const StepOutcome outcome = runner.run(batch, cfg.loss, kernel, hook);
       const double loss_value = outcome.loss;
       const bool ok = outcome.finite;
       ++st.step;

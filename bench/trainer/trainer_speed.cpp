@@ -6,7 +6,10 @@
 // never asserts.
 //
 //   trainer_speed [--reps N] [--models all|dof] [--formats nchw,nhwc] [--no-infer]
-//                 [--loop SHARD.h5 [--steps N] [--readers N] [--only-loop]]
+//                 [--replicas N] [--loop SHARD.h5 [--steps N] [--readers N] [--only-loop]]
+//
+// Training steps run as dofarm-train runs them, through StepRunner with
+// --replicas model copies (0, the default, = train.cpu_replicas's auto).
 //
 // --loop: the DOF model trained on SHARD with the data path of dofarm-train
 // (SequenceStream readers, BatchPrefetcher, compute_gradients, Adam), the
@@ -75,7 +78,12 @@ struct Options {
   std::string loop_shard;
   int steps = 20;
   int readers = 2;
+  int replicas = 0;  // train.cpu_replicas
 };
+
+int replicas_for(const Options& o, torch::Device dev) {
+  return step_replicas(o.replicas, dev, torch::get_num_threads(), 4);
+}
 
 void kernels(const Options& o, torch::Device dev) {
   std::printf(
@@ -117,10 +125,11 @@ void kernels(const Options& o, torch::Device dev) {
                         .view({4, 7, mc.input_channels(), 64, 64});
       batch.target = torch::rand({28, 3, 64, 64}, dev).contiguous(fmt).view({4, 7, 3, 64, 64});
       double best = 0;
+      StepRunner runner(m, replicas_for(o, dev));
       double step = median_seconds(
           o.reps, dev,
           [&] {
-            compute_gradients(m, batch, lc, kernel);
+            runner.run(batch, lc, kernel);
             opt.step();
           },
           &best);
@@ -156,9 +165,10 @@ void loop(const Options& o, torch::Device dev) {
     torch::Tensor kernel = log_kernel(cfg.loss.log_sigma).to(dev);
     SequenceStream stream(dir / "data", dir / "run", cfg.data, cfg.model.dof, cfg.train.seed);
     BatchPrefetcher batches(stream, cfg.train.batch, dev, fmt);
+    StepRunner runner(m, replicas_for(o, dev));
     auto step = [&] {
       Batch b = batches.next();
-      compute_gradients(m, b, cfg.loss, kernel);
+      runner.run(b, cfg.loss, kernel);
       opt.step();
       sync(dev);
     };
@@ -199,6 +209,8 @@ int main(int argc, char** argv) {
       for (std::string f; std::getline(ss, f, ',');)
         o.formats.push_back(f == "nhwc" ? torch::MemoryFormat::ChannelsLast
                                         : torch::MemoryFormat::Contiguous);
+    } else if (k == "--replicas") {
+      o.replicas = std::max(0, std::atoi(value().c_str()));
     } else if (k == "--loop") {
       o.loop_shard = value();
     } else if (k == "--steps") {
@@ -208,15 +220,17 @@ int main(int argc, char** argv) {
     } else {
       std::fprintf(stderr,
                    "usage: trainer_speed [--reps N] [--models all|dof] [--formats nchw,nhwc] "
-                   "[--no-infer] [--loop SHARD.h5 [--steps N] [--readers N] [--only-loop]]\n");
+                   "[--no-infer] [--replicas N] [--loop SHARD.h5 [--steps N] [--readers N] "
+                   "[--only-loop]]\n");
       return 2;
     }
   }
   spdlog::set_level(spdlog::level::warn);
   keep_freed_memory();  // as train() does
   const torch::Device dev = pick_device("auto");
-  std::printf("device %s, %d intra-op threads, median of %d\n\n", dev.str().c_str(),
-              torch::get_num_threads(), o.reps);
+  std::printf(
+      "device %s, %d intra-op threads, training steps on %d model replica(s), median of %d\n\n",
+      dev.str().c_str(), torch::get_num_threads(), replicas_for(o, dev), o.reps);
   if (o.kernels) kernels(o, dev);
   if (!o.loop_shard.empty()) loop(o, dev);
   return 0;
