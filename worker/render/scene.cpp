@@ -152,6 +152,8 @@ RayCount thread_ray_count() { return t_rays; }
 
 bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
   ++t_rays.closest;
+  if (ray_sink_) [[unlikely]]
+    ray_sink_->record({ray.o, ray.d, std::numeric_limits<float>::infinity(), false});
   RTCIntersectContext ctx;
   rtcInitIntersectContext(&ctx);
   RTCRayHit rh;
@@ -203,6 +205,8 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
 
 bool Scene::occluded(Vec3 origin, Vec3 dir, float t_max) const {
   ++t_rays.shadow;
+  if (ray_sink_) [[unlikely]]
+    ray_sink_->record({origin, dir, t_max, true});
   RTCIntersectContext ctx;
   rtcInitIntersectContext(&ctx);
   RTCRay r = embree_ray(origin, dir, t_max);

@@ -28,6 +28,23 @@ struct SurfaceHit {
   Vec3 emission;  // radiance leaving the surface (both faces emit)
 };
 
+// One ray as the renderer asked Scene for it: a closest-hit query over
+// [0, inf) or a shadow query over [0, t_max].
+struct TracedRay {
+  Vec3 o, d;
+  float t_max = 0;
+  bool shadow = false;
+};
+
+// Receives every ray Scene traces while it is set (benchmarks replay a
+// render's own rays, bench/render_throughput). Called from every render
+// thread at once: implementations synchronise themselves.
+class RaySink {
+ public:
+  virtual ~RaySink() = default;
+  virtual void record(const TracedRay& ray) = 0;
+};
+
 struct LightSample {
   Vec3 wi;             // towards the light
   float distance = 0;  // to the light point (infinity for the environment)
@@ -63,6 +80,12 @@ class Scene {
   float radius() const { return radius_; }
   Vec3 center() const { return center_; }
 
+  // Off (null) by default, then it costs one pointer test per ray. Not to be
+  // changed while a render uses the scene.
+  void set_ray_sink(RaySink* sink) { ray_sink_ = sink; }
+  // The Embree scene, for benchmarks that trace with bare rtcIntersect1.
+  RTCScene embree_scene() const { return rtc_scene_; }
+
  private:
   Vec3 material_emission(const Material& m, Vec2 uv) const;
   float triangle_area(uint32_t prim) const;
@@ -83,6 +106,7 @@ class Scene {
   Vec3 center_{0};
   float radius_ = 1;
   float offset_scale_ = 1e-4f;
+  RaySink* ray_sink_ = nullptr;
 };
 
 // Rays traced by the calling thread so far (closest-hit and shadow rays);
