@@ -1,6 +1,7 @@
 #include "worker/render/distribution.h"
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 
 namespace dofarm::render {
@@ -22,15 +23,30 @@ Distribution1D::Distribution1D(std::vector<float> weights) : func_(std::move(wei
     for (size_t i = 1; i <= n; ++i) cdf_[i] /= integral_;
   }
   if (n > 0) cdf_[n] = 1.0;
+
+  if (n == 0) return;
+  size_t m = std::bit_ceil(n);
+  guide_.resize(m);
+  size_t i = 0;
+  for (size_t k = 0; k < m; ++k) {
+    const double start = double(k) / double(m);
+    while (i + 1 < n && cdf_[i + 1] <= start) ++i;
+    guide_[k] = uint32_t(i);
+  }
 }
 
 size_t Distribution1D::find_cell(float u) const {
-  // Largest i with cdf_[i] <= u, restricted to [0, n-1].
-  auto it = std::upper_bound(cdf_.begin(), cdf_.end(), double(u));
-  size_t i = size_t(std::max<std::ptrdiff_t>(0, (it - cdf_.begin()) - 1));
-  i = std::min(i, func_.size() - 1);
-  // Skip zero-probability cells that upper_bound can land on when u == cdf.
-  while (i + 1 < func_.size() && cdf_[i + 1] <= cdf_[i]) ++i;
+  // Largest i with cdf_[i] <= u, restricted to [0, n-1]: from the guide
+  // entry of u's bucket forwards (the entry's cdf is <= k/m <= u; the
+  // backward step only matters for u < 0, which the guide maps to bucket 0).
+  const size_t n = func_.size();
+  const double ud = double(u);
+  const double x = ud * double(guide_.size());
+  size_t i = guide_[x > 0 ? std::min(guide_.size() - 1, size_t(x)) : 0];
+  while (i > 0 && cdf_[i] > ud) --i;
+  while (i + 1 < n && cdf_[i + 1] <= ud) ++i;
+  // Skip zero-probability cells that the clamps above can land on.
+  while (i + 1 < n && cdf_[i + 1] <= cdf_[i]) ++i;
   return i;
 }
 

@@ -1,8 +1,14 @@
 // Piecewise-constant 1D and 2D distributions for importance sampling (light
-// selection by power, environment maps). pbrt-v3 section 13.6.
+// selection by power, environment maps). pbrt-v3 section 13.6. Sampling
+// inverts the CDF (so stratified sample points stay stratified); the cell is
+// found through a guide table (Chen and Asau 1974, "On generating random
+// variates from an empirical distribution"; Devroye 1986, "Non-Uniform Random
+// Variate Generation", sec. III.2.4) in O(1) expected steps, and it is
+// exactly the cell a binary search of the CDF would find.
 #pragma once
 
 #include <cstddef>
+#include <cstdint>
 #include <vector>
 
 #include "common/math.h"
@@ -30,6 +36,10 @@ class Distribution1D {
   size_t find_cell(float u) const;
   std::vector<float> func_;
   std::vector<double> cdf_;  // size n+1, cdf_[n] = 1
+  // m = a power of two >= n entries (so k / m and u * m are exact); guide_[k]
+  // is the last cell i < n with cdf_[i] <= k / m: where the search for any u
+  // in [k/m, (k+1)/m) starts.
+  std::vector<uint32_t> guide_;
   double integral_ = 0;
 };
 

@@ -16,14 +16,14 @@ Environment::Environment(Vec3 c) : constant_(c) {
 }
 
 Environment::Environment(RgbImage image, float intensity, float rotation_deg)
-    : image_(std::move(image)), rotation_(rotation_deg * kPi / 180.0f) {
-  const int w = image_.width, h = image_.height;
+    : width_(image.width), height_(image.height), rotation_(rotation_deg * kPi / 180.0f) {
+  const int w = width_, h = height_;
   std::vector<float> weights(size_t(w) * h);
   double sum = 0, solid_angle = 0;
   for (int y = 0; y < h; ++y) {
     float sin_theta = std::sin(kPi * (float(y) + 0.5f) / float(h));
     for (int x = 0; x < w; ++x) {
-      float* t = &image_.rgb[(size_t(y) * w + x) * 3];
+      float* t = &image.rgb[(size_t(y) * w + x) * 3];
       for (int c = 0; c < 3; ++c) {
         float v = t[c] * intensity;
         t[c] = std::isfinite(v) && v > 0 ? v : 0.0f;  // no NaN, Inf or negative light
@@ -36,6 +36,16 @@ Environment::Environment(RgbImage image, float intensity, float rotation_deg)
   }
   mean_luminance_ = solid_angle > 0 ? float(sum / solid_angle) : 0.0f;
   distribution_ = Distribution2D(weights, w, h);
+  // The pdf is constant over a texel: Distribution2D::pdf at its centre is the
+  // value it gives anywhere inside it.
+  texels_.resize(size_t(w) * h);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      const size_t i = size_t(y) * w + x;
+      const Vec2 centre((float(x) + 0.5f) / float(w), (float(y) + 0.5f) / float(h));
+      texels_[i] = {image.rgb[i * 3], image.rgb[i * 3 + 1], image.rgb[i * 3 + 2],
+                    distribution_.pdf(centre)};
+    }
 }
 
 Vec2 Environment::dir_to_uv(Vec3 d) const {
@@ -52,21 +62,33 @@ Vec3 Environment::uv_to_dir(Vec2 uv) const {
   return {st * std::sin(phi), std::cos(theta), -st * std::cos(phi)};
 }
 
-Vec3 Environment::texel(Vec2 uv) const {
-  int x = std::clamp(int(uv.x * float(image_.width)), 0, image_.width - 1);
-  int y = std::clamp(int(uv.y * float(image_.height)), 0, image_.height - 1);
-  const float* t = &image_.rgb[(size_t(y) * image_.width + x) * 3];
-  return {t[0], t[1], t[2]};
+const Environment::Texel& Environment::texel(Vec2 uv) const {
+  int x = std::clamp(int(uv.x * float(width_)), 0, width_ - 1);
+  int y = std::clamp(int(uv.y * float(height_)), 0, height_ - 1);
+  return texels_[size_t(y) * width_ + x];
 }
 
 Vec3 Environment::eval(Vec3 dir) const {
-  if (image_.rgb.empty()) return constant_;
-  return texel(dir_to_uv(dir));
+  if (texels_.empty()) return constant_;
+  const Texel& t = texel(dir_to_uv(dir));
+  return {t.r, t.g, t.b};
+}
+
+Vec3 Environment::eval(Vec3 dir, float* pdf_out) const {
+  if (texels_.empty()) {
+    *pdf_out = 1.0f / (4.0f * kPi);
+    return constant_;
+  }
+  const Vec2 uv = dir_to_uv(dir);
+  const Texel& t = texel(uv);
+  const float sin_theta = std::sin(uv.y * kPi);
+  *pdf_out = sin_theta <= 0 ? 0.0f : t.pdf_uv / (2.0f * kPi * kPi * sin_theta);
+  return {t.r, t.g, t.b};
 }
 
 EnvSample Environment::sample(Vec2 u) const {
   EnvSample s;
-  if (image_.rgb.empty()) {  // uniform sphere
+  if (texels_.empty()) {  // uniform sphere
     float z = 1.0f - 2.0f * u.x, r = safe_sqrt(1.0f - z * z), phi = kTwoPi * u.y;
     s.wi = Vec3(r * std::cos(phi), z, r * std::sin(phi));
     s.radiance = constant_;
@@ -78,17 +100,16 @@ EnvSample Environment::sample(Vec2 u) const {
   float sin_theta = std::sin(uv.y * kPi);
   if (pdf_uv <= 0 || sin_theta <= 0) return s;  // pdf 0: the caller skips it
   s.wi = uv_to_dir(uv);
-  s.radiance = texel(uv);
+  const Texel& t = texel(uv);
+  s.radiance = Vec3(t.r, t.g, t.b);
   s.pdf = pdf_uv / (2.0f * kPi * kPi * sin_theta);
   return s;
 }
 
 float Environment::pdf(Vec3 dir) const {
-  if (image_.rgb.empty()) return 1.0f / (4.0f * kPi);
-  Vec2 uv = dir_to_uv(dir);
-  float sin_theta = std::sin(uv.y * kPi);
-  if (sin_theta <= 0) return 0;
-  return distribution_.pdf(uv) / (2.0f * kPi * kPi * sin_theta);
+  float p;
+  eval(dir, &p);
+  return p;
 }
 
 }  // namespace dofarm::render

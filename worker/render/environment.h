@@ -9,6 +9,7 @@
 #pragma once
 
 #include <memory>
+#include <vector>
 
 #include "common/exr_io.h"
 #include "common/jobspec.h"
@@ -33,6 +34,9 @@ class Environment {
   Vec3 eval(Vec3 dir) const;
   EnvSample sample(Vec2 u) const;
   float pdf(Vec3 dir) const;
+  // eval() and pdf() at once, from one direction-to-texel mapping and one
+  // memory access (an escaped ray under MIS needs both).
+  Vec3 eval(Vec3 dir, float* pdf) const;
   // Mean radiance luminance over the sphere (for light selection by power).
   float mean_luminance() const { return mean_luminance_; }
   bool is_black() const { return mean_luminance_ <= 0; }
@@ -40,9 +44,16 @@ class Environment {
  private:
   Vec2 dir_to_uv(Vec3 d) const;
   Vec3 uv_to_dir(Vec2 uv) const;
-  Vec3 texel(Vec2 uv) const;
+  // Radiance and the sampling pdf over the unit square of one texel, side
+  // by side: one cache line serves both.
+  struct Texel {
+    float r, g, b;
+    float pdf_uv;
+  };
+  const Texel& texel(Vec2 uv) const;
 
-  RgbImage image_;  // empty for a constant environment
+  int width_ = 0, height_ = 0;
+  std::vector<Texel> texels_;  // row 0 = top; empty for a constant environment
   Vec3 constant_{0};
   float rotation_ = 0;  // radians
   Distribution2D distribution_;

@@ -41,10 +41,15 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
 
     if (!found) {
       if (env && (delta_bounce || use_bsdf_hits)) {
-        Vec3 le = env->eval(ray.d);
         float w = 1.0f;
-        if (!delta_bounce && use_mis)
-          w = power_heuristic(prev_bsdf_pdf, scene.environment_pdf(ray.d));
+        Vec3 le;
+        if (!delta_bounce && use_mis) {
+          float light_pdf;
+          le = scene.environment_radiance(ray.d, &light_pdf);
+          w = power_heuristic(prev_bsdf_pdf, light_pdf);
+        } else {
+          le = env->eval(ray.d);
+        }
         L += beta * le * w;
       }
       break;

@@ -268,6 +268,12 @@ float Scene::environment_pdf(Vec3 dir) const {
   return env_sampled_ ? env_select_pmf_ * environment_->pdf(dir) : 0.0f;
 }
 
+Vec3 Scene::environment_radiance(Vec3 dir, float* pdf) const {
+  Vec3 le = environment_->eval(dir, pdf);
+  *pdf = env_sampled_ ? env_select_pmf_ * *pdf : 0.0f;
+  return le;
+}
+
 std::shared_ptr<const Scene> load_scene(const JobSpec& spec) {
   SceneData data = load_scene_data(spec.scene);
   std::unique_ptr<Environment> env;

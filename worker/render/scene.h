@@ -76,6 +76,9 @@ class Scene {
   // emissive triangle) from `from`.
   float light_pdf(Vec3 from, const SurfaceHit& hit) const;
   float environment_pdf(Vec3 dir) const;  // includes the selection probability
+  // The environment's radiance towards `dir` (which must have one) and
+  // environment_pdf(dir), from one lookup.
+  Vec3 environment_radiance(Vec3 dir, float* pdf) const;
 
   float radius() const { return radius_; }
   Vec3 center() const { return center_; }

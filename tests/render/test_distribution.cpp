@@ -1,0 +1,218 @@
+// Piecewise-constant distributions and the environment light's sampling:
+// every sampler delivers the density its pdf claims, and the guide-table
+// search finds the cell of a plain CDF inversion.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+#include <vector>
+
+#include "chi2.h"
+#include "worker/render/distribution.h"
+#include "worker/render/environment.h"
+
+namespace dofarm::render {
+namespace {
+
+// Weights with what breaks searches: zero runs at both ends and inside, one
+// heavy cell, a size that is not a power of two.
+std::vector<std::vector<float>> awkward_weights() {
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> uni(0.0f, 1.0f);
+  std::vector<float> random(1000);
+  for (float& w : random) w = uni(rng) < 0.3f ? 0.0f : uni(rng);
+  std::vector<float> peaked(513, 1e-3f);
+  peaked[200] = 1e4f;
+  return {{1.0f},
+          {0.0f, 0.0f, 2.0f, 0.0f, 1.0f, 0.0f, 0.0f},
+          {3.0f, 0.0f, 0.0f, 0.0f, 0.0f, 1.0f},
+          {0.0f, 0.0f, 0.0f},  // all zero: uniform
+          random,
+          peaked};
+}
+
+// The discrete pmf is the probability that sample_discrete() picks the cell:
+// on a fine uniform grid of u the share of each cell equals its pmf to the
+// grid step, the cell never decreases with u (inversion, which keeps
+// stratified points stratified), and a zero cell is never picked.
+TEST(Distribution1D, DiscreteSamplesFollowThePmfAndAreMonotone) {
+  constexpr int kGrid = 1 << 20;
+  for (const auto& w : awkward_weights()) {
+    Distribution1D dist(w);
+    std::vector<double> count(w.size(), 0.0);
+    size_t last = 0;
+    for (int k = 0; k < kGrid; ++k) {
+      const float u = float(k) / float(kGrid);
+      float pmf, remapped;
+      const size_t i = dist.sample_discrete(u, &pmf, &remapped);
+      ASSERT_LT(i, w.size());
+      ASSERT_GE(i, last) << "u = " << u;
+      ASSERT_GT(pmf, 0.0f) << "picked a zero cell " << i << " at u = " << u;
+      ASSERT_EQ(pmf, dist.pmf(i));
+      ASSERT_GE(remapped, 0.0f);
+      ASSERT_LT(remapped, 1.0f);
+      last = i;
+      count[i] += 1;
+    }
+    double pmf_sum = 0;
+    for (size_t i = 0; i < w.size(); ++i) {
+      EXPECT_NEAR(count[i] / kGrid, dist.pmf(i), 2.0 / kGrid) << "cell " << i << " of " << w.size();
+      pmf_sum += dist.pmf(i);
+    }
+    EXPECT_NEAR(pmf_sum, 1.0, 1e-6);
+  }
+}
+
+// The guide table must land where a binary search of the CDF lands, also
+// exactly on cell boundaries and at the ends of [0, 1).
+TEST(Distribution1D, GuideTableFindsTheCellOfABinarySearch) {
+  for (const auto& w : awkward_weights()) {
+    Distribution1D dist(w);
+    // The CDF as the pmfs give it; a boundary u = cdf[i] belongs to the first
+    // non-empty cell at or after i.
+    std::vector<double> cdf(w.size() + 1, 0.0);
+    for (size_t i = 0; i < w.size(); ++i) cdf[i + 1] = cdf[i] + dist.pmf(i);
+    std::vector<float> us = {0.0f, 0x1.fffffep-1f, 0.5f, 0.25f, 0.75f};
+    for (size_t i = 0; i <= w.size(); ++i) {
+      float c = float(cdf[i]);
+      for (float v : {c, std::nextafter(c, 0.0f), std::nextafter(c, 1.0f)})
+        if (v >= 0.0f && v < 1.0f) us.push_back(v);
+    }
+    for (float u : us) {
+      const size_t i = dist.sample_discrete(u, nullptr);
+      const float x = dist.sample_continuous(u, nullptr);
+      EXPECT_GT(dist.pmf(i), 0.0f) << "u = " << u;
+      // Within the cell's own [start, end), up to the float rounding of the
+      // pmf sums above.
+      EXPECT_GE(double(u), cdf[i] - 1e-6) << "u = " << u << ", cell " << i;
+      EXPECT_LE(double(u), cdf[i + 1] + 1e-6) << "u = " << u << ", cell " << i;
+      EXPECT_GE(x, float(i) / float(w.size()) - 1e-6f);
+      EXPECT_LE(x, float(i + 1) / float(w.size()) + 1e-6f);
+    }
+  }
+}
+
+// Continuous samples: a histogram over bins finer than the cells against the
+// integral of pdf() over each bin (piecewise constant, so exact per bin).
+TEST(Distribution1D, ContinuousSamplesFollowThePdf) {
+  std::vector<float> w = {0.0f, 1.0f, 4.0f, 0.0f, 0.5f, 2.0f, 0.0f};
+  Distribution1D dist(w);
+  constexpr int kBinsPerCell = 8, kSamples = 400000;
+  const int bins = int(w.size()) * kBinsPerCell;
+  std::vector<double> observed(bins, 0.0);
+  std::mt19937_64 rng(11);
+  for (int s = 0; s < kSamples; ++s) {
+    const float u = float(rng() >> 40) * 0x1p-24f;
+    float pdf;
+    const float x = dist.sample_continuous(u, &pdf);
+    ASSERT_GE(x, 0.0f);
+    ASSERT_LT(x, 1.0f);
+    ASSERT_FLOAT_EQ(pdf, dist.pdf(x));
+    observed[std::min(bins - 1, int(x * float(bins)))] += 1;
+  }
+  double stat = 0, integral = 0;
+  int dof = -1;
+  for (int b = 0; b < bins; ++b) {
+    const double mass = dist.pdf((float(b) + 0.5f) / float(bins)) / bins;
+    integral += mass;
+    if (mass == 0) {
+      EXPECT_EQ(observed[b], 0) << "bin " << b << " has no density but got samples";
+      continue;
+    }
+    const double e = mass * kSamples;
+    stat += (observed[b] - e) * (observed[b] - e) / e;
+    ++dof;
+  }
+  EXPECT_NEAR(integral, 1.0, 1e-6);
+  EXPECT_GT(test::chi2_p_value(stat, dof), 1e-4) << "chi2 = " << stat << ", dof = " << dof;
+}
+
+// Over the unit square: sample() delivers pdf() (chi-square over the cells),
+// the pdf it reports is pdf() at the sample, and pdf() integrates to 1.
+TEST(Distribution2D, SamplesFollowThePdf) {
+  constexpr int nu = 12, nv = 7, kSamples = 400000;
+  std::vector<float> w(nu * nv);
+  std::mt19937 gen(5);
+  std::uniform_real_distribution<float> uni(0.0f, 1.0f);
+  for (float& x : w) x = uni(gen) < 0.2f ? 0.0f : uni(gen) * uni(gen);
+  Distribution2D dist(w, nu, nv);
+  std::vector<double> observed(nu * nv, 0.0);
+  std::mt19937_64 rng(17);
+  auto uniform = [&] { return float(rng() >> 40) * 0x1p-24f; };
+  for (int s = 0; s < kSamples; ++s) {
+    Vec2 u(uniform(), uniform());
+    float pdf;
+    Vec2 p = dist.sample(u, &pdf);
+    ASSERT_GT(pdf, 0.0f);
+    ASSERT_FLOAT_EQ(pdf, dist.pdf(p));
+    const int x = std::min(nu - 1, int(p.x * nu)), y = std::min(nv - 1, int(p.y * nv));
+    observed[y * nu + x] += 1;
+  }
+  double stat = 0, integral = 0;
+  int dof = -1;
+  for (int y = 0; y < nv; ++y)
+    for (int x = 0; x < nu; ++x) {
+      const double mass = dist.pdf(Vec2((x + 0.5f) / nu, (y + 0.5f) / nv)) / (nu * nv);
+      integral += mass;
+      if (mass == 0) {
+        EXPECT_EQ(observed[y * nu + x], 0) << "cell " << x << "," << y;
+        continue;
+      }
+      const double e = mass * kSamples, o = observed[y * nu + x];
+      stat += (o - e) * (o - e) / e;
+      ++dof;
+    }
+  EXPECT_NEAR(integral, 1.0, 1e-5);
+  EXPECT_GT(test::chi2_p_value(stat, dof), 1e-4) << "chi2 = " << stat << ", dof = " << dof;
+}
+
+RgbImage sky_with_a_sun() {
+  RgbImage img;
+  img.width = 32;
+  img.height = 16;
+  img.rgb.assign(size_t(32) * 16 * 3, 0.0f);
+  for (int y = 0; y < 16; ++y)
+    for (int x = 0; x < 32; ++x)
+      for (int c = 0; c < 3; ++c) img.rgb[(size_t(y) * 32 + x) * 3 + c] = 0.1f + 0.05f * (x % 5);
+  for (int y = 12; y < 16; ++y)  // a black ground: no samples may go there
+    for (int x = 0; x < 32; ++x)
+      for (int c = 0; c < 3; ++c) img.rgb[(size_t(y) * 32 + x) * 3 + c] = 0.0f;
+  for (int c = 0; c < 3; ++c) img.rgb[(size_t(3) * 32 + 20) * 3 + c] = 200.0f;
+  return img;
+}
+
+// The environment's directions have the solid-angle density pdf() claims,
+// which integrates to 1 over the sphere; the two-output eval() agrees with
+// eval() and pdf(); a sample's radiance and pdf are those of its direction.
+TEST(Environment, SamplesFollowThePdfOverTheSphere) {
+  const Environment env(sky_with_a_sun(), 1.0f, 30.0f);
+  test::Chi2Options opt;
+  opt.cells = test::SphereCells{Vec3(0, 1, 0), 0.0, 24, 48};
+  opt.samples = 300000;
+  auto sample = [&](Vec2 u) -> std::optional<Vec3> {
+    EnvSample s = env.sample(u);
+    if (!(s.pdf > 0)) return std::nullopt;
+    return s.wi;
+  };
+  auto pdf = [&](Vec3 d) { return env.pdf(d); };
+  test::Chi2Result r = test::chi2_test(sample, pdf, opt);
+  EXPECT_NEAR(r.pdf_integral, 1.0, 2e-3) << r.summary();
+  EXPECT_GT(r.p_value, 1e-4) << r.summary();
+  EXPECT_EQ(r.outside_support, 0) << r.summary();
+
+  std::mt19937_64 rng(23);
+  auto uniform = [&] { return float(rng() >> 40) * 0x1p-24f; };
+  for (int i = 0; i < 2000; ++i) {
+    EnvSample s = env.sample(Vec2(uniform(), uniform()));
+    ASSERT_GT(s.pdf, 0.0f);
+    float p;
+    Vec3 le = env.eval(s.wi, &p);
+    EXPECT_NEAR(p, s.pdf, 2e-3f * s.pdf);
+    EXPECT_EQ(le.x, env.eval(s.wi).x);
+    EXPECT_EQ(p, env.pdf(s.wi));
+    EXPECT_NEAR(s.radiance.x, le.x, 1e-6f);
+  }
+}
+
+}  // namespace
+}  // namespace dofarm::render
