@@ -15,6 +15,7 @@ Bsdf::Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, f
   f0_ = lerp(dielectric_f0, base_color, metallic);
   diffuse_color_ = base_color * (1.0f - metallic);
   diffuse_weight_ = max_component(diffuse_color_);
+  diffuse_luminance_ = luminance(diffuse_color_);
   alpha_ = ggx::alpha_from_roughness(roughness);
   delta_specular_ = roughness * roughness < ggx::kDeltaAlpha;
   // IOR 1 (F0 = 0) is no interface at all: Schlick's curve would still rise
@@ -22,40 +23,65 @@ Bsdf::Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, f
   has_specular_ = max_component(f0_) > 0;
 }
 
-float Bsdf::specular_probability(Vec3 wo) const {
-  if (!has_specular_) return 0.0f;
-  if (diffuse_weight_ <= 0) return 1.0f;
-  float fs = luminance(ggx::fresnel_schlick(f0_, wo.z));
-  float fd = luminance(diffuse_color_) * (1.0f - fs);
-  return std::clamp(fs / (fs + fd), 0.05f, 0.95f);
+Bsdf::Outgoing Bsdf::outgoing(Vec3 wo_w) const {
+  Outgoing o;
+  o.wo = frame_.to_local(wo_w);
+  o.valid = o.wo.z > 0 && dot(wo_w, ng_) > 0;
+  if (!o.valid) return o;
+  if (has_specular_) {
+    const Vec3 f = ggx::fresnel_schlick(f0_, o.wo.z);
+    o.fresnel = f;
+    if (diffuse_weight_ <= 0) {
+      o.specular_prob = 1.0f;
+    } else {
+      // The lobes' shares of the reflected energy at this wo, bounded away
+      // from 0 and 1 so that neither lobe is ever starved.
+      const float fs = luminance(f);
+      const float fd = diffuse_luminance_ * (1.0f - fs);
+      o.specular_prob = std::clamp(fs / (fs + fd), 0.05f, 0.95f);
+    }
+    if (!delta_specular_) o.smith_r = ggx::smith_r(o.wo, alpha_);
+  }
+  return o;
 }
 
-Vec3 Bsdf::evaluate(Vec3 wo_w, Vec3 wi_w, float* pdf_out) const {
-  *pdf_out = 0;
-  // Reflection only: both directions above the geometric surface, so light
-  // never leaks through a surface because of a bent shading normal.
-  if (dot(wi_w, ng_) <= 0 || dot(wo_w, ng_) <= 0) return Vec3(0);
-  Vec3 wo = frame_.to_local(wo_w), wi = frame_.to_local(wi_w);
-  if (wo.z <= 0 || wi.z <= 0) return Vec3(0);
-  const float ps = specular_probability(wo);
+Vec3 Bsdf::evaluate_local(const Outgoing& o, Vec3 wi, float* pdf_out) const {
+  const Vec3 wo = o.wo;
+  const float ps = o.specular_prob;
   Vec3 f(0);
   float p = (1.0f - ps) * wi.z * kInvPi;
   if (diffuse_weight_ > 0) {
     Vec3 t(1);
-    if (has_specular_)
-      t = (Vec3(1) - ggx::fresnel_schlick(f0_, wo.z)) * (Vec3(1) - ggx::fresnel_schlick(f0_, wi.z));
+    if (has_specular_) t = (Vec3(1) - o.fresnel) * (Vec3(1) - ggx::fresnel_schlick(f0_, wi.z));
     f += diffuse_color_ * t * (kInvPi * wi.z);
   }
   if (has_specular_ && !delta_specular_) {
-    Vec3 h = normalize(wo + wi);
-    float d = ggx::D(h, alpha_), g = ggx::G2(wo, wi, alpha_);
-    float wo_h = dot(wo, h);
-    Vec3 fr = ggx::fresnel_schlick(f0_, wo_h);
+    const Vec3 h = normalize(wo + wi);
+    const float d = ggx::D(h, alpha_);
+    const float g = ggx::G2_from_r(wo.z, o.smith_r, wi.z, ggx::smith_r(wi, alpha_));
+    const float wo_h = dot(wo, h);
+    const Vec3 fr = ggx::fresnel_schlick(f0_, wo_h);
     f += fr * (d * g / (4.0f * wo.z));  // times cos(wi) / cos(wi) cancels
-    if (wo_h > 0) p += ps * ggx::pdf_vndf(wo, h, alpha_) / (4.0f * wo_h);
+    // VNDF pdf of h (Heitz 2018: 2 (wo.h) D / (wo.z + r)) times the
+    // reflection Jacobian 1 / (4 wo.h): wo.h cancels.
+    if (wo_h > 0) p += ps * d / (2.0f * (wo.z + o.smith_r));
   }
   *pdf_out = p;
   return f;
+}
+
+Vec3 Bsdf::evaluate(const Outgoing& o, Vec3 wi_w, float* pdf_out) const {
+  *pdf_out = 0;
+  // Reflection only: both directions above the geometric surface, so light
+  // never leaks through a surface because of a bent shading normal.
+  if (!o.valid || dot(wi_w, ng_) <= 0) return Vec3(0);
+  const Vec3 wi = frame_.to_local(wi_w);
+  if (wi.z <= 0) return Vec3(0);
+  return evaluate_local(o, wi, pdf_out);
+}
+
+Vec3 Bsdf::evaluate(Vec3 wo_w, Vec3 wi_w, float* pdf_out) const {
+  return evaluate(outgoing(wo_w), wi_w, pdf_out);
 }
 
 Vec3 Bsdf::eval(Vec3 wo, Vec3 wi) const {
@@ -70,17 +96,21 @@ float Bsdf::pdf(Vec3 wo, Vec3 wi) const {
 }
 
 BsdfSample Bsdf::sample(Vec3 wo_w, float u_lobe, Vec2 u) const {
+  return sample(outgoing(wo_w), u_lobe, u);
+}
+
+BsdfSample Bsdf::sample(const Outgoing& o, float u_lobe, Vec2 u) const {
   BsdfSample s;
-  Vec3 wo = frame_.to_local(wo_w);
-  if (wo.z <= 0 || dot(wo_w, ng_) <= 0) return s;
-  float ps = specular_probability(wo);
+  if (!o.valid) return s;
+  const Vec3 wo = o.wo;
+  const float ps = o.specular_prob;
   Vec3 wi;
   if (u_lobe < ps) {
     if (delta_specular_) {
       wi = Vec3(-wo.x, -wo.y, wo.z);
       s.wi = frame_.to_world(wi);
       if (dot(s.wi, ng_) <= 0) return s;
-      s.weight = ggx::fresnel_schlick(f0_, wo.z) / ps;
+      s.weight = o.fresnel / ps;
       s.is_delta = true;
       s.valid = true;
       return s;
@@ -94,7 +124,8 @@ BsdfSample Bsdf::sample(Vec3 wo_w, float u_lobe, Vec2 u) const {
   }
   if (wi.z <= 0) return s;
   s.wi = frame_.to_world(wi);
-  Vec3 f = evaluate(wo_w, s.wi, &s.pdf);
+  if (dot(s.wi, ng_) <= 0) return s;
+  Vec3 f = evaluate_local(o, wi, &s.pdf);
   if (!(s.pdf > 0)) return s;
   s.weight = f / s.pdf;
   s.valid = is_finite(s.weight);

@@ -26,22 +26,38 @@ class Bsdf {
   // `ns` shading normal, `ng` geometric normal, both facing wo's side.
   Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, float ior);
 
+  // What depends on the outgoing direction alone (its local form, Fresnel,
+  // lobe probability, Smith term), computed once per path vertex and shared
+  // by the light sample's evaluate() and sample().
+  struct Outgoing {
+    Vec3 wo;                   // local
+    Vec3 fresnel;              // F(n.wo), per channel (0 without a specular lobe)
+    float specular_prob = 0;   // of choosing the specular lobe in sample()
+    float smith_r = 0;         // ggx::smith_r(wo, alpha)
+    bool valid = false;        // above both the shading and the geometric surface
+  };
+  Outgoing outgoing(Vec3 wo) const;
+
   Vec3 eval(Vec3 wo, Vec3 wi) const;  // f(wo, wi) * |cos(ns, wi)|, non-delta part
   float pdf(Vec3 wo, Vec3 wi) const;  // of sample(), non-delta part
   // Both at once, sharing the half-vector, D, G and Fresnel terms (NEE needs
   // both for every light sample).
   Vec3 evaluate(Vec3 wo, Vec3 wi, float* pdf) const;
+  Vec3 evaluate(const Outgoing& o, Vec3 wi, float* pdf) const;
   BsdfSample sample(Vec3 wo, float u_lobe, Vec2 u) const;
+  BsdfSample sample(const Outgoing& o, float u_lobe, Vec2 u) const;
   bool has_non_delta() const { return diffuse_weight_ > 0 || (has_specular_ && !delta_specular_); }
 
  private:
-  float specular_probability(Vec3 wo_local) const;
+  // evaluate() with both directions local and above the surfaces.
+  Vec3 evaluate_local(const Outgoing& o, Vec3 wi, float* pdf) const;
   Frame frame_;
   Vec3 ng_;
   Vec3 diffuse_color_;  // (1 - metallic) * base_color
   Vec3 f0_;
   float alpha_;
   float diffuse_weight_;
+  float diffuse_luminance_;
   bool delta_specular_;
   bool has_specular_;
 };

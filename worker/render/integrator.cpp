@@ -71,13 +71,13 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
     const float u_rr = sampler.get1d();
 
     Bsdf bsdf(hit.ns, hit.ng, hit.base_color, hit.metallic, hit.roughness, hit.ior);
-    const Vec3 wo = -ray.d;
+    const Bsdf::Outgoing out = bsdf.outgoing(-ray.d);
 
     if (use_nee && bsdf.has_non_delta()) {
       LightSample ls;
       if (scene.sample_light(hit.p, u_select, u_light, &ls)) {
         float bsdf_pdf;
-        Vec3 f = bsdf.evaluate(wo, ls.wi, &bsdf_pdf);
+        Vec3 f = bsdf.evaluate(out, ls.wi, &bsdf_pdf);
         if (max_component(f) > 0) {
           Vec3 origin = scene.offset_origin(hit, ls.wi);
           float t_max = std::isinf(ls.distance) ? ls.distance : ls.distance * (1.0f - 1e-4f);
@@ -89,7 +89,7 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
       }
     }
 
-    BsdfSample bs = bsdf.sample(wo, u_lobe, u_bsdf);
+    BsdfSample bs = bsdf.sample(out, u_lobe, u_bsdf);
     if (!bs.valid) break;
     beta *= bs.weight;
     if (!(max_component(beta) > 0) || !is_finite(beta)) break;

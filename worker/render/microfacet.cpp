@@ -4,18 +4,7 @@
 
 namespace dofarm::render::ggx {
 
-namespace {
-
-// sin^2 of the polar angle, from x and y rather than 1 - z^2: near the pole
-// 1 - z^2 cancels catastrophically in float, and small alphas live there.
-float sin2(Vec3 w) { return w.x * w.x + w.y * w.y; }
-
-// r = sqrt(z^2 + alpha^2 (x^2 + y^2)). The GGX Smith Lambda
-// (-1 + sqrt(1 + alpha^2 tan^2)) / 2 equals (r - z) / (2 z), so Lambda, G1 and
-// G2 can all be written as ratios of z and r that stay finite at z = 0.
-float smith_r(Vec3 w, float alpha) { return std::sqrt(w.z * w.z + alpha * alpha * sin2(w)); }
-
-}  // namespace
+using detail::sin2;
 
 float alpha_from_roughness(float roughness) {
   // clamp01 maps NaN to 0, so a broken texel becomes a mirror, not a NaN.
@@ -26,16 +15,6 @@ float alpha_from_roughness(float roughness) {
 // alpha_from_roughness never goes below kMinAlpha == kDeltaAlpha, so "<=" is
 // what makes the mirror reachable from glTF roughness 0.
 bool is_delta(float alpha) { return !(alpha > kDeltaAlpha); }
-
-float D(Vec3 h, float alpha) {
-  if (!(h.z > 0.0f)) return 0.0f;
-  // Walter 2007, eq. 33, rewritten with cos^4 (1 + tan^2/alpha^2)^2 =
-  // (sin^2/alpha^2 + cos^2)^2, which has no tan and so no pole at the horizon.
-  float a2 = alpha * alpha;
-  float t = sin2(h) / a2 + h.z * h.z;
-  float d = 1.0f / (kPi * a2 * t * t);
-  return std::isfinite(d) ? d : 0.0f;
-}
 
 float lambda(Vec3 w, float alpha) {
   // Heitz 2014, GGX Lambda. It depends only on the slope of w, so it is defined through |z|; the
@@ -56,15 +35,6 @@ float G1(Vec3 w, float alpha) {
   if (!(w.z > 0.0f)) return 0.0f;
   // 1 / (1 + Lambda) = 2 z / (z + r): finite down to z = 0.
   return std::min(1.0f, 2.0f * w.z / (w.z + smith_r(w, alpha)));
-}
-
-float G2(Vec3 wo, Vec3 wi, float alpha) {
-  if (!(wo.z > 0.0f) || !(wi.z > 0.0f)) return 0.0f;
-  // Heitz 2014, eq. 99: 1 / (1 + Lambda(wo) + Lambda(wi)), multiplied through
-  // by 2 zo zi so that neither Lambda is ever formed (both blow up at grazing).
-  float den = wi.z * smith_r(wo, alpha) + wo.z * smith_r(wi, alpha);
-  if (!(den > 0.0f)) return 0.0f;
-  return std::min(1.0f, 2.0f * wo.z * wi.z / den);
 }
 
 Vec3 sample_vndf(Vec3 wo, float alpha, Vec2 u) {
@@ -89,23 +59,6 @@ Vec3 sample_vndf(Vec3 wo, float alpha, Vec2 u) {
   // (normals transform with the inverse transpose of the stretch).
   Vec3 nh = t1 * p1 + t2 * p2 + vh * safe_sqrt(1.0f - p1 * p1 - p2 * p2);
   return normalize(Vec3(alpha * nh.x, alpha * nh.y, std::max(0.0f, nh.z)));
-}
-
-float pdf_vndf(Vec3 wo, Vec3 h, float alpha) {
-  if (!(wo.z > 0.0f)) return 0.0f;
-  float cos_oh = dot(wo, h);
-  if (!(cos_oh > 0.0f)) return 0.0f;
-  // Heitz 2018, the VNDF: G1(wo) (wo.h) D(h) / wo.z, with G1 / wo.z = 2 / (z + r)
-  // so grazing wo does not divide a tiny G1 by a tiny z.
-  float pdf = 2.0f * cos_oh * D(h, alpha) / (wo.z + smith_r(wo, alpha));
-  return std::isfinite(pdf) ? pdf : 0.0f;
-}
-
-Vec3 fresnel_schlick(Vec3 f0, float cos_theta) {
-  float m = 1.0f - clamp01(cos_theta);
-  float m2 = m * m;
-  float w = m2 * m2 * m;  // Schlick 1994
-  return f0 + (Vec3(1.0f) - f0) * w;
 }
 
 }  // namespace dofarm::render::ggx
