@@ -30,6 +30,16 @@ echo "$cpp"
 c_step_nchw=$(echo "$cpp" | awk -F'|' '/DOF \(CoC input\).*NCHW/ { print $7 + 0 }')
 c_step=$(echo "$cpp" | awk -F'|' '/DOF \(CoC input\).*NHWC/ { print $7 + 0 }')
 c_loop=$(echo "$cpp" | awk -F'|' '$2 ~ /NHWC/ && NF == 5 { print $3 + 0 }')
+# With >= 2 threads dofarm-train splits the step across 2 model replicas
+# (train.cpu_replicas auto); the same run on one model shows what that adds.
+c_one_step=$c_step c_one_loop=$c_loop
+if [ "$OMP_NUM_THREADS" -ge 2 ]; then
+  one=$("$BUILD/bench/trainer/trainer_speed" --reps "$REPS" --models dof --no-infer \
+    --loop "$SHARD" --steps "$STEPS" --formats nhwc --replicas 1)
+  echo "$one"
+  c_one_step=$(echo "$one" | awk -F'|' '/DOF \(CoC input\).*NHWC/ { print $7 + 0 }')
+  c_one_loop=$(echo "$one" | awk -F'|' '$2 ~ /NHWC/ && NF == 5 { print $3 + 0 }')
+fi
 py_nchw=$($PY "$HERE/python_baseline.py" --reps "$REPS" --shard "$SHARD" --loop "$STEPS")
 echo "$py_nchw"
 py_nhwc=$($PY "$HERE/python_baseline.py" --reps "$REPS" --shard "$SHARD" --loop "$STEPS" --channels-last)
@@ -54,6 +64,13 @@ awk -v t="$OMP_NUM_THREADS" -v a="$p_step" -v b="$p_step_cl" -v h="$p_step_h" -v
   printf "| %d | full loop | %.0f | %.0f | %.0f | %.0f | **%.2fx** | %.2fx | %.2fx |\n", t, e, f, i, g, e / g, f / g, i / g
   printf "| %d | step only, C++ in NCHW | %.0f | | | %.0f | %.2fx | | |\n", t, a, d, a / d
 }'
+if [ "$OMP_NUM_THREADS" -ge 2 ]; then
+  awk -v t="$OMP_NUM_THREADS" -v a="$p_step" -v b="$p_step_cl" -v h="$p_step_h" -v c="$c_one_step" \
+    -v e="$p_loop" -v f="$p_loop_cl" -v i="$p_loop_h" -v g="$c_one_loop" 'BEGIN {
+    printf "| %d | step only, C++ one model | %.0f | %.0f | %.0f | %.0f | %.2fx | %.2fx | %.2fx |\n", t, a, b, h, c, a / c, b / c, h / c
+    printf "| %d | full loop, C++ one model | %.0f | %.0f | %.0f | %.0f | %.2fx | %.2fx | %.2fx |\n", t, e, f, i, g, e / g, f / g, i / g
+  }'
+fi
 echo "(steps/s ratios; the target is >= 1.5x the Python loop)"
 echo
 echo "loaders on $SHARD: h5py $(awk -v m="$p_data" 'BEGIN { printf "%.1f", 4000 / m }') samples/s (one process)"
