@@ -34,8 +34,8 @@ Ray Camera::generate_ray(Vec2 film, Vec2 lens) const {
   Vec3 focus = film_direction(film) * state_.focal_distance;  // on the plane z = -S
   Vec2 d = sample_concentric_disk(lens) * state_.aperture;
   Vec3 origin(d.x, d.y, 0.0f);
-  Vec3 dir = normalize(focus - origin);
-  return {position_ + rotation_.rotate(origin), normalize(rotation_.rotate(dir))};
+  // A rotation keeps lengths: one normalisation, after it, is enough.
+  return {position_ + rotation_.rotate(origin), normalize(rotation_.rotate(focus - origin))};
 }
 
 float Camera::coc_pixels(float z) const {

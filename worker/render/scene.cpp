@@ -82,6 +82,10 @@ Scene::Scene(SceneData data, std::unique_ptr<Environment> environment)
     light_index_of_prim_[t] = int(light_tris_.size());
     light_tris_.push_back(t);
     light_tri_area_.push_back(area);
+    const uint32_t* idx = &data_.indices[size_t(t) * 3];
+    const Vec3 p0 = data_.positions[idx[0]];
+    light_tri_normal_.push_back(
+        normalize(cross(data_.positions[idx[1]] - p0, data_.positions[idx[2]] - p0)));
     power.push_back(p);
   }
   env_sampled_ = environment_ && !environment_->is_black();
@@ -238,7 +242,7 @@ bool Scene::sample_light(Vec3 from, float u_select, Vec2 u, LightSample* out) co
   float su = std::sqrt(u.x);  // uniform over the triangle (Turk 1990)
   float b0 = 1.0f - su, b1 = u.y * su, b2 = 1.0f - b0 - b1;
   Vec3 p = p0 * b0 + p1 * b1 + p2 * b2;
-  Vec3 n = normalize(cross(p1 - p0, p2 - p0));
+  const Vec3 n = light_tri_normal_[i];
   Vec3 d = p - from;
   float dist2 = length_squared(d);
   if (!(dist2 > 0) || !std::isfinite(dist2)) return false;
