@@ -40,7 +40,13 @@ Bsdf::Outgoing Bsdf::outgoing(Vec3 wo_w) const {
       const float fd = diffuse_luminance_ * (1.0f - fs);
       o.specular_prob = std::clamp(fs / (fs + fd), 0.05f, 0.95f);
     }
-    if (!delta_specular_) o.smith_r = ggx::smith_r(o.wo, alpha_);
+    if (!delta_specular_) {
+      o.smith_r = ggx::smith_r(o.wo, alpha_);
+      o.inv_4_cos_o = 1.0f / (4.0f * o.wo.z);
+      // VNDF pdf of h (Heitz 2018: 2 (wo.h) D / (wo.z + r)) times the
+      // reflection Jacobian 1 / (4 wo.h): wo.h cancels, D remains.
+      o.specular_pdf_scale = o.specular_prob / (2.0f * (o.wo.z + o.smith_r));
+    }
   }
   return o;
 }
@@ -56,15 +62,15 @@ Vec3 Bsdf::evaluate_local(const Outgoing& o, Vec3 wi, float* pdf_out) const {
     f += diffuse_color_ * t * (kInvPi * wi.z);
   }
   if (has_specular_ && !delta_specular_) {
-    const Vec3 h = normalize(wo + wi);
+    // Both directions are above the surface, so wo + wi is never zero.
+    const Vec3 sum = wo + wi;
+    const Vec3 h = sum * (1.0f / std::sqrt(dot(sum, sum)));
     const float d = ggx::D(h, alpha_);
     const float g = ggx::G2_from_r(wo.z, o.smith_r, wi.z, ggx::smith_r(wi, alpha_));
     const float wo_h = dot(wo, h);
     const Vec3 fr = ggx::fresnel_schlick(f0_, wo_h);
-    f += fr * (d * g / (4.0f * wo.z));  // times cos(wi) / cos(wi) cancels
-    // VNDF pdf of h (Heitz 2018: 2 (wo.h) D / (wo.z + r)) times the
-    // reflection Jacobian 1 / (4 wo.h): wo.h cancels.
-    if (wo_h > 0) p += ps * d / (2.0f * (wo.z + o.smith_r));
+    f += fr * (d * g * o.inv_4_cos_o);  // times cos(wi) / cos(wi) cancels
+    if (wo_h > 0) p += d * o.specular_pdf_scale;
   }
   *pdf_out = p;
   return f;
