@@ -90,12 +90,13 @@ Distribution2D::Distribution2D(const std::vector<float>& w, int nu, int nv) : nu
   marginal_ = Distribution1D(std::move(row_sums));
 }
 
-Vec2 Distribution2D::sample(Vec2 u, float* pdf_out) const {
+Vec2 Distribution2D::sample(Vec2 u, float* pdf_out, size_t* cell) const {
   float pdf_v, pdf_u;
-  size_t row;
+  size_t row, column;
   float y = marginal_.sample_continuous(u.y, &pdf_v, &row);
-  float x = conditional_[row].sample_continuous(u.x, &pdf_u);
+  float x = conditional_[row].sample_continuous(u.x, &pdf_u, &column);
   *pdf_out = pdf_v * pdf_u;
+  if (cell) *cell = row * size_t(nu_) + column;
   return {x, y};
 }
 

@@ -48,7 +48,10 @@ class Distribution2D {
  public:
   Distribution2D() = default;
   Distribution2D(const std::vector<float>& weights, int nu, int nv);  // row-major, v rows
-  Vec2 sample(Vec2 u, float* pdf) const;  // pdf relative to the unit square
+  // pdf relative to the unit square; `cell` (optional) = row * nu + column of
+  // the cell the point lies in, known before the point's coordinates are
+  // (a caller's lookup by cell can start while they are computed).
+  Vec2 sample(Vec2 u, float* pdf, size_t* cell = nullptr) const;
   float pdf(Vec2 p) const;
 
  private:

@@ -96,11 +96,14 @@ EnvSample Environment::sample(Vec2 u) const {
     return s;
   }
   float pdf_uv;
-  Vec2 uv = distribution_.sample(u, &pdf_uv);
+  size_t cell;
+  Vec2 uv = distribution_.sample(u, &pdf_uv, &cell);
   float sin_theta = std::sin(uv.y * kPi);
   if (pdf_uv <= 0 || sin_theta <= 0) return s;  // pdf 0: the caller skips it
   s.wi = uv_to_dir(uv);
-  const Texel& t = texel(uv);
+  // The texel of the sampled cell, by index rather than through uv: the
+  // same texel, and its load need not wait for uv (sampling waits on memory).
+  const Texel& t = texels_[cell];
   s.radiance = Vec3(t.r, t.g, t.b);
   s.pdf = pdf_uv / (2.0f * kPi * kPi * sin_theta);
   return s;
