@@ -50,6 +50,11 @@ size_t Distribution1D::find_cell(float u) const {
   return i;
 }
 
+void Distribution1D::prefetch(float u) const {
+  const double x = double(u) * double(guide_.size());
+  __builtin_prefetch(&guide_[x > 0 ? std::min(guide_.size() - 1, size_t(x)) : 0]);
+}
+
 float Distribution1D::pmf(size_t i) const { return float(cdf_[i + 1] - cdf_[i]); }
 
 size_t Distribution1D::sample_discrete(float u, float* pmf_out, float* remapped) const {
@@ -98,6 +103,12 @@ Vec2 Distribution2D::sample(Vec2 u, float* pdf_out, size_t* cell) const {
   *pdf_out = pdf_v * pdf_u;
   if (cell) *cell = row * size_t(nu_) + column;
   return {x, y};
+}
+
+void Distribution2D::prefetch(Vec2 u) const {
+  size_t row;
+  marginal_.sample_continuous(u.y, nullptr, &row);  // small, so in the cache
+  conditional_[row].prefetch(u.x);
 }
 
 float Distribution2D::pdf(Vec2 p) const {

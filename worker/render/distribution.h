@@ -31,6 +31,8 @@ class Distribution1D {
   // Continuous over [0,1): density pdf (relative to the uniform density).
   float sample_continuous(float u, float* pdf, size_t* cell = nullptr) const;
   float pdf(float x) const;
+  // A hint: starts loading what sample_*(u) will read first.
+  void prefetch(float u) const;
 
  private:
   size_t find_cell(float u) const;
@@ -53,6 +55,8 @@ class Distribution2D {
   // (a caller's lookup by cell can start while they are computed).
   Vec2 sample(Vec2 u, float* pdf, size_t* cell = nullptr) const;
   float pdf(Vec2 p) const;
+  // A hint: starts loading the row's table that sample(u) will read.
+  void prefetch(Vec2 u) const;
 
  private:
   std::vector<Distribution1D> conditional_;

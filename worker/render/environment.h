@@ -33,6 +33,12 @@ class Environment {
 
   Vec3 eval(Vec3 dir) const;
   EnvSample sample(Vec2 u) const;
+  // A hint: starts loading what sample(u) will read first (the map's tables
+  // are larger than the caches; a caller with other work to do before it
+  // samples can hide that wait).
+  void prefetch_sample(Vec2 u) const {
+    if (!texels_.empty()) distribution_.prefetch(u);
+  }
   float pdf(Vec3 dir) const;
   // eval() and pdf() at once, from one direction-to-texel mapping and one
   // memory access (an escaped ray under MIS needs both).

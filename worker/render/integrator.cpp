@@ -66,6 +66,9 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
     // different paths aligned (better stratification with Sobol').
     const float u_select = sampler.get1d();
     const Vec2 u_light = sampler.get2d();
+    // Sampling an environment map waits on memory; the work up to
+    // sample_light() below hides part of that wait.
+    if (use_nee) scene.prefetch_light_sample(u_select, u_light);
     const float u_lobe = sampler.get1d();
     const Vec2 u_bsdf = sampler.get2d();
     const float u_rr = sampler.get1d();

@@ -258,6 +258,11 @@ bool Scene::sample_light(Vec3 from, float u_select, Vec2 u, LightSample* out) co
   return std::isfinite(out->pdf);
 }
 
+void Scene::prefetch_light_sample(float u_select, Vec2 u) const {
+  if (env_sampled_ && light_select_.sample_discrete(u_select, nullptr) >= light_tris_.size())
+    environment_->prefetch_sample(u);
+}
+
 float Scene::light_pdf(Vec3 from, const SurfaceHit& hit) const {
   int i = light_index_of_prim_[hit.prim];
   if (i < 0) return 0;

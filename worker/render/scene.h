@@ -72,6 +72,8 @@ class Scene {
 
   // Next-event estimation: pick a light by power, then a point on it.
   bool sample_light(Vec3 from, float u_select, Vec2 u, LightSample* out) const;
+  // A hint: starts loading what sample_light(., u_select, u) will read first.
+  void prefetch_light_sample(float u_select, Vec2 u) const;
   // Solid-angle pdf that sample_light() would give to reaching `hit` (an
   // emissive triangle) from `from`.
   float light_pdf(Vec3 from, const SurfaceHit& hit) const;
