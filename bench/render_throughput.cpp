@@ -30,12 +30,11 @@
 #include <cstdlib>
 #include <cstring>
 #include <limits>
+#include <mutex>
 #include <random>
 #include <string>
 #include <thread>
 #include <vector>
-
-#include <mutex>
 
 #include "common/jobspec.h"
 #include "worker/render/environment.h"

@@ -30,13 +30,13 @@ class Bsdf {
   // lobe probability, Smith term), computed once per path vertex and shared
   // by the light sample's evaluate() and sample().
   struct Outgoing {
-    Vec3 wo;                   // local
-    Vec3 fresnel;              // F(n.wo), per channel (0 without a specular lobe)
-    float specular_prob = 0;   // of choosing the specular lobe in sample()
-    float smith_r = 0;         // ggx::smith_r(wo, alpha)
-    float inv_4_cos_o = 0;     // 1 / (4 wo.z), of the microfacet BRDF
+    Vec3 wo;                       // local
+    Vec3 fresnel;                  // F(n.wo), per channel (0 without a specular lobe)
+    float specular_prob = 0;       // of choosing the specular lobe in sample()
+    float smith_r = 0;             // ggx::smith_r(wo, alpha)
+    float inv_4_cos_o = 0;         // 1 / (4 wo.z), of the microfacet BRDF
     float specular_pdf_scale = 0;  // specular lobe's pdf over D(h)
-    bool valid = false;        // above both the shading and the geometric surface
+    bool valid = false;            // above both the shading and the geometric surface
   };
   Outgoing outgoing(Vec3 wo) const;
 

@@ -104,7 +104,7 @@ class Scene {
   std::vector<float> vertex_buffer_;  // xyz + padding Embree may read past the end
   std::vector<uint32_t> light_tris_;
   std::vector<float> light_tri_area_;
-  std::vector<Vec3> light_tri_normal_;  // unit, for the cosine at a sampled point
+  std::vector<Vec3> light_tri_normal_;    // unit, for the cosine at a sampled point
   std::vector<int> light_index_of_prim_;  // -1 where not a light
   Distribution1D light_select_;           // light_tris_ then, if sampled, the environment
   bool env_sampled_ = false;
