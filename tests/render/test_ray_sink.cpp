@@ -1,0 +1,70 @@
+// Scene's RaySink (what bench/render_throughput replays): it sees every ray
+// the renderer counts, as the renderer asked for it, and changes nothing.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <mutex>
+#include <vector>
+
+#include "tests/render/render_fixtures.h"
+
+namespace dofarm::render {
+namespace {
+
+class Recorder : public RaySink {
+ public:
+  void record(const TracedRay& ray) override {
+    std::lock_guard<std::mutex> lock(mutex_);
+    rays.push_back(ray);
+  }
+  std::vector<TracedRay> rays;
+
+ private:
+  std::mutex mutex_;
+};
+
+TEST(RaySink, SeesEveryCountedRayAndChangesNoPixel) {
+  auto scene = testing::make_scene(testing::small_room(), testing::constant_env(0.3f));
+  JobSpec spec = testing::make_spec(16, 12, Vec3(0.2f, 1, 3), Vec3(0, 0.9f, 0), 45, 3.0f, 0.05f);
+  spec.versions = 2;
+  RenderOptions options;
+  options.threads = 2;
+  options.block_size = 4;
+  const FrameBuffers plain = render_frame(*scene, spec, 0, std::nullopt, options);
+
+  Recorder recorder;
+  RenderStats stats;
+  options.stats = &stats;
+  scene->set_ray_sink(&recorder);
+  const FrameBuffers recorded = render_frame(*scene, spec, 0, std::nullopt, options);
+  scene->set_ray_sink(nullptr);
+  EXPECT_TRUE(testing::same_bytes(plain, recorded));
+
+  ASSERT_EQ(recorder.rays.size(), stats.rays);
+  size_t shadow = 0, hits = 0;
+  for (const TracedRay& r : recorder.rays) {
+    ASSERT_TRUE(is_finite(r.o) && is_finite(r.d));
+    ASSERT_NEAR(length(r.d), 1.0f, 1e-4f);
+    if (r.shadow) {
+      ++shadow;
+      // Towards the emitter (finite) or the environment (infinite).
+      ASSERT_GT(r.t_max, 0.0f);
+      if (!scene->occluded(r.o, r.d, r.t_max)) ++hits;
+    } else {
+      ASSERT_TRUE(std::isinf(r.t_max));
+      SurfaceHit hit;
+      if (scene->intersect(Ray{r.o, r.d}, &hit)) ++hits;
+    }
+  }
+  EXPECT_GT(shadow, 0u);
+  EXPECT_LT(shadow, recorder.rays.size());
+  EXPECT_GT(hits, 0u);
+
+  // Off again: nothing more arrives.
+  const size_t before = recorder.rays.size();
+  render_frame(*scene, spec, 0, std::nullopt, options);
+  EXPECT_EQ(recorder.rays.size(), before);
+}
+
+}  // namespace
+}  // namespace dofarm::render
