@@ -65,6 +65,14 @@ Scene::Scene(SceneData data, std::unique_ptr<Environment> environment)
   radius_ = std::max(0.5f * length(hi - lo), 1e-30f);
   offset_scale_ = 1e-5f;
 
+  tri_normal_.resize(data_.triangle_count());
+  for (uint32_t t = 0; t < data_.triangle_count(); ++t) {
+    const uint32_t* idx = &data_.indices[size_t(t) * 3];
+    const Vec3 p0 = data_.positions[idx[0]];
+    tri_normal_[t] =
+        normalize(cross(data_.positions[idx[1]] - p0, data_.positions[idx[2]] - p0), Vec3(0));
+  }
+
   // Lights: every emissive triangle with a positive area, selected by power.
   std::vector<float> power;
   light_index_of_prim_.assign(data_.triangle_count(), -1);
@@ -82,10 +90,6 @@ Scene::Scene(SceneData data, std::unique_ptr<Environment> environment)
     light_index_of_prim_[t] = int(light_tris_.size());
     light_tris_.push_back(t);
     light_tri_area_.push_back(area);
-    const uint32_t* idx = &data_.indices[size_t(t) * 3];
-    const Vec3 p0 = data_.positions[idx[0]];
-    light_tri_normal_.push_back(
-        normalize(cross(data_.positions[idx[1]] - p0, data_.positions[idx[2]] - p0)));
     power.push_back(p);
   }
   env_sampled_ = environment_ && !environment_->is_black();
@@ -175,7 +179,8 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
   hit->prim = prim;
   // Barycentric position: more accurate than o + t d far from the origin.
   hit->p = p0 * b0 + p1 * b1 + p2 * b2;
-  Vec3 ng = normalize(cross(p1 - p0, p2 - p0), -ray.d);
+  Vec3 ng = tri_normal_[prim];
+  if (ng.x == 0 && ng.y == 0 && ng.z == 0) ng = -ray.d;
   if (dot(ng, ray.d) > 0) ng = -ng;
   hit->ng = ng;
   Vec3 ns = ng;
@@ -242,7 +247,7 @@ bool Scene::sample_light(Vec3 from, float u_select, Vec2 u, LightSample* out) co
   float su = std::sqrt(u.x);  // uniform over the triangle (Turk 1990)
   float b0 = 1.0f - su, b1 = u.y * su, b2 = 1.0f - b0 - b1;
   Vec3 p = p0 * b0 + p1 * b1 + p2 * b2;
-  const Vec3 n = light_tri_normal_[i];
+  const Vec3 n = tri_normal_[t];  // not degenerate: lights have an area
   Vec3 d = p - from;
   float dist2 = length_squared(d);
   if (!(dist2 > 0) || !std::isfinite(dist2)) return false;

@@ -102,9 +102,11 @@ class Scene {
   RTCDevice device_ = nullptr;
   RTCScene rtc_scene_ = nullptr;
   std::vector<float> vertex_buffer_;  // xyz + padding Embree may read past the end
+  // Unit geometric normal of each triangle, cross(p1 - p0, p2 - p0); zero for
+  // a degenerate one (a hit on it faces the ray instead).
+  std::vector<Vec3> tri_normal_;
   std::vector<uint32_t> light_tris_;
   std::vector<float> light_tri_area_;
-  std::vector<Vec3> light_tri_normal_;    // unit, for the cosine at a sampled point
   std::vector<int> light_index_of_prim_;  // -1 where not a light
   Distribution1D light_select_;           // light_tris_ then, if sampled, the environment
   bool env_sampled_ = false;
