@@ -71,7 +71,13 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
     if (use_nee) scene.prefetch_light_sample(u_select, u_light);
     const float u_lobe = sampler.get1d();
     const Vec2 u_bsdf = sampler.get2d();
-    const float u_rr = sampler.get1d();
+    const bool roulette = depth + 1 >= settings.rr_start_depth;
+    float u_rr = 0;
+    if (roulette) {
+      u_rr = sampler.get1d();
+    } else {
+      sampler.skip(1);
+    }
 
     Bsdf bsdf(hit.ns, hit.ng, hit.base_color, hit.metallic, hit.roughness, hit.ior);
     const Bsdf::Outgoing out = bsdf.outgoing(-ray.d);
@@ -100,7 +106,7 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
     prev_bsdf_pdf = bs.pdf;
     prev_p = hit.p;
 
-    if (depth + 1 >= settings.rr_start_depth) {
+    if (roulette) {
       float survive = std::min(1.0f, max_component(beta));
       if (u_rr >= survive) break;
       beta = beta / survive;

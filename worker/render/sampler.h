@@ -120,6 +120,10 @@ class PixelSampler {
   void start_sample(uint32_t index);
   float get1d();  // in [0, 1); the first coordinate of get2d() in this slot
   Vec2 get2d();   // in [0, 1)^2
+  // Consumes `slots` slots as get1d()/get2d() would, without computing their
+  // values (for numbers a path turns out not to need): the later slots are
+  // the same either way.
+  void skip(uint32_t slots) { dim_ += slots; }
 
   uint64_t pixel_seed() const { return pixel_seed_; }
 
