@@ -359,6 +359,11 @@ uint64_t SequenceStream::next_index() const {
   return next_;
 }
 
+uint64_t SequenceStream::held() const {
+  std::lock_guard lock(mu_);
+  return claimed_ - next_;
+}
+
 std::vector<Sample> SequenceStream::validation(int count) {
   std::vector<Sample> out;
   bool any = false;

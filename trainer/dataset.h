@@ -68,6 +68,9 @@ class SequenceStream {
   // Rethrows a reader's failure.
   Sample next();
   uint64_t next_index() const;
+  // Samples made or being made but not yet handed out: the stream's memory,
+  // never more than data.queue whatever the size of the data.
+  uint64_t held() const;
 
   // `count` validation samples, the same ones every call while the shard set
   // is unchanged (seeded by index, independent of the training stream).

@@ -48,6 +48,34 @@ TEST(Split, TrainAndValidationNeverOverlap) {
   EXPECT_LT(val, 140);
 }
 
+TEST(SequenceStream, HoldsAtMostQueueSamplesWhateverTheData) {
+  fs::path data = fresh_dir("ds_bound_data"), run = fresh_dir("ds_bound_run");
+  for (int i = 0; i < 3; ++i)
+    testing::write_synthetic_shard(data / ("shard-0000" + std::to_string(i) + ".h5"), 12, 64, 48, 3,
+                                   20 + i);
+  DataConfig d = small_data();
+  d.queue = 3;
+  d.readers = 4;  // more readers than queue slots
+  SequenceStream s(data, run, d, true, 5);
+  auto wait_full = [&] {
+    auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(20);
+    while (s.held() < 3 && std::chrono::steady_clock::now() < deadline)
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  };
+  for (int round = 0; round < 3; ++round) {
+    wait_full();
+    EXPECT_EQ(s.held(), 3u) << round;
+    // The consumer is slow: the readers must wait, not read ahead.
+    for (int i = 0; i < 20; ++i) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+      ASSERT_LE(s.held(), 3u) << round;
+    }
+    s.next();
+    EXPECT_LE(s.held(), 2u + 1u);
+  }
+  EXPECT_EQ(s.next_index(), 3u);
+}
+
 TEST(SequenceStream, DeterministicFiniteAndSplitPersisted) {
   fs::path data = fresh_dir("ds_data"), run = fresh_dir("ds_run");
   testing::write_synthetic_shard(data / "shard-00000.h5", 12, 64, 48, 3, 7);
