@@ -51,7 +51,10 @@ struct ChannelStats {
 
 std::string join_dims(const std::vector<uint64_t>& d) {
   std::string s;
-  for (size_t i = 0; i < d.size(); ++i) s += (i ? "x" : "") + std::to_string(d[i]);
+  for (size_t i = 0; i < d.size(); ++i) {
+    if (i) s += 'x';
+    s += std::to_string(d[i]);
+  }
   return s.empty() ? "-" : s;
 }
 
@@ -162,8 +165,10 @@ void print_text(const json& j, std::ostream& out) {
       << "\n";
   for (const json& d : j["datasets"]) {
     std::string filters;
-    for (const json& f : d["filters"])
-      filters += (filters.empty() ? "" : ",") + f.get<std::string>();
+    for (const json& f : d["filters"]) {
+      if (!filters.empty()) filters += ',';
+      filters += f.get<std::string>();
+    }
     out << std::left << std::setw(15) << d["name"].get<std::string>() << std::setw(18)
         << join_dims(d["shape"]) << std::setw(16) << join_dims(d["chunk"]) << std::setw(36)
         << filters << std::right << std::setw(12) << d["stored_bytes"].get<uint64_t>()

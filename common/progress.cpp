@@ -89,8 +89,12 @@ std::string format_progress(const std::string& label, int64_t done, int64_t tota
   std::string bar;
   if (bar_width > 0) {
     int filled = static_cast<int>(frac * bar_width);
-    bar = "[" + std::string(filled, '=');
-    if (filled < bar_width) bar += ">" + std::string(bar_width - filled - 1, ' ');
+    bar = "[";
+    bar.append(filled, '=');
+    if (filled < bar_width) {
+      bar += '>';
+      bar.append(bar_width - filled - 1, ' ');
+    }
     bar += "] ";
   }
   return fmt::format("{} {}{:3}% {}/{} ETA {}", label, bar, static_cast<int>(frac * 100), done,

@@ -138,7 +138,10 @@ ShardWriter::ShardWriter(fs::path final_path, ShardInfo info) : impl_(std::make_
                                                   "channels", buffer_channel_names(b.name)));
     }
     std::string columns;
-    for (const char* c : camera_columns()) columns += (columns.empty() ? "" : ",") + std::string(c);
+    for (const char* c : camera_columns()) {
+      if (!columns.empty()) columns += ',';
+      columns += c;
+    }
     m.datasets.emplace("camera",
                        m.create_dataset("camera", {hsize_t(i.frame_count()), kCameraColumns},
                                         {hsize_t(i.frame_count()), kCameraColumns}, "frame,column",

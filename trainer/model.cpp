@@ -8,6 +8,18 @@
 
 namespace dofarm::trainer {
 
+namespace {
+// "e2_1": block `kind` (e encoder, d decoder) `level`, convolution `index`;
+// the parameter names checkpoints and the export use.
+std::string layer_name(char kind, int level, int index) {
+  std::string s(1, kind);
+  s += std::to_string(level);
+  s += '_';
+  s += std::to_string(index);
+  return s;
+}
+}  // namespace
+
 DenoiserImpl::DenoiserImpl(const ModelConfig& cfg)
     : cfg_(cfg), widths_(cfg.effective_channels()), bottleneck_(cfg.effective_bottleneck()) {
   DOFARM_CHECK_EQ(int(widths_.size()), kLevels);
@@ -18,9 +30,9 @@ DenoiserImpl::DenoiserImpl(const ModelConfig& cfg)
     // Recurrent block (Chaitanya 2017, fig. 3): the previous frame's block
     // output is concatenated with this frame's block input.
     const int first_in = in + (cfg.recurrent ? w : 0);
-    enc_[i].push_back(add_conv("e" + std::to_string(i) + "_0", first_in, w));
-    enc_[i].push_back(add_conv("e" + std::to_string(i) + "_1", w, w));
-    enc_[i].push_back(add_conv("e" + std::to_string(i) + "_2", w, w));
+    enc_[i].push_back(add_conv(layer_name('e', i, 0), first_in, w));
+    enc_[i].push_back(add_conv(layer_name('e', i, 1), w, w));
+    enc_[i].push_back(add_conv(layer_name('e', i, 2), w, w));
     in = w;
   }
   mid_.push_back(add_conv("m_0", in, bottleneck_));
@@ -29,8 +41,8 @@ DenoiserImpl::DenoiserImpl(const ModelConfig& cfg)
   dec_.resize(kLevels);
   for (int i = kLevels - 1; i >= 0; --i) {
     const int w = widths_[i];
-    dec_[i].push_back(add_conv("d" + std::to_string(i) + "_0", in + w, w));
-    dec_[i].push_back(add_conv("d" + std::to_string(i) + "_1", w, w));
+    dec_[i].push_back(add_conv(layer_name('d', i, 0), in + w, w));
+    dec_[i].push_back(add_conv(layer_name('d', i, 1), w, w));
     in = w;
   }
   out_ = add_conv("out", in, 3);

@@ -2,7 +2,12 @@
 
 #define STB_IMAGE_WRITE_STATIC  // private copy: no clash with other users of stb
 #define STB_IMAGE_WRITE_IMPLEMENTATION
+// Its own code's warnings (unused writers, partial struct initialisers).
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wmissing-field-initializers"
+#pragma GCC diagnostic ignored "-Wunused-function"
 #include <stb_image_write.h>
+#pragma GCC diagnostic pop
 
 #include <algorithm>
 #include <cmath>

@@ -124,7 +124,7 @@ struct TrainOptions {
   std::filesystem::path data_dir, run_dir;
   TrainConfig config;
   // Fault injection for tests: may replace the loss of a step before backward.
-  std::function<torch::Tensor(int64_t step, const torch::Tensor& loss)> loss_hook;
+  std::function<torch::Tensor(int64_t step, const torch::Tensor& loss)> loss_hook = {};
   // Stop (after saving) once this many steps are done in total; -1 = never.
   int64_t stop_at_step = -1;
 };

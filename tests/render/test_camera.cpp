@@ -77,7 +77,9 @@ TEST(ThinLens, CocIsZeroOnTheFocalPlaneAndAnalyticElsewhere) {
       EXPECT_NEAR(fb.depth[i], dist, 1e-4 * dist);
       double expect = analytic_coc(A, S, dist, fov, H);
       EXPECT_NEAR(fb.coc[i], expect, 1e-4 * std::max(1.0, expect)) << "distance " << dist;
-      if (dist == S) EXPECT_LT(fb.coc[i], 1e-3f);
+      if (dist == S) {
+        EXPECT_LT(fb.coc[i], 1e-3f);
+      }
     }
   }
 }

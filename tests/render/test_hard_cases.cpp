@@ -108,7 +108,9 @@ TEST(HardCases, TinyAndHugeSceneScales) {
     }
     EXPECT_NEAR(a / b, 1.0, 0.1) << "scale " << scale;
     for (size_t i = 0; i < fb.plane(); ++i)
-      if (fb.depth[i] > 0) EXPECT_NEAR(fb.depth[i] / ufb.depth[i], scale, 1e-3 * scale);
+      if (fb.depth[i] > 0) {
+        EXPECT_NEAR(fb.depth[i] / ufb.depth[i], scale, 1e-3 * scale);
+      }
   }
 }
 

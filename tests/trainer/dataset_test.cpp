@@ -31,7 +31,9 @@ TEST(Split, TrainAndValidationNeverOverlap) {
     ShardSplit s = assign_split("shard-00001.h5", frames, d);
     EXPECT_LE(s.train_end, s.val_begin == s.val_end ? frames : s.val_begin) << frames;
     EXPECT_EQ(s.train_begin, 0);
-    if (s.val_end > s.val_begin) EXPECT_GE(s.val_end - s.val_begin, d.sequence);
+    if (s.val_end > s.val_begin) {
+      EXPECT_GE(s.val_end - s.val_begin, d.sequence);
+    }
     EXPECT_LE(s.val_end, frames);
   }
   d.split = SplitMode::kShard;
@@ -197,7 +199,9 @@ TEST(SequenceStream, ReadsExactlyThePlannedFramesVersionsAndCrop) {
                 ((size_t(v) * 3 + ch) * fb.height + plan.crop_y + y) * fb.width + plan.crop_x + x;
             size_t dst = ((size_t(plan.offset[i]) * raw.versions + v) * 3 + ch) * n + y * c + x;
             ASSERT_EQ(raw.noisy[dst], fb.noisy[src_i]);
-            if (src == AlbedoSource::kVersion) ASSERT_EQ(raw.albedo[dst], fb.albedo[src_i]);
+            if (src == AlbedoSource::kVersion) {
+              ASSERT_EQ(raw.albedo[dst], fb.albedo[src_i]);
+            }
           }
       EXPECT_EQ(raw.focal_distance[plan.offset[i]], fb.camera.focal_distance);
     }
