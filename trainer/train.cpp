@@ -321,12 +321,17 @@ StepOutcome StepRunner::run(const Batch& batch, const LossConfig& loss, const to
   const int r = replicas();
   const int64_t b = batch.input.size(0);
   DOFARM_CHECK(b >= r);
+  // Part k: sequences [b k / r, b (k + 1) / r), weight n_k / n.
   std::vector<int64_t> begin(static_cast<size_t>(r) + 1);
   for (int k = 0; k <= r; ++k) begin[size_t(k)] = b * k / r;
+  std::vector<double> weight(static_cast<size_t>(r));
+  for (int k = 0; k < r; ++k)
+    weight[size_t(k)] = double(begin[size_t(k) + 1] - begin[size_t(k)]) / double(b);
   auto part = [&](int k) {
+    const int64_t start = begin[size_t(k)], count = begin[size_t(k) + 1] - start;
     Batch p;
-    p.input = batch.input.narrow(0, begin[size_t(k)], begin[size_t(k) + 1] - begin[size_t(k)]);
-    p.target = batch.target.narrow(0, begin[size_t(k)], begin[size_t(k) + 1] - begin[size_t(k)]);
+    p.input = batch.input.narrow(0, start, count);
+    p.target = batch.target.narrow(0, start, count);
     return p;
   };
   const std::vector<torch::Tensor> params = model_->parameters();
@@ -360,8 +365,7 @@ StepOutcome StepRunner::run(const Batch& batch, const LossConfig& loss, const to
   StepOutcome total;
   total.finite = true;
   for (int k = 0; k < r; ++k) {
-    const double weight = double(begin[size_t(k) + 1] - begin[size_t(k)]) / double(b);
-    total.loss += weight * out[size_t(k)].loss;
+    total.loss += weight[size_t(k)] * out[size_t(k)].loss;
     total.finite = total.finite && out[size_t(k)].finite;
   }
   if (!total.finite) return total;
@@ -373,11 +377,8 @@ StepOutcome StepRunner::run(const Batch& batch, const LossConfig& loss, const to
   for (size_t i = 0; i < params.size(); ++i) {
     torch::Tensor g = params[i].grad();
     if (!g.defined()) continue;
-    g.mul_(double(begin[1] - begin[0]) / double(b));
-    for (int k = 1; k < r; ++k) {
-      const double weight = double(begin[size_t(k) + 1] - begin[size_t(k)]) / double(b);
-      g.add_(copy_params[size_t(k) - 1][i].grad(), weight);
-    }
+    g.mul_(weight[0]);
+    for (int k = 1; k < r; ++k) g.add_(copy_params[size_t(k) - 1][i].grad(), weight[size_t(k)]);
     finite.push_back(torch::isfinite(g).all());
   }
   total.finite = finite.empty() || torch::stack(finite).all().item<bool>();
