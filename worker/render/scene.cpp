@@ -278,10 +278,6 @@ float Scene::light_pdf(Vec3 from, const SurfaceHit& hit) const {
   return light_select_.pmf(size_t(i)) * dist2 / (cos_l * light_tri_area_[i]);
 }
 
-float Scene::environment_pdf(Vec3 dir) const {
-  return env_sampled_ ? env_select_pmf_ * environment_->pdf(dir) : 0.0f;
-}
-
 Vec3 Scene::environment_radiance(Vec3 dir, float* pdf) const {
   Vec3 le = environment_->eval(dir, pdf);
   *pdf = env_sampled_ ? env_select_pmf_ * *pdf : 0.0f;

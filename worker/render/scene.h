@@ -77,9 +77,9 @@ class Scene {
   // Solid-angle pdf that sample_light() would give to reaching `hit` (an
   // emissive triangle) from `from`.
   float light_pdf(Vec3 from, const SurfaceHit& hit) const;
-  float environment_pdf(Vec3 dir) const;  // includes the selection probability
-  // The environment's radiance towards `dir` (which must have one) and
-  // environment_pdf(dir), from one lookup.
+  // The environment's radiance towards `dir` (which must have one) and the
+  // solid-angle pdf sample_light() would give to that direction (selection
+  // probability included), from one lookup.
   Vec3 environment_radiance(Vec3 dir, float* pdf) const;
 
   float radius() const { return radius_; }
