@@ -9,6 +9,7 @@ PKGS=(
   libopenexr-dev           # multi-layer EXR frames, HDR environment maps
   libhdf5-dev              # training shards
   libzmq3-dev cppzmq-dev   # coordinator <-> worker transport
+  libsodium-dev            # BLAKE2b content hashes of job inputs, lease tokens
   libsqlite3-dev           # durable job store
   libtorch-dev             # trainer (dofarm-train only)
   libspdlog-dev libfmt-dev # logging
