@@ -359,15 +359,22 @@ void read_frames(const Section& s, JobSpec& spec) {
   s.check_keys({"start", "end", "per_shard", "fps"});
   if (auto v = s.integer("start", IntRange::non_negative())) spec.frame_start = int(*v);
   if (auto v = s.integer("end", IntRange::non_negative())) spec.frame_end = int(*v);
-  if (auto v = s.integer("per_shard", IntRange::positive())) spec.per_shard = int(*v);
+  if (auto v = s.integer("per_shard", IntRange::between(1, kMaxTilesPerShard)))
+    spec.per_shard = int(*v);
   if (auto v = s.number("fps", Interval::positive())) spec.fps = float(*v);
-  if (spec.frame_end < spec.frame_start) {
-    std::string msg = fmt::format("frame range is reversed: end {} < start {} (end is inclusive)",
-                                  spec.frame_end, spec.frame_start);
+  auto fail_range = [&](const std::string& msg) {
     if (s.find("end")) s.fail_at("end", msg);
     if (s.find("start")) s.fail_at("start", msg);
     fail(s.loc(), s.name(), msg);
-  }
+  };
+  if (spec.frame_end < spec.frame_start)
+    fail_range(fmt::format("frame range is reversed: end {} < start {} (end is inclusive)",
+                           spec.frame_end, spec.frame_start));
+  if (spec.frame_count() > kMaxFramesPerBatch)
+    fail_range(
+        fmt::format("{} frames ({}..{}) are more than the {} one batch may have; split "
+                    "the range into several jobs",
+                    spec.frame_count(), spec.frame_start, spec.frame_end, kMaxFramesPerBatch));
 }
 
 CameraKey read_camera_key(const Section& s, bool from_scene) {
@@ -505,6 +512,42 @@ void read_farm(const Section& s, JobSpec& spec) {
   if (auto v = s.number("task_seconds", Interval::positive())) spec.task_seconds = float(*v);
 }
 
+// The batch's task count against kMaxTasksPerBatch, with a fixed tile side.
+// With task_seconds the planner picks the side and keeps under the limit by
+// itself (one tile per frame always fits).
+void check_batch_size(const Section& top, const JobSpec& spec) {
+  if (spec.task_seconds > 0) return;
+  const int64_t tasks = batch_task_count(spec, spec.tile);
+  const int64_t shard_tiles = shard_tile_count(spec, spec.tile);
+  if (tasks <= kMaxTasksPerBatch && shard_tiles <= kMaxTilesPerShard) return;
+  const int64_t per_frame = (int64_t(spec.width) + spec.tile - 1) / spec.tile *
+                            ((int64_t(spec.height) + spec.tile - 1) / spec.tile);
+  const std::string tiles = fmt::format("{} tiles of {}x{} px of a {}x{} image", per_frame,
+                                        spec.tile, spec.tile, spec.width, spec.height);
+  std::string msg;
+  std::vector<std::pair<const char*, const char*>> blame;
+  if (tasks > kMaxTasksPerBatch) {
+    msg = fmt::format(
+        "the batch would have {} tasks ({} frames x {}, plus the packs), more than the {} one "
+        "batch may have; use a larger farm.tile, fewer frames or a smaller image",
+        tasks, spec.frame_count(), tiles, kMaxTasksPerBatch);
+    blame = {{"farm", "tile"}, {"frames", "end"}, {"image", "width"}, {"image", "height"}};
+  } else {
+    msg = fmt::format(
+        "a shard would have {} tiles ({} frames x {}), more than the {} one pack task may "
+        "take; use a larger farm.tile or a smaller frames.per_shard",
+        shard_tiles, std::min<int64_t>(spec.per_shard, spec.frame_count()), tiles,
+        kMaxTilesPerShard);
+    blame = {{"farm", "tile"}, {"frames", "per_shard"}, {"image", "width"}, {"image", "height"}};
+  }
+  // Blame the key that made it too large, as far as the file says.
+  for (const auto& [table, key] : blame) {
+    const Section s = top.table(table);
+    if (s.find(key)) s.fail_at(key, msg);
+  }
+  fail(top.loc(), "farm.tile", msg);
+}
+
 JobSpec read_spec(const toml::table& root, const Origins& origins, const fs::path& spec_path) {
   JobSpec spec;
   spec.spec_path = spec_path;
@@ -525,6 +568,7 @@ JobSpec read_spec(const toml::table& root, const Origins& origins, const fs::pat
   read_buffers(top.table("buffers"), spec);
   read_render(top.table("render"), spec);
   read_farm(top.table("farm"), spec);
+  check_batch_size(top, spec);
   return spec;
 }
 
@@ -668,6 +712,31 @@ void apply_override(toml::table& root, const std::string& text, Origins& origins
 }
 
 }  // namespace
+
+int64_t batch_task_count(const JobSpec& spec, int tile_side) {
+  DOFARM_CHECK_OP(tile_side, >, 0);
+  DOFARM_CHECK_OP(spec.per_shard, >, 0);
+  const int64_t frames = std::max<int64_t>(0, spec.frame_count());
+  const int64_t columns = (int64_t(spec.width) + tile_side - 1) / tile_side;
+  const int64_t rows = (int64_t(spec.height) + tile_side - 1) / tile_side;
+  const int64_t shards = (frames + spec.per_shard - 1) / spec.per_shard;
+  // Each factor is below 2^32, so the product of the first two is exact; the
+  // third multiplication saturates instead of overflowing.
+  const int64_t per_frame = columns * rows;
+  if (per_frame != 0 && frames > (INT64_MAX - shards) / per_frame) return INT64_MAX;
+  return frames * per_frame + shards;
+}
+
+int64_t shard_tile_count(const JobSpec& spec, int tile_side) {
+  DOFARM_CHECK_OP(tile_side, >, 0);
+  DOFARM_CHECK_OP(spec.per_shard, >, 0);
+  const int64_t frames =
+      std::min<int64_t>(spec.per_shard, std::max<int64_t>(0, spec.frame_count()));
+  const int64_t per_frame = ((int64_t(spec.width) + tile_side - 1) / tile_side) *
+                            ((int64_t(spec.height) + tile_side - 1) / tile_side);
+  if (per_frame != 0 && frames > INT64_MAX / per_frame) return INT64_MAX;
+  return frames * per_frame;
+}
 
 JobSpec parse_job_spec(const std::string& toml_text, const fs::path& virtual_path,
                        const std::vector<std::string>& overrides) {

@@ -73,8 +73,29 @@ struct JobSpec {
   int tile = 64;
   float task_seconds = 0.0f;       // > 0: size tiles to take about this long
 
-  int frame_count() const { return frame_end - frame_start + 1; }
+  // 64 bits: frame numbers go up to 2^31 - 1 (jobs/README.md, "Limits").
+  int64_t frame_count() const { return int64_t(frame_end) - frame_start + 1; }
 };
+
+// The limits of one batch (jobs/README.md, "Limits"); load_job_spec() refuses
+// a spec beyond them and the planner refuses a plan beyond them. Frame
+// numbers themselves go up to 2^31 - 1. The task limit bounds the
+// coordinator's memory (each task of a running batch is held in memory, about
+// 100-200 bytes with its dependencies) and the job store; one tile per frame
+// always fits: frames + shards <= 2 * kMaxFramesPerBatch.
+inline constexpr int64_t kMaxFramesPerBatch = 1'000'000;
+inline constexpr int64_t kMaxTasksPerBatch = 2'000'000;
+// A pack task's inputs (every tile of its shard's frames) travel in one
+// message of at most 1 MiB (protocol::kMaxPackInputs); frames.per_shard is at
+// most this too, so one tile per frame always fits.
+inline constexpr int64_t kMaxTilesPerShard = 4096;
+
+// Tasks of the batch when every frame is cut into side x side tiles: one
+// render task per tile and frame plus one pack task per shard. 64-bit and
+// overflow-free for any int inputs with side > 0 and per_shard > 0.
+int64_t batch_task_count(const JobSpec& spec, int tile_side);
+// Render tasks of the largest shard, the inputs of its pack task.
+int64_t shard_tile_count(const JobSpec& spec, int tile_side);
 
 // Parses `path` and applies `overrides` ("a.b=value", applied in order, each
 // checked like the file). Throws SpecError on any bad input.

@@ -51,9 +51,17 @@ struct Plan {
   std::vector<PlannedTask> tasks;
 };
 
+// Throws SpecError (nothing allocated) for a spec beyond the limits of
+// jobs/README.md, "Limits": more than kMaxFramesPerBatch frames, or more than
+// kMaxTasksPerBatch tasks with the chosen tile side. Specs that
+// load_job_spec() accepted are always within them.
 Plan plan_batch(const JobSpec& spec, std::optional<double> seconds_per_pixel = std::nullopt);
+// The check plan_batch() makes first: tasks counted, not made.
+void check_plan_limits(const JobSpec& spec, int tile_side);
 
-// The tile side plan_batch() uses (see the rule above).
+// The tile side plan_batch() uses (see the rule above; with task_seconds it
+// is doubled, up to the larger image side, while the batch would have more
+// than kMaxTasksPerBatch tasks).
 int tile_side(const JobSpec& spec, std::optional<double> seconds_per_pixel = std::nullopt);
 // Row-major side x side tiles covering a width x height image exactly once.
 std::vector<Rect> tile_rects(int width, int height, int side);

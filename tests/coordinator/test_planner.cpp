@@ -3,9 +3,12 @@
 // and task_seconds sizes tiles by the documented rule.
 #include <gtest/gtest.h>
 
+#include <chrono>
+#include <climits>
 #include <set>
 #include <vector>
 
+#include "common/error.h"
 #include "coordinator/planner.h"
 
 namespace dofarm::coordinator {
@@ -122,6 +125,95 @@ TEST(Planner, TaskSecondsSizeTilesBySqrtRoundedAndClamped) {
   EXPECT_GE(estimated, 16);
   EXPECT_LE(estimated, 1024);
   EXPECT_EQ(plan_batch(spec, 1e-2).tile_side, 80);
+}
+
+// Defect 7 of issue 10: frames.start = frames.end = 2147483647 (allowed by
+// jobs/README.md) overflowed the frame loops and ended in std::bad_alloc.
+TEST(PlannerLimits, IntMaxFrameIsOneShardOfOneFrame) {
+  const JobSpec spec = spec_of(40, 20, INT_MAX, INT_MAX, 16, 16);
+  const Plan plan = plan_batch(spec);
+  ASSERT_EQ(plan.shards.size(), 1u);
+  EXPECT_EQ(plan.shards[0].frame_start, INT_MAX);
+  EXPECT_EQ(plan.shards[0].frame_end, INT_MAX);
+  ASSERT_EQ(plan.tasks.size(), 3u * 2u + 1u);
+  for (size_t i = 0; i + 1 < plan.tasks.size(); ++i) EXPECT_EQ(plan.tasks[i].frame, INT_MAX);
+  EXPECT_EQ(plan.tasks.back().depends_on.size(), 6u);
+}
+
+TEST(PlannerLimits, ShardRangesEndingAtIntMaxDoNotWrap) {
+  const std::vector<ShardRange> shards = shard_ranges(INT_MAX - 5, INT_MAX, 4);
+  ASSERT_EQ(shards.size(), 2u);
+  EXPECT_EQ(shards[0].frame_start, INT_MAX - 5);
+  EXPECT_EQ(shards[0].frame_end, INT_MAX - 2);
+  EXPECT_EQ(shards[1].frame_start, INT_MAX - 1);
+  EXPECT_EQ(shards[1].frame_end, INT_MAX);
+  // A shard larger than what is left of the int range.
+  const std::vector<ShardRange> one = shard_ranges(INT_MAX - 1, INT_MAX, INT_MAX);
+  ASSERT_EQ(one.size(), 1u);
+  EXPECT_EQ(one[0].frame_end, INT_MAX);
+}
+
+TEST(PlannerLimits, TileRectsOfTheLargestImageWithTheLargestTile) {
+  const std::vector<Rect> rects = tile_rects(INT_MAX, 1, INT_MAX - 1);
+  ASSERT_EQ(rects.size(), 2u);
+  EXPECT_EQ(rects[1], (Rect{INT_MAX - 1, 0, 1, 1}));
+}
+
+// Refused before anything is allocated: each case must answer at once.
+TEST(PlannerLimits, HugePlansAreRefusedBeforeTheyAreMade) {
+  struct Case {
+    const char* what;
+    JobSpec spec;
+  };
+  const Case cases[] = {
+      {"every int frame", spec_of(64, 64, 0, INT_MAX, 16, 64)},
+      {"a million and one frames", spec_of(64, 64, 0, 1000000, 16, 64)},
+      {"huge images with tiny tiles", spec_of(16384, 16384, 0, 99, 100, 8)},
+      {"int-sized images", spec_of(INT_MAX, INT_MAX, 0, 0, 1, 8)},
+  };
+  for (const Case& c : cases) {
+    const auto t0 = std::chrono::steady_clock::now();
+    try {
+      plan_batch(c.spec);
+      ADD_FAILURE() << c.what << ": planned";
+    } catch (const SpecError& e) {
+      EXPECT_NE(std::string(e.what()).find("one batch may have"), std::string::npos)
+          << c.what << ": " << e.what();
+    }
+    EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(), 1.0)
+        << c.what;
+  }
+}
+
+TEST(PlannerLimits, TheLargestAllowedBatchIsPlanned) {
+  // A million frames at one tile each plus a pack per frame: 2,000,000 tasks.
+  const JobSpec spec = spec_of(64, 64, INT_MAX - 999999, INT_MAX, 1, 64);
+  const Plan plan = plan_batch(spec);
+  EXPECT_EQ(int64_t(plan.tasks.size()), kMaxTasksPerBatch);
+  EXPECT_EQ(plan.shards.back().frame_end, INT_MAX);
+  EXPECT_EQ(plan.shards.back().index, 999999);
+}
+
+TEST(PlannerLimits, TaskSecondsGrowsTilesToStayWithinTheTaskLimit) {
+  JobSpec spec = spec_of(16384, 16384, 0, 999, 100, 64);
+  spec.task_seconds = 1;
+  // Very expensive pixels would give 16 px tiles: 1,048,576 per frame.
+  const int side = tile_side(spec, 10.0);
+  EXPECT_LE(batch_task_count(spec, side), kMaxTasksPerBatch) << "side " << side;
+  EXPECT_EQ(side % 8, 0);
+  EXPECT_LE(shard_tile_count(spec, side), kMaxTilesPerShard) << "side " << side;
+  EXPECT_TRUE(batch_task_count(spec, side / 2) > kMaxTasksPerBatch ||
+              shard_tile_count(spec, side / 2) > kMaxTilesPerShard)
+      << "the side is not minimal";
+  // With one frame per shard the task limit is the one that binds.
+  spec.per_shard = 1;
+  const int one = tile_side(spec, 10.0);
+  EXPECT_LE(batch_task_count(spec, one), kMaxTasksPerBatch) << "side " << one;
+  EXPECT_GT(batch_task_count(spec, one / 2), kMaxTasksPerBatch) << "side " << one;
+  // A job small enough keeps the rule's side.
+  JobSpec small = spec_of(1024, 512, 0, 0, 1, 64);
+  small.task_seconds = 60;
+  EXPECT_EQ(tile_side(small, 10.0), 16);
 }
 
 }  // namespace
