@@ -1,82 +1,8 @@
 #include "common/protocol.h"
 
-#include <map>
-#include <vector>
+#include "common/messages.h"
 
 namespace dofarm::protocol {
-
-namespace {
-
-enum class Kind { kString, kInt, kNumber, kArray, kObject };
-
-// The fields each message type must carry (others are allowed and ignored,
-// so a newer peer can add optional fields without a version bump).
-const std::map<std::string, std::vector<std::pair<const char*, Kind>>>& schema() {
-  static const std::map<std::string, std::vector<std::pair<const char*, Kind>>> s = {
-      {"request", {{"worker", Kind::kString}}},
-      {"heartbeat", {{"worker", Kind::kString}, {"task", Kind::kInt}, {"attempt", Kind::kInt}}},
-      {"done",
-       {{"worker", Kind::kString},
-        {"task", Kind::kInt},
-        {"attempt", Kind::kInt},
-        {"staged_path", Kind::kString},
-        {"checksum", Kind::kString},
-        {"seconds", Kind::kNumber}}},
-      {"failed",
-       {{"worker", Kind::kString},
-        {"task", Kind::kInt},
-        {"attempt", Kind::kInt},
-        {"error", Kind::kString}}},
-      {"release", {{"worker", Kind::kString}, {"task", Kind::kInt}, {"attempt", Kind::kInt}}},
-      {"submit",
-       {{"spec_path", Kind::kString}, {"overrides", Kind::kArray}, {"out_dir", Kind::kString}}},
-      {"status", {}},
-      {"resume", {{"batch", Kind::kString}}},
-      {"cancel", {{"batch", Kind::kString}}},
-      {"task", {{"task", Kind::kInt}, {"attempt", Kind::kInt}, {"kind", Kind::kString}}},
-      {"wait", {{"seconds", Kind::kNumber}}},
-      {"ack", {}},
-      {"submitted", {{"batch", Kind::kString}}},
-      {"status_reply", {{"batches", Kind::kArray}}},
-      {"error", {{"message", Kind::kString}}},
-      {"shutdown", {}},
-  };
-  return s;
-}
-
-bool matches(const Json& v, Kind k) {
-  switch (k) {
-    case Kind::kString:
-      return v.is_string();
-    case Kind::kInt:
-      return v.is_number_integer();
-    case Kind::kNumber:
-      return v.is_number() && std::isfinite(v.get<double>());
-    case Kind::kArray:
-      return v.is_array();
-    case Kind::kObject:
-      return v.is_object();
-  }
-  return false;
-}
-
-const char* kind_name(Kind k) {
-  switch (k) {
-    case Kind::kString:
-      return "a string";
-    case Kind::kInt:
-      return "an integer";
-    case Kind::kNumber:
-      return "a finite number";
-    case Kind::kArray:
-      return "an array";
-    case Kind::kObject:
-      return "an object";
-  }
-  return "?";
-}
-
-}  // namespace
 
 const std::string& Message::str(const char* key) const {
   return body.at(key).get_ref<const std::string&>();
@@ -100,12 +26,9 @@ Message parse(const void* data, size_t size) {
     throw ProtocolError("message has no string \"type\"");
   Message m;
   m.type = j["type"].get<std::string>();
-  auto it = schema().find(m.type);
-  if (it == schema().end()) throw ProtocolError("unknown message type \"" + m.type + "\"");
-  for (const auto& [key, kind] : it->second) {
-    if (!j.contains(key) || !matches(j[key], kind))
-      throw ProtocolError("\"" + m.type + "\" message: \"" + key + "\" must be " + kind_name(kind));
-  }
+  const MessageDef* def = find_message(m.type);
+  if (!def) throw ProtocolError("unknown message type \"" + clip_text(m.type, 64) + "\"");
+  validate(*def, j);
   m.body = std::move(j);
   return m;
 }
@@ -114,11 +37,21 @@ std::string encode(const std::string& type, Json fields) {
   if (!fields.is_object()) fields = Json::object();
   fields["v"] = kVersion;
   fields["type"] = type;
-  return fields.dump();
+  // The sender is held to the same definition as the receiver: a message that
+  // breaks it is a programmer error, reported as a ProtocolError here rather
+  // than as an error reply from the peer.
+  const MessageDef* def = find_message(type);
+  if (!def) throw ProtocolError("encode: unknown message type \"" + type + "\"");
+  validate(*def, fields);
+  std::string out = fields.dump(-1, ' ', false, Json::error_handler_t::replace);
+  if (out.size() > kMaxMessageBytes)
+    throw ProtocolError("encode: \"" + type + "\" message of " + std::to_string(out.size()) +
+                        " bytes exceeds the limit of " + std::to_string(kMaxMessageBytes));
+  return out;
 }
 
 std::string error_reply(const std::string& message) {
-  return encode("error", Json{{"message", message}});
+  return encode("error", Json{{"message", clip_text(message)}});
 }
 
 }  // namespace dofarm::protocol

@@ -1,6 +1,7 @@
 // The farm's wire protocol (docs/protocol.md). Every message is one ZeroMQ
 // frame holding a JSON object {"v": 1, "type": "...", ...}, at most
-// kMaxMessageBytes. parse() is the one place incoming bytes are checked:
+// kMaxMessageBytes, defined field by field in common/messages.h. parse() is
+// the one place incoming bytes are checked:
 // anything malformed, oversized, of another version or an unknown type, or
 // missing a field becomes a ProtocolError, which the receiver turns into an
 // "error" reply; it never stops the receiver.
