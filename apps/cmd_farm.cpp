@@ -110,6 +110,11 @@ void print_status_table(const Json& st, std::ostream& out) {
     }
     if (!b["blocklisted"].empty())
       out << "  blocklisted workers: " << b["blocklisted"].dump() << "\n";
+    if (!b.value("reason", std::string()).empty())
+      out << "  reason: " << b["reason"].get<std::string>() << "\n";
+    if (b.contains("stalled_seconds") && !b["stalled_seconds"].is_null())
+      out << "  stalled: no eligible worker for " << int(b["stalled_seconds"].get<double>())
+          << " s\n";
   }
   int live = 0;
   for (const Json& w : st["workers"]) live += w["live"].get<bool>();
@@ -264,6 +269,7 @@ Command add_coordinator(CLI::App& app) {
   struct Args {
     std::string listen = "tcp://*:5555", state, curve;
     double lease = 30;
+    double stall_timeout = coordinator::SchedulerOptions{}.stall_timeout;
   };
   auto a = std::make_shared<Args>();
   CLI::App* cmd = app.add_subcommand("coordinator", "Run the farm's coordinator");
@@ -274,6 +280,11 @@ Command add_coordinator(CLI::App& app) {
   cmd->add_option("--curve-secret", a->curve, "CURVE secret key file (see keygen)")
       ->type_name("FILE");
   cmd->add_option("--lease", a->lease, "task lease in seconds")->capture_default_str();
+  cmd->add_option("--stall-timeout", a->stall_timeout,
+                  "fail a batch that has had no eligible worker (live, not blocklisted) for "
+                  "this many seconds; 0 = never")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
   return {cmd, [a]() {
             install_stop_signals();
             coordinator::SystemClock clock;
@@ -281,6 +292,7 @@ Command add_coordinator(CLI::App& app) {
             so.listen = a->listen;
             so.state_dir = a->state;
             so.scheduler.lease_seconds = a->lease;
+            so.scheduler.stall_timeout = a->stall_timeout;
             if (!a->curve.empty()) so.curve_secret = a->curve;
             coordinator::Server server(so, clock);
             // Tests and scripts read the bound endpoint from here.

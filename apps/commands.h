@@ -28,5 +28,6 @@ Command add_resume(CLI::App& app);
 Command add_cancel(CLI::App& app);
 Command add_inspect(CLI::App& app);
 Command add_keygen(CLI::App& app);
+Command add_verify(CLI::App& app);
 
 }  // namespace dofarm

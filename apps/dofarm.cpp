@@ -144,6 +144,7 @@ int run_main(int argc, char** argv) {
     return std::vector<Command>{
         add_render(a), add_run(a),    add_coordinator(a), add_worker(a),  add_submit(a),
         add_status(a), add_resume(a), add_cancel(a),      add_inspect(a), add_keygen(a),
+        add_verify(a),
     };
   });
 }

@@ -178,6 +178,20 @@ void add_to_manifest(const fs::path& dir, const ManifestEntry& entry) {
   save_manifest(dir, m);
 }
 
+void rewrite_manifest(const fs::path& dir,
+                      const std::function<void(Manifest& manifest, bool readable)>& edit) {
+  ManifestLock lock(dir);
+  Manifest m;
+  bool readable = true;
+  try {
+    m = load_manifest(dir);
+  } catch (const RuntimeError&) {
+    readable = false;  // the caller rebuilds it from what it knows
+  }
+  edit(m, readable);
+  save_manifest(dir, m);
+}
+
 std::vector<ManifestProblem> verify_manifest(const fs::path& dir, bool checksums) {
   std::vector<ManifestProblem> problems;
   for (const ManifestEntry& e : load_manifest(dir).shards) {

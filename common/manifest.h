@@ -18,6 +18,7 @@
 
 #include <cstdint>
 #include <filesystem>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -55,6 +56,11 @@ void save_manifest(const std::filesystem::path& dir, const Manifest& manifest);
 // Adds `entry`, replacing an entry of the same file (a retried pack job is
 // harmless), under the folder's manifest lock.
 void add_to_manifest(const std::filesystem::path& dir, const ManifestEntry& entry);
+// Edits the manifest under the folder's lock and replaces it atomically:
+// `edit` gets the entries (none when the file is missing or unreadable, which
+// `readable` tells, so the caller can rebuild it) and changes them in place.
+void rewrite_manifest(const std::filesystem::path& dir,
+                      const std::function<void(Manifest& manifest, bool readable)>& edit);
 
 struct ManifestProblem {
   std::string file;

@@ -1,6 +1,7 @@
 #include "common/transport.h"
 
 #include <fstream>
+#include <thread>
 
 namespace dofarm {
 
@@ -55,6 +56,40 @@ protocol::Message CoordinatorClient::call(const std::string& payload) {
                        std::to_string(options_.timeout_ms) + " ms");
   }
   return protocol::parse(reply.data(), reply.size());
+}
+
+protocol::Message CoordinatorClient::call(const std::string& payload,
+                                         const std::function<bool()>& give_up) {
+  using Steady = std::chrono::steady_clock;
+  const auto deadline = Steady::now() + std::chrono::milliseconds(options_.timeout_ms);
+  const auto slice = std::chrono::milliseconds(50);
+  auto fail = [&](const std::string& why) {
+    reconnect();  // a late reply must not be taken for the next request's
+    return RuntimeError(why + " (" + options_.endpoint + ")");
+  };
+  // `immediate`: without a connected coordinator the send fails at once.
+  while (!socket_->send(zmq::buffer(payload), zmq::send_flags::dontwait)) {
+    if (give_up()) throw fail("gave up sending to the coordinator");
+    if (Steady::now() >= deadline) throw fail("cannot reach the coordinator");
+    std::this_thread::sleep_for(slice);
+  }
+  for (;;) {
+    zmq::pollitem_t item{socket_->handle(), 0, ZMQ_POLLIN, 0};
+    try {
+      zmq::poll(&item, 1, slice);
+    } catch (const zmq::error_t& e) {
+      if (e.num() != EINTR) throw;  // a signal: look at give_up() below
+    }
+    if (item.revents & ZMQ_POLLIN) {
+      zmq::message_t reply;
+      if (socket_->recv(reply, zmq::recv_flags::dontwait))
+        return protocol::parse(reply.data(), reply.size());
+    }
+    if (give_up()) throw fail("gave up waiting for the coordinator's reply");
+    if (Steady::now() >= deadline)
+      throw fail("no reply from the coordinator within " + std::to_string(options_.timeout_ms) +
+                 " ms");
+  }
 }
 
 protocol::Message call_coordinator(const ClientOptions& options, const std::string& payload) {

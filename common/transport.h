@@ -6,6 +6,7 @@
 
 #include <chrono>
 #include <filesystem>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -28,6 +29,11 @@ class CoordinatorClient {
   // timeout (the socket is then rebuilt, dropping any late reply) and
   // protocol::ProtocolError for a malformed reply.
   protocol::Message call(const std::string& payload);
+  // The same, but gives up (RuntimeError, the socket rebuilt) as soon as
+  // `give_up` returns true; it is asked every 50 ms while the message waits
+  // to be sent or for its reply. A worker that must stop promptly on SIGTERM
+  // cannot sit out a whole timeout_ms.
+  protocol::Message call(const std::string& payload, const std::function<bool()>& give_up);
   // Drops the connection and makes a new one (fresh identity).
   void reconnect();
 

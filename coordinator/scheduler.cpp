@@ -10,6 +10,8 @@
 #include <string_view>
 #include <tuple>
 
+#include <spdlog/spdlog.h>
+
 #include "common/error.h"
 
 namespace dofarm::coordinator {
@@ -388,18 +390,26 @@ FailResult Scheduler::fail(const std::string& worker, int64_t task, int attempt,
     clear_lease(t);
     t.last_error = error;
     t.updated = now;
-    if (failures >= options_.max_task_failures) {
-      t.state = TaskState::kFailed;
-      store_.update_task(t);
-      queue_.set_state(*m, TaskState::kFailed, 0, now);
-      std::string by;
-      for (const std::string& w : store_.failed_workers(task, t.retry_base)) {
-        by += (by.empty() ? "" : ", ") + w;
-      }
-      store_.add_event(now, t.batch_id, "error",
-                       describe(t) + " failed for good after " + std::to_string(failures) +
-                           " failures (" + by + "): " + error);
-      fail_dependents(t, now);
+    // The blocklist first: it decides whether anybody is left to retry.
+    RunQueue::Batch& batch = *m->batch;
+    if (!batch.blocked.count(worker) &&
+        store_.tasks_failed_by(t.batch_id, worker) >= options_.blocklist_after) {
+      store_.block(t.batch_id, worker, now);
+      batch.blocked.insert(worker);
+      const std::string text = worker + " blocklisted for the batch after failing " +
+                               std::to_string(options_.blocklist_after) + " of its tasks";
+      store_.add_event(now, t.batch_id, "warn", text);
+      spdlog::warn("batch {}: {}", t.batch_id, text);
+      result.worker_blocklisted = true;
+    }
+    if (failures >= options_.max_task_failures || hopeless(*m, now)) {
+      t.state = TaskState::kPending;  // fail_for_good moves it on
+      fail_for_good(t, *m,
+                    failures >= options_.max_task_failures
+                        ? "after " + std::to_string(failures) + " failures"
+                        : "after " + std::to_string(failures) +
+                              " failures: no other worker can take it",
+                    now);
       result.status = FailStatus::kFailedForGood;
     } else {
       t.state = TaskState::kPending;
@@ -415,19 +425,59 @@ FailResult Scheduler::fail(const std::string& worker, int64_t task, int attempt,
       result.status = FailStatus::kRetry;
       result.retry_at = t.not_before;
     }
-    if (!m->batch->blocked.count(worker) &&
-        store_.tasks_failed_by(t.batch_id, worker) >= options_.blocklist_after) {
-      store_.block(t.batch_id, worker, now);
-      m->batch->blocked.insert(worker);
-      store_.add_event(now, t.batch_id, "warn",
-                       worker + " blocklisted for the batch after failing " +
-                           std::to_string(options_.blocklist_after) + " of its tasks");
-      result.worker_blocklisted = true;
+    if (result.worker_blocklisted) {
+      // The other tasks this worker failed may now have nobody left.
+      for (TaskRow other : store_.tasks(t.batch_id)) {
+        RunQueue::Task* o = queue_.task(other.id);
+        if (other.state != TaskState::kPending || !o || o->state != TaskState::kPending ||
+            !hopeless(*o, now))
+          continue;
+        fail_for_good(other, *o, "no worker that could take it is left", now);
+      }
     }
     finish_batch_if_complete(t.batch_id, now);
     tx.commit();
     return result;
   });
+}
+
+bool Scheduler::live(const WorkerRow& w, double now) const {
+  return !w.left && now - w.last_seen <= 2 * options_.lease_seconds;
+}
+
+int Scheduler::eligible_workers(const RunQueue::Batch& batch,
+                                const std::vector<std::string>& except, double now) const {
+  int n = 0;
+  for (const auto& [id, w] : workers_) {
+    if (live(w, now) && !batch.blocked.count(id) && !contains(except, id)) ++n;
+  }
+  return n;
+}
+
+bool Scheduler::hopeless(const RunQueue::Task& task, double now) const {
+  if (task.failed_by.empty()) return false;  // never tried: the stall timeout decides
+  if (eligible_workers(*task.batch, task.failed_by, now) > 0) return false;
+  std::set<std::string> distinct(task.failed_by.begin(), task.failed_by.end());
+  // Two machines agree, or none of the failers may try again.
+  return distinct.size() >= 2 || eligible_workers(*task.batch, {}, now) == 0;
+}
+
+void Scheduler::fail_for_good(TaskRow& t, RunQueue::Task& m, const std::string& why,
+                              double now) {
+  t.state = TaskState::kFailed;
+  clear_lease(t);
+  t.updated = now;
+  store_.update_task(t);
+  queue_.set_state(m, TaskState::kFailed, 0, now);
+  std::string by;
+  for (const std::string& w : store_.failed_workers(t.id, t.retry_base)) {
+    by += (by.empty() ? "" : ", ") + w;
+  }
+  const std::string text = describe(t) + " failed for good " + why +
+                           (by.empty() ? "" : " (" + by + ")") + ": " + t.last_error;
+  store_.add_event(now, t.batch_id, "error", text);
+  spdlog::warn("batch {}: {}", t.batch_id, text);
+  fail_dependents(t, now);
 }
 
 void Scheduler::fail_dependents(const TaskRow& failed, double now) {
@@ -519,7 +569,8 @@ void Scheduler::flush_if_due() {
   if (clock_.now() - last_flush_ >= options_.heartbeat_flush_seconds) flush();
 }
 
-void Scheduler::finish_batch_if_complete(const std::string& batch_id, double now) {
+void Scheduler::finish_batch_if_complete(const std::string& batch_id, double now,
+                                         const std::string& reason) {
   // The running batch's count in memory answers the common case (work left)
   // without a query on every completion.
   const RunQueue::Batch* b = queue_.batch(batch_id);
@@ -530,10 +581,63 @@ void Scheduler::finish_batch_if_complete(const std::string& batch_id, double now
       0);
   const int failed = counts[static_cast<int>(TaskState::kFailed)];
   store_.set_batch_state(batch_id, failed > 0 ? BatchState::kFailed : BatchState::kDone, now);
-  store_.add_event(
-      now, batch_id, failed > 0 ? "error" : "info",
-      failed > 0 ? "finished with " + std::to_string(failed) + " failed tasks" : "finished");
+  std::string text = "finished";
+  if (failed > 0) {
+    // The event is the batch's failure reason in `status`: say why.
+    std::string why = reason;
+    if (why.empty()) {
+      for (const TaskRow& t : store_.tasks(batch_id)) {
+        if (t.state != TaskState::kFailed) continue;
+        why = "first: " + describe(t) + ": " + t.last_error;
+        break;
+      }
+    }
+    text = "finished with " + std::to_string(failed) + " failed tasks; " + why;
+    spdlog::warn("batch {}: {}", batch_id, text);
+  }
+  store_.add_event(now, batch_id, failed > 0 ? "error" : "info", text);
+  stalled_since_.erase(batch_id);
   queue_.drop_batch(batch_id);
+}
+
+std::vector<std::string> Scheduler::fail_stalled_batches() {
+  const double now = clock_.now();
+  if (options_.stall_timeout <= 0 || now - last_stall_check_ < 1) return {};
+  last_stall_check_ = now;
+  std::vector<std::string> failed;
+  for (const BatchRow& row : store_.batches()) {
+    if (row.state != BatchState::kRunning) continue;
+    RunQueue::Batch* b = queue_.batch(row.id);
+    if (!b || b->unfinished == 0 || eligible_workers(*b, {}, now) > 0 ||
+        !store_.leased_tasks(row.id).empty()) {
+      stalled_since_.erase(row.id);
+      continue;
+    }
+    const double since = stalled_since_.try_emplace(row.id, now).first->second;
+    if (now - since < options_.stall_timeout) continue;
+    std::string blocked;
+    for (const std::string& w : b->blocked) blocked += (blocked.empty() ? "" : ", ") + w;
+    const std::string reason =
+        "no eligible worker for " + std::to_string(int(now - since)) + " s (stall timeout " +
+        std::to_string(int(options_.stall_timeout)) + " s; " +
+        (blocked.empty() ? std::string("no live worker") : "blocklisted: " + blocked) + ")";
+    guarded([&] {
+      Transaction tx(store_);
+      for (TaskRow t : store_.tasks(row.id)) {
+        RunQueue::Task* m = queue_.task(t.id);
+        if (t.state != TaskState::kPending || !m) continue;
+        t.state = TaskState::kFailed;
+        if (t.last_error.empty()) t.last_error = reason;
+        t.updated = now;
+        store_.update_task(t);
+        queue_.set_state(*m, TaskState::kFailed, 0, now);
+      }
+      finish_batch_if_complete(row.id, now, reason);
+      tx.commit();
+    });
+    failed.push_back(row.id);
+  }
+  return failed;
 }
 
 OpResult Scheduler::cancel(const std::string& batch_id) {
@@ -660,6 +764,17 @@ StatusReport Scheduler::status(const std::string& batch_id) {
       st.eta_seconds = (st.frames_total - st.frames_rendered) / st.frames_per_hour * 3600.0;
     }
     st.blocklisted = store_.blocked_workers(batch.id);
+    if (batch.state == BatchState::kFailed) {
+      for (const EventRow& e : store_.events(batch.id, 50)) {
+        if (e.level != "error") continue;
+        st.reason = e.text;
+        break;
+      }
+    }
+    if (auto it = stalled_since_.find(batch.id);
+        it != stalled_since_.end() && batch.state == BatchState::kRunning) {
+      st.stalled_seconds = now - it->second;
+    }
     report.batches.push_back(std::move(st));
   }
   std::map<std::string, std::vector<int64_t>> leases;
@@ -685,6 +800,19 @@ std::vector<StagedTile> Scheduler::staged_tiles_to_verify(const std::string& bat
     if (t.kind == TaskKind::kRenderTile && t.state == TaskState::kDone && !packed.count(t.shard)) {
       out.push_back({t.id, t.frame, t.rect, t.shard, t.staged_path, t.checksum});
     }
+  }
+  return out;
+}
+
+std::vector<PackedShard> Scheduler::packed_shards(const std::string& batch_id) {
+  const std::optional<BatchRow> batch = store_.batch(batch_id);
+  if (!batch) return {};
+  const std::vector<ShardRange> ranges =
+      shard_ranges(batch->frame_start, batch->frame_end, batch->per_shard);
+  std::vector<PackedShard> out;
+  for (const TaskRow& t : store_.tasks(batch_id)) {
+    if (t.kind != TaskKind::kPackShard || t.state != TaskState::kDone) continue;
+    out.push_back({t.id, batch->out_dir, ranges.at(t.shard), t.checksum, inputs_of(t)});
   }
   return out;
 }

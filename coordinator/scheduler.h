@@ -17,9 +17,19 @@
 //    failer of the task). When no such worker exists (a one-worker farm) the
 //    same worker retries it after the back-off, so a small farm still ends.
 //  - A task fails for good at its max_task_failures-th counted failure; with
-//    enough live workers those are as many distinct workers. Its error is
-//    kept, the tasks that depend on it (its shard's pack) fail with it, and
-//    the batch goes on; a batch with failed tasks ends as kFailed.
+//    enough live workers those are as many distinct workers. It also fails
+//    for good, with fewer failures, once it failed on every worker that
+//    could take it: no live worker outside its failers and the batch's
+//    blocklist is left, and either two distinct workers failed it or none of
+//    its failers may retry it (all blocklisted). A one-worker farm still
+//    retries. Its error is kept, the tasks that depend on it (its shard's
+//    pack) fail with it, and the batch goes on; a batch with failed tasks
+//    ends as kFailed.
+//  - A running batch that has had no eligible worker (live and not
+//    blocklisted for it) and no lease for stall_timeout seconds fails: its
+//    unfinished tasks fail for good with that reason (fail_stalled_batches).
+//    The time is measured in memory, so a restarted coordinator gives the
+//    batch a fresh stall_timeout.
 //  - Otherwise a failed task waits backoff_base * 2^(failures-1) seconds,
 //    at most backoff_max, before it is leased again.
 //  - A worker that failed blocklist_after distinct tasks of a batch gets no
@@ -68,6 +78,8 @@ struct SchedulerOptions {
   // Heartbeat renewals and last_seen times are written at most this long
   // after they happen (group commit; see the header comment).
   double heartbeat_flush_seconds = 1;
+  // A running batch with no eligible worker for this long fails; 0 = never.
+  double stall_timeout = 600;
 };
 
 // What a pack task merges: one done render tile.
@@ -78,6 +90,15 @@ struct StagedTile {
   int shard = 0;
   std::string staged_path;
   std::string checksum;  // checksum_to_string() form
+};
+
+// A done pack task: its shard as recorded when it was packed.
+struct PackedShard {
+  int64_t task_id = 0;
+  std::string out_dir;             // the batch's output folder
+  ShardRange range;                // frames and file name (in out_dir)
+  std::string checksum;            // checksum_to_string() of the shard file, reported at pack time
+  std::vector<StagedTile> inputs;  // its tiles; their staged files are gone once packed
 };
 
 struct Assignment {
@@ -150,6 +171,10 @@ struct BatchStatus {
   std::optional<double> eta_seconds;
   std::vector<FailedTask> failed;
   std::vector<std::string> blocklisted;
+  // Why a failed batch failed (its last error event), empty otherwise.
+  std::string reason;
+  // Seconds the running batch has had no eligible worker; empty when it has one.
+  std::optional<double> stalled_seconds;
 };
 
 struct WorkerStatus {
@@ -195,6 +220,10 @@ class Scheduler {
   bool release(const std::string& worker, int64_t task, int attempt);
   // Requeues every lease past its expiry; returns the task ids.
   std::vector<int64_t> expire_leases();
+  // Fails the running batches that have had no eligible worker for
+  // stall_timeout (see the policy above); returns their ids. Looks at most
+  // once a second; the coordinator's loop calls it on every round.
+  std::vector<std::string> fail_stalled_batches();
   // Writes the group-committed heartbeats and last_seen times (one
   // transaction); flush_if_due() does so when heartbeat_flush_seconds passed
   // since the last flush.
@@ -215,8 +244,13 @@ class Scheduler {
   // checks each staged file against its checksum (on resume, after a
   // restart) and calls invalidate() for those missing or corrupt.
   std::vector<StagedTile> staged_tiles_to_verify(const std::string& batch_id);
+  // Done pack tasks of `batch`, for the caller to check their shards (on
+  // resume and after a restart; coordinator/verify.h) and invalidate() the
+  // pack, and its tiles whose staged files are gone, for a damaged one.
+  std::vector<PackedShard> packed_shards(const std::string& batch_id);
   // A done task becomes pending again (its output is gone); the pack task of
-  // its shard, unless already done, waits for it again.
+  // its shard, unless already done, waits for it again. A done or failed
+  // batch runs again.
   OpResult invalidate(int64_t task);
 
   // Runnable task ids for `worker` now, in assignment order, from memory:
@@ -249,8 +283,18 @@ class Scheduler {
   void touch(const std::string& worker, double now);
   bool another_worker_could_take(const RunQueue::Task& task, const std::string& worker,
                                  double now) const;
+  bool live(const WorkerRow& w, double now) const;
+  // Live workers not blocklisted for `batch` and not in `except`.
+  int eligible_workers(const RunQueue::Batch& batch, const std::vector<std::string>& except,
+                       double now) const;
+  // A pending task that failed on every worker that could take it (policy above).
+  bool hopeless(const RunQueue::Task& task, double now) const;
+  // Within a transaction: `t` (its row) fails for good; `why` is logged.
+  void fail_for_good(TaskRow& t, RunQueue::Task& m, const std::string& why, double now);
   void fail_dependents(const TaskRow& failed, double now);
-  void finish_batch_if_complete(const std::string& batch_id, double now);
+  // `reason`: why the batch failed, when it did not end by its tasks alone.
+  void finish_batch_if_complete(const std::string& batch_id, double now,
+                                const std::string& reason = "");
   std::vector<StagedTile> inputs_of(const TaskRow& pack);
   std::string new_batch_id();
 
@@ -262,6 +306,8 @@ class Scheduler {
   std::set<int64_t> dirty_leases_;            // renewed since the last flush
   std::set<std::string> dirty_workers_;       // seen since the last flush
   double last_flush_ = 0;
+  std::map<std::string, double> stalled_since_;  // running batch -> first seen without worker
+  double last_stall_check_ = 0;
 };
 
 // `dofarm render SPEC --frame N --tile X,Y,W,H --out repro.exr --set K=V ...`

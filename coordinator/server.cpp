@@ -11,6 +11,7 @@
 
 #include "common/checksum.h"
 #include "common/jobspec.h"
+#include "coordinator/verify.h"
 
 namespace dofarm::coordinator {
 
@@ -143,7 +144,10 @@ Json status_to_json(const StatusReport& r) {
                        {"frames_per_hour", b.frames_per_hour},
                        {"eta_seconds", b.eta_seconds ? Json(*b.eta_seconds) : Json(nullptr)},
                        {"failed", failed},
-                       {"blocklisted", b.blocklisted}});
+                       {"blocklisted", b.blocklisted},
+                       {"reason", b.reason},
+                       {"stalled_seconds",
+                        b.stalled_seconds ? Json(*b.stalled_seconds) : Json(nullptr)}});
   }
   Json workers = Json::array();
   for (const WorkerStatus& w : r.workers)
@@ -196,27 +200,11 @@ Server::~Server() = default;
 bool Server::idle() { return scheduler_->running_batches() == 0; }
 
 int Server::verify_staged_tiles(const std::string& batch_id) {
-  int bad = 0;
-  for (const StagedTile& t : scheduler_->staged_tiles_to_verify(batch_id)) {
-    std::string why;
-    std::error_code ec;
-    if (!fs::exists(t.staged_path, ec)) {
-      why = "missing";
-    } else {
-      try {
-        if (checksum_to_string(checksum_file(t.staged_path)) != t.checksum)
-          why = "checksum mismatch";
-      } catch (const std::exception& e) {
-        why = e.what();
-      }
-    }
-    if (!why.empty()) {
-      spdlog::warn("staged tile {} ({}): rendering it again", t.staged_path, why);
-      scheduler_->invalidate(t.task_id);
-      ++bad;
-    }
-  }
-  return bad;
+  const ResumeCheck r = verify_batch_outputs(*scheduler_, batch_id);
+  if (r.total() > 0 || r.manifest_rebuilt)
+    spdlog::warn("batch {}: {} staged tiles and {} shards to redo{}", batch_id, r.tiles_requeued,
+                 r.shards_redone, r.manifest_rebuilt ? "; manifest.json rebuilt" : "");
+  return r.total();
 }
 
 std::string Server::handle_submit(const protocol::Message& m) {
@@ -427,6 +415,8 @@ void Server::poll_once(int timeout_ms) {
   try {
     for (int64_t id : scheduler_->expire_leases())
       spdlog::warn("task {}: lease expired, requeued", id);
+    for (const std::string& b : scheduler_->fail_stalled_batches())
+      spdlog::error("batch {} failed: no eligible worker for its stall timeout", b);
     scheduler_->flush_if_due();
   } catch (const std::exception& e) {
     spdlog::error("lease expiry or heartbeat flush failed: {}", e.what());

@@ -66,8 +66,11 @@ class Server {
   Scheduler& scheduler() { return *scheduler_; }
   // True when no batch is running (every batch done, failed or cancelled).
   bool idle();
-  // Checks the staged tiles of unpacked shards and requeues missing or
-  // corrupt ones (on start and on resume).
+  // The check of a resume (on start for running batches, the `resume`
+  // message, `dofarm run` of the same job): staged tiles of unpacked shards
+  // and every packed shard, requeuing what is missing or damaged
+  // (verify_batch_outputs in coordinator/verify.h). Returns how many tiles
+  // and shards are redone. It reads every shard of the batch, on the loop.
   int verify_staged_tiles(const std::string& batch_id);
 
   // Handles one decoded request; public for tests. A `request` with nothing

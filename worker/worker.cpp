@@ -6,6 +6,7 @@
 #include <chrono>
 #include <condition_variable>
 #include <mutex>
+#include <optional>
 #include <random>
 #include <thread>
 
@@ -58,8 +59,12 @@ class Heartbeat {
             if (done_) break;
             lock.unlock();
             try {
-              protocol::Message r = client.call(protocol::encode(
-                  "heartbeat", {{"worker", worker}, {"task", task}, {"attempt", attempt}}));
+              // Gives up when the task ends, so a coordinator that does not
+              // answer never holds up the worker's exit.
+              protocol::Message r = client.call(
+                  protocol::encode("heartbeat",
+                                   {{"worker", worker}, {"task", task}, {"attempt", attempt}}),
+                  [this] { return done_.load(); });
               if (r.type == "ack" && r.body.value("ok", true) == false) lost_ = true;
             } catch (const std::exception& e) {
               spdlog::warn("heartbeat for task {}: {}", task, e.what());
@@ -80,7 +85,7 @@ class Heartbeat {
  private:
   std::mutex mutex_;
   std::condition_variable cv_;
-  bool done_ = false;
+  std::atomic<bool> done_{false};  // written under mutex_, read by the call's give_up
   std::atomic<bool> lost_{false};
   std::thread thread_;
 };
@@ -101,8 +106,10 @@ class Worker {
     while (!stop_) {
       protocol::Message reply;
       try {
-        reply = client.call(protocol::encode(
-            "request", {{"worker", id_}, {"host", host}, {"threads", options_.threads}}));
+        reply = client.call(
+            protocol::encode("request",
+                             {{"worker", id_}, {"host", host}, {"threads", options_.threads}}),
+            [this] { return stop_.load(); });  // nothing to hand back yet: stop at once
       } catch (const std::exception& e) {
         double since =
             std::chrono::duration<double>(std::chrono::steady_clock::now() - last_contact).count();
@@ -134,11 +141,26 @@ class Worker {
   }
 
  private:
+  // After SIGTERM the coordinator gets this long, all calls together, to take
+  // the worker's last result or release; then the worker exits regardless
+  // (Slurm's grace is 30 s; docs/farm.md "Failure policy").
+  static constexpr double kStopGraceSeconds = 2;
+
+  // True once stop was requested more than kStopGraceSeconds ago.
+  bool past_stop_grace() {
+    if (!stop_) return false;
+    const auto now = std::chrono::steady_clock::now();
+    if (!stop_seen_) stop_seen_ = now;
+    return std::chrono::duration<double>(now - *stop_seen_).count() > kStopGraceSeconds;
+  }
+
   void send_result(CoordinatorClient& client, const std::string& payload) {
-    // A result is worth retrying: losing it costs a whole task.
-    for (int i = 0; i < 5; ++i) {
+    // A result is worth retrying: losing it costs a whole task. Once stopping,
+    // the attempts share kStopGraceSeconds: an unanswered release only means
+    // the lease expires and the task is requeued then.
+    for (int i = 0; i < 5 && !past_stop_grace(); ++i) {
       try {
-        client.call(payload);
+        client.call(payload, [this] { return past_stop_grace(); });
         return;
       } catch (const std::exception& e) {
         spdlog::warn("reporting a result: {}", e.what());
@@ -221,6 +243,7 @@ class Worker {
 
   WorkerOptions options_;
   std::atomic<bool>& stop_;
+  std::optional<std::chrono::steady_clock::time_point> stop_seen_;  // see past_stop_grace()
   std::string id_;
   zmq::context_t ctx_;
   SceneCache scenes_;
