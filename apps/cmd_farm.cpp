@@ -1,5 +1,5 @@
 // The farm's subcommands: run (embedded coordinator + local workers),
-// coordinator, worker, submit, status, resume, cancel, inspect, keygen.
+// coordinator, worker, submit, status, resume, cancel, inspect (keygen: cmd_keys.cpp).
 #include <signal.h>
 #include <spawn.h>
 #include <spdlog/spdlog.h>
@@ -60,16 +60,25 @@ protocol::Message checked(protocol::Message m) {
   return m;
 }
 
-// --coordinator and --curve-public, for every command that talks to one.
+// --coordinator, --curve-public and --curve-client, for every command that
+// talks to one.
 struct CoordinatorArgs {
   std::string endpoint;
-  std::string curve_public;
+  std::string curve_public, curve_client;
   ClientOptions client() const {
     ClientOptions o{endpoint, std::nullopt, 10000};
     if (!curve_public.empty()) o.curve_public = curve_public;
+    if (!curve_client.empty()) o.curve_client = curve_client;
     return o;
   }
 };
+
+void add_curve_client_option(CLI::App* cmd, std::string& file) {
+  cmd->add_option("--curve-client", file,
+                  "this client's CURVE key pair (keygen --client NAME: NAME.key), needed where "
+                  "the coordinator has an allow-list (--curve-clients)")
+      ->type_name("FILE");
+}
 
 void add_coordinator_option(CLI::App* cmd, CoordinatorArgs& c) {
   cmd->add_option("--coordinator", c.endpoint, "the coordinator's endpoint")
@@ -78,6 +87,7 @@ void add_coordinator_option(CLI::App* cmd, CoordinatorArgs& c) {
   cmd->add_option("--curve-public", c.curve_public,
                   "the coordinator's CURVE public key file, when it has one")
       ->type_name("FILE");
+  add_curve_client_option(cmd, c.curve_client);
 }
 
 std::string format_eta(const Json& eta) {
@@ -267,7 +277,7 @@ Command add_run(CLI::App& app) { return add_run_impl(app); }
 
 Command add_coordinator(CLI::App& app) {
   struct Args {
-    std::string listen = "tcp://*:5555", state, curve;
+    std::string listen = "tcp://*:5555", state, curve, clients;
     double lease = 30;
     double stall_timeout = coordinator::SchedulerOptions{}.stall_timeout;
   };
@@ -278,6 +288,10 @@ Command add_coordinator(CLI::App& app) {
       ->type_name("DIR")
       ->required();
   cmd->add_option("--curve-secret", a->curve, "CURVE secret key file (see keygen)")
+      ->type_name("FILE");
+  cmd->add_option("--curve-clients", a->clients,
+                  "CURVE allow-list: lines PUBLIC_KEY ROLE [NAME], ROLE worker or operator "
+                  "(docs/farm.md); only these keys get in. Needs --curve-secret")
       ->type_name("FILE");
   cmd->add_option("--lease", a->lease, "task lease in seconds")->capture_default_str();
   cmd->add_option("--stall-timeout", a->stall_timeout,
@@ -294,6 +308,7 @@ Command add_coordinator(CLI::App& app) {
             so.scheduler.lease_seconds = a->lease;
             so.scheduler.stall_timeout = a->stall_timeout;
             if (!a->curve.empty()) so.curve_secret = a->curve;
+            if (!a->clients.empty()) so.curve_clients = a->clients;
             coordinator::Server server(so, clock);
             // Tests and scripts read the bound endpoint from here.
             std::cout << "listening " << server.endpoint() << std::endl;
@@ -306,6 +321,7 @@ Command add_coordinator(CLI::App& app) {
 Command add_worker(CLI::App& app) {
   auto o = std::make_shared<worker::WorkerOptions>();
   auto curve = std::make_shared<std::string>();
+  auto key_pair = std::make_shared<std::string>();
   CLI::App* cmd = app.add_subcommand("worker", "Run a render worker");
   cmd->add_option("--connect", o->endpoint, "the coordinator's endpoint")
       ->type_name("tcp://HOST:PORT")
@@ -313,14 +329,16 @@ Command add_worker(CLI::App& app) {
   cmd->add_option("--threads", o->threads, "render threads; 0 = all cores")->capture_default_str();
   cmd->add_option("--curve-public", *curve, "the coordinator's CURVE public key file")
       ->type_name("FILE");
+  add_curve_client_option(cmd, *key_pair);
   cmd->add_option("--id", o->id, "worker id (default host-pid-random)");
   cmd->add_option("--heartbeat", o->heartbeat_seconds, "seconds between heartbeats")
       ->capture_default_str();
   cmd->add_option("--give-up", o->give_up_seconds,
                   "exit after this many seconds without a coordinator; 0 = never")
       ->capture_default_str();
-  return {cmd, [o, curve]() {
+  return {cmd, [o, curve, key_pair]() {
             if (!curve->empty()) o->curve_public = *curve;
+            if (!key_pair->empty()) o->curve_client = *key_pair;
             install_stop_signals();
             return worker::run_worker(*o, stop_requested());
           }};
@@ -415,27 +433,6 @@ Command add_inspect(CLI::App& app) {
   cmd->add_option("shard", a->shard, "shard file")->type_name("SHARD.h5")->required();
   cmd->add_flag("--json", a->json, "print JSON");
   return {cmd, [a]() { return inspect_shard(a->shard, a->json, std::cout); }};
-}
-
-Command add_keygen(CLI::App& app) {
-  auto dir = std::make_shared<std::string>();
-  CLI::App* cmd = app.add_subcommand(
-      "keygen", "Make a CURVE key pair: coordinator.key (secret) and coordinator.pub");
-  cmd->add_option("--out", *dir, "folder for the key files")->type_name("DIR")->required();
-  return {cmd, [dir]() {
-            auto [pub, sec] = curve_keypair();
-            fs::create_directories(*dir);
-            fs::path key = fs::path(*dir) / "coordinator.key",
-                     p = fs::path(*dir) / "coordinator.pub";
-            {
-              std::ofstream k(key);
-              k << sec << "\n";
-            }
-            fs::permissions(key, fs::perms::owner_read | fs::perms::owner_write);
-            std::ofstream(p) << pub << "\n";
-            std::cout << "wrote " << key.string() << " and " << p.string() << std::endl;
-            return kExitOk;
-          }};
 }
 
 }  // namespace dofarm

@@ -6,15 +6,45 @@
 namespace dofarm {
 
 namespace {
-std::string read_key(const std::filesystem::path& path) {
+
+// The first line of a key file, without trailing blanks or CR.
+std::string first_line(const std::filesystem::path& path, const std::string& option,
+                       const std::string& what) {
   std::ifstream in(path);
-  std::string key;
-  if (!in || !std::getline(in, key) || key.size() < 40)
-    throw SpecError(FileLoc{path.string(), 1}, "curve-public",
-                    "expected a Z85 CURVE public key (40 characters) on the first line");
-  return key.substr(0, 40);
+  std::string line;
+  if (!in) throw SpecError(FileLoc{path.string()}, option, "cannot read " + what);
+  std::getline(in, line);
+  while (!line.empty() && (line.back() == '\r' || line.back() == ' ' || line.back() == '\t'))
+    line.pop_back();
+  if (!is_z85_key(line))
+    throw SpecError(FileLoc{path.string(), 1, 1}, option,
+                    "expected " + what + " (40 Z85 characters) on the first line");
+  return line;
 }
+
 }  // namespace
+
+bool is_z85_key(std::string_view text) {
+  if (text.size() != 40) return false;
+  uint8_t bytes[32];
+  const std::string copy(text);
+  return zmq_z85_decode(bytes, copy.c_str()) != nullptr;
+}
+
+std::string read_curve_public_key(const std::filesystem::path& path, const std::string& option) {
+  return first_line(path, option, "a Z85 CURVE public key");
+}
+
+std::string read_curve_secret_key(const std::filesystem::path& path, const std::string& option) {
+  return first_line(path, option, "a Z85 CURVE secret key");
+}
+
+std::string curve_public_of(const std::string& secret) {
+  char pub[41];
+  if (zmq_curve_public(pub, secret.c_str()) != 0)
+    throw RuntimeError("cannot derive a CURVE public key (ZeroMQ without CURVE?)");
+  return pub;
+}
 
 std::pair<std::string, std::string> curve_keypair() {
   char pub[41], sec[41];
@@ -25,6 +55,17 @@ std::pair<std::string, std::string> curve_keypair() {
 
 CoordinatorClient::CoordinatorClient(zmq::context_t& ctx, ClientOptions options)
     : ctx_(ctx), options_(std::move(options)) {
+  // Key files are read once: a bad one is bad input (exit 2) at the start,
+  // never a failure at some later reconnect.
+  if (options_.curve_client && !options_.curve_public)
+    throw SpecError(FileLoc{options_.curve_client->string()}, "curve-client",
+                    "a client key pair needs the coordinator's public key too (--curve-public)");
+  if (options_.curve_public)
+    server_key_ = read_curve_public_key(*options_.curve_public, "curve-public");
+  if (options_.curve_client) {
+    secret_key_ = read_curve_secret_key(*options_.curve_client, "curve-client");
+    public_key_ = curve_public_of(secret_key_);
+  }
   reconnect();
 }
 
@@ -35,9 +76,11 @@ void CoordinatorClient::reconnect() {
   socket_->set(zmq::sockopt::sndtimeo, options_.timeout_ms);
   socket_->set(zmq::sockopt::rcvtimeo, options_.timeout_ms);
   socket_->set(zmq::sockopt::maxmsgsize, int64_t(protocol::kMaxMessageBytes));
-  if (options_.curve_public) {
-    auto [pub, sec] = curve_keypair();  // this client's own, fresh key
-    socket_->set(zmq::sockopt::curve_serverkey, read_key(*options_.curve_public));
+  if (!server_key_.empty()) {
+    // Without a key pair of its own (--curve-client) a fresh one per socket:
+    // enough for a coordinator without an allow-list, refused by one with.
+    auto [pub, sec] = secret_key_.empty() ? curve_keypair() : std::pair{public_key_, secret_key_};
+    socket_->set(zmq::sockopt::curve_serverkey, server_key_);
     socket_->set(zmq::sockopt::curve_publickey, pub);
     socket_->set(zmq::sockopt::curve_secretkey, sec);
   }

@@ -10,6 +10,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <string_view>
 #include <zmq.hpp>
 
 #include "common/protocol.h"
@@ -20,6 +21,10 @@ struct ClientOptions {
   std::string endpoint;                               // tcp://HOST:PORT
   std::optional<std::filesystem::path> curve_public;  // the coordinator's Z85 public key file
   int timeout_ms = 10000;                             // per request
+  // This client's own key pair (`dofarm keygen --client NAME`: NAME.key, the
+  // secret key on its first line), needed where the coordinator has an
+  // allow-list; without it every connection makes a fresh key pair.
+  std::optional<std::filesystem::path> curve_client = std::nullopt;
 };
 
 class CoordinatorClient {
@@ -40,6 +45,8 @@ class CoordinatorClient {
  private:
   zmq::context_t& ctx_;
   ClientOptions options_;
+  std::string server_key_;               // Z85; empty without CURVE
+  std::string public_key_, secret_key_;  // Z85; empty without --curve-client
   std::unique_ptr<zmq::socket_t> socket_;
 };
 
@@ -48,5 +55,13 @@ protocol::Message call_coordinator(const ClientOptions& options, const std::stri
 
 // A fresh CURVE key pair, Z85-encoded (public, secret).
 std::pair<std::string, std::string> curve_keypair();
+// The public key of a Z85 secret key.
+std::string curve_public_of(const std::string& secret);
+// 40 Z85 characters that decode to a 32-byte key.
+bool is_z85_key(std::string_view text);
+// Key files (dofarm keygen): a Z85 key on the first line (trailing blanks
+// and CR ignored). Anything else is a SpecError naming the file and `option`.
+std::string read_curve_public_key(const std::filesystem::path& path, const std::string& option);
+std::string read_curve_secret_key(const std::filesystem::path& path, const std::string& option);
 
 }  // namespace dofarm

@@ -5,12 +5,15 @@
 #include <algorithm>
 #include <cmath>
 #include <fstream>
+#include <map>
 #include <set>
 #include <thread>
 #include <zmq.hpp>
 
 #include "common/checksum.h"
 #include "common/jobspec.h"
+#include "common/transport.h"
+#include "coordinator/roles.h"
 #include "coordinator/verify.h"
 
 namespace dofarm::coordinator {
@@ -18,13 +21,16 @@ namespace dofarm::coordinator {
 namespace fs = std::filesystem;
 using protocol::Json;
 
-// ZAP (ZeroMQ RFC 27) handler for CURVE: lets in the client public keys
-// listed in the key file, or every client that completed the CURVE handshake
-// (i.e. knew the coordinator's public key) when none are listed.
+// ZAP (ZeroMQ RFC 27) handler for CURVE: lets in the client public keys of
+// the allow-list and names their role as the connection's User-Id, which the
+// receive loop checks every message against (coordinator/roles.h). Without
+// an allow-list every client that completed the CURVE handshake (i.e. knew
+// the coordinator's public key) is let in as an operator.
 class ZapHandler {
  public:
-  ZapHandler(zmq::context_t& ctx, std::set<std::string> allowed)
-      : socket_(ctx, zmq::socket_type::rep), allowed_(std::move(allowed)) {
+  ZapHandler(zmq::context_t& ctx, std::vector<ClientKey> allowed)
+      : socket_(ctx, zmq::socket_type::rep), any_key_(allowed.empty()) {
+    for (ClientKey& k : allowed) allowed_.emplace(k.public_key, std::move(k));
     socket_.bind("inproc://zeromq.zap.01");
     thread_ = std::thread([this] { loop(); });
   }
@@ -53,24 +59,33 @@ class ZapHandler {
       }
       // version, request id, domain, address, identity, mechanism, credentials...
       std::string request_id = parts.size() > 1 ? parts[1].to_string() : "";
-      bool ok = false;
+      std::string role;
       if (parts.size() >= 7 && parts[5].to_string() == "CURVE" && parts[6].size() == 32) {
         char z85[41];
         zmq_z85_encode(z85, static_cast<const uint8_t*>(parts[6].data()), 32);
-        ok = allowed_.empty() || allowed_.count(z85);
-        if (!ok) spdlog::warn("refused a client with an unknown CURVE key {}", z85);
+        const std::string address = parts[3].to_string();
+        if (any_key_) {
+          role = to_string(Role::kOperator);
+        } else if (auto it = allowed_.find(z85); it != allowed_.end()) {
+          role = to_string(it->second.role);
+          spdlog::debug("client {} ({} key {}) from {}", it->second.name, role, z85, address);
+        } else {
+          spdlog::warn("refused a client with a CURVE key not on the allow-list: {} from {}", z85,
+                       address);
+        }
       }
-      const char* code = ok ? "200" : "400";
+      const bool ok = !role.empty();
       socket_.send(zmq::str_buffer("1.0"), zmq::send_flags::sndmore);
       socket_.send(zmq::buffer(request_id), zmq::send_flags::sndmore);
-      socket_.send(zmq::buffer(std::string(code)), zmq::send_flags::sndmore);
+      socket_.send(zmq::buffer(std::string(ok ? "200" : "400")), zmq::send_flags::sndmore);
       socket_.send(zmq::buffer(std::string(ok ? "OK" : "unknown key")), zmq::send_flags::sndmore);
-      socket_.send(zmq::str_buffer(""), zmq::send_flags::sndmore);
+      socket_.send(zmq::buffer(role), zmq::send_flags::sndmore);  // User-Id: the role
       socket_.send(zmq::str_buffer(""), zmq::send_flags::none);
     }
   }
   zmq::socket_t socket_;
-  std::set<std::string> allowed_;
+  bool any_key_;  // no allow-list: every key, as an operator
+  std::map<std::string, ClientKey> allowed_;
   std::atomic<bool> stop_{false};
   std::thread thread_;
 };
@@ -173,18 +188,30 @@ Server::Server(ServerOptions options, const Clock& clock)
   // A restarted worker comes back with a fresh identity; an old identity that
   // reconnects takes over its route.
   socket_->set(zmq::sockopt::router_handover, 1);
+  if (options_.curve_clients && !options_.curve_secret)
+    throw SpecError(FileLoc{options_.curve_clients->string()}, "curve-clients",
+                    "an allow-list needs CURVE: give --curve-secret too");
   if (options_.curve_secret) {
+    const std::string secret = read_curve_secret_key(*options_.curve_secret, "curve-secret");
+    std::vector<ClientKey> allowed;
+    if (options_.curve_clients) allowed = load_client_keys(*options_.curve_clients);
+    // Older key files list client public keys after the secret: operators.
     std::ifstream in(*options_.curve_secret);
-    std::string secret, line;
-    if (!in || !std::getline(in, secret) || secret.size() < 40)
-      throw SpecError(FileLoc{options_.curve_secret->string(), 1}, "curve-secret",
-                      "expected a Z85 CURVE secret key (40 characters) on the first line");
-    std::set<std::string> allowed;
-    while (std::getline(in, line))
-      if (line.size() >= 40) allowed.insert(line.substr(0, 40));
+    std::string line;
+    std::getline(in, line);
+    for (int n = 2; std::getline(in, line); ++n) {
+      const std::string key = line.substr(0, 40);
+      if (!is_z85_key(key)) continue;
+      if (std::none_of(allowed.begin(), allowed.end(),
+                       [&](const ClientKey& k) { return k.public_key == key; }))
+        allowed.push_back({key, Role::kOperator, "line " + std::to_string(n), n});
+    }
+    if (allowed.empty())
+      spdlog::warn("CURVE without a client allow-list (--curve-clients): every client that knows "
+                   "the coordinator's public key may submit and cancel");
     zap_ = std::make_unique<ZapHandler>(*context_, std::move(allowed));
     socket_->set(zmq::sockopt::curve_server, 1);
-    socket_->set(zmq::sockopt::curve_secretkey, secret.substr(0, 40));
+    socket_->set(zmq::sockopt::curve_secretkey, secret);
     socket_->set(zmq::sockopt::zap_domain, "dofarm");
   }
   socket_->bind(options_.listen);
@@ -394,6 +421,9 @@ void Server::poll_once(int timeout_ms) {
         throw protocol::ProtocolError("expected one payload frame, got " +
                                       std::to_string(payload.size()));
       const protocol::Message m = protocol::parse(payload[0].data(), payload[0].size());
+      // Roles under CURVE (coordinator/roles.h): the ZAP User-Id is the role.
+      if (auto refused = refusal_for(zmq_msg_gets(payload[0].handle(), "User-Id"), m.type))
+        throw protocol::ProtocolError(*refused);
       if (m.type == "request") {
         std::optional<std::string> answer = answer_request(m);
         if (!answer) {

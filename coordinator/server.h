@@ -38,10 +38,14 @@ struct ServerOptions {
   std::string listen = "tcp://*:5555";
   std::filesystem::path state_dir;  // holds the job store, dofarm.sqlite
   // Z85 CURVE secret key of the coordinator (40 chars on the first line).
-  // When set, only clients that know the coordinator's public key connect,
-  // and, when the file has more lines, only the client public keys listed
-  // there are let in (ZAP).
+  // When set, only clients that know the coordinator's public key connect.
+  // Further lines of the file that hold client public keys (the older form
+  // of an allow-list) are read as operator keys of curve_clients.
   std::optional<std::filesystem::path> curve_secret;
+  // The client allow-list (coordinator/roles.h, load_client_keys()): only
+  // these keys get in, each with its role (worker or operator). Needs
+  // curve_secret.
+  std::optional<std::filesystem::path> curve_clients;
   SchedulerOptions scheduler;
   double wait_seconds = 0.5;        // longest a request is parked before it gets `wait`
   bool shutdown_when_idle = false;  // embedded run: tell workers to exit when nothing runs

@@ -111,7 +111,9 @@ ManifestEntry pack_shard(const JobSpec& spec, const fs::path& out_dir, const Sha
 
   ShardWriter writer(out_dir / job.file, info);
   double render_seconds = 0;
-  for (int f = job.frame_start; f <= job.frame_end; ++f) {
+  // 64-bit counter: the last frame may be INT_MAX (jobs/README.md, "Limits").
+  for (int64_t number = job.frame_start; number <= job.frame_end; ++number) {
+    const int f = int(number);
     FrameBuffers frame;
     frame.allocate(spec.width, spec.height, spec.versions);
     frame.rect = Rect{0, 0, spec.width, spec.height};

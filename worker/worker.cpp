@@ -51,7 +51,7 @@ class Heartbeat {
   Heartbeat(zmq::context_t& ctx, const WorkerOptions& o, const std::string& worker, int64_t task,
             int attempt)
       : thread_([&ctx, o, worker, task, attempt, this] {
-          ClientOptions co{o.endpoint, o.curve_public, o.request_timeout_ms};
+          ClientOptions co{o.endpoint, o.curve_public, o.request_timeout_ms, o.curve_client};
           CoordinatorClient client(ctx, co);
           std::unique_lock<std::mutex> lock(mutex_);
           while (!done_) {
@@ -96,7 +96,8 @@ class Worker {
       : options_(o), stop_(stop), id_(o.id.empty() ? default_id() : o.id), ctx_(1) {}
 
   int run() {
-    ClientOptions co{options_.endpoint, options_.curve_public, options_.request_timeout_ms};
+    ClientOptions co{options_.endpoint, options_.curve_public, options_.request_timeout_ms,
+                     options_.curve_client};
     CoordinatorClient client(ctx_, co);
     spdlog::info("worker {} connecting to {}", id_, options_.endpoint);
     double backoff = 0.5;

@@ -16,6 +16,7 @@ namespace dofarm::worker {
 struct WorkerOptions {
   std::string endpoint;                               // tcp://HOST:PORT
   std::optional<std::filesystem::path> curve_public;  // coordinator public key file
+  std::optional<std::filesystem::path> curve_client;  // this worker's key pair (NAME.key)
   int threads = 0;                                    // render threads; 0 = all cores
   std::string id;                                     // empty: host-pid-random
   double heartbeat_seconds = 5;

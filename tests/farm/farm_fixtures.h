@@ -400,8 +400,9 @@ inline ::testing::AssertionResult shards_match_render(const fs::path& out_dir,
   std::map<int, FrameBuffers> frames;
   if (auto r = read_manifest_frames(out_dir, frames); !r) return r;
   const JobSpec spec = load_job_spec(spec_path, sets);
-  for (int f = spec.frame_start; f <= spec.frame_end; ++f)
-    if (!frames.count(f)) return ::testing::AssertionFailure() << "frame " << f << " is missing";
+  for (int64_t f = spec.frame_start; f <= spec.frame_end; ++f)  // the last may be INT_MAX
+    if (!frames.count(int(f)))
+      return ::testing::AssertionFailure() << "frame " << f << " is missing";
   if (int(frames.size()) != spec.frame_count())
     return ::testing::AssertionFailure()
            << frames.size() << " frames in the shards, the job has " << spec.frame_count();
