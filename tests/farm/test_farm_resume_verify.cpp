@@ -104,3 +104,40 @@ TEST(FarmVerify, ReportsShardsNoRecordListsAndNeedsAFolder) {
 
 }  // namespace
 }  // namespace dofarm::farm_testing
+
+namespace dofarm::farm_testing {
+namespace {
+
+// The `resume` message of a standalone coordinator checks the shards of a
+// done batch as well: a deleted shard makes the batch run again, and the
+// workers that are still there render and pack it.
+TEST(FarmResume, ResumeOfADoneBatchWithADeletedShardRunsItAgain) {
+  TempDir tmp;
+  const fs::path job = write_job(tmp.path(), "job.toml", TinyJob{});
+  const fs::path out = tmp / "out";
+  CoordinatorProcess coord(tmp.path(), "coordinator", tmp / "state", 5);
+  const std::string ep = coord.endpoint();
+  CliResult sub = run_cli(tmp.path(), "submit",
+                          {"submit", job.string(), "--coordinator", ep, "--out", out.string()});
+  ASSERT_EQ(sub.status, 0) << sub.out << sub.err;
+  const std::string batch = sub.out.substr(0, sub.out.find('\n'));
+  Child w1 = start_worker(tmp.path(), ep, "w1");
+  ASSERT_TRUE(poll_until("the batch to finish", [&] { return batch_state(ep, batch) == "done"; }))
+      << coord.child().describe();
+  ASSERT_TRUE(shards_match_render(out, job));
+
+  fs::remove(out / "shard-00001.h5");
+  CliResult resume = run_cli(tmp.path(), "resume", {"resume", batch, "--coordinator", ep});
+  EXPECT_EQ(resume.status, 0) << resume.out << resume.err;
+  EXPECT_NE(batch_state(ep, batch), "absent");
+  ASSERT_TRUE(poll_until("the batch to finish again",
+                         [&] { return batch_state(ep, batch) == "done"; }))
+      << coord.child().describe();
+  EXPECT_TRUE(shards_match_render(out, job));
+  CliResult v = run_cli(tmp.path(), "verify",
+                        {"verify", out.string(), "--state", (tmp / "state").string()});
+  EXPECT_EQ(v.status, 0) << v.out << v.err;
+}
+
+}  // namespace
+}  // namespace dofarm::farm_testing
