@@ -6,9 +6,11 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <cctype>
 #include <chrono>
 #include <csignal>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -18,10 +20,14 @@
 #include "apps/commands.h"
 #include "common/error.h"
 #include "common/inspect.h"
+#include "common/job_snapshot.h"
 #include "common/jobspec.h"
+#include "common/messages.h"
 #include "common/progress.h"
 #include "common/transport.h"
 #include "coordinator/server.h"
+#include "farm/embedded_run.h"
+#include "worker/job_resolve.h"
 #include "worker/worker.h"
 
 extern char** environ;
@@ -118,50 +124,43 @@ void print_status_table(const Json& st, std::ostream& out) {
       if (!f["reproduce"].get<std::string>().empty())
         out << "    reproduce: " << f["reproduce"].get<std::string>() << "\n";
     }
+    if (b.value("failed_omitted", 0) > 0)
+      out << "  ... and " << b["failed_omitted"] << " more failed tasks\n";
     if (!b["blocklisted"].empty())
-      out << "  blocklisted workers: " << b["blocklisted"].dump() << "\n";
+      out << "  blocklisted workers: " << b["blocklisted"].dump()
+          << (b.value("blocklisted_omitted", 0) > 0
+                  ? " and " + std::to_string(b["blocklisted_omitted"].get<int64_t>()) + " more"
+                  : "")
+          << "\n";
     if (!b.value("reason", std::string()).empty())
       out << "  reason: " << b["reason"].get<std::string>() << "\n";
     if (b.contains("stalled_seconds") && !b["stalled_seconds"].is_null())
       out << "  stalled: no eligible worker for " << int(b["stalled_seconds"].get<double>())
           << " s\n";
   }
+  // A bounded reply (docs/farm.md "Bounded inputs") counts what it leaves out.
+  if (st.value("batches_omitted", 0) > 0)
+    out << "... and " << st["batches_omitted"] << " older batches not shown\n";
   int live = 0;
   for (const Json& w : st["workers"]) live += w["live"].get<bool>();
-  out << "workers: " << live << " live\n";
+  out << "workers: " << live << " live";
+  if (st.value("workers_omitted", 0) > 0)
+    out << " (" << st["workers_omitted"] << " more workers not shown)";
+  out << "\n";
   for (const Json& w : st["workers"])
     if (w["live"].get<bool>())
       out << "  " << w["worker"].get<std::string>() << "  tasks " << w["tasks"].dump() << "\n";
 }
 
-// Starts `dofarm worker` as a child process of this executable.
-pid_t spawn_worker(const std::string& endpoint, int threads, const std::string& id,
-                   const std::string& log_level) {
-  std::string exe = fs::read_symlink("/proc/self/exe").string();
-  std::vector<std::string> args = {
-      exe,    "worker", "--connect", endpoint, "--threads",   std::to_string(threads),
-      "--id", id,       "--give-up", "60",     "--log-level", log_level};
-  std::vector<char*> argv;
-  for (auto& a : args) argv.push_back(a.data());
-  argv.push_back(nullptr);
-  pid_t pid;
-  int rc = posix_spawn(&pid, exe.c_str(), nullptr, nullptr, argv.data(), environ);
-  if (rc != 0) throw RuntimeError("cannot start a worker: " + std::string(strerror(rc)));
-  return pid;
-}
-
 Command add_run_impl(CLI::App& app) {
-  struct Args {
-    std::string job, out;
-    int workers = 2, threads = 0;
-    double lease = 30;
-    std::vector<std::string> sets;
-  };
-  auto a = std::make_shared<Args>();
+  auto a = std::make_shared<farm::EmbeddedRunOptions>();
+  auto sets = std::make_shared<std::vector<std::string>>();
+  auto job = std::make_shared<std::string>();
+  auto out = std::make_shared<std::string>();
   CLI::App* cmd = app.add_subcommand(
       "run", "Render a job on this machine: an embedded coordinator and N local workers");
-  cmd->add_option("job", a->job, "job spec")->type_name("JOB.toml")->required();
-  cmd->add_option("--out", a->out, "output folder: shards, manifest.json, farm state")
+  cmd->add_option("job", *job, "job spec")->type_name("JOB.toml")->required();
+  cmd->add_option("--out", *out, "output folder: shards, manifest.json, farm state")
       ->type_name("DIR")
       ->required();
   cmd->add_option("--workers", a->workers, "local worker processes")
@@ -170,100 +169,27 @@ Command add_run_impl(CLI::App& app) {
   cmd->add_option("--threads", a->threads,
                   "render threads per worker; 0 = cores / workers (at least 1)")
       ->capture_default_str();
-  cmd->add_option("--lease", a->lease, "task lease in seconds")->capture_default_str();
-  add_set_option(cmd, a->sets);
-  return {cmd, [a, &app]() {
-            fs::path spec_path = fs::absolute(a->job);
-            JobSpec spec = load_job_spec(spec_path, a->sets);  // bad input: exit 2, nothing written
-            fs::path out = fs::absolute(a->out);
-            fs::create_directories(out);
-            install_stop_signals();
-            coordinator::SystemClock clock;
-            coordinator::ServerOptions so;
-            so.listen = "tcp://127.0.0.1:*";
-            so.state_dir = out / ".dofarm-state";
-            so.shutdown_when_idle = true;
-            so.scheduler.lease_seconds = a->lease;
-            coordinator::Server server(so, clock);
-
-            // The same job into the same folder resumes the batch that is there.
-            std::string batch;
-            for (const auto& b : server.scheduler().status().batches)
-              if (b.batch.spec_path == spec_path.string() && b.batch.overrides == a->sets)
-                batch = b.batch.id;
-            if (batch.empty()) {
-              batch = server.scheduler().submit(spec_path.string(), a->sets, out.string(), spec);
-              spdlog::info("batch {}: {} frames into {}", batch, spec.frame_count(), out.string());
-            } else {
-              int bad = server.verify_staged_tiles(batch);
-              auto r = server.scheduler().resume(batch);
-              spdlog::info("batch {}: resuming ({}; {} staged tiles to redo)", batch, r.message,
-                           bad);
-            }
-            int threads = a->threads > 0
-                              ? a->threads
-                              : std::max(1, int(std::thread::hardware_concurrency()) / a->workers);
-            std::vector<pid_t> children;
+  cmd->add_option("--lease", a->lease_seconds, "task lease in seconds")->capture_default_str();
+  add_set_option(cmd, *sets);
+  return {cmd, [a, sets, job, out, &app]() {
+            a->spec = *job;
+            a->out = *out;
+            a->overrides = *sets;
+            a->exe = fs::read_symlink("/proc/self/exe");
             std::string level = app.get_option("--log-level")->as<std::string>();
-            for (int i = 0; i < a->workers; ++i)
-              children.push_back(
-                  spawn_worker(server.endpoint(), threads,
-                               "local-" + std::to_string(getpid()) + "-" + std::to_string(i),
-                               level == "info" ? "warn" : level));
-            // Progress counts finished tasks (tiles and packs) against the total.
-            // Every local worker blocklisted for the batch means nobody is left
-            // to render it: stop rather than wait for a worker that never comes.
-            int64_t finished = 0;
-            bool stranded = false;
-            auto tasks_finished = [&](int* total) {
-              auto st = server.scheduler().status(batch);
-              if (st.batches.empty()) return int64_t(0);
-              const auto& b = st.batches[0];
-              *total = b.tasks_total;
-              stranded = b.batch.state == coordinator::BatchState::kRunning &&
-                         int(b.blocklisted.size()) >= a->workers;
-              return int64_t(b.tasks_done + b.tasks_failed);
-            };
-            int total = 0;
-            finished = tasks_finished(&total);
-            Progress progress("batch " + batch, total);
-            progress.advance(finished);
-            auto last = std::chrono::steady_clock::now();
-            size_t alive = children.size();
-            while (alive > 0) {
-              server.poll_once(100);
-              for (pid_t& pid : children) {
-                if (pid <= 0) continue;
-                int status;
-                if (waitpid(pid, &status, WNOHANG) == pid) {
-                  pid = -1;
-                  --alive;
-                }
-              }
-              if (stop_requested() || stranded) {
-                for (pid_t pid : children)
-                  if (pid > 0) kill(pid, SIGTERM);
-              }
-              if (std::chrono::steady_clock::now() - last > std::chrono::seconds(1)) {
-                last = std::chrono::steady_clock::now();
-                int64_t now_finished = tasks_finished(&total);
-                progress.advance(now_finished - finished);
-                finished = now_finished;
-              }
-            }
-            // Let the last results in before reading the final state.
-            for (int i = 0; i < 5; ++i) server.poll_once(10);
-            progress.advance(tasks_finished(&total) - finished);
-            progress.finish();
-            auto st = server.scheduler().status(batch);
-            const auto& b = st.batches.at(0);
-            if (stranded)
-              std::cerr << "every worker (" << a->workers << ") is blocklisted for batch " << batch
+            a->worker_log_level = level == "info" ? "warn" : level;
+            install_stop_signals();
+            farm::EmbeddedRunResult r = farm::run_embedded(*a, stop_requested());
+            const auto& b = r.status;
+            if (r.stranded)
+              std::cerr << "every worker (" << a->workers << ") is blocklisted for batch "
+                        << r.batch
                         << " after failing tasks; stopped. Fix the cause and run again to "
                            "resume.\n";
-            std::cout << "batch " << batch << ": " << coordinator::to_string(b.batch.state) << ", "
-                      << b.frames_packed << "/" << b.frames_total << " frames in shards under "
-                      << out.string() << "\n";
+            std::cout << "batch " << r.batch << ": " << coordinator::to_string(b.batch.state)
+                      << ", " << b.frames_packed << "/" << b.frames_total
+                      << " frames in shards under " << fs::absolute(*out).lexically_normal().string()
+                      << " (job " << r.job << ")\n";
             if (b.batch.state == coordinator::BatchState::kDone) return kExitOk;
             for (const auto& f : b.failed)
               std::cerr << "failed task " << f.task_id << ": " << f.error << "\n";
@@ -330,7 +256,19 @@ Command add_worker(CLI::App& app) {
   cmd->add_option("--curve-public", *curve, "the coordinator's CURVE public key file")
       ->type_name("FILE");
   add_curve_client_option(cmd, *key_pair);
-  cmd->add_option("--id", o->id, "worker id (default host-pid-random)");
+  cmd->add_option("--id", o->id, "worker id (default host-pid-random)")
+      ->check(CLI::Validator(
+          [](const std::string& id) -> std::string {
+            // The `worker` field's limits (docs/protocol.md): refused here
+            // rather than by every message the worker would send.
+            if (id.size() > protocol::kMaxIdBytes)
+              return "at most " + std::to_string(protocol::kMaxIdBytes) + " bytes";
+            for (char c : id)
+              if (!std::isalnum(static_cast<unsigned char>(c)) && !std::strchr("._:@+-", c))
+                return "only A-Z a-z 0-9 . _ : @ + - allowed";
+            return "";
+          },
+          "ID"));
   cmd->add_option("--heartbeat", o->heartbeat_seconds, "seconds between heartbeats")
       ->capture_default_str();
   cmd->add_option("--give-up", o->give_up_seconds,
@@ -360,13 +298,25 @@ Command add_submit(CLI::App& app) {
       ->required();
   add_set_option(cmd, a->sets);
   return {cmd, [a]() {
-            load_job_spec(a->job, a->sets);  // located errors before anything is sent
+            // The job is resolved and checked here (located errors, exit 2,
+            // nothing written), copied into the output folder, and sent as
+            // its snapshot: the coordinator never reads the spec's path.
+            worker::ResolvedJob job = worker::resolve_job(a->job, a->sets);
+            const fs::path out = fs::absolute(a->out).lexically_normal();
+            if (std::string why = ownership_conflict(out, job.snapshot); !why.empty())
+              throw SpecError(FileLoc{}, "", why);
+            fs::create_directories(out);
+            worker::materialize_job(job, out);
             auto r = checked(call_coordinator(
                 a->coordinator.client(),
-                protocol::encode("submit", {{"spec_path", fs::absolute(a->job).string()},
-                                            {"overrides", a->sets},
-                                            {"out_dir", fs::absolute(a->out).string()}})));
-            std::cout << r.str("batch") << std::endl;
+                protocol::encode("submit", {{"snapshot", job.snapshot.to_json(-1)},
+                                            {"out_dir", out.string()}})));
+            const std::string batch = r.str("batch");
+            write_output_owner(out, {job.snapshot.hash(), batch, job.snapshot.source_spec});
+            if (r.body.value("existing", false))
+              spdlog::info("{} already holds batch {} of this job (job {})", out.string(), batch,
+                           job.snapshot.hash());
+            std::cout << batch << std::endl;
             return kExitOk;
           }};
 }

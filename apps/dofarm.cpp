@@ -21,6 +21,7 @@
 #include "common/error.h"
 #include "common/jobspec.h"
 #include "common/log.h"
+#include "worker/job_resolve.h"
 #include "worker/render/render_job.h"
 
 namespace dofarm {
@@ -115,6 +116,9 @@ Command add_render(CLI::App& app) {
           tile = parse_tile(args->tile);
           check_tile(*tile, args->tile, spec);
         }
+        // The scene and environment map are content too: loaded (and any
+        // problem reported against the spec) before anything is written.
+        auto scene = worker::load_scene_checked(spec);
         // All input is checked: only now touch the filesystem.
         fs::path out(args->out);
         if (out.has_parent_path()) {
@@ -129,7 +133,7 @@ Command add_render(CLI::App& app) {
         options.progress = true;
         spdlog::info("rendering {} frame {}{} -> {}", args->job, args->frame,
                      args->tile.empty() ? "" : " tile " + args->tile, out.string());
-        render::render_frame_to_exr(spec, args->frame, tile, out, options);
+        render::render_frame_to_exr(spec, args->frame, tile, out, options, scene.get());
         spdlog::info("wrote {}", out.string());
         return kExitOk;
       }};

@@ -8,7 +8,13 @@
 // latency p50/p99 seen by the workers: of every message, and of the
 // requests answered with a task (assignment latency). Never asserts.
 //
+// Every report carries the lease token of its task, and every `done` names a
+// real file of `output_bytes` bytes at the path where the task's output
+// belongs (written by the simulated worker), so the coordinator's claim
+// checks (lstat, open, fstat, read and checksum) are part of what is timed.
+//
 //   build-farm/bench/farm_throughput [workers=32] [seconds=5] [heartbeats_per_task=8] [frames=4000]
+//                                    [output_bytes=16384]
 #include <unistd.h>
 
 #include <algorithm>
@@ -25,7 +31,9 @@
 #include <thread>
 #include <vector>
 
+#include "common/checksum.h"
 #include "common/jobspec.h"
+#include "common/staging.h"
 #include "common/transport.h"
 #include "coordinator/server.h"
 
@@ -65,6 +73,9 @@ int main(int argc, char** argv) {
   const double seconds = argc > 2 ? std::atof(argv[2]) : 5.0;
   const int heartbeats = argc > 3 ? std::atoi(argv[3]) : 8;
   const int frames = argc > 4 ? std::atoi(argv[4]) : 4000;
+  const size_t output_bytes = argc > 5 ? size_t(std::atoll(argv[5])) : 16384;
+  const std::string output(output_bytes, 'o');
+  const std::string output_checksum = checksum_to_string(checksum64(output.data(), output.size()));
   namespace fs = std::filesystem;
   fs::path dir = fs::temp_directory_path() / ("dofarm-bench-farm-" + std::to_string(getpid()));
   fs::remove_all(dir);
@@ -90,7 +101,9 @@ int main(int argc, char** argv) {
       fs::path(DOFARM_SOURCE_DIR) / "jobs/cornell.toml",
       {"image.width=128", "image.height=128", "farm.tile=64",
        "frames.end=" + std::to_string(std::max(16, frames) - 1), "frames.per_shard=16"});
-  server.scheduler().submit(spec.spec_path.string(), {}, (dir / "out").string(), spec);
+  // A made-up job hash: the simulated workers never load the job.
+  server.scheduler().submit(spec.spec_path.string(), {}, (dir / "out").string(), spec,
+                            coordinator::JobRef{std::string(32, '0'), ""});
 
   std::atomic<bool> stop{false};
   // The coordinator's own CPU time: the simulated workers share the machine,
@@ -130,12 +143,25 @@ int main(int argc, char** argv) {
         protocol::Message m = call(protocol::encode("request", {{"worker", id}}));
         if (m.type != "task") continue;
         assign_latencies[w].push_back(last);
-        protocol::Json base = {
-            {"worker", id}, {"task", m.integer("task")}, {"attempt", m.integer("attempt")}};
+        protocol::Json base = {{"worker", id},
+                               {"task", m.integer("task")},
+                               {"attempt", m.integer("attempt")},
+                               {"token", m.str("token")}};
         for (int h = 0; h < heartbeats && !done; ++h) call(protocol::encode("heartbeat", base));
+        // The output, where the coordinator expects it.
+        const protocol::Json& r = m.body.at("rect");
+        const fs::path out = m.str("kind") == "pack_shard"
+                                 ? fs::path(m.str("out_dir")) / m.str("shard_file")
+                                 : staged_tile_path(m.str("out_dir"), m.str("batch"),
+                                                    int(m.integer("frame")),
+                                                    Rect{r[0].get<int>(), r[1].get<int>(),
+                                                         r[2].get<int>(), r[3].get<int>()});
+        fs::create_directories(out.parent_path());
+        std::ofstream(out, std::ios::binary) << output;
         protocol::Json d = base;
-        d["staged_path"] = "/nonexistent";
-        d["checksum"] = "xxh64:0000000000000000";
+        d["staged_path"] = out.string();
+        d["size"] = output.size();
+        d["checksum"] = output_checksum;
         d["seconds"] = 0.0;
         call(protocol::encode("done", d));
       }
@@ -165,8 +191,8 @@ int main(int argc, char** argv) {
     return v[size_t(p * double(v.size() - 1))] * 1e3;
   };
   auto st = server.scheduler().status();
-  std::printf("workers %d, heartbeats/task %d, batch of %d frames, %.1f s\n", workers, heartbeats,
-              frames, elapsed);
+  std::printf("workers %d, heartbeats/task %d, batch of %d frames, outputs of %zu bytes, %.1f s\n",
+              workers, heartbeats, frames, output_bytes, elapsed);
   std::printf("messages handled:          %llu\n", (unsigned long long)total);
   std::printf("wall:                      %.0f messages/s\n", double(total) / elapsed);
   std::printf("coordinator CPU:           loop thread %.2f s, its ZeroMQ I/O thread %.2f s\n",

@@ -33,9 +33,10 @@ struct FileLoc {
 class SpecError : public std::runtime_error {
  public:
   SpecError(const FileLoc& loc, const std::string& key, const std::string& msg)
-      : std::runtime_error(format(loc, key, msg)), loc_(loc), key_(key) {}
+      : std::runtime_error(format(loc, key, msg)), loc_(loc), key_(key), message_(msg) {}
   const FileLoc& loc() const { return loc_; }
   const std::string& key() const { return key_; }
+  const std::string& message() const { return message_; }  // without place and key
 
  private:
   static std::string format(const FileLoc& loc, const std::string& key, const std::string& msg) {
@@ -46,6 +47,7 @@ class SpecError : public std::runtime_error {
   }
   FileLoc loc_;
   std::string key_;
+  std::string message_;
 };
 
 // A runtime failure (IO, library error) carrying its cause.

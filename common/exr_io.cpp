@@ -25,6 +25,7 @@
 #include <exception>
 #include <system_error>
 
+#include "common/content_hash.h"
 #include "common/checksum.h"
 #include "common/error.h"
 
@@ -389,6 +390,7 @@ RgbImage load_stb_rgb(const std::filesystem::path& path, bool hdr, bool srgb) {
 
 RgbImage load_rgb_image(const std::filesystem::path& path, bool srgb) {
   const std::string ext = lower_extension(path);
+  note_input_file(path);  // a job's snapshot holds every image it reads
   RgbImage img;
   if (ext == ".exr") {
     img = load_exr_rgb(path);

@@ -70,6 +70,7 @@ json info_json(const ShardInfo& i) {
           {"batch_id", i.batch_id},
           {"scene_id", i.scene_id},
           {"scene_hash", i.scene_hash},
+          {"job_hash", i.job_hash},
           {"width", i.width},
           {"height", i.height},
           {"versions", i.versions},

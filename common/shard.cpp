@@ -354,12 +354,13 @@ void ShardReader::Impl::open(const fs::path& path_in) {
   if (H5Aexists(f, "schema") <= 0)
     throw ShardFormatError(where + ": no 'schema' attribute; not a dofarm shard");
   i.schema = read_attr_string(f, "schema", path);
-  if (i.schema != kShardSchema)
-    throw ShardFormatError(where + ": schema '" + i.schema +
-                           "' is not supported (this build reads " + kShardSchema + ")");
+  if (i.schema != kShardSchema && i.schema != kShardSchemaV1)
+    throw ShardFormatError(where + ": schema '" + i.schema + "' is not supported (this build reads " +
+                           kShardSchema + " and " + kShardSchemaV1 + ")");
   i.batch_id = read_attr_string(f, "batch_id", path);
   i.scene_id = read_attr_string(f, "scene_id", path);
   i.scene_hash = read_attr_string(f, "scene_hash", path);
+  if (i.schema != kShardSchemaV1) i.job_hash = read_attr_string(f, "job_hash", path);
   auto i64 = [&](const char* n) { return read_attr_number<int64_t>(f, n, H5T_NATIVE_INT64, path); };
   auto f64 = [&](const char* n) { return read_attr_number<double>(f, n, H5T_NATIVE_DOUBLE, path); };
   i.width = int(i64("width"));

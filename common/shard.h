@@ -1,4 +1,4 @@
-// The `dofarm.shard/1` HDF5 format (docs/shard_format.md is the full spec).
+// The `dofarm.shard/2` HDF5 format (docs/shard_format.md is the full spec).
 //
 // One shard holds F consecutive frames of one scene of one batch:
 //   noisy, albedo                       F, V, 3, H, W
@@ -34,7 +34,10 @@
 
 namespace dofarm {
 
-inline constexpr const char* kShardSchema = "dofarm.shard/1";
+inline constexpr const char* kShardSchema = "dofarm.shard/2";
+// Version 1 lacks job_hash (and its scene_hash covers only the scene file
+// and environment map); readers still take it.
+inline constexpr const char* kShardSchemaV1 = "dofarm.shard/1";
 // Spatial chunk edge; chunks are clipped to the image when it is smaller.
 inline constexpr int kShardTile = 64;
 
@@ -54,7 +57,8 @@ struct ShardInfo {
   std::string schema = kShardSchema;  // set by the writer; read back as stored
   std::string batch_id;
   std::string scene_id;
-  std::string scene_hash;  // content hash of the scene and its assets
+  std::string scene_hash;  // content hash of the scene and every file it reads
+  std::string job_hash;    // the job (common/job_snapshot.h); empty in version 1
   int width = 0;
   int height = 0;
   int versions = 0;  // V: noisy 1-spp versions per frame

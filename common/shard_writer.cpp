@@ -74,6 +74,7 @@ struct ShardWriter::Impl {
     write_attr_string(f, "batch_id", info.batch_id, p);
     write_attr_string(f, "scene_id", info.scene_id, p);
     write_attr_string(f, "scene_hash", info.scene_hash, p);
+    write_attr_string(f, "job_hash", info.job_hash, p);
     write_attr_i64(f, "width", info.width, p);
     write_attr_i64(f, "height", info.height, p);
     write_attr_i64(f, "versions", info.versions, p);

@@ -25,7 +25,9 @@ CREATE TABLE batches(
   finished REAL,
   frame_start INTEGER NOT NULL,
   frame_end INTEGER NOT NULL,
-  per_shard INTEGER NOT NULL);
+  per_shard INTEGER NOT NULL,
+  job TEXT NOT NULL DEFAULT '',
+  snapshot TEXT NOT NULL DEFAULT '');
 CREATE TABLE tasks(
   id INTEGER PRIMARY KEY,
   batch_id TEXT NOT NULL REFERENCES batches(id),
@@ -208,6 +210,7 @@ JobStore::JobStore(const std::filesystem::path& path) : path_(path) {
                          std::to_string(kStoreSchemaVersion) +
                          " only; use the dofarm that wrote it or start a new state folder");
     }
+    add_missing_batch_columns();
     exec("PRAGMA journal_mode=WAL");
     exec("PRAGMA synchronous=NORMAL");  // see the header
     exec("PRAGMA foreign_keys=ON");
@@ -230,6 +233,22 @@ void JobStore::exec(const char* sql) {
     sqlite3_free(err);
     throw RuntimeError("job store " + path_.string() + ": " + msg + " in: " + sql);
   }
+}
+
+// Stores written before jobs were snapshots lack the batches' job columns;
+// they are added in place (empty for the old batches), so such a store still
+// opens and its batches still run.
+void JobStore::add_missing_batch_columns() {
+  bool has_job = false;
+  {
+    Statement s(*this, "SELECT count(*) FROM pragma_table_info('batches') WHERE name='job'");
+    if (s.step()) has_job = s.integer(0) > 0;
+  }
+  if (has_job) return;
+  Transaction t(*this);
+  exec("ALTER TABLE batches ADD COLUMN job TEXT NOT NULL DEFAULT ''");
+  exec("ALTER TABLE batches ADD COLUMN snapshot TEXT NOT NULL DEFAULT ''");
+  t.commit();
 }
 
 void JobStore::create_schema() {
@@ -297,7 +316,7 @@ void JobStore::rollback_group() {
 namespace {
 constexpr const char* kBatchColumns =
     "id, spec_path, overrides, out_dir, state, created, finished, frame_start, frame_end, "
-    "per_shard, rowid";
+    "per_shard, rowid, job, snapshot";
 }
 
 template <typename S>
@@ -314,16 +333,19 @@ static BatchRow read_batch(const S& s) {
   b.frame_end = s.integer(8);
   b.per_shard = s.integer(9);
   b.seq = s.int64(10);
+  b.job_hash = s.text(11);
+  b.snapshot = s.text(12);
   return b;
 }
 
 void JobStore::insert_batch(const BatchRow& b) {
   Statement s(*this,
               "INSERT INTO batches(id, spec_path, overrides, out_dir, state, created, finished, "
-              "frame_start, frame_end, per_shard) VALUES(?,?,?,?,?,?,?,?,?,?)");
+              "frame_start, frame_end, per_shard, job, snapshot) VALUES(?,?,?,?,?,?,?,?,?,?,?,?)");
   s.bind(1, b.id).bind(2, b.spec_path).bind(3, nlohmann::json(b.overrides).dump());
   s.bind(4, b.out_dir).bind(5, to_string(b.state)).bind(6, b.created).bind(7, b.finished);
-  s.bind(8, b.frame_start).bind(9, b.frame_end).bind(10, b.per_shard).run();
+  s.bind(8, b.frame_start).bind(9, b.frame_end).bind(10, b.per_shard);
+  s.bind(11, b.job_hash).bind(12, b.snapshot).run();
 }
 
 std::optional<BatchRow> JobStore::batch(const std::string& id) {
@@ -628,6 +650,11 @@ void JobStore::upsert_worker(const WorkerRow& w) {
       last_seen=excluded.last_seen, state=excluded.state)sql");
   s.bind(1, w.id).bind(2, w.host).bind(3, w.threads).bind(4, w.first_seen).bind(5, w.last_seen);
   s.bind(6, w.left ? "left" : "live").run();
+}
+
+void JobStore::delete_worker(const std::string& id) {
+  Statement s(*this, "DELETE FROM workers WHERE id=?");
+  s.bind(1, id).run();
 }
 
 namespace {

@@ -68,6 +68,10 @@ struct BatchRow {
   std::string spec_path;
   std::vector<std::string> overrides;  // --set KEY=VALUE, in order (stored as JSON)
   std::string out_dir;
+  // The job as a value (common/job_snapshot.h): its hash and the text of its
+  // job.json. Empty only in stores written before snapshots existed.
+  std::string job_hash;
+  std::string snapshot;
   BatchState state = BatchState::kRunning;
   double created = 0;
   std::optional<double> finished;
@@ -216,6 +220,8 @@ class JobStore {
 
   // Workers
   void upsert_worker(const WorkerRow& worker);
+  // Forgets a worker (bounded memory); its attempts and blocklist rows stay.
+  void delete_worker(const std::string& id);
   std::optional<WorkerRow> worker(const std::string& id);
   std::vector<WorkerRow> workers();
 
@@ -235,6 +241,7 @@ class JobStore {
   class Statement;
   void exec(const char* sql);
   void create_schema();
+  void add_missing_batch_columns();
 
   std::filesystem::path path_;
   sqlite3* db_ = nullptr;

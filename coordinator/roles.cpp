@@ -1,11 +1,11 @@
 #include "coordinator/roles.h"
 
-#include <array>
 #include <fstream>
 #include <set>
 #include <sstream>
 
 #include "common/error.h"
+#include "common/messages.h"
 #include "common/transport.h"
 
 namespace dofarm::coordinator {
@@ -27,20 +27,16 @@ std::optional<Role> role_from_string(std::string_view text) {
 }
 
 bool role_may_send(Role role, std::string_view type) {
-  // What a render node needs to take, keep, finish and give back tasks.
-  // `status` is not among them: it shows every batch's paths and workers,
-  // and the worker keys are the ones on the most (and least guarded) hosts.
-  static constexpr std::array<std::string_view, 5> kWorker = {"request", "heartbeat", "done",
-                                                              "failed", "release"};
-  static constexpr std::array<std::string_view, 4> kOperator = {"submit", "status", "resume",
-                                                                "cancel"};
-  for (std::string_view t : kWorker)
-    if (t == type) return true;
-  if (role != Role::kOperator) return false;
-  for (std::string_view t : kOperator)
-    if (t == type) return true;
-  // Types the coordinator does not know get its own error reply.
-  return true;
+  // The message table says who sends what (common/messages.h, MessageDef::
+  // from): a worker key what workers send, which is all a render node needs
+  // to take, keep, finish and give back tasks; an operator key also what the
+  // CLI sends. `status` is the CLI's: it shows every batch's paths and
+  // workers, and worker keys sit on the most (and least guarded) hosts.
+  const protocol::MessageDef* def = protocol::find_message(type);
+  // A type nobody sends gets the coordinator's own error reply.
+  if (def == nullptr) return role == Role::kOperator;
+  if (def->from == "worker") return true;
+  return role == Role::kOperator && def->from == "CLI";
 }
 
 std::optional<std::string> refusal_for(const char* user_id, std::string_view type) {

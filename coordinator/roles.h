@@ -4,9 +4,10 @@
 // public key with a role; the ZAP handler lets in listed keys only and hands
 // the role to ZeroMQ as the connection's User-Id, which every message frame
 // of that connection then carries. The receive loop checks each message's
-// type against its sender's role before anything else is done with it:
-//   worker:   request, heartbeat, done, failed, release
-//   operator: all of the worker's, and submit, status, resume, cancel
+// type against its sender's role before anything else is done with it; the
+// message table (common/messages.h, MessageDef::from) says who sends what:
+//   worker:   what workers send: request, heartbeat, done, failed, release
+//   operator: that, and what the CLI sends: submit, status, resume, cancel
 // A connection without a User-Id (no CURVE: the embedded `dofarm run` on
 // loopback, or a farm on a trusted network) may send everything.
 #pragma once

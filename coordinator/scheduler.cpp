@@ -4,6 +4,7 @@
 #include <cctype>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <map>
 #include <random>
 #include <set>
@@ -12,7 +13,9 @@
 
 #include <spdlog/spdlog.h>
 
+#include "common/job_snapshot.h"
 #include "common/error.h"
+#include "common/staging.h"
 
 namespace dofarm::coordinator {
 
@@ -135,7 +138,8 @@ std::vector<int64_t> Scheduler::runnable(const std::string& worker) {
 
 std::string Scheduler::submit(const std::string& spec_path,
                               const std::vector<std::string>& overrides, const std::string& out_dir,
-                              const JobSpec& spec, std::optional<double> seconds_per_pixel) {
+                              const JobSpec& spec, const JobRef& job,
+                              std::optional<double> seconds_per_pixel) {
   const double now = clock_.now();
   const Plan plan = plan_batch(spec, seconds_per_pixel);
   return guarded([&] {
@@ -145,6 +149,8 @@ std::string Scheduler::submit(const std::string& spec_path,
     batch.spec_path = spec_path;
     batch.overrides = overrides;
     batch.out_dir = out_dir;
+    batch.job_hash = job.hash;
+    batch.snapshot = job.snapshot;
     batch.created = now;
     batch.frame_start = spec.frame_start;
     batch.frame_end = spec.frame_end;
@@ -194,6 +200,7 @@ void Scheduler::worker_seen(const std::string& worker, const std::string& host, 
     store_.upsert_worker(row);
     workers_[worker] = row;
     dirty_workers_.erase(worker);
+    prune_workers();
     tx.commit();
   });
 }
@@ -234,6 +241,26 @@ void Scheduler::touch_worker(const std::string& worker, double now) {
   store_.upsert_worker(row);
   workers_[worker] = row;
   dirty_workers_.erase(worker);
+  prune_workers();
+}
+
+void Scheduler::prune_workers() {
+  if (workers_.size() <= options_.max_workers) return;
+  std::set<std::string> holders;  // a lease holder stays: its reports must still count
+  for (int64_t id : queue_.expired(std::numeric_limits<double>::infinity()))
+    if (const RunQueue::Task* t = queue_.task(id)) holders.insert(t->lease_worker);
+  std::vector<std::pair<double, std::string>> idle;
+  for (const auto& [id, w] : workers_)
+    if (!holders.count(id)) idle.emplace_back(w.last_seen, id);
+  std::sort(idle.begin(), idle.end());
+  // Down to 3/4 at once, so a flood of new ids prunes once per thousand, not per id.
+  const size_t keep = options_.max_workers * 3 / 4;
+  for (const auto& [seen, id] : idle) {
+    if (workers_.size() <= keep) break;
+    store_.delete_worker(id);
+    workers_.erase(id);
+    dirty_workers_.erase(id);
+  }
 }
 
 void Scheduler::touch(const std::string& worker, double now) {
@@ -282,8 +309,8 @@ std::optional<Assignment> Scheduler::assign(const std::string& worker) {
     a.attempt = row.attempts;
     a.kind = row.kind;
     a.batch_id = batch.row.id;
+    a.job_hash = batch.row.job_hash;
     a.spec_path = batch.row.spec_path;
-    a.overrides = batch.row.overrides;
     a.out_dir = batch.row.out_dir;
     a.frame = row.frame;
     a.rect = row.rect;
@@ -325,6 +352,29 @@ bool Scheduler::heartbeat(const std::string& worker, int64_t task, int attempt) 
   queue_.extend(*t, now + options_.lease_seconds);
   dirty_leases_.insert(task);
   return true;
+}
+
+std::optional<ExpectedOutput> Scheduler::expected_output(const std::string& worker, int64_t task,
+                                                         int attempt) {
+  RunQueue::Task* t = held(worker, task, attempt);
+  if (!t) return std::nullopt;
+  const std::optional<TaskRow> row = store_.task(task);
+  if (!row) return std::nullopt;
+  const BatchRow& batch = t->batch->row;
+  ExpectedOutput e;
+  e.kind = row->kind;
+  if (row->kind == TaskKind::kRenderTile) {
+    e.path = staged_tile_path(batch.out_dir, batch.id, row->frame, row->rect).string();
+    e.max_bytes = staged_tile_max_bytes(row->rect);
+  } else {
+    e.path = (std::filesystem::path(batch.out_dir) / t->batch->shards.at(row->shard).file).string();
+    // A shard holds the pixels of its tiles (plus HDF5 metadata).
+    uint64_t bytes = uint64_t(4) << 20;
+    for (int64_t id : store_.dependencies(task))
+      if (const std::optional<TaskRow> tile = store_.task(id)) bytes += staged_tile_max_bytes(tile->rect);
+    e.max_bytes = bytes;
+  }
+  return e;
 }
 
 CompleteStatus Scheduler::complete(const std::string& worker, int64_t task, int attempt,
@@ -885,13 +935,26 @@ std::string Scheduler::new_batch_id() {
   }
 }
 
+std::vector<BatchRow> Scheduler::batches_in(const std::string& out_dir) {
+  std::vector<BatchRow> out;
+  for (BatchRow& b : store_.batches())
+    if (b.out_dir == out_dir) out.push_back(std::move(b));
+  return out;
+}
+
 std::string reproduce_command(const BatchRow& batch, const TaskRow& task) {
   const Rect& r = task.rect;
-  std::string cmd = "dofarm render " + shell_quote(batch.spec_path) + " --frame " +
+  // A snapshot batch is rendered from its job folder's canonical spec, which
+  // already holds the overrides: exactly what the workers rendered.
+  const bool snapshot = !batch.job_hash.empty();
+  const std::string spec = snapshot ? (job_dir(batch.out_dir, batch.job_hash) / "job.toml").string()
+                                    : batch.spec_path;
+  std::string cmd = "dofarm render " + shell_quote(spec) + " --frame " +
                     std::to_string(task.frame) + " --tile " + std::to_string(r.x) + "," +
                     std::to_string(r.y) + "," + std::to_string(r.w) + "," + std::to_string(r.h) +
                     " --out repro.exr";
-  for (const std::string& o : batch.overrides) cmd += " --set " + shell_quote(o);
+  if (!snapshot)
+    for (const std::string& o : batch.overrides) cmd += " --set " + shell_quote(o);
   return cmd;
 }
 

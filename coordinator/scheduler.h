@@ -80,6 +80,18 @@ struct SchedulerOptions {
   double heartbeat_flush_seconds = 1;
   // A running batch with no eligible worker for this long fails; 0 = never.
   double stall_timeout = 600;
+  // Workers remembered (memory and store); past it the longest unseen ones
+  // that hold no lease are forgotten, so made-up worker ids cannot grow the
+  // coordinator without bound.
+  size_t max_workers = 4096;
+};
+
+// Where a leased task's output must be, for checking a `done` claim: a render
+// tile's staged EXR (staged_tile_path) or a pack's shard (OUT/shard file).
+struct ExpectedOutput {
+  TaskKind kind = TaskKind::kRenderTile;
+  std::string path;
+  uint64_t max_bytes = 0;  // no honest output is larger
 };
 
 // What a pack task merges: one done render tile.
@@ -90,6 +102,11 @@ struct StagedTile {
   int shard = 0;
   std::string staged_path;
   std::string checksum;  // checksum_to_string() form
+};
+
+struct JobRef {
+  std::string hash;      // the job hash
+  std::string snapshot;  // the text of its job.json
 };
 
 // A done pack task: its shard as recorded when it was packed.
@@ -106,8 +123,8 @@ struct Assignment {
   int attempt = 0;
   TaskKind kind = TaskKind::kRenderTile;
   std::string batch_id;
-  std::string spec_path;
-  std::vector<std::string> overrides;
+  std::string job_hash;  // the worker loads OUT/.dofarm-jobs/job_hash
+  std::string spec_path;  // where the job came from, for messages only
   std::string out_dir;
   int frame = -1;  // render_tile
   Rect rect;       // render_tile
@@ -199,8 +216,11 @@ class Scheduler {
 
   // Plans and records a batch; returns its id ("b-" + 8 hex digits). The
   // spec must already be loaded and checked (load_job_spec with `overrides`).
+  // `job` is the job's hash and snapshot (common/job_snapshot.h): workers
+  // render the batch from OUT/.dofarm-jobs/HASH. Empty only in tests that
+  // never hand tasks to a real worker.
   std::string submit(const std::string& spec_path, const std::vector<std::string>& overrides,
-                     const std::string& out_dir, const JobSpec& spec,
+                     const std::string& out_dir, const JobSpec& spec, const JobRef& job = {},
                      std::optional<double> seconds_per_pixel = std::nullopt);
 
   // A worker said hello (or is still there); any call from a worker counts too.
@@ -214,6 +234,10 @@ class Scheduler {
   // Extends the lease; false when the worker no longer holds it (it should
   // stop working on the task).
   bool heartbeat(const std::string& worker, int64_t task, int attempt);
+  // Where the output of a task `worker` holds at `attempt` belongs; nothing
+  // when it does not hold that lease (complete() then says why).
+  std::optional<ExpectedOutput> expected_output(const std::string& worker, int64_t task,
+                                                int attempt);
   CompleteStatus complete(const std::string& worker, int64_t task, int attempt,
                           const std::string& staged_path, const std::string& checksum);
   FailResult fail(const std::string& worker, int64_t task, int attempt, const std::string& error);
@@ -236,6 +260,9 @@ class Scheduler {
   // blocklist is cleared.
   OpResult cancel(const std::string& batch_id);
   OpResult resume(const std::string& batch_id);
+
+  // Every batch ever written into `out_dir`, oldest first.
+  std::vector<BatchRow> batches_in(const std::string& out_dir);
 
   // One batch, or every batch when empty; workers always.
   StatusReport status(const std::string& batch_id = "");
@@ -277,6 +304,9 @@ class Scheduler {
   RunQueue::Task* held(const std::string& worker, int64_t task, int attempt);
   // last_seen of a known, live worker, in memory only; false otherwise.
   bool touch_worker_in_memory(const std::string& worker, double now);
+  // Forgets the longest unseen workers without a lease once more than
+  // options_.max_workers are known (within a transaction).
+  void prune_workers();
   // Within a transaction: a new or returning worker is written at once.
   void touch_worker(const std::string& worker, double now);
   // Outside one: opens a transaction only when touch_worker must write.

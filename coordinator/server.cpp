@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <fstream>
 #include <map>
 #include <set>
@@ -12,6 +13,7 @@
 
 #include "common/checksum.h"
 #include "common/jobspec.h"
+#include "common/messages.h"
 #include "common/transport.h"
 #include "coordinator/roles.h"
 #include "coordinator/verify.h"
@@ -94,13 +96,13 @@ namespace {
 
 Json rect_json(Rect r) { return Json::array({r.x, r.y, r.w, r.h}); }
 
-Json assignment_json(const Assignment& a, double lease_seconds) {
+Json assignment_json(const Assignment& a, double lease_seconds, const std::string& token) {
   Json j = {{"task", a.task_id},
             {"attempt", a.attempt},
+            {"token", token},
             {"kind", to_string(a.kind)},
             {"batch", a.batch_id},
-            {"spec_path", a.spec_path},
-            {"overrides", a.overrides},
+            {"job", a.job_hash},
             {"out_dir", a.out_dir},
             {"frame", a.frame},
             {"rect", rect_json(a.rect)},
@@ -120,64 +122,160 @@ Json assignment_json(const Assignment& a, double lease_seconds) {
   return j;
 }
 
-std::vector<std::string> string_list(const Json& j) {
-  std::vector<std::string> out;
-  for (const Json& v : j) {
-    if (!v.is_string()) throw protocol::ProtocolError("\"overrides\" must hold strings");
-    out.push_back(v.get<std::string>());
-  }
+}  // namespace
+
+namespace {
+
+// Reply budgets (bytes of JSON): workers, and per batch its failed tasks and
+// blocklist; the batches share what is left below kStatusBytes. Each entry
+// is bounded by the field limits, so checking before adding one keeps the
+// whole reply below protocol::kMaxMessageBytes.
+constexpr size_t kStatusBytes = 900 * 1024;
+constexpr size_t kStatusWorkerBytes = 256 * 1024;
+constexpr size_t kStatusFailedBytes = 32 * 1024;
+constexpr size_t kStatusBlocklistBytes = 8 * 1024;
+constexpr size_t kStatusListItems = 1000;  // messages.cpp: arrays of a status entry
+
+// An id as the status_reply definition allows it (stores written before the
+// limits may hold others).
+std::string id_text(const std::string& s) {
+  std::string out = s.substr(0, protocol::kMaxIdBytes);
+  for (char& c : out)
+    if (!std::isalnum(static_cast<unsigned char>(c)) && !std::strchr("._:@+-", c)) c = '_';
   return out;
+}
+
+std::string text(const std::string& s, size_t max = protocol::kMaxTextBytes) {
+  return protocol::clip_text(s, max);
+}
+
+Json batch_json(const BatchStatus& b) {
+  Json failed = Json::array();
+  size_t bytes = 0, omitted = 0;
+  for (const FailedTask& f : b.failed) {
+    Json j = {{"task", f.task_id},
+              {"kind", to_string(f.kind)},
+              {"frame", f.frame},
+              {"rect", rect_json(f.rect)},
+              {"shard", f.shard},
+              {"error", text(f.error)},
+              {"reproduce", text(f.reproduce)}};
+    const size_t n = j.dump().size() + 1;
+    if (bytes + n > kStatusFailedBytes || failed.size() >= kStatusListItems) {
+      ++omitted;
+      continue;
+    }
+    bytes += n;
+    failed.push_back(std::move(j));
+  }
+  Json blocked = Json::array();
+  size_t blocked_bytes = 0, blocked_omitted = 0;
+  for (const std::string& w : b.blocklisted) {
+    const std::string id = id_text(w);
+    if (blocked_bytes + id.size() + 3 > kStatusBlocklistBytes || blocked.size() >= kStatusListItems) {
+      ++blocked_omitted;
+      continue;
+    }
+    blocked_bytes += id.size() + 3;
+    blocked.push_back(id);
+  }
+  return {{"batch", id_text(b.batch.id)},
+          {"state", to_string(b.batch.state)},
+          {"spec_path", text(b.batch.spec_path, protocol::kMaxPathBytes)},
+          {"out_dir", text(b.batch.out_dir, protocol::kMaxPathBytes)},
+          {"created", b.batch.created},
+          {"tasks_total", b.tasks_total},
+          {"tasks_done", b.tasks_done},
+          {"tasks_failed", b.tasks_failed},
+          {"tasks_leased", b.tasks_leased},
+          {"tasks_pending", b.tasks_pending},
+          {"frames_total", b.frames_total},
+          {"frames_rendered", b.frames_rendered},
+          {"frames_packed", b.frames_packed},
+          {"frames_per_hour", b.frames_per_hour},
+          {"eta_seconds", b.eta_seconds ? Json(*b.eta_seconds) : Json(nullptr)},
+          {"failed", failed},
+          {"failed_omitted", omitted},
+          {"blocklisted", blocked},
+          {"blocklisted_omitted", blocked_omitted},
+          {"reason", text(b.reason)},
+          {"stalled_seconds", b.stalled_seconds ? Json(*b.stalled_seconds) : Json(nullptr)}};
+}
+
+Json worker_json(const WorkerStatus& w) {
+  std::vector<int64_t> tasks = w.leased_tasks;
+  if (tasks.size() > 100) tasks.resize(100);
+  return {{"worker", id_text(w.worker.id)},
+          {"host", id_text(w.worker.host).substr(0, protocol::kMaxHostBytes)},
+          {"threads", std::clamp(w.worker.threads, 0, 4096)},
+          {"last_seen", w.worker.last_seen},
+          {"live", w.live},
+          {"tasks", tasks}};
+}
+
+// Indices of `n` entries in the order they get into a bounded reply.
+template <typename Before>
+std::vector<size_t> priority_order(size_t n, Before before) {
+  std::vector<size_t> order(n);
+  for (size_t i = 0; i < n; ++i) order[i] = i;
+  std::stable_sort(order.begin(), order.end(), before);
+  return order;
 }
 
 }  // namespace
 
 Json status_to_json(const StatusReport& r) {
-  Json batches = Json::array();
-  for (const BatchStatus& b : r.batches) {
-    Json failed = Json::array();
-    for (const FailedTask& f : b.failed)
-      failed.push_back({{"task", f.task_id},
-                        {"kind", to_string(f.kind)},
-                        {"frame", f.frame},
-                        {"rect", rect_json(f.rect)},
-                        {"shard", f.shard},
-                        {"error", f.error},
-                        {"reproduce", f.reproduce}});
-    batches.push_back({{"batch", b.batch.id},
-                       {"state", to_string(b.batch.state)},
-                       {"spec_path", b.batch.spec_path},
-                       {"out_dir", b.batch.out_dir},
-                       {"created", b.batch.created},
-                       {"tasks_total", b.tasks_total},
-                       {"tasks_done", b.tasks_done},
-                       {"tasks_failed", b.tasks_failed},
-                       {"tasks_leased", b.tasks_leased},
-                       {"tasks_pending", b.tasks_pending},
-                       {"frames_total", b.frames_total},
-                       {"frames_rendered", b.frames_rendered},
-                       {"frames_packed", b.frames_packed},
-                       {"frames_per_hour", b.frames_per_hour},
-                       {"eta_seconds", b.eta_seconds ? Json(*b.eta_seconds) : Json(nullptr)},
-                       {"failed", failed},
-                       {"blocklisted", b.blocklisted},
-                       {"reason", b.reason},
-                       {"stalled_seconds",
-                        b.stalled_seconds ? Json(*b.stalled_seconds) : Json(nullptr)}});
+  // Workers: live first, then the most recently seen.
+  std::vector<Json> worker_entries(r.workers.size());
+  size_t worker_bytes = 0, workers_omitted = 0;
+  for (size_t i : priority_order(r.workers.size(), [&](size_t a, size_t b) {
+         const WorkerStatus &x = r.workers[a], &y = r.workers[b];
+         if (x.live != y.live) return x.live;
+         return x.worker.last_seen > y.worker.last_seen;
+       })) {
+    Json j = worker_json(r.workers[i]);
+    const size_t n = j.dump().size() + 1;
+    if (worker_bytes + n > kStatusWorkerBytes) {
+      ++workers_omitted;
+      continue;
+    }
+    worker_bytes += n;
+    worker_entries[i] = std::move(j);
   }
-  Json workers = Json::array();
-  for (const WorkerStatus& w : r.workers)
-    workers.push_back({{"worker", w.worker.id},
-                       {"host", w.worker.host},
-                       {"threads", w.worker.threads},
-                       {"last_seen", w.worker.last_seen},
-                       {"live", w.live},
-                       {"tasks", w.leased_tasks}});
-  return {{"now", r.now}, {"batches", batches}, {"workers", workers}};
+  // Batches: running first, then the newest.
+  std::vector<Json> batch_entries(r.batches.size());
+  size_t batch_bytes = 0, batches_omitted = 0;
+  for (size_t i : priority_order(r.batches.size(), [&](size_t a, size_t b) {
+         const BatchRow &x = r.batches[a].batch, &y = r.batches[b].batch;
+         const bool xr = x.state == BatchState::kRunning, yr = y.state == BatchState::kRunning;
+         if (xr != yr) return xr;
+         return x.created > y.created;
+       })) {
+    Json j = batch_json(r.batches[i]);
+    const size_t n = j.dump().size() + 1;
+    if (worker_bytes + batch_bytes + n > kStatusBytes) {
+      ++batches_omitted;
+      continue;
+    }
+    batch_bytes += n;
+    batch_entries[i] = std::move(j);
+  }
+  Json batches = Json::array(), workers = Json::array();
+  for (Json& j : batch_entries)
+    if (!j.is_null()) batches.push_back(std::move(j));
+  for (Json& j : worker_entries)
+    if (!j.is_null()) workers.push_back(std::move(j));
+  return {{"now", r.now},
+          {"batches", batches},
+          {"batches_omitted", batches_omitted},
+          {"workers", workers},
+          {"workers_omitted", workers_omitted}};
 }
 
 Server::Server(ServerOptions options, const Clock& clock)
     : options_(std::move(options)), clock_(clock) {
   fs::create_directories(options_.state_dir);
+  tokens_ = std::make_unique<LeaseTokens>(options_.state_dir);
   store_ = std::make_unique<JobStore>(options_.state_dir / "dofarm.sqlite");
   scheduler_ = std::make_unique<Scheduler>(*store_, clock_, options_.scheduler);
   context_ = std::make_unique<zmq::context_t>(1);
@@ -234,20 +332,70 @@ int Server::verify_staged_tiles(const std::string& batch_id) {
   return r.total();
 }
 
-std::string Server::handle_submit(const protocol::Message& m) {
-  std::vector<std::string> overrides = string_list(m.body["overrides"]);
-  fs::path spec_path = fs::absolute(m.str("spec_path"));
+Server::JobSubmission Server::submit_job(const fs::path& out_dir_in, const JobSnapshot& snapshot,
+                                        const std::vector<std::string>& overrides) {
+  JobSubmission r;
+  const fs::path out_dir = out_dir_in.lexically_normal();
+  if (!out_dir.is_absolute()) {
+    r.refusal = "the output folder must be an absolute path, got \"" + out_dir.string() + "\"";
+    return r;
+  }
+  const std::string hash = snapshot.hash();
   JobSpec spec;
   try {
-    spec = load_job_spec(spec_path, overrides);
-  } catch (const SpecError& e) {
-    return protocol::encode("error", {{"message", e.what()}, {"bad_input", true}});
+    // The folder must hold this very job (read bounded, regular file only),
+    // and the spec must parse with its paths inside the job folder.
+    read_job_snapshot(out_dir, hash);
+    spec = parse_job_spec(snapshot.spec_toml, job_dir(out_dir, hash) / "job.toml");
+  } catch (const std::exception& e) {
+    r.refusal = "job " + hash + " in " + out_dir.string() + ": " + e.what();
+    return r;
   }
-  std::string out_dir = fs::absolute(m.str("out_dir")).string();
-  std::string id = scheduler_->submit(spec_path.string(), overrides, out_dir, spec);
-  spdlog::info("batch {} submitted: {} frames {}..{} -> {}", id, spec_path.string(),
-               spec.frame_start, spec.frame_end, out_dir);
-  return protocol::encode("submitted", {{"batch", id}});
+  for (const BatchRow& b : scheduler_->batches_in(out_dir.string())) {
+    if (b.job_hash == hash) {
+      r.batch = b.id;
+      r.existing = true;
+      return r;
+    }
+    try {
+      std::optional<JobSnapshot> other;
+      if (!b.snapshot.empty()) other = JobSnapshot::from_json(b.snapshot, "batch " + b.id);
+      r.refusal = conflict_message(out_dir, b.id, b.job_hash, other ? &*other : nullptr, "", snapshot);
+    } catch (const std::exception& e) {
+      r.refusal = conflict_message(out_dir, b.id, b.job_hash, nullptr, e.what(), snapshot);
+    }
+    return r;
+  }
+  try {
+    r.refusal = ownership_conflict(out_dir, snapshot);
+  } catch (const std::exception& e) {
+    r.refusal = e.what();
+  }
+  if (!r.refusal.empty()) return r;
+  r.batch = scheduler_->submit(snapshot.source_spec, overrides, out_dir.string(), spec,
+                               JobRef{hash, snapshot.to_json()});
+  spdlog::info("batch {} submitted: job {} from {}, frames {}..{} -> {}", r.batch, hash,
+               snapshot.source_spec, spec.frame_start, spec.frame_end, out_dir.string());
+  return r;
+}
+
+std::string Server::handle_submit(const protocol::Message& m) {
+  auto refuse = [](std::string why) {
+    // One line on the wire (messages carry no control characters).
+    for (size_t p; (p = why.find("\n  ")) != std::string::npos;) why.replace(p, 3, "; ");
+    std::replace(why.begin(), why.end(), '\n', ' ');
+    return protocol::encode("error", {{"message", why}, {"bad_input", true}});
+  };
+  JobSnapshot snapshot;
+  try {
+    snapshot = JobSnapshot::from_json(m.str("snapshot"), "in the submit message");
+  } catch (const RuntimeError& e) {
+    return refuse(e.what());
+  }
+  JobSubmission s = submit_job(m.str("out_dir"), snapshot, snapshot.source_overrides);
+  if (!s.refusal.empty()) return refuse(s.refusal);
+  return protocol::encode("submitted",
+                          {{"batch", s.batch}, {"job", snapshot.hash()}, {"existing", s.existing}});
 }
 
 std::string Server::handle_failed(const protocol::Message& m) {
@@ -276,9 +424,98 @@ std::optional<std::string> Server::answer_request(const protocol::Message& m) {
   const std::string& worker = m.str("worker");
   scheduler_->worker_seen(worker, m.body.value("host", ""), int(m.body.value("threads", 0)));
   if (auto a = scheduler_->assign(worker))
-    return protocol::encode("task", assignment_json(*a, scheduler_->options().lease_seconds));
+    return protocol::encode("task", assignment_json(*a, scheduler_->options().lease_seconds,
+                                                    tokens_->token(a->task_id, a->attempt, worker)));
   if (options_.shutdown_when_idle && idle()) return protocol::encode("shutdown");
   return std::nullopt;
+}
+
+std::optional<std::string> Server::token_refusal(const protocol::Message& m) {
+  const std::string& t = m.type;
+  if (t != "heartbeat" && t != "done" && t != "failed" && t != "release") return std::nullopt;
+  if (tokens_->valid(m.integer("task"), int(m.integer("attempt")), m.str("worker"),
+                     m.str("token")))
+    return std::nullopt;
+  // Nothing changes: not the lease, not the worker's record, not its failures.
+  spdlog::warn("{} for task {} attempt {} in the name of {} with a wrong lease token: ignored", t,
+               m.integer("task"), m.integer("attempt"), m.str("worker"));
+  const std::string why = "wrong lease token for task " + std::to_string(m.integer("task")) +
+                          " attempt " + std::to_string(m.integer("attempt"));
+  if (t == "heartbeat" || t == "release")
+    return protocol::encode("ack", {{"ok", false}, {"message", why}});
+  return protocol::encode("ack", {{"status", "refused"}, {"message", why}});
+}
+
+std::optional<std::string> Server::handle_done(const protocol::Message& m,
+                                               const std::string* identity) {
+  const std::string& worker = m.str("worker");
+  const int64_t task = m.integer("task");
+  const int attempt = int(m.integer("attempt"));
+  const std::string& path = m.str("staged_path");
+  const std::string& checksum = m.str("checksum");
+  // A retry of a claim still being read waits for the same answer.
+  for (PendingClaim& c : claims_) {
+    if (c.task == task && c.attempt == attempt && c.worker == worker && c.path == path &&
+        c.checksum == checksum) {
+      if (!identity) return protocol::encode("ack", {{"status", "verifying"}});
+      c.identities.push_back(*identity);
+      return std::nullopt;
+    }
+  }
+  const std::optional<ExpectedOutput> expected = scheduler_->expected_output(worker, task, attempt);
+  // Not this worker's lease (any more): complete() says stale, duplicate or
+  // unknown, and changes nothing; the file is not looked at.
+  if (!expected) return settle_claim(worker, task, attempt, path, checksum, "");
+  ClaimFile file;
+  if (std::string why = file.open(*expected, path, uint64_t(m.integer("size"))); !why.empty())
+    return settle_claim(worker, task, attempt, path, checksum, why);
+  // Small files (every staged tile of a sane tiling) are read now, within
+  // the round's budget; the rest in slices over the next rounds.
+  if (!identity || round_claim_bytes_ + file.remaining() <= kClaimBytesPerRound) {
+    round_claim_bytes_ += file.advance(file.remaining());
+    return settle_claim(worker, task, attempt, path, checksum, file.verdict(checksum));
+  }
+  claims_.push_back({{*identity}, worker, task, attempt, path, checksum, std::move(file)});
+  return std::nullopt;
+}
+
+std::string Server::settle_claim(const std::string& worker, int64_t task, int attempt,
+                                 const std::string& path, const std::string& checksum,
+                                 const std::string& refusal) {
+  if (!refusal.empty()) {
+    // The lease stays as it is: the holder may still send a true claim, and
+    // otherwise it expires and the task is rendered again (not a failure).
+    spdlog::warn("task {} attempt {}: refused the done claim of {}: {}", task, attempt, worker,
+                 refusal);
+    return protocol::encode("ack",
+                            {{"status", "refused"}, {"message", protocol::clip_text(refusal)}});
+  }
+  CompleteStatus s = scheduler_->complete(worker, task, attempt, path, checksum);
+  return protocol::encode("ack", {{"status", to_string(s)}});
+}
+
+void Server::advance_claims() {
+  if (claims_.empty()) return;
+  for (PendingClaim& c : claims_) {
+    if (round_claim_bytes_ >= kClaimBytesPerRound) break;
+    round_claim_bytes_ += c.file.advance(kClaimBytesPerRound - round_claim_bytes_);
+  }
+  std::erase_if(claims_, [&](PendingClaim& c) {
+    if (!c.file.finished()) {
+      // Reading a large shard must not cost its worker the lease.
+      scheduler_->heartbeat(c.worker, c.task, c.attempt);
+      return false;
+    }
+    std::string reply;
+    try {
+      reply = settle_claim(c.worker, c.task, c.attempt, c.path, c.checksum,
+                           c.file.verdict(c.checksum));
+    } catch (const std::exception& e) {
+      reply = protocol::error_reply(std::string("coordinator error: ") + e.what());
+    }
+    for (const std::string& id : c.identities) send(id, reply);
+    return true;
+  });
 }
 
 std::string Server::handle(const protocol::Message& m) {
@@ -287,15 +524,11 @@ std::string Server::handle(const protocol::Message& m) {
     if (std::optional<std::string> reply = answer_request(m)) return *reply;
     return protocol::encode("wait", {{"seconds", options_.wait_seconds}});
   }
+  if (std::optional<std::string> refused = token_refusal(m)) return *refused;
   if (t == "heartbeat")
     return protocol::encode("ack", {{"ok", scheduler_->heartbeat(m.str("worker"), m.integer("task"),
                                                                  int(m.integer("attempt")))}});
-  if (t == "done") {
-    CompleteStatus s =
-        scheduler_->complete(m.str("worker"), m.integer("task"), int(m.integer("attempt")),
-                             m.str("staged_path"), m.str("checksum"));
-    return protocol::encode("ack", {{"status", to_string(s)}});
-  }
+  if (t == "done") return *handle_done(m, nullptr);
   if (t == "failed") return handle_failed(m);
   if (t == "release")
     return protocol::encode("ack", {{"ok", scheduler_->release(m.str("worker"), m.integer("task"),
@@ -355,7 +588,9 @@ void Server::serve_parked() {
       try {
         if (std::optional<Assignment> a = scheduler_->assign(p.worker)) {
           send(p.identity,
-               protocol::encode("task", assignment_json(*a, scheduler_->options().lease_seconds)));
+               protocol::encode("task", assignment_json(*a, scheduler_->options().lease_seconds,
+                                                        tokens_->token(a->task_id, a->attempt,
+                                                                       p.worker))));
           return true;
         }
       } catch (const std::exception& e) {
@@ -381,6 +616,7 @@ void Server::unpark_all() {
 }
 
 void Server::poll_once(int timeout_ms) {
+  if (!claims_.empty()) timeout_ms = 0;  // a claim is being read: go on with it
   if (!parked_.empty()) {
     // Wake for the first parked deadline or the end of a back-off.
     double wake = scheduler_->next_due();
@@ -431,6 +667,11 @@ void Server::poll_once(int timeout_ms) {
           continue;
         }
         reply = std::move(*answer);
+      } else if (m.type == "done" && !token_refusal(m)) {
+        const std::string id = identity.to_string();
+        std::optional<std::string> answer = handle_done(m, &id);
+        if (!answer) continue;  // answered when its file is read (advance_claims)
+        reply = std::move(*answer);
       } else {
         reply = handle(m);
       }
@@ -442,6 +683,12 @@ void Server::poll_once(int timeout_ms) {
     }
     send(identity.to_string(), reply);
   }
+  try {
+    advance_claims();
+  } catch (const std::exception& e) {
+    spdlog::error("checking done claims failed: {}", e.what());
+  }
+  round_claim_bytes_ = 0;
   try {
     for (int64_t id : scheduler_->expire_leases())
       spdlog::warn("task {}: lease expired, requeued", id);

@@ -23,8 +23,11 @@
 #include <vector>
 
 #include "common/protocol.h"
+#include "coordinator/claims.h"
 #include "coordinator/clock.h"
 #include "coordinator/job_store.h"
+#include "coordinator/lease_tokens.h"
+#include "common/job_snapshot.h"
 #include "coordinator/scheduler.h"
 
 namespace zmq {
@@ -77,6 +80,20 @@ class Server {
   // and shards are redone. It reads every shard of the batch, on the loop.
   int verify_staged_tiles(const std::string& batch_id);
 
+  // A job into an output folder (the `submit` message and `dofarm run` both
+  // come here). The job folder OUT/.dofarm-jobs/HASH must hold exactly
+  // `snapshot`. An output folder belongs to one job: when it holds a batch
+  // of another job, nothing changes and `refusal` says which batch and which
+  // keys differ; when it holds a batch of this same job, that batch is
+  // returned (`existing`), otherwise a new one is planned.
+  struct JobSubmission {
+    std::string batch;
+    bool existing = false;
+    std::string refusal;  // non-empty: refused, bad input
+  };
+  JobSubmission submit_job(const std::filesystem::path& out_dir, const JobSnapshot& snapshot,
+                           const std::vector<std::string>& overrides);
+
   // Handles one decoded request; public for tests. A `request` with nothing
   // to do gets `wait` at once here (only the receive loop parks).
   std::string handle(const protocol::Message& m);
@@ -92,6 +109,20 @@ class Server {
   std::optional<std::string> answer_request(const protocol::Message& m);
   std::string handle_submit(const protocol::Message& m);
   std::string handle_failed(const protocol::Message& m);
+  // heartbeat, done, failed, release: the reply when the message's lease
+  // token is not the one of the attempt it names (nothing changes then).
+  std::optional<std::string> token_refusal(const protocol::Message& m);
+  // A `done` claim (coordinator/claims.h). With `identity` (the receive
+  // loop) a claim too large for this round's read budget is checksummed in
+  // slices over the next rounds and answered then (nothing returned now);
+  // without (tests), it is read at once.
+  std::optional<std::string> handle_done(const protocol::Message& m, const std::string* identity);
+  // Reads the next slice of the pending claims and answers those finished.
+  void advance_claims();
+  // The `ack` a finished claim gets (completes the task when it holds).
+  std::string settle_claim(const std::string& worker, int64_t task, int attempt,
+                           const std::string& path, const std::string& checksum,
+                           const std::string& refusal);
   void park(std::string identity, const std::string& worker);
   // Answers the parked requests that can be answered now.
   void serve_parked();
@@ -112,9 +143,26 @@ class Server {
   std::vector<Parked> parked_;                               // oldest first
   std::vector<std::pair<std::string, std::string>> outbox_;  // (identity, reply)
   uint64_t parked_generation_ = 0;                           // scheduler generation they last tried
+  std::unique_ptr<LeaseTokens> tokens_;
+  struct PendingClaim {
+    std::vector<std::string> identities;  // who waits for the answer (a retry adds itself)
+    std::string worker;
+    int64_t task = 0;
+    int attempt = 0;
+    std::string path, checksum;
+    ClaimFile file;
+  };
+  std::vector<PendingClaim> claims_;
+  uint64_t round_claim_bytes_ = 0;  // read for claims in this round of the loop
+  // At most this many bytes of claimed files are read per round (about 5 ms
+  // of page-cache reads and XXH64), however many or large the claims.
+  static constexpr uint64_t kClaimBytesPerRound = 16u << 20;
 };
 
-// The status report as JSON (the `status --json` output and the wire form).
+// The status report as JSON (the `status --json` output and the wire form),
+// always below the message limit: what does not fit in its budget is counted
+// (`batches_omitted`, `workers_omitted`, per batch `failed_omitted` and
+// `blocklisted_omitted`), running batches and live workers listed first.
 protocol::Json status_to_json(const StatusReport& report);
 
 }  // namespace dofarm::coordinator

@@ -1,6 +1,7 @@
 #include "coordinator/verify.h"
 
 #include <fcntl.h>
+#include <spdlog/spdlog.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -11,10 +12,9 @@
 #include <map>
 #include <set>
 
-#include <spdlog/spdlog.h>
-
 #include "common/checksum.h"
 #include "common/error.h"
+#include "common/job_snapshot.h"
 #include "common/manifest.h"
 #include "common/shard.h"
 #include "coordinator/job_store.h"
@@ -26,8 +26,8 @@ namespace dofarm::coordinator {
 namespace fs = std::filesystem;
 using nlohmann::json;
 
-std::string check_output_file(const fs::path& path, uint64_t checksum,
-                              std::optional<uint64_t> size, uint64_t* actual_size) {
+std::string check_output_file(const fs::path& path, uint64_t checksum, std::optional<uint64_t> size,
+                              uint64_t* actual_size) {
   // O_NOFOLLOW: a symlink is refused, not followed out of the folder;
   // O_NONBLOCK: a FIFO does not stall the open (and is refused below).
   const int fd = ::open(path.c_str(), O_RDONLY | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC);
@@ -104,9 +104,9 @@ ResumeCheck verify_batch_outputs(Scheduler& scheduler, const std::string& batch_
     if (manifest)
       for (const ManifestEntry& e : manifest->shards)
         if (e.file == p.range.file) listed = &e;
-    if (why.empty() && !(listed && listed->checksum == *sum && listed->size == size &&
-                         listed->frame_start == p.range.frame_start &&
-                         listed->frame_end == p.range.frame_end)) {
+    if (why.empty() &&
+        !(listed && listed->checksum == *sum && listed->size == size &&
+          listed->frame_start == p.range.frame_start && listed->frame_end == p.range.frame_end)) {
       try {
         ShardReader reader(out / p.range.file);
         ManifestEntry e;
@@ -170,19 +170,17 @@ bool FolderReport::ok() const {
 namespace {
 
 bool looks_like_shard(const std::string& name) {
-  return name.size() > 3 &&
-         (name.compare(name.size() - 3, 3, ".h5") == 0 || name.find(".h5.tmp-") != std::string::npos);
+  return name.size() > 3 && (name.compare(name.size() - 3, 3, ".h5") == 0 ||
+                             name.find(".h5.tmp-") != std::string::npos);
 }
 
-// The batch DIR/.dofarm-job.json names, if it names one.
-std::string owner_batch(const fs::path& dir) {
-  std::ifstream in(dir / ".dofarm-job.json");
-  if (!in) return "";
+// The batch the folder's ownership record (OUT/.dofarm-owner.json) names,
+// if it names one.
+std::string owner_batch(const fs::path& dir, std::vector<std::string>& problems) {
   try {
-    const json j = json::parse(in);
-    for (const char* key : {"batch", "batch_id"})
-      if (j.contains(key) && j[key].is_string()) return j[key].get<std::string>();
-  } catch (const json::exception&) {
+    if (std::optional<OutputOwner> o = read_output_owner(dir)) return o->batch;
+  } catch (const std::exception& e) {
+    problems.push_back(e.what());
   }
   return "";
 }
@@ -272,7 +270,8 @@ FolderReport verify_folder(const fs::path& dir_in, const VerifyOptions& options)
   if (fs::exists(state / "dofarm.sqlite", ec)) {
     JobStore store(state / "dofarm.sqlite");
     std::optional<BatchRow> batch;
-    std::string wanted = options.batch_id.empty() ? owner_batch(r.dir) : options.batch_id;
+    std::string wanted =
+        options.batch_id.empty() ? owner_batch(r.dir, r.problems) : options.batch_id;
     if (!wanted.empty()) {
       batch = store.batch(wanted);
       if (!batch) r.problems.push_back("the job store has no batch " + wanted);
@@ -337,11 +336,13 @@ json folder_report_json(const FolderReport& r) {
                       {"problem", s.problem}});
   json staged = json::array();
   for (const StagedVerdict& s : r.staged)
-    staged.push_back(
-        {{"file", s.file}, {"status", s.status}, {"ok", s.problem.empty()}, {"problem", s.problem}});
-  return {{"dir", r.dir.string()},      {"record", r.record},       {"batch", r.batch_id},
-          {"batch_state", r.batch_state}, {"ok", r.ok()},           {"shards", shards},
-          {"unlisted", r.unlisted},       {"staged", staged},         {"problems", r.problems}};
+    staged.push_back({{"file", s.file},
+                      {"status", s.status},
+                      {"ok", s.problem.empty()},
+                      {"problem", s.problem}});
+  return {{"dir", r.dir.string()},        {"record", r.record}, {"batch", r.batch_id},
+          {"batch_state", r.batch_state}, {"ok", r.ok()},       {"shards", shards},
+          {"unlisted", r.unlisted},       {"staged", staged},   {"problems", r.problems}};
 }
 
 void print_folder_report(const FolderReport& r, std::ostream& out) {

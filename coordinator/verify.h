@@ -12,12 +12,11 @@
 
 #include <cstdint>
 #include <filesystem>
+#include <nlohmann/json.hpp>
 #include <optional>
 #include <ostream>
 #include <string>
 #include <vector>
-
-#include <nlohmann/json.hpp>
 
 namespace dofarm::coordinator {
 
@@ -54,8 +53,8 @@ ResumeCheck verify_batch_outputs(Scheduler& scheduler, const std::string& batch_
 struct ShardVerdict {
   std::string file;  // relative to the folder
   int frame_start = 0;
-  int frame_end = -1;     // inclusive
-  std::string problem;    // empty: it holds
+  int frame_end = -1;   // inclusive
+  std::string problem;  // empty: it holds
 };
 
 struct StagedVerdict {
@@ -68,11 +67,11 @@ struct FolderReport {
   std::filesystem::path dir;
   std::string record;  // what the folder was checked against, in words
   std::string batch_id;
-  std::string batch_state;                 // of the batch in the job store; empty without
-  std::vector<ShardVerdict> shards;        // every shard the record lists, by file
-  std::vector<std::string> unlisted;       // shard files in the folder that no record lists
-  std::vector<StagedVerdict> staged;       // files under DIR/.staging
-  std::vector<std::string> problems;       // of the folder itself (manifest unreadable, ...)
+  std::string batch_state;            // of the batch in the job store; empty without
+  std::vector<ShardVerdict> shards;   // every shard the record lists, by file
+  std::vector<std::string> unlisted;  // shard files in the folder that no record lists
+  std::vector<StagedVerdict> staged;  // files under DIR/.staging
+  std::vector<std::string> problems;  // of the folder itself (manifest unreadable, ...)
   // Every shard holds, nothing unlisted, no staged tile damaged, no problem.
   bool ok() const;
 };
@@ -81,7 +80,7 @@ struct VerifyOptions {
   // Job store to check against; empty: DIR/.dofarm-state/dofarm.sqlite when
   // it exists, else manifest.json alone.
   std::filesystem::path state_dir;
-  std::string batch_id;  // empty: the one DIR/.dofarm-job.json names, else the newest for DIR
+  std::string batch_id;  // empty: the one DIR/.dofarm-owner.json names, else the newest for DIR
 };
 
 // Throws RuntimeError when `dir` is not a folder or the store cannot be read.

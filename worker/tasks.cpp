@@ -6,6 +6,7 @@
 #include <cstdlib>
 
 #include "common/checksum.h"
+#include "common/content_hash.h"
 #include "common/exr_io.h"
 #include "common/shard.h"
 #include "worker/render/render_job.h"
@@ -15,14 +16,13 @@ namespace dofarm::worker {
 
 namespace fs = std::filesystem;
 
-fs::path staging_dir(const fs::path& out_dir, const std::string& batch) {
-  return out_dir / ".staging" / batch;
-}
-
-fs::path staged_tile_path(const fs::path& out_dir, const std::string& batch, int frame, Rect r) {
-  char name[96];
-  std::snprintf(name, sizeof(name), "f%05d_x%d_y%d_w%d_h%d.exr", frame, r.x, r.y, r.w, r.h);
-  return staging_dir(out_dir, batch) / name;
+std::shared_ptr<const LoadedJob> JobCache::get(const fs::path& out_dir, const std::string& hash) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (auto it = jobs_.find(hash); it != jobs_.end()) return it->second;
+  auto job = std::make_shared<const LoadedJob>(load_job(out_dir, hash));
+  if (jobs_.size() >= 8) jobs_.clear();  // a worker moves between few jobs
+  jobs_.emplace(hash, job);
+  return job;
 }
 
 std::shared_ptr<const render::Scene> SceneCache::get(const JobSpec& spec, const std::string& key) {
@@ -65,6 +65,17 @@ std::string scene_hash(const JobSpec& spec) {
   return checksum_to_string(h);
 }
 
+std::string scene_hash(const JobSnapshot& job) {
+  ContentHasher h;
+  for (const JobInput& in : job.inputs) {
+    h.update(in.path);
+    h.update("\n", 1);
+    h.update(in.hash);
+    h.update("\n", 1);
+  }
+  return h.hex();
+}
+
 // Reads one staged tile once: the bytes are checksummed and decoded together.
 // Anything wrong with it is a StagedTileError, which the coordinator answers
 // by rendering the tile again.
@@ -97,7 +108,8 @@ ManifestEntry pack_shard(const JobSpec& spec, const fs::path& out_dir, const Sha
   ShardInfo info;
   info.batch_id = job.batch;
   info.scene_id = scene_id(spec);
-  info.scene_hash = scene_hash(spec);
+  info.scene_hash = job.scene_hash.empty() ? scene_hash(spec) : job.scene_hash;
+  info.job_hash = job.job_hash;
   info.width = spec.width;
   info.height = spec.height;
   info.versions = spec.versions;

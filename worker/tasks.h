@@ -19,8 +19,10 @@
 
 #include "common/error.h"
 #include "common/image.h"
+#include "common/job_snapshot.h"
 #include "common/jobspec.h"
 #include "common/manifest.h"
+#include "common/staging.h"
 #include "worker/render/render_job.h"
 
 namespace dofarm::render {
@@ -29,13 +31,26 @@ class Scene;
 
 namespace dofarm::worker {
 
-// Where a batch's staged tiles live: OUT/.staging/BATCH/.
-std::filesystem::path staging_dir(const std::filesystem::path& out_dir, const std::string& batch);
-std::filesystem::path staged_tile_path(const std::filesystem::path& out_dir,
-                                       const std::string& batch, int frame, Rect rect);
+// Where a batch's staged tiles live (common/staging.h: the coordinator checks
+// `done` claims against the same paths).
+using dofarm::staged_tile_path;
+using dofarm::staging_dir;
+
+// Jobs read from their folders (common/job_snapshot.h load_job: every file
+// checked against the snapshot), kept by job hash: a worker checks a job's
+// files once, not per task.
+class JobCache {
+ public:
+  std::shared_ptr<const LoadedJob> get(const std::filesystem::path& out_dir,
+                                       const std::string& hash);
+
+ private:
+  std::mutex mutex_;
+  std::map<std::string, std::shared_ptr<const LoadedJob>> jobs_;
+};
 
 // Keeps loaded scenes (and their BVH) across tasks of the same job, keyed by
-// the job spec path and its overrides.
+// the job hash: the same key is the same bytes.
 class SceneCache {
  public:
   std::shared_ptr<const render::Scene> get(const JobSpec& spec, const std::string& key);
@@ -79,6 +94,10 @@ struct ShardJob {
   int frame_start = 0, frame_end = 0;  // inclusive
   std::string file;                    // shard file name in out_dir
   std::vector<StagedTile> tiles;       // every tile of every frame of the shard
+  // The job's hash and the content hash of its scene files (scene_hash of
+  // the snapshot); empty: the shard says scene_hash(spec) and no job.
+  std::string job_hash;
+  std::string scene_hash;
 };
 
 // Packs a shard (see above); returns its manifest entry. Throws
@@ -89,5 +108,8 @@ ManifestEntry pack_shard(const JobSpec& spec, const std::filesystem::path& out_d
 // A stable id and content hash for a job's scene (file and environment map).
 std::string scene_id(const JobSpec& spec);
 std::string scene_hash(const JobSpec& spec);
+// The content hash over every input file of a snapshot (the scene, its
+// buffers and textures, the environment map), by path and hash.
+std::string scene_hash(const JobSnapshot& job);
 
 }  // namespace dofarm::worker

@@ -12,6 +12,7 @@
 
 #include "common/checksum.h"
 #include "common/jobspec.h"
+#include "common/messages.h"
 #include "common/transport.h"
 #include "worker/render/render_job.h"
 #include "worker/render/scene.h"
@@ -49,8 +50,8 @@ void nap(double seconds, const std::atomic<bool>& stop) {
 class Heartbeat {
  public:
   Heartbeat(zmq::context_t& ctx, const WorkerOptions& o, const std::string& worker, int64_t task,
-            int attempt)
-      : thread_([&ctx, o, worker, task, attempt, this] {
+            int attempt, const std::string& token)
+      : thread_([&ctx, o, worker, task, attempt, token, this] {
           ClientOptions co{o.endpoint, o.curve_public, o.request_timeout_ms, o.curve_client};
           CoordinatorClient client(ctx, co);
           std::unique_lock<std::mutex> lock(mutex_);
@@ -63,7 +64,10 @@ class Heartbeat {
               // answer never holds up the worker's exit.
               protocol::Message r = client.call(
                   protocol::encode("heartbeat",
-                                   {{"worker", worker}, {"task", task}, {"attempt", attempt}}),
+                                   {{"worker", worker},
+                                    {"task", task},
+                                    {"attempt", attempt},
+                                    {"token", token}}),
                   [this] { return done_.load(); });
               if (r.type == "ack" && r.body.value("ok", true) == false) lost_ = true;
             } catch (const std::exception& e) {
@@ -174,18 +178,19 @@ class Worker {
     const int64_t task = m.integer("task");
     const int attempt = int(m.integer("attempt"));
     const std::string kind = m.str("kind");
-    const Json base = {{"worker", id_}, {"task", task}, {"attempt", attempt}};
-    Heartbeat heartbeat(ctx_, options_, id_, task, attempt);
+    // The lease token goes with every report about this lease.
+    const std::string token = m.str("token");
+    const Json base = {{"worker", id_}, {"task", task}, {"attempt", attempt}, {"token", token}};
+    Heartbeat heartbeat(ctx_, options_, id_, task, attempt, token);
     try {
-      std::vector<std::string> overrides = m.body.at("overrides").get<std::vector<std::string>>();
-      const std::string spec_path = m.body.at("spec_path").get<std::string>();
-      JobSpec spec = load_job_spec(spec_path, overrides);
+      // The job is a value: read from its content-addressed folder and every
+      // file checked against its hash, once per job (JobCache).
       const fs::path out_dir = m.body.at("out_dir").get<std::string>();
       const std::string batch = m.body.at("batch").get<std::string>();
+      std::shared_ptr<const LoadedJob> job = jobs_.get(out_dir, m.body.at("job").get<std::string>());
+      const JobSpec& spec = job->spec;
       if (kind == "render_tile") {
-        std::string key = spec_path;
-        for (const auto& o : overrides) key += "\n" + o;
-        auto scene = scenes_.get(spec, key);
+        auto scene = scenes_.get(spec, job->snapshot.hash());
         const int frame = m.body.at("frame").get<int>();
         const Rect rect = rect_of(m.body.at("rect"));
         spdlog::info("task {}: frame {} tile {},{} {}x{}", task, frame, rect.x, rect.y, rect.w,
@@ -197,29 +202,33 @@ class Worker {
         Json done = base;
         done["staged_path"] = t.path.string();
         done["checksum"] = checksum_to_string(t.checksum);
+        done["size"] = fs::file_size(t.path);
         done["seconds"] = t.seconds;
         send_result(client, protocol::encode("done", done));
       } else if (kind == "pack_shard") {
-        ShardJob job;
-        job.batch = batch;
-        job.shard_index = m.body.at("shard").get<int>();
-        job.frame_start = m.body.at("frame_start").get<int>();
-        job.frame_end = m.body.at("frame_end").get<int>();
-        job.file = m.body.at("shard_file").get<std::string>();
+        ShardJob shard_job;
+        shard_job.batch = batch;
+        shard_job.shard_index = m.body.at("shard").get<int>();
+        shard_job.frame_start = m.body.at("frame_start").get<int>();
+        shard_job.frame_end = m.body.at("frame_end").get<int>();
+        shard_job.file = m.body.at("shard_file").get<std::string>();
         for (const Json& in : m.body.at("inputs")) {
           StagedTile t;
           t.frame = in.at("frame").get<int>();
           t.rect = rect_of(in.at("rect"));
           t.path = in.at("path").get<std::string>();
           t.checksum = parse_checksum(in.at("checksum").get<std::string>()).value_or(0);
-          job.tiles.push_back(t);
+          shard_job.tiles.push_back(t);
         }
-        spdlog::info("task {}: packing {} (frames {}..{})", task, job.file, job.frame_start,
-                     job.frame_end);
-        ManifestEntry e = pack_shard(spec, out_dir, job);
+        spdlog::info("task {}: packing {} (frames {}..{})", task, shard_job.file, shard_job.frame_start,
+                     shard_job.frame_end);
+        shard_job.job_hash = job->snapshot.hash();
+        shard_job.scene_hash = scene_hash(job->snapshot);
+        ManifestEntry e = pack_shard(spec, out_dir, shard_job);
         Json done = base;
         done["staged_path"] = (out_dir / e.file).string();
         done["checksum"] = checksum_to_string(e.checksum);
+        done["size"] = e.size;
         done["seconds"] = 0.0;
         send_result(client, protocol::encode("done", done));
       } else {
@@ -230,13 +239,13 @@ class Worker {
       send_result(client, protocol::encode("release", base));
     } catch (const StagedTileError& e) {
       Json failed = base;
-      failed["error"] = e.what();
+      failed["error"] = protocol::clip_text(e.what());
       failed["bad_tile"] = e.path().string();
       send_result(client, protocol::encode("failed", failed));
     } catch (const std::exception& e) {
       spdlog::error("task {} failed: {}", task, e.what());
       Json failed = base;
-      failed["error"] = e.what();
+      failed["error"] = protocol::clip_text(e.what());
       send_result(client, protocol::encode("failed", failed));
     }
     if (heartbeat.lost()) spdlog::warn("task {}: the lease was taken away meanwhile", task);
@@ -247,6 +256,7 @@ class Worker {
   std::optional<std::chrono::steady_clock::time_point> stop_seen_;  // see past_stop_grace()
   std::string id_;
   zmq::context_t ctx_;
+  JobCache jobs_;
   SceneCache scenes_;
 };
 

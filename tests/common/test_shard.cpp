@@ -1,4 +1,4 @@
-// The dofarm.shard/1 format: writer, reader, checksums, manifest and inspect.
+// The dofarm.shard/2 format (and reading /1): writer, reader, checksums, manifest and inspect.
 #include <gtest/gtest.h>
 #include <hdf5.h>
 #include <unistd.h>
@@ -83,6 +83,7 @@ ShardInfo make_info() {
   info.batch_id = "batch-7f3a";
   info.scene_id = "cornell";
   info.scene_hash = "xxh64:00000000deadbeef";
+  info.job_hash = "0123456789abcdef0123456789abcdef";
   info.width = kW;
   info.height = kH;
   info.versions = kV;
@@ -280,10 +281,11 @@ TEST(Shard, AttributesRoundTrip) {
   write_shard(dir.path() / "s.h5", in, make_frames());
   ShardReader r(dir.path() / "s.h5");
   const ShardInfo& out = r.info();
-  EXPECT_EQ(out.schema, "dofarm.shard/1");
+  EXPECT_EQ(out.schema, "dofarm.shard/2");
   EXPECT_EQ(out.batch_id, in.batch_id);
   EXPECT_EQ(out.scene_id, in.scene_id);
   EXPECT_EQ(out.scene_hash, in.scene_hash);
+  EXPECT_EQ(out.job_hash, in.job_hash);
   EXPECT_EQ(out.width, kW);
   EXPECT_EQ(out.height, kH);
   EXPECT_EQ(out.versions, kV);
@@ -372,31 +374,48 @@ TEST(Shard, DatasetsCarryChannelAndColumnNames) {
             "rotation_z,fov_deg,focal_distance,aperture");
 }
 
+// Replaces the shard's schema attribute (and drops job_hash when asked), as
+// an older or newer writer would have left it.
+void set_schema(const fs::path& p, const char* schema, bool drop_job_hash) {
+  RawFile f(p, H5F_ACC_RDWR);
+  ASSERT_GE(H5Adelete(f.id, "schema"), 0);
+  if (drop_job_hash) ASSERT_GE(H5Adelete(f.id, "job_hash"), 0);
+  hid_t t = H5Tcopy(H5T_C_S1);
+  H5Tset_size(t, H5T_VARIABLE);
+  hid_t s = H5Screate(H5S_SCALAR);
+  hid_t a = H5Acreate2(f.id, "schema", t, s, H5P_DEFAULT, H5P_DEFAULT);
+  ASSERT_GE(H5Awrite(a, t, &schema), 0);
+  H5Aclose(a);
+  H5Sclose(s);
+  H5Tclose(t);
+}
+
 TEST(Shard, UnknownSchemaVersionIsRefusedByName) {
   TempDir dir;
   fs::path p = dir.path() / "s.h5";
   write_shard(p, make_info(), make_frames());
-  {
-    RawFile f(p, H5F_ACC_RDWR);
-    ASSERT_GE(H5Adelete(f.id, "schema"), 0);
-    hid_t t = H5Tcopy(H5T_C_S1);
-    H5Tset_size(t, H5T_VARIABLE);
-    hid_t s = H5Screate(H5S_SCALAR);
-    hid_t a = H5Acreate2(f.id, "schema", t, s, H5P_DEFAULT, H5P_DEFAULT);
-    const char* v = "dofarm.shard/2";
-    ASSERT_GE(H5Awrite(a, t, &v), 0);
-    H5Aclose(a);
-    H5Sclose(s);
-    H5Tclose(t);
-  }
+  set_schema(p, "dofarm.shard/3", false);
   try {
     ShardReader r(p);
-    FAIL() << "a dofarm.shard/2 file was accepted";
+    FAIL() << "a dofarm.shard/3 file was accepted";
   } catch (const ShardFormatError& e) {
     EXPECT_EQ(std::string(e.what()), "shard " + p.string() +
-                                         ": schema 'dofarm.shard/2' is not supported (this build "
-                                         "reads dofarm.shard/1)");
+                                         ": schema 'dofarm.shard/3' is not supported (this build "
+                                         "reads dofarm.shard/2 and dofarm.shard/1)");
   }
+}
+
+TEST(Shard, VersionOneShardsWithoutJobHashStillRead) {
+  TempDir dir;
+  fs::path p = dir.path() / "s.h5";
+  auto frames = make_frames();
+  write_shard(p, make_info(), frames);
+  set_schema(p, "dofarm.shard/1", true);
+  ShardReader r(p);
+  EXPECT_EQ(r.info().schema, "dofarm.shard/1");
+  EXPECT_EQ(r.info().job_hash, "");
+  EXPECT_EQ(r.info().scene_hash, make_info().scene_hash);
+  EXPECT_EQ(r.frame_count(), int(frames.size()));
 }
 
 TEST(Shard, NonHdf5FileIsNotAShard) {
@@ -601,7 +620,7 @@ TEST(Inspect, TextReportHasShapesStatsAndNoNonFiniteValues) {
   std::ostringstream out, err;
   EXPECT_EQ(inspect_shard(dir.path() / "s.h5", false, out, err), kExitOk) << err.str();
   std::string s = out.str();
-  EXPECT_NE(s.find("dofarm.shard/1"), std::string::npos) << s;
+  EXPECT_NE(s.find("dofarm.shard/2"), std::string::npos) << s;
   EXPECT_NE(s.find("3x2x3x50x70"), std::string::npos) << s;  // noisy shape
   EXPECT_NE(s.find("1x1x3x50x64"), std::string::npos) << s;  // noisy chunk
   EXPECT_NE(s.find("shuffle,deflate(4),fletcher32"), std::string::npos) << s;
@@ -616,7 +635,8 @@ TEST(Inspect, JsonReportParsesAndHoldsExactStatistics) {
   std::ostringstream out, err;
   ASSERT_EQ(inspect_shard(dir.path() / "s.h5", true, out, err), kExitOk) << err.str();
   nlohmann::json j = nlohmann::json::parse(out.str());
-  EXPECT_EQ(j["attributes"]["schema"], "dofarm.shard/1");
+  EXPECT_EQ(j["attributes"]["schema"], "dofarm.shard/2");
+  EXPECT_EQ(j["attributes"]["job_hash"], make_info().job_hash);
   EXPECT_EQ(j["frames"], kFrames);
   EXPECT_EQ(j["non_finite"], 0);
   EXPECT_TRUE(j["data_checksum"]["ok"].get<bool>());

@@ -50,8 +50,7 @@ TEST_F(FailurePolicyTest, TaskFailedOnBothWorkersOfATwoWorkerFarmFailsForGood) {
   const std::string batch = submit(tiny_spec(1, 1));
   hello({"w1", "w2"});
   const Assignment a = take("w1");
-  EXPECT_EQ(sched_->fail("w1", a.task_id, a.attempt, "scene: not glTF").status,
-            FailStatus::kRetry);
+  EXPECT_EQ(sched_->fail("w1", a.task_id, a.attempt, "scene: not glTF").status, FailStatus::kRetry);
   clock_.advance(3);
   hello({"w1", "w2"});
   const Assignment b = take("w2");

@@ -5,10 +5,14 @@
 // timeout is reached by advancing the clock, never by sleeping.
 #include <gtest/gtest.h>
 
+#include <filesystem>
+#include <fstream>
 #include <optional>
 #include <zmq.hpp>
 
+#include "common/checksum.h"
 #include "common/protocol.h"
+#include "common/staging.h"
 #include "coordinator/server.h"
 #include "coordinator_fixtures.h"
 
@@ -51,7 +55,8 @@ class LongPollTest : public ::testing::Test {
     so.shutdown_when_idle = shutdown_when_idle;
     so.wait_seconds = wait_seconds;
     server_ = std::make_unique<Server>(so, clock_);
-    server_->scheduler().submit("/jobs/a.toml", {}, "/out", tiny_spec(frames, frames));
+    server_->scheduler().submit("/jobs/a.toml", {}, (dir_.path() / "out").string(),
+                                tiny_spec(frames, frames), JobRef{std::string(32, '0'), ""});
   }
   std::unique_ptr<RawWorker> worker(const std::string& id) {
     return std::make_unique<RawWorker>(ctx_, server_->endpoint(), id);
@@ -79,11 +84,25 @@ class LongPollTest : public ::testing::Test {
     for (int i = 0; i < 5; ++i) server_->poll_once(1);
     ASSERT_FALSE(w.receive().has_value()) << "a parked request was answered with nothing new";
   }
+  // A true `done` for `task`: its output written where the coordinator
+  // expects it (the claim is checked against the file).
   static Json result(const protocol::Message& task) {
+    const Json& r = task.body.at("rect");
+    const std::filesystem::path path =
+        task.str("kind") == "pack_shard"
+            ? std::filesystem::path(task.str("out_dir")) / task.str("shard_file")
+            : staged_tile_path(task.str("out_dir"), task.str("batch"), int(task.integer("frame")),
+                               Rect{r[0].get<int>(), r[1].get<int>(), r[2].get<int>(),
+                                    r[3].get<int>()});
+    std::filesystem::create_directories(path.parent_path());
+    const std::string bytes = "output of task " + std::to_string(task.integer("task"));
+    std::ofstream(path, std::ios::binary) << bytes;
     return {{"task", task.integer("task")},
             {"attempt", task.integer("attempt")},
-            {"staged_path", "/out/t.exr"},
-            {"checksum", "xxh64:00"},
+            {"token", task.str("token")},
+            {"staged_path", path.string()},
+            {"size", bytes.size()},
+            {"checksum", checksum_to_string(checksum64(bytes.data(), bytes.size()))},
             {"seconds", 0.0}};
   }
 
@@ -143,8 +162,10 @@ TEST_F(LongPollTest, ParkedRequestGetsATaskWhenABackOffEnds) {
   start(false, 5);
   auto w1 = worker("w1");
   const protocol::Message tile = call(*w1, "request");
-  Json failed = {
-      {"task", tile.integer("task")}, {"attempt", tile.integer("attempt")}, {"error", "flaky"}};
+  Json failed = {{"task", tile.integer("task")},
+                 {"attempt", tile.integer("attempt")},
+                 {"token", tile.str("token")},
+                 {"error", "flaky"}};
   ASSERT_EQ(call(*w1, "failed", failed).body.value("status", ""), "retry");  // back-off 2 s
   park(*w1, 1);  // a lone worker retries its task after the back-off
   clock_.advance(1.5);

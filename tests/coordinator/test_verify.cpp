@@ -48,9 +48,7 @@ TEST(CheckOutputFile, RefusesFifosSymlinksAndDamagedFilesWithoutBlocking) {
 class ResumeCheckTest : public ::testing::Test {
  protected:
   ResumeCheckTest()
-      : out_(dir_.path() / "out"),
-        store_(state_file(dir_.path() / "out")),
-        sched_(store_, clock_) {
+      : out_(dir_.path() / "out"), store_(state_file(dir_.path() / "out")), sched_(store_, clock_) {
     batch_ = sched_.submit("/jobs/a.toml", {}, out_.string(), tiny_spec(2, 1));
     sched_.worker_seen("w1", "host", 1);
     Manifest manifest;
@@ -60,18 +58,18 @@ class ResumeCheckTest : public ::testing::Test {
         const fs::path tile = out_ / ".staging" / batch_ / ("f" + std::to_string(a.frame) + ".exr");
         tiles_[a.frame] = tile;
         const uint64_t sum = write_file(tile, "tile " + std::to_string(a.frame));
-        EXPECT_EQ(sched_.complete("w1", a.task_id, a.attempt, tile.string(),
-                                  checksum_to_string(sum)),
-                  CompleteStatus::kAccepted);
+        EXPECT_EQ(
+            sched_.complete("w1", a.task_id, a.attempt, tile.string(), checksum_to_string(sum)),
+            CompleteStatus::kAccepted);
       } else {
         const fs::path shard = out_ / a.shard_range.file;
         const std::string bytes = "shard " + std::to_string(a.shard);
         const uint64_t sum = write_file(shard, bytes);
         manifest.shards.push_back({a.shard_range.file, batch_, "cornell", a.shard_range.frame_start,
                                    a.shard_range.frame_end, bytes.size(), sum});
-        EXPECT_EQ(sched_.complete("w1", a.task_id, a.attempt, shard.string(),
-                                  checksum_to_string(sum)),
-                  CompleteStatus::kAccepted);
+        EXPECT_EQ(
+            sched_.complete("w1", a.task_id, a.attempt, shard.string(), checksum_to_string(sum)),
+            CompleteStatus::kAccepted);
         fs::remove(tiles_.at(a.shard));  // packing removes its staged tiles
       }
     }

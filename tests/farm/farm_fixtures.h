@@ -33,6 +33,7 @@
 #include "common/protocol.h"
 #include "common/shard.h"
 #include "common/transport.h"
+#include "worker/job_resolve.h"
 #include "worker/render/render_job.h"
 
 namespace dofarm::farm_testing {
@@ -214,6 +215,17 @@ inline CliResult run_cli(const fs::path& dir, const std::string& name,
   r.out = c.out();
   r.err = c.err();
   return r;
+}
+
+// The fields of a `submit` message for `spec` into `out`, as `dofarm submit`
+// sends them: the job resolved, copied into out/.dofarm-jobs, and sent as
+// its snapshot.
+inline Json submit_fields(const fs::path& spec, const fs::path& out,
+                          const std::vector<std::string>& sets = {}) {
+  worker::ResolvedJob job = worker::resolve_job(spec, sets);
+  fs::create_directories(out);
+  worker::materialize_job(job, out);
+  return {{"snapshot", job.snapshot.to_json(-1)}, {"out_dir", fs::absolute(out).string()}};
 }
 
 // `dofarm coordinator` on a port the OS picks, read back from its first line.

@@ -57,6 +57,15 @@ std::optional<std::string> exchange(zmq::socket_t& s, const std::vector<std::str
   return reply.to_string();
 }
 
+// A message built without the definitions' check, so it can break them.
+std::string unchecked(const std::string& type, Json fields = Json::object()) {
+  fields["v"] = protocol::kVersion;
+  fields["type"] = type;
+  return fields.dump(-1, ' ', false, Json::error_handler_t::replace);
+}
+
+const std::string kToken(32, '0');  // well-formed, and no lease's token
+
 // Messages that are each wrong in one way. None may get anything but an error.
 std::vector<std::vector<std::string>> malformed_messages() {
   std::vector<std::vector<std::string>> out;
@@ -97,12 +106,10 @@ std::vector<std::vector<std::string>> malformed_messages() {
   one(nested);
   // Every strict prefix of valid messages is invalid JSON.
   for (const std::string& valid :
-       {protocol::encode("status"),
-        protocol::encode("request", {{"worker", "w"}, {"host", "h"}, {"threads", 1}}),
-        protocol::encode("heartbeat", {{"worker", "w"}, {"task", 1}, {"attempt", 1}}),
-        protocol::encode("submit", {{"spec_path", "/nonexistent.toml"},
-                                    {"overrides", Json::array()},
-                                    {"out_dir", "/tmp/x"}})})
+       {unchecked("status"),
+        unchecked("request", {{"worker", "w"}, {"host", "h"}, {"threads", 1}}),
+        unchecked("heartbeat", {{"worker", "w"}, {"task", 1}, {"attempt", 1}}),
+        unchecked("submit", {{"snapshot", "{}"}, {"out_dir", "/tmp/x"}})})
     for (size_t n = 0; n < valid.size(); ++n) one(valid.substr(0, n));
   // Wrong or missing protocol version.
   for (const char* v : {"2", "0", "-1", "1.0", "1.5", "\"1\"", "null", "true", "[1]", "{}",
@@ -114,29 +121,31 @@ std::vector<std::vector<std::string>> malformed_messages() {
   for (const char* t : {"5", "null", "[\"status\"]", "{\"a\":1}", "true"})
     one(std::string("{\"v\":1,\"type\":") + t + "}");
   for (const char* t : {"", "STATUS", "status ", "hello", "rm -rf /", "request\t", "\u00e9"})
-    one(protocol::encode(t));
+    one(unchecked(t));
   // Types the coordinator sends but never takes.
-  one(protocol::encode("task", {{"task", 1}, {"attempt", 1}, {"kind", "render_tile"}}));
-  one(protocol::encode("wait", {{"seconds", 1.0}}));
-  one(protocol::encode("ack"));
-  one(protocol::encode("submitted", {{"batch", "b-00000000"}}));
-  one(protocol::encode("status_reply", {{"batches", Json::array()}}));
-  one(protocol::encode("error", {{"message", "x"}}));
-  one(protocol::encode("shutdown"));
+  one(unchecked("task", {{"task", 1}, {"attempt", 1}, {"kind", "render_tile"}}));
+  one(unchecked("wait", {{"seconds", 1.0}}));
+  one(unchecked("ack"));
+  one(unchecked("submitted", {{"batch", "b-00000000"}}));
+  one(unchecked("status_reply", {{"batches", Json::array()}}));
+  one(unchecked("error", {{"message", "x"}}));
+  one(unchecked("shutdown"));
   // Each required field of each worker/client message missing or mistyped.
   const std::vector<std::pair<std::string, Json>> good = {
       {"request", {{"worker", "w"}}},
-      {"heartbeat", {{"worker", "w"}, {"task", 1}, {"attempt", 1}}},
+      {"heartbeat", {{"worker", "w"}, {"task", 1}, {"attempt", 1}, {"token", kToken}}},
       {"done",
        {{"worker", "w"},
         {"task", 1},
         {"attempt", 1},
+        {"token", kToken},
         {"staged_path", "/x"},
-        {"checksum", "xxh64:0"},
+        {"size", 1},
+        {"checksum", "xxh64:0123456789abcdef"},
         {"seconds", 1.0}}},
-      {"failed", {{"worker", "w"}, {"task", 1}, {"attempt", 1}, {"error", "e"}}},
-      {"release", {{"worker", "w"}, {"task", 1}, {"attempt", 1}}},
-      {"submit", {{"spec_path", "/x.toml"}, {"overrides", Json::array()}, {"out_dir", "/tmp"}}},
+      {"failed", {{"worker", "w"}, {"task", 1}, {"attempt", 1}, {"token", kToken}, {"error", "e"}}},
+      {"release", {{"worker", "w"}, {"task", 1}, {"attempt", 1}, {"token", kToken}}},
+      {"submit", {{"snapshot", "{}"}, {"out_dir", "/tmp"}}},
       {"resume", {{"batch", "b-00000000"}}},
       {"cancel", {{"batch", "b-00000000"}}},
   };
@@ -146,29 +155,27 @@ std::vector<std::vector<std::string>> malformed_messages() {
     for (const auto& [key, value] : fields.items()) {
       Json missing = fields;
       missing.erase(key);
-      one(protocol::encode(type, missing));
+      one(unchecked(type, missing));
       for (const Json& w : wrong) {
         if (w.type() == value.type()) continue;                  // same type: not wrong
         if (value.is_number_float() && w.is_number()) continue;  // an int is a number
         Json bad = fields;
         bad[key] = w;
-        one(protocol::encode(type, bad));
+        one(unchecked(type, bad));
       }
     }
   }
   // Optional fields of the wrong type.
-  one(protocol::encode("request", {{"worker", "w"}, {"host", 5}}));
-  one(protocol::encode("request", {{"worker", "w"}, {"threads", "many"}}));
-  one(protocol::encode(
-      "submit",
-      {{"spec_path", "/x.toml"}, {"overrides", Json::array({1, 2})}, {"out_dir", "/tmp"}}));
+  one(unchecked("request", {{"worker", "w"}, {"host", 5}}));
+  one(unchecked("request", {{"worker", "w"}, {"threads", "many"}}));
+  one(unchecked("submit", {{"snapshot", Json::array({1, 2})}, {"out_dir", "/tmp"}}));
   // Non-finite numbers.
   one("{\"v\":1,\"type\":\"done\",\"worker\":\"w\",\"task\":1,\"attempt\":1,"
       "\"staged_path\":\"/x\",\"checksum\":\"c\",\"seconds\":1e999}");
   // Multi-frame messages.
-  out.push_back({protocol::encode("status"), protocol::encode("status")});
-  out.push_back({protocol::encode("status"), ""});
-  out.push_back({"", protocol::encode("status")});
+  out.push_back({unchecked("status"), unchecked("status")});
+  out.push_back({unchecked("status"), ""});
+  out.push_back({"", unchecked("status")});
   out.push_back({"a", "b", "c"});
   // Exactly at the size limit: delivered, and not JSON.
   one(std::string(protocol::kMaxMessageBytes, 'x'));
@@ -236,11 +243,7 @@ TEST(FarmCurve, ClientsWithoutTheCoordinatorsPublicKeyGetNothing) {
                            {"--curve-secret", (tmp / "keys" / "coordinator.key").string()});
   const std::string ep = coord.endpoint();
   const fs::path job = write_job(tmp.path(), "job.toml", TinyJob{});
-  Json submitted = coordinator_call(ep, "submit",
-                                    {{"spec_path", job.string()},
-                                     {"overrides", Json::array()},
-                                     {"out_dir", (tmp / "out").string()}},
-                                    10000, pub);
+  Json submitted = coordinator_call(ep, "submit", submit_fields(job, tmp / "out"), 10000, pub);
   const std::string batch = submitted.at("batch");
 
   zmq::context_t ctx(1);
@@ -257,7 +260,8 @@ TEST(FarmCurve, ClientsWithoutTheCoordinatorsPublicKeyGetNothing) {
   EXPECT_TRUE(keyed
                   .call(protocol::encode("release", {{"worker", "friend"},
                                                      {"task", m.integer("task")},
-                                                     {"attempt", m.integer("attempt")}}))
+                                                     {"attempt", m.integer("attempt")},
+                                                     {"token", m.str("token")}}))
                   .body.value("ok", false));
 
   // A real worker with the key finishes the batch; the intruder never got work.

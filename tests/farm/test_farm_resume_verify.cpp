@@ -33,8 +33,8 @@ TEST(FarmResume, DamagedShardsAndManifestAreRepairedByRunningTheJobAgain) {
   const fs::path job = write_job(tmp.path(), "job.toml", TinyJob{});  // 2 shards of 2 frames
   const fs::path out = tmp / "out";
   auto run = [&](const std::string& name) {
-    CliResult r = run_cli(tmp.path(), name,
-                          {"run", job.string(), "--out", out.string(), "--workers", "2"});
+    CliResult r =
+        run_cli(tmp.path(), name, {"run", job.string(), "--out", out.string(), "--workers", "2"});
     EXPECT_EQ(r.status, 0) << r.out << r.err;
     EXPECT_NE(r.out.find(": done, 4/4 frames"), std::string::npos) << r.out << r.err;
     return r;
@@ -130,12 +130,12 @@ TEST(FarmResume, ResumeOfADoneBatchWithADeletedShardRunsItAgain) {
   CliResult resume = run_cli(tmp.path(), "resume", {"resume", batch, "--coordinator", ep});
   EXPECT_EQ(resume.status, 0) << resume.out << resume.err;
   EXPECT_NE(batch_state(ep, batch), "absent");
-  ASSERT_TRUE(poll_until("the batch to finish again",
-                         [&] { return batch_state(ep, batch) == "done"; }))
-      << coord.child().describe();
+  ASSERT_TRUE(poll_until("the batch to finish again", [&] {
+    return batch_state(ep, batch) == "done";
+  })) << coord.child().describe();
   EXPECT_TRUE(shards_match_render(out, job));
-  CliResult v = run_cli(tmp.path(), "verify",
-                        {"verify", out.string(), "--state", (tmp / "state").string()});
+  CliResult v =
+      run_cli(tmp.path(), "verify", {"verify", out.string(), "--state", (tmp / "state").string()});
   EXPECT_EQ(v.status, 0) << v.out << v.err;
 }
 

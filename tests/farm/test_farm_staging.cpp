@@ -61,15 +61,15 @@ class LoopWorker {
       if (m.type != "task") return false;
       const Json base = {
           {"worker", "w-test"}, {"task", m.integer("task")}, {"attempt", m.integer("attempt")}};
-      const JobSpec spec =
-          load_job_spec(m.str("spec_path"), m.body.at("overrides").get<std::vector<std::string>>());
       const fs::path out_dir = m.str("out_dir");
+      std::shared_ptr<const LoadedJob> job_value = jobs_.get(out_dir, m.str("job"));
+      const JobSpec& spec = job_value->spec;
       if (m.str("kind") == "render_tile") {
         const int frame = m.body.at("frame").get<int>();
         const Rect rect = rect_of(m.body.at("rect"));
         render::RenderOptions opt;
         opt.threads = 1;
-        auto scene = scenes_.get(spec, m.str("spec_path"));
+        auto scene = scenes_.get(spec, m.str("job"));
         worker::StagedTile t =
             worker::render_tile(spec, *scene, m.str("batch"), out_dir, frame, rect, opt);
         rendered.push_back({frame, rect});
@@ -116,13 +116,13 @@ class LoopWorker {
   }
 
  private:
+  worker::JobCache jobs_;
   worker::SceneCache scenes_;
 };
 
 std::string submit(Server& server, const fs::path& job, const fs::path& out) {
   protocol::Message m =
-      call(server, "submit",
-           {{"spec_path", job.string()}, {"overrides", Json::array()}, {"out_dir", out.string()}});
+      call(server, "submit", submit_fields(job, out));
   EXPECT_EQ(m.type, "submitted") << m.body.dump();
   return m.type == "submitted" ? m.str("batch") : "";
 }

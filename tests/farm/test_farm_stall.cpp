@@ -17,13 +17,11 @@ TEST(FarmStall, BatchFailingOnBothWorkersEndsFailedWithItsReason) {
   TinyJob job;
   job.tile = 8;  // 12 tiles a frame: more failing tasks than the blocklist needs
   const fs::path spec = write_job(tmp.path(), "job.toml", job);
-  CoordinatorProcess coord(tmp.path(), "coordinator", tmp / "state", 5,
-                           {"--stall-timeout", "3"});
+  CoordinatorProcess coord(tmp.path(), "coordinator", tmp / "state", 5, {"--stall-timeout", "3"});
   const std::string ep = coord.endpoint();
   const fs::path out = tmp / "out";
-  CliResult sub =
-      run_cli(tmp.path(), "submit",
-              {"submit", spec.string(), "--coordinator", ep, "--out", out.string()});
+  CliResult sub = run_cli(tmp.path(), "submit",
+                          {"submit", spec.string(), "--coordinator", ep, "--out", out.string()});
   ASSERT_EQ(sub.status, 0) << sub.out << sub.err;
   const std::string batch = sub.out.substr(0, sub.out.find('\n'));
   // What submit accepted breaks at the workers: nothing can be written under
@@ -33,8 +31,8 @@ TEST(FarmStall, BatchFailingOnBothWorkersEndsFailedWithItsReason) {
 
   Child w1 = start_worker(tmp.path(), ep, "w1");
   Child w2 = start_worker(tmp.path(), ep, "w2");
-  ASSERT_TRUE(poll_until("the batch to end", [&] { return batch_state(ep, batch) != "running"; },
-                         60))
+  ASSERT_TRUE(poll_until(
+      "the batch to end", [&] { return batch_state(ep, batch) != "running"; }, 60))
       << coord.child().describe();
 
   CliResult st = run_cli(tmp.path(), "status", {"status", batch, "--coordinator", ep, "--json"});

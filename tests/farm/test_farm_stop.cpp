@@ -29,15 +29,15 @@ void worker_exits_promptly_on_sigterm(CoordinatorFate fate) {
   const fs::path job = write_job(tmp.path(), "big.toml", big);
   CoordinatorProcess coord(tmp.path(), "coordinator", tmp / "state", 30);
   const std::string ep = coord.endpoint();
-  CliResult sub = run_cli(tmp.path(), "submit",
-                          {"submit", job.string(), "--coordinator", ep, "--out",
-                           (tmp / "out").string()});
+  CliResult sub =
+      run_cli(tmp.path(), "submit",
+              {"submit", job.string(), "--coordinator", ep, "--out", (tmp / "out").string()});
   ASSERT_EQ(sub.status, 0) << sub.out << sub.err;
 
   Child worker = start_worker(tmp.path(), ep, "w1");
-  ASSERT_TRUE(poll_until("w1 to hold a lease",
-                         [&] { return !leases_of(farm_status(ep), "w1").empty(); }))
-      << worker.describe();
+  ASSERT_TRUE(poll_until("w1 to hold a lease", [&] {
+    return !leases_of(farm_status(ep), "w1").empty();
+  })) << worker.describe();
   if (fate == CoordinatorFate::kFrozen) {
     coord.child().signal(SIGSTOP);
   } else {
@@ -76,15 +76,15 @@ TEST(FarmStop, WorkerStoppedMidTaskHandsItsTaskBack) {
   const fs::path job = write_job(tmp.path(), "big.toml", big);
   CoordinatorProcess coord(tmp.path(), "coordinator", tmp / "state", 60);
   const std::string ep = coord.endpoint();
-  CliResult sub = run_cli(tmp.path(), "submit",
-                          {"submit", job.string(), "--coordinator", ep, "--out",
-                           (tmp / "out").string()});
+  CliResult sub =
+      run_cli(tmp.path(), "submit",
+              {"submit", job.string(), "--coordinator", ep, "--out", (tmp / "out").string()});
   ASSERT_EQ(sub.status, 0) << sub.out << sub.err;
   const std::string batch = sub.out.substr(0, sub.out.find('\n'));
   Child worker = start_worker(tmp.path(), ep, "w1");
-  ASSERT_TRUE(poll_until("w1 to hold a lease",
-                         [&] { return !leases_of(farm_status(ep), "w1").empty(); }))
-      << worker.describe();
+  ASSERT_TRUE(poll_until("w1 to hold a lease", [&] {
+    return !leases_of(farm_status(ep), "w1").empty();
+  })) << worker.describe();
   const auto t0 = Clock::now();
   worker.signal(SIGTERM);
   ASSERT_TRUE(worker.wait(kStopSeconds).has_value()) << worker.describe();

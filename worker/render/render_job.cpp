@@ -218,9 +218,11 @@ FrameBuffers render_frame(const JobSpec& spec, int frame, std::optional<Rect> ti
 }
 
 void render_frame_to_exr(const JobSpec& spec, int frame, std::optional<Rect> tile,
-                         const std::filesystem::path& out, const RenderOptions& options) {
+                         const std::filesystem::path& out, const RenderOptions& options,
+                         const Scene* scene) {
   auto t0 = std::chrono::steady_clock::now();
-  FrameBuffers fb = render_frame(spec, frame, tile, options);
+  FrameBuffers fb = scene ? render_frame(*scene, spec, frame, tile, options)
+                          : render_frame(spec, frame, tile, options);
   double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   std::map<std::string, std::string> attrs = {
       {"dofarm.renderer_version", DOFARM_VERSION},

@@ -54,7 +54,9 @@ FrameBuffers render_frame(const Scene& scene, const JobSpec& spec, int frame,
 Rect checked_rect(const JobSpec& spec, int frame, std::optional<Rect> tile);
 
 // render_frame() then write_frame_exr() with the job's metadata in the header.
+// `scene`: the job's scene, already loaded (null: loaded here).
 void render_frame_to_exr(const JobSpec& spec, int frame, std::optional<Rect> tile,
-                         const std::filesystem::path& out, const RenderOptions& options = {});
+                         const std::filesystem::path& out, const RenderOptions& options = {},
+                         const Scene* scene = nullptr);
 
 }  // namespace dofarm::render

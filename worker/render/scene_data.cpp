@@ -6,6 +6,7 @@
 #include <assimp/scene.h>
 
 #include <algorithm>
+#include <assimp/DefaultIOSystem.h>
 #include <assimp/Importer.hpp>
 #include <cmath>
 #include <cstring>
@@ -14,6 +15,7 @@
 #include <nlohmann/json.hpp>
 #include <set>
 
+#include "common/content_hash.h"
 #include "common/error.h"
 #include "common/exr_io.h"
 
@@ -406,12 +408,24 @@ void Loader::camera_track() {
   }
 }
 
+// assimp's file access, with every file it opens noted (InputFileLog): the
+// glTF's buffers, an OBJ's material library, whatever the format pulls in.
+class RecordingIOSystem : public Assimp::DefaultIOSystem {
+ public:
+  Assimp::IOStream* Open(const char* file, const char* mode) override {
+    Assimp::IOStream* stream = DefaultIOSystem::Open(file, mode);
+    if (stream) note_input_file(file);
+    return stream;
+  }
+};
+
 }  // namespace
 
 SceneData load_scene_data(const std::filesystem::path& path) {
   std::error_code ec;
   if (!std::filesystem::is_regular_file(path, ec)) fail(path, "no such file");
   Assimp::Importer importer;
+  importer.SetIOHandler(new RecordingIOSystem);  // the importer owns it
   // Smooth normals only where the file has none, and not across edges sharper
   // than 80 degrees so boxes stay boxes.
   importer.SetPropertyFloat(AI_CONFIG_PP_GSN_MAX_SMOOTHING_ANGLE, 80.0f);

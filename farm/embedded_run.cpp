@@ -1,0 +1,165 @@
+#include "farm/embedded_run.h"
+
+#include <signal.h>
+#include <spawn.h>
+#include <spdlog/spdlog.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstring>
+#include <thread>
+
+#include "common/job_snapshot.h"
+#include "common/progress.h"
+#include "coordinator/clock.h"
+#include "coordinator/server.h"
+#include "worker/job_resolve.h"
+
+extern char** environ;
+
+namespace dofarm::farm {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+pid_t spawn_worker(const fs::path& exe, const std::string& endpoint, int threads,
+                   const std::string& id, const std::string& log_level) {
+  std::vector<std::string> args = {
+      exe.string(), "worker", "--connect", endpoint, "--threads",   std::to_string(threads),
+      "--id",       id,       "--give-up", "60",     "--log-level", log_level};
+  std::vector<char*> argv;
+  for (auto& a : args) argv.push_back(a.data());
+  argv.push_back(nullptr);
+  pid_t pid;
+  int rc = posix_spawn(&pid, exe.c_str(), nullptr, nullptr, argv.data(), environ);
+  if (rc != 0) throw RuntimeError("cannot start a worker: " + std::string(strerror(rc)));
+  return pid;
+}
+
+// A folder with shards but no ownership record or state was filled by
+// something that did not record its job: it is not ours to write into.
+std::string foreign_content(const fs::path& out) {
+  std::error_code ec;
+  if (fs::exists(owner_file(out), ec) || fs::exists(out / ".dofarm-state", ec)) return "";
+  if (fs::exists(out / "manifest.json", ec))
+    return "output folder " + out.string() +
+           " holds a manifest.json but no record of the job that wrote it; nothing was changed; "
+           "write this job to another --out folder";
+  return "";
+}
+
+}  // namespace
+
+EmbeddedRunResult run_embedded(const EmbeddedRunOptions& o, const std::atomic<bool>& stop) {
+  // 1-2: resolve and check; bad input leaves no trace.
+  worker::ResolvedJob job = worker::resolve_job(o.spec, o.overrides);
+  const fs::path out = fs::absolute(o.out).lexically_normal();
+  std::error_code ec;
+  if (fs::exists(out, ec) && !fs::is_directory(out, ec))
+    throw RunRefused("--out " + out.string() + " exists and is not a folder");
+  if (std::string why = foreign_content(out); !why.empty()) throw RunRefused(why);
+  if (std::string why = ownership_conflict(out, job.snapshot); !why.empty()) throw RunRefused(why);
+  const fs::path state = out / ".dofarm-state";
+  if (fs::exists(state / "dofarm.sqlite", ec)) {
+    // The embedded store may know batches the ownership record does not (a
+    // folder written before records existed).
+    coordinator::JobStore store(state / "dofarm.sqlite");
+    for (const coordinator::BatchRow& b : store.batches()) {
+      if (b.job_hash == job.snapshot.hash()) continue;
+      std::optional<JobSnapshot> other;
+      std::string error;
+      try {
+        if (!b.snapshot.empty()) other = JobSnapshot::from_json(b.snapshot, "batch " + b.id);
+      } catch (const std::exception& e) {
+        error = e.what();
+      }
+      throw RunRefused(conflict_message(out, b.id, b.job_hash, other ? &*other : nullptr, error,
+                                        job.snapshot));
+    }
+  }
+
+  // 3: the job's folder, the coordinator, the batch.
+  fs::create_directories(out);
+  worker::materialize_job(job, out);
+  coordinator::SystemClock clock;
+  coordinator::ServerOptions so;
+  so.listen = "tcp://127.0.0.1:*";
+  so.state_dir = state;
+  so.shutdown_when_idle = true;
+  so.scheduler.lease_seconds = o.lease_seconds;
+  coordinator::Server server(so, clock);
+  coordinator::Server::JobSubmission sub = server.submit_job(out, job.snapshot, o.overrides);
+  if (!sub.refusal.empty()) throw RunRefused(sub.refusal);
+  EmbeddedRunResult result;
+  result.batch = sub.batch;
+  result.job = job.snapshot.hash();
+  result.resumed = sub.existing;
+  write_output_owner(out, {result.job, result.batch, job.snapshot.source_spec});
+  if (sub.existing) {
+    int bad = server.verify_staged_tiles(result.batch);
+    auto r = server.scheduler().resume(result.batch);
+    spdlog::info("batch {}: resuming ({}; {} staged tiles to redo)", result.batch, r.message, bad);
+  } else {
+    spdlog::info("batch {}: {} frames of job {} into {}", result.batch, job.spec.frame_count(),
+                 result.job, out.string());
+  }
+
+  // 4: workers, served until they all exit.
+  const int threads =
+      o.threads > 0 ? o.threads : std::max(1, int(std::thread::hardware_concurrency()) / o.workers);
+  std::vector<pid_t> children;
+  for (int i = 0; i < o.workers; ++i)
+    children.push_back(spawn_worker(o.exe, server.endpoint(), threads,
+                                    "local-" + std::to_string(getpid()) + "-" + std::to_string(i),
+                                    o.worker_log_level));
+  // Progress counts finished tasks (render tiles and shard packs). Every
+  // local worker blocklisted means nobody is left to render the batch: stop
+  // rather than wait for a worker that never comes.
+  auto finished = [&](int* total) {
+    auto st = server.scheduler().status(result.batch);
+    if (st.batches.empty()) return int64_t(0);
+    const auto& b = st.batches[0];
+    *total = b.tasks_total;
+    result.stranded = b.batch.state == coordinator::BatchState::kRunning &&
+                      int(b.blocklisted.size()) >= o.workers;
+    return int64_t(b.tasks_done + b.tasks_failed);
+  };
+  int total = 0;
+  int64_t done = finished(&total);
+  ProgressOptions po;
+  if (!o.progress) po.mode = ProgressOptions::Mode::kOff;
+  Progress progress("batch " + result.batch + " tasks", total, po);
+  progress.advance(done);
+  auto last = std::chrono::steady_clock::now();
+  size_t alive = children.size();
+  while (alive > 0) {
+    server.poll_once(100);
+    for (pid_t& pid : children) {
+      int status;
+      if (pid > 0 && waitpid(pid, &status, WNOHANG) == pid) {
+        pid = -1;
+        --alive;
+      }
+    }
+    if (stop || result.stranded)
+      for (pid_t pid : children)
+        if (pid > 0) kill(pid, SIGTERM);
+    if (std::chrono::steady_clock::now() - last > std::chrono::seconds(1)) {
+      last = std::chrono::steady_clock::now();
+      int64_t now_done = finished(&total);
+      progress.advance(now_done - done);
+      done = now_done;
+    }
+  }
+  // Let the last results in before reading the final state.
+  for (int i = 0; i < 5; ++i) server.poll_once(10);
+  progress.advance(finished(&total) - done);
+  progress.finish();
+  result.status = server.scheduler().status(result.batch).batches.at(0);
+  return result;
+}
+
+}  // namespace dofarm::farm

@@ -1,0 +1,305 @@
+// Issue 10, defects 1, 2, 3 and 12: a batch is one immutable job. The job is
+// resolved once into a snapshot (spec, scene, buffers, textures, environment
+// map, each by content hash), an output folder belongs to one job, workers
+// render the snapshot and never re-read a path, and content errors are found
+// before anything is written. Real processes on loopback throughout.
+#include <gtest/gtest.h>
+
+#include <regex>
+
+#include "common/content_hash.h"
+#include "common/job_snapshot.h"
+#include "farm/embedded_run.h"
+#include "farm_fixtures.h"
+#include "worker/job_resolve.h"
+
+namespace dofarm::farm_testing {
+namespace {
+
+// Content hash of every regular file under `dir` (relative path -> hash),
+// state folders excluded: what a user would call "the output".
+std::map<std::string, std::string> folder_contents(const fs::path& dir) {
+  std::map<std::string, std::string> out;
+  for (const auto& e : fs::recursive_directory_iterator(dir)) {
+    const std::string rel = fs::relative(e.path(), dir).string();
+    if (rel.rfind(".dofarm-state", 0) == 0) continue;
+    if (e.is_regular_file()) out[rel] = hash_regular_file(e.path()).hash;
+  }
+  return out;
+}
+
+// A private copy of the Cornell scene (glTF and its .bin), so a test may
+// change it.
+fs::path copy_cornell(const fs::path& dir) {
+  fs::create_directories(dir);
+  const fs::path src = cornell_scene().parent_path();
+  fs::copy_file(src / "cornell.gltf", dir / "cornell.gltf");
+  fs::copy_file(src / "cornell.bin", dir / "cornell.bin");
+  return dir / "cornell.gltf";
+}
+
+std::string shard_attr_seed(const fs::path& out) {
+  Manifest m = load_manifest(out);
+  ShardReader r(out / m.shards.at(0).file);
+  return std::to_string(r.info().seed);
+}
+
+TEST(JobValue, SecondJobIntoTheSameFolderIsRefusedAndNothingChanges) {
+  TempDir dir;
+  TinyJob j;
+  j.frame_end = 1;
+  const fs::path spec = write_job(dir.path(), "job.toml", j);
+  const fs::path out = dir / "out";
+  CliResult first = run_cli(dir.path(), "first", {"run", spec.string(), "--out", out.string(),
+                                                  "--workers", "1", "--threads", "1"});
+  ASSERT_EQ(first.status, 0) << first.err;
+  const auto before = folder_contents(out);
+
+  // Another seed, another frame range: each a different job.
+  for (const std::vector<std::string>& sets :
+       {std::vector<std::string>{"--set", "seed=8"},
+        std::vector<std::string>{"--set", "frames.end=2"}}) {
+    std::vector<std::string> args = {"run",       spec.string(), "--out",     out.string(),
+                                     "--workers", "1",           "--threads", "1"};
+    args.insert(args.end(), sets.begin(), sets.end());
+    CliResult second = run_cli(dir.path(), "second", args);
+    EXPECT_EQ(second.status, 2) << second.err;
+    EXPECT_NE(second.err.find(out.string()), std::string::npos) << second.err;
+    EXPECT_NE(second.err.find("holds batch b-"), std::string::npos) << second.err;
+    const std::string key = sets[1].substr(0, sets[1].find('='));
+    EXPECT_NE(second.err.find(key + ": "), std::string::npos)
+        << "the refusal should name the key that differs (" << key << "): " << second.err;
+    EXPECT_EQ(folder_contents(out), before) << "a refused run changed the folder";
+  }
+  // The same job again resumes (nothing to do) and still holds every frame.
+  CliResult again = run_cli(dir.path(), "again", {"run", spec.string(), "--out", out.string(),
+                                                  "--workers", "1", "--threads", "1"});
+  EXPECT_EQ(again.status, 0) << again.err;
+  EXPECT_TRUE(shards_match_render(out, spec));
+}
+
+TEST(JobValue, EditedSpecIsRefusedInsteadOfResumed) {
+  TempDir dir;
+  TinyJob j;
+  j.frame_end = 1;
+  const fs::path spec = write_job(dir.path(), "job.toml", j);
+  const fs::path out = dir / "out";
+  ASSERT_EQ(run_cli(dir.path(), "first", {"run", spec.string(), "--out", out.string(),
+                                          "--workers", "1", "--threads", "1"})
+                .status,
+            0);
+  // Edit the file itself (not a --set): seed 7 -> 8.
+  std::string text = read_text(spec);
+  text.replace(text.find("seed = 7"), 8, "seed = 8");
+  write_text(spec, text);
+  CliResult second = run_cli(dir.path(), "second", {"run", spec.string(), "--out", out.string(),
+                                                    "--workers", "1", "--threads", "1"});
+  EXPECT_EQ(second.status, 2) << second.err;
+  EXPECT_NE(second.err.find("seed: 7 -> 8"), std::string::npos) << second.err;
+  EXPECT_EQ(shard_attr_seed(out), "7");
+}
+
+TEST(JobValue, SubmitOfAnotherJobIntoABusyFolderIsRefused) {
+  TempDir dir;
+  TinyJob j;
+  j.frame_end = 1;
+  const fs::path spec = write_job(dir.path(), "job.toml", j);
+  const fs::path out = dir / "out";
+  CoordinatorProcess coord(dir.path(), "coord", dir / "state", 30);
+  const std::vector<std::string> submit = {"submit", spec.string(), "--coordinator",
+                                           coord.endpoint(), "--out", out.string()};
+  CliResult a = run_cli(dir.path(), "a", submit);
+  ASSERT_EQ(a.status, 0) << a.err;
+  const std::string batch = a.out.substr(0, a.out.find('\n'));
+  // The same job again: the same batch, not a second one.
+  CliResult same = run_cli(dir.path(), "same", submit);
+  ASSERT_EQ(same.status, 0) << same.err;
+  EXPECT_EQ(same.out.substr(0, same.out.find('\n')), batch);
+  // Another job into the same folder: refused, named.
+  std::vector<std::string> other = submit;
+  other.insert(other.end(), {"--set", "seed=9"});
+  CliResult b = run_cli(dir.path(), "b", other);
+  EXPECT_EQ(b.status, 2) << b.err;
+  EXPECT_NE(b.err.find(batch), std::string::npos) << b.err;
+  EXPECT_NE(b.err.find("seed: 7 -> 9"), std::string::npos) << b.err;
+  Json st = farm_status(coord.endpoint());
+  EXPECT_EQ(st.at("batches").size(), 1u) << st.dump(2);
+  // The coordinator checks too: a hand-made submit that skips the CLI's check
+  // (another job's snapshot, copied into the folder) is refused.
+  worker::ResolvedJob r = worker::resolve_job(spec, {"seed=10"});
+  worker::materialize_job(r, out);
+  protocol::Message reply = call_coordinator(
+      {coord.endpoint(), std::nullopt, 10000},
+      protocol::encode("submit", {{"snapshot", r.snapshot.to_json(-1)}, {"out_dir", out.string()}}));
+  ASSERT_EQ(reply.type, "error");
+  EXPECT_NE(reply.str("message").find(batch), std::string::npos) << reply.str("message");
+  EXPECT_EQ(farm_status(coord.endpoint()).at("batches").size(), 1u);
+}
+
+TEST(JobValue, SpecEditedAfterSubmitChangesNothingInTheBatch) {
+  TempDir dir;
+  TinyJob j;
+  j.frame_end = 1;
+  const fs::path spec = write_job(dir.path(), "job.toml", j);
+  const fs::path original = dir / "original.toml";
+  fs::copy_file(spec, original);
+  const fs::path out = dir / "out";
+  CoordinatorProcess coord(dir.path(), "coord", dir / "state", 30);
+  CliResult a = run_cli(dir.path(), "submit", {"submit", spec.string(), "--coordinator",
+                                               coord.endpoint(), "--out", out.string()});
+  ASSERT_EQ(a.status, 0) << a.err;
+  const std::string batch = a.out.substr(0, a.out.find('\n'));
+  // Before any worker starts, the spec changes seed and spp, and the scene
+  // file it names is replaced by garbage: the batch must not notice.
+  std::string text = read_text(spec);
+  text.replace(text.find("seed = 7"), 8, "seed = 8");
+  write_text(spec, text);
+  Child w = start_worker(dir.path(), coord.endpoint(), "w1");
+  ASSERT_TRUE(poll_until("batch done", [&] { return batch_state(coord.endpoint(), batch) == "done"; }));
+  EXPECT_TRUE(shards_match_render(out, original));
+  EXPECT_EQ(shard_attr_seed(out), "7");
+}
+
+TEST(JobValue, WorkerRendersTheSceneOfEachSubmitNotItsCachedOne) {
+  TempDir dir;
+  TinyJob j;
+  j.frame_end = 0;
+  j.per_shard = 1;
+  j.scene = copy_cornell(dir / "scene");
+  const fs::path spec = write_job(dir.path(), "job.toml", j);
+  CoordinatorProcess coord(dir.path(), "coord", dir / "state", 30);
+  Child w = start_worker(dir.path(), coord.endpoint(), "w1");  // one long-running worker
+  auto submit_and_wait = [&](const fs::path& out) {
+    CliResult r = run_cli(dir.path(), "submit-" + out.filename().string(),
+                          {"submit", spec.string(), "--coordinator", coord.endpoint(), "--out",
+                           out.string()});
+    EXPECT_EQ(r.status, 0) << r.err;
+    const std::string batch = r.out.substr(0, r.out.find('\n'));
+    EXPECT_TRUE(poll_until("batch " + batch + " done",
+                           [&] { return batch_state(coord.endpoint(), batch) == "done"; }));
+  };
+  submit_and_wait(dir / "out1");
+  // Overwrite the scene file in place: the back wall turns another colour.
+  std::string gltf = read_text(j.scene);
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(gltf, m, std::regex(R"("baseColorFactor"\s*:\s*\[[^\]]*\])")));
+  gltf.replace(m.position(0), m.length(0), R"("baseColorFactor": [0.1, 0.9, 0.2, 1.0])");
+  write_text(j.scene, gltf);
+  submit_and_wait(dir / "out2");
+  EXPECT_TRUE(shards_match_render(dir / "out2", spec)) << "the worker rendered a stale scene";
+  ShardReader a(dir / "out1" / load_manifest(dir / "out1").shards.at(0).file);
+  ShardReader b(dir / "out2" / load_manifest(dir / "out2").shards.at(0).file);
+  EXPECT_NE(a.info().scene_hash, b.info().scene_hash);
+  EXPECT_NE(a.info().job_hash, b.info().job_hash);
+  EXPECT_TRUE(is_content_hash(b.info().job_hash));
+}
+
+TEST(JobValue, SnapshotCoversEveryFileTheSceneReads) {
+  TempDir dir;
+  const fs::path scene = copy_cornell(dir / "scene");
+  TinyJob j;
+  j.scene = scene;
+  const fs::path spec = write_job(dir.path(), "job.toml", j);
+  worker::ResolvedJob a = worker::resolve_job(spec, {});
+  std::vector<std::string> paths;
+  for (const JobInput& in : a.snapshot.inputs) paths.push_back(in.path);
+  EXPECT_EQ(paths, (std::vector<std::string>{"files/cornell.bin", "files/cornell.gltf"}));
+  // One changed byte in the buffer (a low mantissa bit of the first float)
+  // makes another job with another scene hash.
+  std::string bin = read_text(dir / "scene/cornell.bin");
+  bin[0] = char(bin[0] ^ 1);
+  write_text(dir / "scene/cornell.bin", bin);
+  worker::ResolvedJob b = worker::resolve_job(spec, {});
+  EXPECT_NE(a.snapshot.hash(), b.snapshot.hash());
+  EXPECT_EQ(a.snapshot.spec_toml, b.snapshot.spec_toml);
+  // The same content elsewhere, under another file name of the spec, is
+  // the same job.
+  const fs::path spec2 = dir / "renamed.toml";
+  fs::copy_file(spec, spec2);
+  EXPECT_EQ(worker::resolve_job(spec2, {}).snapshot.hash(), b.snapshot.hash());
+  // The canonical spec reads back to the same job (every key, floats exact).
+  const fs::path out = dir / "out";
+  fs::create_directories(out);
+  worker::materialize_job(b, out);
+  LoadedJob loaded = load_job(out, b.snapshot.hash());
+  EXPECT_EQ(canonical_spec_toml(loaded.spec, "files/cornell.gltf", ""), b.snapshot.spec_toml);
+  // A copy tampered with after submit is caught before use.
+  write_text(job_dir(out, b.snapshot.hash()) / "files/cornell.bin", bin + "x");
+  EXPECT_THROW(load_job(out, b.snapshot.hash()), RuntimeError);
+}
+
+// The embedded farm as a module (what `dofarm run` calls): a run, its
+// resume, and a refusal, in process.
+TEST(EmbeddedRun, RunsResumesAndRefusesAnotherJobInProcess) {
+  TempDir dir;
+  TinyJob j;
+  j.frame_end = 1;
+  farm::EmbeddedRunOptions o;
+  o.spec = write_job(dir.path(), "job.toml", j);
+  o.out = dir / "out";
+  o.workers = 1;
+  o.threads = 1;
+  o.exe = dofarm_exe();
+  o.progress = false;
+  std::atomic<bool> stop{false};
+  farm::EmbeddedRunResult first = farm::run_embedded(o, stop);
+  EXPECT_FALSE(first.resumed);
+  EXPECT_EQ(first.status.batch.state, coordinator::BatchState::kDone);
+  EXPECT_EQ(first.status.frames_packed, 2);
+  EXPECT_EQ(read_output_owner(o.out)->batch, first.batch);
+  farm::EmbeddedRunResult again = farm::run_embedded(o, stop);
+  EXPECT_TRUE(again.resumed);
+  EXPECT_EQ(again.batch, first.batch);
+  EXPECT_EQ(again.job, first.job);
+  o.overrides = {"image.width=48"};
+  try {
+    farm::run_embedded(o, stop);
+    ADD_FAILURE() << "another job ran into the folder";
+  } catch (const farm::RunRefused& e) {
+    EXPECT_NE(std::string(e.what()).find("image.width: 32 -> 48"), std::string::npos) << e.what();
+  }
+  EXPECT_TRUE(shards_match_render(o.out, o.spec));
+}
+
+// Defect 12: content errors are found before anything exists.
+TEST(JobValue, ContentErrorsAreBadInputAndWriteNothing) {
+  TempDir dir;
+  write_text(dir / "not_gltf.gltf", "this is not a glTF file\n");
+  write_text(dir / "empty.gltf", R"({"asset": {"version": "2.0"}})");
+  write_text(dir / "not_image.exr", "not an image\n");
+  TinyJob bad_scene;
+  bad_scene.scene = dir / "not_gltf.gltf";
+  TinyJob empty_scene;
+  empty_scene.scene = dir / "empty.gltf";
+  const fs::path env_job = write_job(dir.path(), "env.toml", TinyJob{});
+  write_text(env_job, read_text(env_job) + "\n[environment]\nmap = \"not_image.exr\"\n");
+  struct Case {
+    fs::path spec;
+    std::string key;
+  };
+  const std::vector<Case> cases = {
+      {write_job(dir.path(), "bad_scene.toml", bad_scene), "\"scene\""},
+      {write_job(dir.path(), "empty_scene.toml", empty_scene), "\"scene\""},
+      {env_job, "\"environment.map\""}};
+  CoordinatorProcess coord(dir.path(), "coord", dir / "state", 30);
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.spec.string());
+    const fs::path out = dir / ("out_" + c.spec.stem().string());
+    for (const std::vector<std::string>& args :
+         {std::vector<std::string>{"run", c.spec.string(), "--out", out.string()},
+          std::vector<std::string>{"submit", c.spec.string(), "--coordinator", coord.endpoint(),
+                                   "--out", out.string()},
+          std::vector<std::string>{"render", c.spec.string(), "--frame", "0", "--out",
+                                   (out / "frame.exr").string()}}) {
+      CliResult r = run_cli(dir.path(), "cli", args);
+      EXPECT_EQ(r.status, 2) << args[0] << ": " << r.err;
+      EXPECT_NE(r.err.find(c.spec.string()), std::string::npos) << args[0] << ": " << r.err;
+      EXPECT_NE(r.err.find(c.key), std::string::npos) << args[0] << ": " << r.err;
+      EXPECT_FALSE(fs::exists(out)) << args[0] << " created " << out;
+    }
+  }
+  EXPECT_EQ(farm_status(coord.endpoint()).at("batches").size(), 0u);
+}
+
+}  // namespace
+}  // namespace dofarm::farm_testing

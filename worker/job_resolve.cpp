@@ -1,0 +1,198 @@
+#include "worker/job_resolve.h"
+
+#include <fcntl.h>
+#include <fmt/format.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cstring>
+#include <random>
+
+#include "common/content_hash.h"
+#include "common/error.h"
+#include "worker/render/scene.h"
+
+namespace dofarm::worker {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+fs::path normal(const fs::path& p) { return fs::absolute(p).lexically_normal(); }
+
+// The deepest folder holding every file.
+fs::path common_folder(const std::vector<fs::path>& files) {
+  fs::path base = files.front().parent_path();
+  for (const fs::path& f : files) {
+    fs::path dir = f.parent_path();
+    while (!base.empty()) {
+      auto [b, d] = std::mismatch(base.begin(), base.end(), dir.begin(), dir.end());
+      if (b == base.end()) break;
+      base = base.parent_path();
+    }
+  }
+  return base;
+}
+
+struct Fd {
+  int fd = -1;
+  ~Fd() {
+    if (fd >= 0) ::close(fd);
+  }
+};
+
+// Copies a regular file (never through a symlink, never a FIFO) to `to`,
+// fsynced; returns the hash and size of the bytes copied.
+FileHash copy_and_hash(const fs::path& from, const fs::path& to) {
+  Fd in{::open(from.c_str(), O_RDONLY | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC)};
+  struct stat st;
+  if (in.fd < 0 || ::fstat(in.fd, &st) != 0 || !S_ISREG(st.st_mode))
+    throw RuntimeError("job input \"" + from.string() + "\": not a readable regular file");
+  fs::create_directories(to.parent_path());
+  Fd out{::open(to.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_NOFOLLOW | O_CLOEXEC, 0644)};
+  if (out.fd < 0)
+    throw RuntimeError("cannot create \"" + to.string() + "\": " + std::strerror(errno));
+  ContentHasher h;
+  FileHash r;
+  std::vector<char> buf(1 << 20);
+  while (true) {
+    ssize_t n = ::read(in.fd, buf.data(), buf.size());
+    if (n < 0 && errno == EINTR) continue;
+    if (n < 0) throw RuntimeError("reading \"" + from.string() + "\": " + std::strerror(errno));
+    if (n == 0) break;
+    h.update(buf.data(), size_t(n));
+    r.size += uint64_t(n);
+    for (ssize_t done = 0; done < n;) {
+      ssize_t w = ::write(out.fd, buf.data() + done, size_t(n - done));
+      if (w < 0 && errno == EINTR) continue;
+      if (w <= 0) throw RuntimeError("writing \"" + to.string() + "\": " + std::strerror(errno));
+      done += w;
+    }
+  }
+  if (::fsync(out.fd) != 0) throw RuntimeError("fsync \"" + to.string() + "\" failed");
+  r.hash = h.hex();
+  return r;
+}
+
+void write_small_file(const fs::path& to, const std::string& text) {
+  Fd out{::open(to.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_NOFOLLOW | O_CLOEXEC, 0644)};
+  if (out.fd < 0 || ::write(out.fd, text.data(), text.size()) != ssize_t(text.size()) ||
+      ::fsync(out.fd) != 0)
+    throw RuntimeError("cannot write \"" + to.string() + "\"");
+}
+
+}  // namespace
+
+std::shared_ptr<const render::Scene> load_scene_checked(const JobSpec& spec) {
+  const std::string where = spec.spec_path.string();
+  try {
+    return render::load_scene(spec);
+  } catch (const SpecError& e) {
+    throw SpecError(FileLoc{where}, "scene", "\"" + spec.scene.string() + "\": " + e.message());
+  } catch (const std::exception& e) {
+    const bool env = spec.environment && !spec.environment->map.empty() &&
+                     std::string(e.what()).find(spec.environment->map.string()) != std::string::npos;
+    throw SpecError(FileLoc{where}, env ? "environment.map" : "scene", e.what());
+  }
+}
+
+ResolvedJob resolve_job(const fs::path& spec_path_in, const std::vector<std::string>& overrides) {
+  const fs::path spec_path = normal(spec_path_in);
+  std::string text;
+  try {
+    text = read_regular_file(spec_path, kMaxSpecBytes);
+  } catch (const RuntimeError& e) {
+    throw SpecError(FileLoc{spec_path.string()}, "", e.what());
+  }
+  ResolvedJob job;
+  job.spec = parse_job_spec(text, spec_path, overrides);
+  const JobSpec& spec = job.spec;
+
+  // Load what a worker loads, noting every file read.
+  InputFileLog log;
+  load_scene_checked(spec);
+  std::vector<fs::path> files = log.files();
+  const fs::path scene = normal(spec.scene);
+  if (std::find(files.begin(), files.end(), scene) == files.end()) files.push_back(scene);
+  fs::path env;
+  if (spec.environment && !spec.environment->map.empty()) {
+    env = normal(spec.environment->map);
+    if (std::find(files.begin(), files.end(), env) == files.end()) files.push_back(env);
+  }
+  if (files.size() > kMaxJobInputs)
+    throw SpecError(FileLoc{spec_path.string()}, "scene",
+                    fmt::format("the scene reads {} files, more than the {} a job may have",
+                                files.size(), kMaxJobInputs));
+
+  // Inside the job folder the files keep their places relative to the
+  // deepest folder that holds them all, so the scene's relative references
+  // (buffers, textures) still resolve.
+  const fs::path base = common_folder(files);
+  std::string scene_rel, env_rel;
+  for (const fs::path& f : files) {
+    const std::string rel = "files/" + f.lexically_relative(base).generic_string();
+    FileHash h;
+    try {
+      h = hash_regular_file(f);
+    } catch (const RuntimeError& e) {
+      throw SpecError(FileLoc{spec_path.string()}, f == env ? "environment.map" : "scene",
+                      e.what());
+    }
+    job.snapshot.inputs.push_back({rel, h.size, h.hash});
+    job.files.emplace_back(f, rel);
+    if (f == scene) scene_rel = rel;
+    if (f == env) env_rel = rel;
+  }
+  std::sort(job.snapshot.inputs.begin(), job.snapshot.inputs.end(),
+            [](const JobInput& a, const JobInput& b) { return a.path < b.path; });
+  job.snapshot.spec_toml = canonical_spec_toml(spec, scene_rel, env_rel);
+  job.snapshot.source_spec = spec_path.string();
+  job.snapshot.source_overrides = overrides;
+  return job;
+}
+
+fs::path materialize_job(const ResolvedJob& job, const fs::path& out_dir) {
+  const std::string hash = job.snapshot.hash();
+  const fs::path dir = job_dir(out_dir, hash);
+  std::error_code ec;
+  if (fs::exists(fs::symlink_status(dir, ec))) {
+    try {
+      load_job(out_dir, hash);
+      return dir;  // already there, every file as it should be
+    } catch (const std::exception& e) {
+      // A damaged copy is set aside (never deleted) and written again.
+      fs::path aside = dir;
+      aside += fmt::format(".damaged-{:08x}", std::random_device{}());
+      fs::rename(dir, aside);
+    }
+  }
+  fs::create_directories(jobs_dir(out_dir));
+  fs::path tmp = jobs_dir(out_dir) / fmt::format(".tmp-{}-{:08x}", hash, std::random_device{}());
+  fs::create_directory(tmp);
+  try {
+    for (const auto& [from, rel] : job.files) {
+      FileHash copied = copy_and_hash(from, tmp / rel);
+      auto it = std::find_if(job.snapshot.inputs.begin(), job.snapshot.inputs.end(),
+                             [&](const JobInput& in) { return in.path == rel; });
+      if (it == job.snapshot.inputs.end() || it->hash != copied.hash || it->size != copied.size)
+        throw RuntimeError("\"" + from.string() +
+                           "\" changed while the job was being submitted; submit it again");
+    }
+    write_small_file(tmp / "job.json", job.snapshot.to_json());
+    write_small_file(tmp / "job.toml", job.snapshot.spec_toml);
+    fs::rename(tmp, dir, ec);
+    if (ec) {
+      // Another process published the same job meanwhile: use theirs if whole.
+      fs::remove_all(tmp, ec);
+      load_job(out_dir, hash);
+    }
+  } catch (...) {
+    fs::remove_all(tmp, ec);
+    throw;
+  }
+  return dir;
+}
+
+}  // namespace dofarm::worker
