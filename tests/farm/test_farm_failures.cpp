@@ -5,6 +5,7 @@
 
 #include <set>
 
+#include "common/job_snapshot.h"
 #include "coordinator/job_store.h"
 #include "tests/farm/farm_fixtures.h"
 
@@ -14,7 +15,10 @@ namespace {
 using coordinator::AttemptOutcome;
 using coordinator::JobStore;
 
-TEST(FarmFailures, TaskWhoseSceneVanishedFailsForGoodAfterThreeWorkersAndTheFarmGoesOn) {
+// The user's scene may vanish after submit (the batch renders its own copy),
+// but the job's copy in the output folder may not: a worker that finds it
+// gone cannot render, and says so.
+TEST(FarmFailures, TaskWhoseJobCopyVanishedFailsForGoodAfterThreeWorkersAndTheFarmGoesOn) {
   TempDir tmp;
   fs::create_directories(tmp / "scene");
   fs::copy_file(cornell_scene(), tmp / "scene" / "cornell.gltf");
@@ -36,7 +40,9 @@ TEST(FarmFailures, TaskWhoseSceneVanishedFailsForGoodAfterThreeWorkersAndTheFarm
     return r.out.substr(0, r.out.find('\n'));
   };
   const std::string bad = submit(doomed_job, "out_doomed");
-  fs::remove(tmp / "scene" / "cornell.gltf");
+  const fs::path job_folder = job_dir(tmp / "out_doomed", read_output_owner(tmp / "out_doomed")->job);
+  const fs::path vanished = job_folder / "files" / "cornell.gltf";
+  ASSERT_TRUE(fs::remove(vanished));
   const std::string good = submit(healthy_job, "out_healthy");
   ASSERT_FALSE(bad.empty());
   ASSERT_FALSE(good.empty());
@@ -62,14 +68,14 @@ TEST(FarmFailures, TaskWhoseSceneVanishedFailsForGoodAfterThreeWorkersAndTheFarm
   std::vector<int64_t> failed_renders;
   for (const Json& f : b.at("failed")) {
     const std::string error = f.at("error");
-    EXPECT_NE(error.find((tmp / "scene" / "cornell.gltf").string()), std::string::npos)
-        << "the error must name the missing scene: " << error;
+    EXPECT_NE(error.find(vanished.string()), std::string::npos)
+        << "the error must name the missing file: " << error;
     if (f.at("kind") != "render_tile") continue;
     ++render_failures;
     failed_renders.push_back(f.at("task"));
     const std::string repro = f.at("reproduce");
     EXPECT_EQ(repro.rfind("dofarm render ", 0), 0u) << repro;
-    EXPECT_NE(repro.find(doomed_job.string()), std::string::npos) << repro;
+    EXPECT_NE(repro.find((job_folder / "job.toml").string()), std::string::npos) << repro;
     EXPECT_NE(repro.find("--frame " + std::to_string(f.at("frame").get<int>())), std::string::npos)
         << repro;
     EXPECT_NE(repro.find("--tile 0,0,32,24"), std::string::npos) << repro;
