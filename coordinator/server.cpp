@@ -667,11 +667,15 @@ void Server::poll_once(int timeout_ms) {
           continue;
         }
         reply = std::move(*answer);
-      } else if (m.type == "done" && !token_refusal(m)) {
-        const std::string id = identity.to_string();
-        std::optional<std::string> answer = handle_done(m, &id);
-        if (!answer) continue;  // answered when its file is read (advance_claims)
-        reply = std::move(*answer);
+      } else if (m.type == "done") {
+        if (std::optional<std::string> refused = token_refusal(m)) {
+          reply = std::move(*refused);
+        } else {
+          const std::string id = identity.to_string();
+          std::optional<std::string> answer = handle_done(m, &id);
+          if (!answer) continue;  // answered when its file is read (advance_claims)
+          reply = std::move(*answer);
+        }
       } else {
         reply = handle(m);
       }
