@@ -85,15 +85,16 @@ TEST(FarmRun, BadSpecExitsTwoAndWritesNothing) {
 }
 
 TEST(FarmRun, StopsWhenEveryWorkerIsBlocklisted) {
-  // A scene file that exists (so the spec is valid) but cannot be read: every
+  // A job that is fine (its scene loads at submit) in a folder where no tile
+  // can be staged (a file stands where the staging folder must go): every
   // task fails on every worker, both local workers get blocklisted, and
   // nobody is left to render. `run` must say so and exit 1, not wait forever.
   TempDir tmp;
-  write_text(tmp / "broken.gltf", "this is not glTF {");
   TinyJob job;
-  job.scene = tmp / "broken.gltf";
   job.tile = 8;  // 12 tiles a frame: more failing tasks than the blocklist needs
-  const fs::path spec = write_job(tmp.path(), "broken.toml", job);
+  const fs::path spec = write_job(tmp.path(), "job.toml", job);
+  fs::create_directories(tmp / "out");
+  write_text(tmp / "out" / ".staging", "in the way");
   CliResult r = run_cli(tmp.path(), "run_broken",
                         {"run", spec.string(), "--out", (tmp / "out").string(), "--workers", "2"},
                         /*deadline_seconds=*/60);
