@@ -141,3 +141,51 @@ TEST(FarmResume, ResumeOfADoneBatchWithADeletedShardRunsItAgain) {
 
 }  // namespace
 }  // namespace dofarm::farm_testing
+
+namespace dofarm::farm_testing {
+namespace {
+
+// A coordinator restart checks the packed shards of its running batches: a
+// shard deleted while it was down is rendered and packed again.
+TEST(FarmResume, ShardDeletedWhileTheCoordinatorIsDownIsMadeAgainOnRestart) {
+  TempDir tmp;
+  TinyJob many;
+  many.frame_end = 19;  // ten shards: the batch still runs when the first is packed
+  const fs::path job = write_job(tmp.path(), "job.toml", many);
+  const fs::path out = tmp / "out", state = tmp / "state";
+  std::string batch;
+  {
+    CoordinatorProcess coord(tmp.path(), "coordinator1", state, 5);
+    CliResult sub =
+        run_cli(tmp.path(), "submit",
+                {"submit", job.string(), "--coordinator", coord.endpoint(), "--out", out.string()});
+    ASSERT_EQ(sub.status, 0) << sub.out << sub.err;
+    batch = sub.out.substr(0, sub.out.find('\n'));
+    Child w1 = start_worker(tmp.path(), coord.endpoint(), "w1");
+    ASSERT_TRUE(poll_until("the first shard", [&] {
+      try {
+        return !load_manifest(out).shards.empty();
+      } catch (const std::exception&) {
+        return false;
+      }
+    }));
+    w1.kill9();
+    ASSERT_EQ(batch_state(coord.endpoint(), batch), "running");
+    coord.child().kill9();
+  }
+  const std::string first = load_manifest(out).shards.front().file;
+  fs::remove(out / first);
+
+  CoordinatorProcess coord(tmp.path(), "coordinator2", state, 5);
+  Child w2 = start_worker(tmp.path(), coord.endpoint(), "w2");
+  ASSERT_TRUE(poll_until("the batch to finish", [&] {
+    return batch_state(coord.endpoint(), batch) == "done";
+  })) << coord.child().describe();
+  EXPECT_NE(coord.child().err().find(first), std::string::npos)
+      << "the restart must say which shard it makes again\n"
+      << coord.child().describe();
+  EXPECT_TRUE(shards_match_render(out, job));
+}
+
+}  // namespace
+}  // namespace dofarm::farm_testing
