@@ -9,6 +9,7 @@
 #include <cerrno>
 #include <cstring>
 #include <random>
+#include <sstream>
 
 #include "common/content_hash.h"
 #include "common/error.h"
@@ -85,16 +86,51 @@ void write_small_file(const fs::path& to, const std::string& text) {
 
 }  // namespace
 
+// Where `key` ("scene" or "environment.map") is set in the spec file, for
+// the message; line 0 when the file does not set it there (a --set did).
+FileLoc key_location(const fs::path& spec_path, const std::string& key) {
+  FileLoc loc{spec_path.string()};
+  std::string text;
+  try {
+    text = read_regular_file(spec_path, kMaxSpecBytes);
+  } catch (const std::exception&) {
+    return loc;
+  }
+  const bool in_env = key == "environment.map";
+  const std::string name = in_env ? "map" : key;
+  std::istringstream lines(text);
+  std::string line, section;
+  for (int n = 1; std::getline(lines, line); ++n) {
+    const size_t first = line.find_first_not_of(" \t");
+    if (first == std::string::npos) continue;
+    if (line[first] == '[') {
+      const size_t close = line.find(']', first);
+      section = line.substr(first + 1, close == std::string::npos ? 0 : close - first - 1);
+      continue;
+    }
+    if (section != (in_env ? "environment" : "") || line.compare(first, name.size(), name) != 0)
+      continue;
+    const size_t eq = line.find_first_not_of(" \t", first + name.size());
+    if (eq != std::string::npos && line[eq] == '=') {
+      loc.line = n;
+      loc.column = int(first) + 1;
+      return loc;
+    }
+  }
+  return loc;
+}
+
 std::shared_ptr<const render::Scene> load_scene_checked(const JobSpec& spec) {
-  const std::string where = spec.spec_path.string();
   try {
     return render::load_scene(spec);
   } catch (const SpecError& e) {
-    throw SpecError(FileLoc{where}, "scene", "\"" + spec.scene.string() + "\": " + e.message());
+    throw SpecError(key_location(spec.spec_path, "scene"), "scene",
+                    "\"" + spec.scene.string() + "\": " + e.message());
   } catch (const std::exception& e) {
     const bool env = spec.environment && !spec.environment->map.empty() &&
                      std::string(e.what()).find(spec.environment->map.string()) != std::string::npos;
-    throw SpecError(FileLoc{where}, env ? "environment.map" : "scene", e.what());
+    const std::string key = env ? "environment.map" : "scene";
+    throw SpecError(key_location(spec.spec_path, key), key, e.what());
   }
 }
 
