@@ -357,8 +357,13 @@ void read_image(const Section& s, JobSpec& spec) {
 
 void read_frames(const Section& s, JobSpec& spec) {
   s.check_keys({"start", "end", "per_shard", "fps"});
-  if (auto v = s.integer("start", IntRange::non_negative())) spec.frame_start = int(*v);
-  if (auto v = s.integer("end", IntRange::non_negative())) spec.frame_end = int(*v);
+  // Frame numbers stay exact in the shard's float32 camera table.
+  const IntRange frame_number{0, kMaxFrameNumber,
+                              fmt::format("a frame number in [0, {}] (2^24 - 1: shards store it "
+                                          "as a 32-bit float)",
+                                          kMaxFrameNumber)};
+  if (auto v = s.integer("start", frame_number)) spec.frame_start = int(*v);
+  if (auto v = s.integer("end", frame_number)) spec.frame_end = int(*v);
   if (auto v = s.integer("per_shard", IntRange::between(1, kMaxTilesPerShard)))
     spec.per_shard = int(*v);
   if (auto v = s.number("fps", Interval::positive())) spec.fps = float(*v);

@@ -73,17 +73,23 @@ struct JobSpec {
   int tile = 64;
   float task_seconds = 0.0f;       // > 0: size tiles to take about this long
 
-  // 64 bits: frame numbers go up to 2^31 - 1 (jobs/README.md, "Limits").
+  // 64 bits: safe for any int range, not only the limits below.
   int64_t frame_count() const { return int64_t(frame_end) - frame_start + 1; }
 };
 
 // The limits of one batch (jobs/README.md, "Limits"); load_job_spec() refuses
-// a spec beyond them and the planner refuses a plan beyond them. Frame
-// numbers themselves go up to 2^31 - 1. The task limit bounds the
-// coordinator's memory (each task of a running batch is held in memory, about
-// 100-200 bytes with its dependencies) and the job store; one tile per frame
-// always fits: frames + shards <= 2 * kMaxFramesPerBatch.
+// a spec beyond them and the planner refuses a plan beyond them (the
+// planner's arithmetic is 64-bit, safe for any int frame range).
+//
+// Frame numbers: 0 to 2^24 - 1. The shard's camera table and the animation
+// time (frame / fps) are 32-bit floats, exact for integers up to 2^24 only;
+// a larger frame number would be stored as another one.
+inline constexpr int64_t kMaxFrameNumber = (int64_t(1) << 24) - 1;
 inline constexpr int64_t kMaxFramesPerBatch = 1'000'000;
+// The task limit bounds the coordinator's memory (each task of a running
+// batch is held in memory, about 100-200 bytes with its dependencies) and the
+// job store; one tile per frame always fits: frames + shards <= 2 *
+// kMaxFramesPerBatch.
 inline constexpr int64_t kMaxTasksPerBatch = 2'000'000;
 // A pack task's inputs (every tile of its shard's frames) travel in one
 // message of at most 1 MiB (protocol::kMaxPackInputs); frames.per_shard is at

@@ -1,8 +1,9 @@
 // The limits of one batch (jobs/README.md, "Limits"): frame numbers up to
-// 2^31 - 1 are accepted, ranges and plans beyond the limits are refused with
-// a located error naming the key, also when an override makes them so. The
-// bad-spec corpus (tests/data/bad_specs/frames_*, tasks_*) covers the file
-// locations.
+// 2^24 - 1 are accepted (frames.start = frames.end = 2147483647 used to end
+// in std::bad_alloc), ranges and plans beyond the limits are refused with a
+// located error naming the key, also when an override makes them so. The
+// bad-spec corpus (tests/data/bad_specs/frame*, tasks_*, tiles_*) covers the
+// file locations.
 #include <gtest/gtest.h>
 
 #include <climits>
@@ -33,15 +34,22 @@ SpecError parse_error(const std::string& text, const std::vector<std::string>& s
   return SpecError(FileLoc{}, "", "none");
 }
 
-TEST(JobSpecLimits, LastFrameMayBeIntMax) {
+TEST(JobSpecLimits, FrameNumbersUpTo2To24Minus1) {
   const JobSpec spec =
-      parse_job_spec(spec_text("start = 2147483647\nend = 2147483647"), "/virtual/job.toml");
-  EXPECT_EQ(spec.frame_start, INT_MAX);
-  EXPECT_EQ(spec.frame_end, INT_MAX);
+      parse_job_spec(spec_text("start = 16777215\nend = 16777215"), "/virtual/job.toml");
+  EXPECT_EQ(spec.frame_start, kMaxFrameNumber);
+  EXPECT_EQ(spec.frame_end, kMaxFrameNumber);
   EXPECT_EQ(spec.frame_count(), 1);
+  EXPECT_EQ(double(float(kMaxFrameNumber)), double(kMaxFrameNumber)) << "not exact in a float";
   const JobSpec last = parse_job_spec(
-      spec_text("start = 2147483647\nend = 2147483647\nper_shard = 4096"), "/virtual/job.toml");
+      spec_text("start = 16777200\nend = 16777215\nper_shard = 4096"), "/virtual/job.toml");
   EXPECT_EQ(last.per_shard, 4096);
+  // The spec: refused with the key, no std::bad_alloc.
+  SpecError e = parse_error(spec_text("start = 2147483647\nend = 2147483647"));
+  EXPECT_EQ(e.key(), "frames.start");
+  EXPECT_EQ(e.loc().line, 3) << e.what();
+  SpecError next = parse_error(spec_text("start = 0\nend = 16777216"));
+  EXPECT_EQ(next.key(), "frames.end");
 }
 
 TEST(JobSpecLimits, FrameCountIsSixtyFourBit) {
@@ -62,7 +70,7 @@ TEST(JobSpecLimits, AMillionFramesAreAcceptedOneMoreIsNot) {
 }
 
 TEST(JobSpecLimits, OverrideBeyondTheLimitsIsBlamedOnTheSet) {
-  SpecError e = parse_error(spec_text("end = 9"), {"frames.end=2147483647"});
+  SpecError e = parse_error(spec_text("end = 9"), {"frames.end=1000000"});
   EXPECT_EQ(e.key(), "frames.end");
   EXPECT_EQ(e.loc().line, 0) << e.what();  // the --set, not the file
   EXPECT_NE(std::string(e.what()).find("more than the 1000000"), std::string::npos) << e.what();

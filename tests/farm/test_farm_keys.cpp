@@ -24,7 +24,8 @@ std::string first_line_of(const fs::path& p) {
 // The command through /bin/sh, to set the umask and limits first; returns
 // the shell's exit status (128 + N when the command was killed by signal N).
 int shell(const std::string& script) {
-  const int st = std::system(("/bin/sh -c '" + script + "'").c_str());
+  // The outer shell's own report of a killed command goes nowhere.
+  const int st = std::system(("/bin/sh -c '" + script + "' 2>/dev/null").c_str());
   return WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
 }
 

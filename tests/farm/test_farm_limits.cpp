@@ -1,19 +1,19 @@
 // Defect 7 of issue 10: frames.start = frames.end = 2147483647 (allowed by
-// jobs/README.md) ended in std::bad_alloc in the planner. The last int frame
-// renders; a batch beyond the documented limits (jobs/README.md, "Limits")
-// is bad input: exit 2 with the key named, and nothing written.
+// jobs/README.md) ended in std::bad_alloc in the planner. Now the largest
+// frame number (2^24 - 1, exact in the shard's float camera table) renders,
+// and a spec beyond the documented limits (jobs/README.md, "Limits"), that
+// one included, is bad input: exit 2 with the key named, nothing written.
 #include "tests/farm/farm_fixtures.h"
 
 namespace dofarm::farm_testing {
 namespace {
 
-// TinyJob puts a camera key after the last frame, which INT_MAX has not:
-// one key, a still camera.
+// One camera key, a still camera (TinyJob puts a key after the last frame).
 fs::path write_last_frame_job(const fs::path& dir) {
   std::ostringstream s;
   s << "scene = \"" << cornell_scene().string() << "\"\nseed = 3\n\n"
     << "[image]\nwidth = 16\nheight = 16\n\n"
-    << "[frames]\nstart = 2147483647\nend = 2147483647\nper_shard = 4\n\n"
+    << "[frames]\nstart = 16777215\nend = 16777215\nper_shard = 4\n\n"
     << "[[camera.key]]\nframe = 0\nposition = [0.0, 1.0, 3.9]\nlook_at = [0.0, 1.0, 0.0]\n"
     << "fov = 38.0\nfocal_distance = 3.55\naperture = 0.05\n\n"
     << "[buffers]\nversions = 1\nreference_spp = 2\nalbedo_ref_spp = 1\n\n"
@@ -23,7 +23,7 @@ fs::path write_last_frame_job(const fs::path& dir) {
   return path;
 }
 
-TEST(FarmLimits, TheLastIntFrameRendersIntoOneShard) {
+TEST(FarmLimits, TheLargestFrameNumberRendersIntoOneShard) {
   TempDir tmp;
   const fs::path job = write_last_frame_job(tmp.path());
   CliResult r = run_cli(
@@ -41,6 +41,7 @@ TEST(FarmLimits, RunBeyondTheLimitsExitsTwoAndWritesNothing) {
     std::string key;
   };
   const Case cases[] = {
+      {{"frames.start=2147483647", "frames.end=2147483647"}, "\"frames.start\""},
       {{"frames.end=1000000"}, "\"frames.end\""},
       {{"frames.start=0", "frames.end=2147483647"}, "\"frames.end\""},
       {{"image.width=16384", "image.height=16384", "farm.tile=8"}, "\"farm.tile\""},
