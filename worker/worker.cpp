@@ -3,8 +3,11 @@
 #include <spdlog/spdlog.h>
 #include <unistd.h>
 
+#include <algorithm>
+#include <cctype>
 #include <chrono>
 #include <condition_variable>
+#include <cstring>
 #include <mutex>
 #include <optional>
 #include <random>
@@ -25,12 +28,22 @@ using protocol::Json;
 
 namespace {
 
-std::string default_id() {
+// The host name as the `host` and `worker` fields allow it (docs/protocol.md):
+// other characters become '_', and it is cut to `max` bytes.
+std::string host_name(size_t max) {
   char host[256] = "host";
   gethostname(host, sizeof(host) - 1);
+  std::string out(host, std::min(std::strlen(host), max));
+  for (char& c : out)
+    if (!std::isalnum(static_cast<unsigned char>(c)) && !std::strchr("._:@+-", c)) c = '_';
+  return out;
+}
+
+std::string default_id() {
   std::random_device rd;
   char buf[320];
-  std::snprintf(buf, sizeof(buf), "%s-%d-%04x", host, int(getpid()), unsigned(rd() & 0xffff));
+  std::snprintf(buf, sizeof(buf), "%s-%d-%04x", host_name(100).c_str(), int(getpid()),
+                unsigned(rd() & 0xffff));
   return buf;
 }
 
@@ -106,14 +119,14 @@ class Worker {
     spdlog::info("worker {} connecting to {}", id_, options_.endpoint);
     double backoff = 0.5;
     auto last_contact = std::chrono::steady_clock::now();
-    char host[256] = "";
-    gethostname(host, sizeof(host) - 1);
+    const std::string host = host_name(protocol::kMaxHostBytes);
     while (!stop_) {
       protocol::Message reply;
       try {
         reply = client.call(
-            protocol::encode("request",
-                             {{"worker", id_}, {"host", host}, {"threads", options_.threads}}),
+            protocol::encode("request", {{"worker", id_},
+                                         {"host", host},
+                                         {"threads", std::clamp(options_.threads, 0, 4096)}}),
             [this] { return stop_.load(); });  // nothing to hand back yet: stop at once
       } catch (const std::exception& e) {
         double since =

@@ -59,8 +59,10 @@ class LoopWorker {
       }
       EXPECT_EQ(m.type, "task") << m.body.dump();
       if (m.type != "task") return false;
-      const Json base = {
-          {"worker", "w-test"}, {"task", m.integer("task")}, {"attempt", m.integer("attempt")}};
+      const Json base = {{"worker", "w-test"},
+                         {"task", m.integer("task")},
+                         {"attempt", m.integer("attempt")},
+                         {"token", m.str("token")}};
       const fs::path out_dir = m.str("out_dir");
       std::shared_ptr<const LoadedJob> job_value = jobs_.get(out_dir, m.str("job"));
       const JobSpec& spec = job_value->spec;
@@ -76,6 +78,7 @@ class LoopWorker {
         Json done = base;
         done["staged_path"] = t.path.string();
         done["checksum"] = checksum_to_string(t.checksum);
+        done["size"] = fs::file_size(t.path);
         done["seconds"] = t.seconds;
         EXPECT_EQ(call(server, "done", done).body.value("status", ""), "accepted");
         continue;
@@ -101,6 +104,7 @@ class LoopWorker {
         Json done = base;
         done["staged_path"] = (out_dir / e.file).string();
         done["checksum"] = checksum_to_string(e.checksum);
+        done["size"] = e.size;
         done["seconds"] = 0.0;
         EXPECT_EQ(call(server, "done", done).body.value("status", ""), "accepted");
       } catch (const worker::StagedTileError& e) {
