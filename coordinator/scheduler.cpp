@@ -272,6 +272,21 @@ void Scheduler::touch(const std::string& worker, double now) {
   });
 }
 
+void Scheduler::apply(TaskRow& row, double now) {
+  row.updated = now;
+  if (row.state != TaskState::kLeased) {
+    clear_lease(row);
+    dirty_leases_.erase(row.id);  // nothing left to renew
+  }
+  store_.update_task(row);
+  RunQueue::Task* m = queue_.task(row.id);
+  if (!m) return;  // its batch is not in memory (finished or cancelled)
+  if (row.state == TaskState::kLeased)
+    queue_.lease(*m, row.lease_worker, row.attempts, row.lease_expiry);
+  else
+    queue_.set_state(*m, row.state, row.state == TaskState::kPending ? row.not_before : 0, now);
+}
+
 std::optional<Assignment> Scheduler::assign(const std::string& worker) {
   expire_leases();
   const double now = clock_.now();
@@ -294,8 +309,7 @@ std::optional<Assignment> Scheduler::assign(const std::string& worker) {
     row.attempts += 1;
     row.lease_worker = worker;
     row.lease_expiry = now + options_.lease_seconds;
-    row.updated = now;
-    store_.update_task(row);
+    apply(row, now);
     AttemptRow attempt;
     attempt.task_id = row.id;
     attempt.attempt = row.attempts;
@@ -318,7 +332,6 @@ std::optional<Assignment> Scheduler::assign(const std::string& worker) {
     a.shard_range = batch.shards.at(row.shard);
     if (row.kind == TaskKind::kPackShard) a.inputs = inputs_of(row);
     a.lease_expiry = row.lease_expiry;
-    queue_.lease(*t, worker, row.attempts, row.lease_expiry);
     tx.commit();
     return std::optional<Assignment>(std::move(a));
   });
@@ -405,14 +418,10 @@ CompleteStatus Scheduler::complete(const std::string& worker, int64_t task, int 
     }
     TaskRow row = *store_.task(task);
     row.state = TaskState::kDone;
-    clear_lease(row);
     row.staged_path = staged_path;
     row.checksum = checksum;
-    row.updated = now;
-    store_.update_task(row);
+    apply(row, now);  // its pack may become runnable
     store_.finish_attempt(task, attempt, now, AttemptOutcome::kDone, "");
-    queue_.set_state(*t, TaskState::kDone, 0, now);  // its pack may become runnable
-    dirty_leases_.erase(task);
     finish_batch_if_complete(row.batch_id, now);
     tx.commit();
     return CompleteStatus::kAccepted;
@@ -435,11 +444,8 @@ FailResult Scheduler::fail(const std::string& worker, int64_t task, int attempt,
     TaskRow t = *store_.task(task);
     store_.finish_attempt(task, attempt, now, AttemptOutcome::kFailed, error);
     m->failed_by.push_back(worker);
-    dirty_leases_.erase(task);
     const int failures = store_.failure_count(task, t.retry_base);
-    clear_lease(t);
     t.last_error = error;
-    t.updated = now;
     // The blocklist first: it decides whether anybody is left to retry.
     RunQueue::Batch& batch = *m->batch;
     if (!batch.blocked.count(worker) &&
@@ -466,8 +472,7 @@ FailResult Scheduler::fail(const std::string& worker, int64_t task, int attempt,
       const double wait =
           std::min(options_.backoff_max, options_.backoff_base * std::ldexp(1.0, failures - 1));
       t.not_before = now + wait;
-      store_.update_task(t);
-      queue_.set_state(*m, TaskState::kPending, t.not_before, now);
+      apply(t, now);
       store_.add_event(now, t.batch_id, "warn",
                        describe(t) + " failed on " + worker + " (failure " +
                            std::to_string(failures) + "), retry in " + std::to_string(wait) +
@@ -515,10 +520,7 @@ bool Scheduler::hopeless(const RunQueue::Task& task, double now) const {
 void Scheduler::fail_for_good(TaskRow& t, RunQueue::Task& m, const std::string& why,
                               double now) {
   t.state = TaskState::kFailed;
-  clear_lease(t);
-  t.updated = now;
-  store_.update_task(t);
-  queue_.set_state(m, TaskState::kFailed, 0, now);
+  apply(t, now);
   std::string by;
   for (const std::string& w : store_.failed_workers(t.id, t.retry_base)) {
     by += (by.empty() ? "" : ", ") + w;
@@ -538,9 +540,7 @@ void Scheduler::fail_dependents(const TaskRow& failed, double now) {
     if (d.state != TaskState::kPending) continue;
     d.state = TaskState::kFailed;
     d.last_error = "needs " + describe(failed) + ", which failed: " + failed.last_error;
-    d.updated = now;
-    store_.update_task(d);
-    if (RunQueue::Task* m = queue_.task(id)) queue_.set_state(*m, TaskState::kFailed, 0, now);
+    apply(d, now);
     fail_dependents(d, now);
   }
 }
@@ -555,12 +555,8 @@ bool Scheduler::release(const std::string& worker, int64_t task, int attempt) {
       TaskRow t = *store_.task(task);
       store_.finish_attempt(task, attempt, now, AttemptOutcome::kReleased, "");
       t.state = TaskState::kPending;
-      clear_lease(t);
       t.not_before = now;
-      t.updated = now;
-      store_.update_task(t);
-      queue_.set_state(*m, TaskState::kPending, now, now);
-      dirty_leases_.erase(task);
+      apply(t, now);
     }
     tx.commit();
     return m != nullptr;
@@ -582,12 +578,8 @@ std::vector<int64_t> Scheduler::expire_leases() {
       store_.add_event(now, t.batch_id, "warn",
                        "lease of " + m.lease_worker + " on " + describe(t) + " expired; requeued");
       t.state = TaskState::kPending;
-      clear_lease(t);
       t.not_before = now;  // a dead worker says nothing about the task: no back-off
-      t.updated = now;
-      store_.update_task(t);
-      queue_.set_state(m, TaskState::kPending, now, now);
-      dirty_leases_.erase(id);
+      apply(t, now);
     }
     tx.commit();
     return ids;
@@ -678,9 +670,7 @@ std::vector<std::string> Scheduler::fail_stalled_batches() {
         if (t.state != TaskState::kPending || !m) continue;
         t.state = TaskState::kFailed;
         if (t.last_error.empty()) t.last_error = reason;
-        t.updated = now;
-        store_.update_task(t);
-        queue_.set_state(*m, TaskState::kFailed, 0, now);
+        apply(t, now);
       }
       finish_batch_if_complete(row.id, now, reason);
       tx.commit();
@@ -703,10 +693,7 @@ OpResult Scheduler::cancel(const std::string& batch_id) {
     for (TaskRow t : store_.leased_tasks(batch_id)) {
       store_.finish_attempt(t.id, t.attempts, now, AttemptOutcome::kRevoked, "batch cancelled");
       t.state = TaskState::kPending;
-      clear_lease(t);
-      t.updated = now;
-      store_.update_task(t);
-      dirty_leases_.erase(t.id);
+      apply(t, now);
       ++revoked;
     }
     store_.set_batch_state(batch_id, BatchState::kCancelled, now);
@@ -730,8 +717,7 @@ OpResult Scheduler::resume(const std::string& batch_id) {
       t.state = TaskState::kPending;
       t.retry_base = t.attempts;  // a fresh failure count; the history stays
       t.not_before = now;
-      t.updated = now;
-      store_.update_task(t);
+      apply(t, now);
       ++requeued;
     }
     store_.clear_blocklist(batch_id);
@@ -880,10 +866,7 @@ OpResult Scheduler::invalidate(int64_t task) {
     t->staged_path.clear();
     t->checksum.clear();
     t->not_before = now;
-    t->updated = now;
-    store_.update_task(*t);
-    // Its dependents count it as not done again, so its pack leaves the queue.
-    if (RunQueue::Task* m = queue_.task(task)) queue_.set_state(*m, TaskState::kPending, now, now);
+    apply(*t, now);  // its dependents count it as not done again: its pack leaves the queue
     // A pack already running with the lost tile as input would fail or, worse,
     // read a half-written replacement: take it back. It is runnable again only
     // when the tile is done again.
@@ -893,13 +876,7 @@ OpResult Scheduler::invalidate(int64_t task) {
       store_.finish_attempt(d.id, d.attempts, now, AttemptOutcome::kRevoked,
                             "input task " + std::to_string(task) + " invalidated");
       d.state = TaskState::kPending;
-      clear_lease(d);
-      d.updated = now;
-      store_.update_task(d);
-      if (RunQueue::Task* m = queue_.task(id)) {
-        queue_.set_state(*m, TaskState::kPending, d.not_before, now);
-      }
-      dirty_leases_.erase(id);
+      apply(d, now);
     }
     const BatchRow batch = *store_.batch(t->batch_id);
     if (batch.state == BatchState::kDone || batch.state == BatchState::kFailed) {
@@ -933,6 +910,18 @@ std::string Scheduler::new_batch_id() {
     std::snprintf(id, sizeof id, "b-%08x", static_cast<unsigned>(rng()));
     if (!store_.batch(id)) return id;
   }
+}
+
+std::vector<std::string> Scheduler::running_batch_ids() {
+  std::vector<std::string> out;
+  for (const BatchRow& b : store_.batches())
+    if (b.state == BatchState::kRunning) out.push_back(b.id);
+  return out;
+}
+
+std::optional<int64_t> Scheduler::input_with_staged_path(int64_t pack,
+                                                         const std::string& staged_path) {
+  return store_.input_with_staged_path(pack, staged_path);
 }
 
 std::vector<BatchRow> Scheduler::batches_in(const std::string& out_dir) {

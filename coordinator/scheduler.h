@@ -261,6 +261,13 @@ class Scheduler {
   OpResult cancel(const std::string& batch_id);
   OpResult resume(const std::string& batch_id);
 
+  // Ids of the batches that are running, oldest first (a restarted
+  // coordinator checks their staged files).
+  std::vector<std::string> running_batch_ids();
+  // The input of pack task `pack` whose staged file is `staged_path` (a pack
+  // that found a bad staged tile names it by path).
+  std::optional<int64_t> input_with_staged_path(int64_t pack, const std::string& staged_path);
+
   // Every batch ever written into `out_dir`, oldest first.
   std::vector<BatchRow> batches_in(const std::string& out_dir);
 
@@ -301,6 +308,14 @@ class Scheduler {
   template <typename F>
   auto guarded(F&& f) -> decltype(f());
   void load_batch(const BatchRow& batch, double now);
+  // The one door of a task's state (STYLE.md 16, after LevelDB's
+  // LogAndApply): every change of a task's row, whatever the cause (lease,
+  // done, fail, release, expiry, cancel, resume, invalidate, stall), goes
+  // through here, which writes the row to the store (in the caller's
+  // transaction) and the in-memory queue together. `row` holds the new
+  // state; a task that is not leased loses its lease and its pending
+  // heartbeat renewal; `updated` becomes `now`.
+  void apply(TaskRow& row, double now);
   RunQueue::Task* held(const std::string& worker, int64_t task, int attempt);
   // last_seen of a known, live worker, in memory only; false otherwise.
   bool touch_worker_in_memory(const std::string& worker, double now);

@@ -315,8 +315,7 @@ Server::Server(ServerOptions options, const Clock& clock)
   socket_->bind(options_.listen);
   endpoint_ = socket_->get(zmq::sockopt::last_endpoint);
   // A restarted coordinator checks what the workers staged before it died.
-  for (const BatchRow& b : store_->batches())
-    if (b.state == BatchState::kRunning) verify_staged_tiles(b.id);
+  for (const std::string& b : scheduler_->running_batch_ids()) verify_staged_tiles(b);
   spdlog::info("coordinator listening on {} (state {})", endpoint_, options_.state_dir.string());
 }
 
@@ -406,7 +405,7 @@ std::string Server::handle_failed(const protocol::Message& m) {
   // tile is rendered again and the pack waits for it.
   if (m.has("bad_tile") && m.body["bad_tile"].is_string()) {
     const std::string bad = m.body["bad_tile"].get<std::string>();
-    if (std::optional<int64_t> tile = store_->input_with_staged_path(task, bad)) {
+    if (std::optional<int64_t> tile = scheduler_->input_with_staged_path(task, bad)) {
       spdlog::warn("task {}: staged tile {} is bad ({}); rendering it again", task, bad,
                    m.str("error"));
       scheduler_->release(worker, task, attempt);
