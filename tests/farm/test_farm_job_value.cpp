@@ -44,14 +44,27 @@ std::string shard_attr_seed(const fs::path& out) {
   return std::to_string(r.info().seed);
 }
 
-TEST(JobValue, SecondJobIntoTheSameFolderIsRefusedAndNothingChanges) {
-  TempDir dir;
+// `dofarm run SPEC --out OUT` with one one-thread worker, plus `extra`.
+CliResult run_job(const fs::path& dir, const std::string& name, const fs::path& spec,
+                  const fs::path& out, std::vector<std::string> extra = {}) {
+  std::vector<std::string> args = {"run",       spec.string(), "--out",     out.string(),
+                                   "--workers", "1",           "--threads", "1"};
+  args.insert(args.end(), extra.begin(), extra.end());
+  return run_cli(dir, name, args);
+}
+
+// The job with frames 0 and 1 (one shard) in `dir`/job.toml.
+fs::path two_frame_job(const fs::path& dir) {
   TinyJob j;
   j.frame_end = 1;
-  const fs::path spec = write_job(dir.path(), "job.toml", j);
+  return write_job(dir, "job.toml", j);
+}
+
+TEST(JobValue, SecondJobIntoTheSameFolderIsRefusedAndNothingChanges) {
+  TempDir dir;
+  const fs::path spec = two_frame_job(dir.path());
   const fs::path out = dir / "out";
-  CliResult first = run_cli(dir.path(), "first", {"run", spec.string(), "--out", out.string(),
-                                                  "--workers", "1", "--threads", "1"});
+  CliResult first = run_job(dir.path(), "first", spec, out);
   ASSERT_EQ(first.status, 0) << first.err;
   const auto before = folder_contents(out);
 
@@ -59,10 +72,7 @@ TEST(JobValue, SecondJobIntoTheSameFolderIsRefusedAndNothingChanges) {
   for (const std::vector<std::string>& sets :
        {std::vector<std::string>{"--set", "seed=8"},
         std::vector<std::string>{"--set", "frames.end=2"}}) {
-    std::vector<std::string> args = {"run",       spec.string(), "--out",     out.string(),
-                                     "--workers", "1",           "--threads", "1"};
-    args.insert(args.end(), sets.begin(), sets.end());
-    CliResult second = run_cli(dir.path(), "second", args);
+    CliResult second = run_job(dir.path(), "second", spec, out, sets);
     EXPECT_EQ(second.status, 2) << second.err;
     EXPECT_NE(second.err.find(out.string()), std::string::npos) << second.err;
     EXPECT_NE(second.err.find("holds batch b-"), std::string::npos) << second.err;
@@ -72,28 +82,21 @@ TEST(JobValue, SecondJobIntoTheSameFolderIsRefusedAndNothingChanges) {
     EXPECT_EQ(folder_contents(out), before) << "a refused run changed the folder";
   }
   // The same job again resumes (nothing to do) and still holds every frame.
-  CliResult again = run_cli(dir.path(), "again", {"run", spec.string(), "--out", out.string(),
-                                                  "--workers", "1", "--threads", "1"});
+  CliResult again = run_job(dir.path(), "again", spec, out);
   EXPECT_EQ(again.status, 0) << again.err;
   EXPECT_TRUE(shards_match_render(out, spec));
 }
 
 TEST(JobValue, EditedSpecIsRefusedInsteadOfResumed) {
   TempDir dir;
-  TinyJob j;
-  j.frame_end = 1;
-  const fs::path spec = write_job(dir.path(), "job.toml", j);
+  const fs::path spec = two_frame_job(dir.path());
   const fs::path out = dir / "out";
-  ASSERT_EQ(run_cli(dir.path(), "first", {"run", spec.string(), "--out", out.string(),
-                                          "--workers", "1", "--threads", "1"})
-                .status,
-            0);
+  ASSERT_EQ(run_job(dir.path(), "first", spec, out).status, 0);
   // Edit the file itself (not a --set): seed 7 -> 8.
   std::string text = read_text(spec);
   text.replace(text.find("seed = 7"), 8, "seed = 8");
   write_text(spec, text);
-  CliResult second = run_cli(dir.path(), "second", {"run", spec.string(), "--out", out.string(),
-                                                    "--workers", "1", "--threads", "1"});
+  CliResult second = run_job(dir.path(), "second", spec, out);
   EXPECT_EQ(second.status, 2) << second.err;
   EXPECT_NE(second.err.find("seed: 7 -> 8"), std::string::npos) << second.err;
   EXPECT_EQ(shard_attr_seed(out), "7");
@@ -101,9 +104,7 @@ TEST(JobValue, EditedSpecIsRefusedInsteadOfResumed) {
 
 TEST(JobValue, SubmitOfAnotherJobIntoABusyFolderIsRefused) {
   TempDir dir;
-  TinyJob j;
-  j.frame_end = 1;
-  const fs::path spec = write_job(dir.path(), "job.toml", j);
+  const fs::path spec = two_frame_job(dir.path());
   const fs::path out = dir / "out";
   CoordinatorProcess coord(dir.path(), "coord", dir / "state", 30);
   const std::vector<std::string> submit = {"submit", spec.string(), "--coordinator",
@@ -138,9 +139,7 @@ TEST(JobValue, SubmitOfAnotherJobIntoABusyFolderIsRefused) {
 
 TEST(JobValue, SpecEditedAfterSubmitChangesNothingInTheBatch) {
   TempDir dir;
-  TinyJob j;
-  j.frame_end = 1;
-  const fs::path spec = write_job(dir.path(), "job.toml", j);
+  const fs::path spec = two_frame_job(dir.path());
   const fs::path original = dir / "original.toml";
   fs::copy_file(spec, original);
   const fs::path out = dir / "out";
