@@ -67,9 +67,9 @@ class ClaimsTest : public ::testing::Test {
     EXPECT_TRUE(t && t->type == "task");
     if (!t || t->type != "task") return {};
     const Json& r = t->body.at("rect");
-    const fs::path path = staged_tile_path(t->str("out_dir"), t->str("batch"), 0,
-                                           Rect{r[0].get<int>(), r[1].get<int>(),
-                                                r[2].get<int>(), r[3].get<int>()});
+    const fs::path path =
+        staged_tile_path(t->str("out_dir"), t->str("batch"), 0,
+                         Rect{r[0].get<int>(), r[1].get<int>(), r[2].get<int>(), r[3].get<int>()});
     fs::create_directories(path.parent_path());
     const std::string data(bytes, 'd');
     std::ofstream(path, std::ios::binary) << data;

@@ -255,6 +255,8 @@ TEST(FarmClaims, StatusAnswersAfterWorkerIdsTotallingOverOneMebibyte) {
     ASSERT_EQ(j.status, 0) << j.err;
     Json st = Json::parse(j.out);
     EXPECT_GT(st.at("workers_omitted").get<int64_t>(), 0);
+    // Remembered at most max_workers (4096): the oldest were forgotten.
+    EXPECT_LE(st.at("workers").size() + st.at("workers_omitted").get<size_t>(), 4096u);
     EXPECT_GT(st.at("workers").size(), 0u);
     EXPECT_LT(j.out.size(), protocol::kMaxMessageBytes);
   };
