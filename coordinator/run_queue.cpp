@@ -34,6 +34,8 @@ void RunQueue::load_batch(const BatchRow& row, const std::vector<TaskRow>& tasks
     t.batch = &b;
     t.kind = r.kind;
     t.frame = r.frame;
+    t.rect = r.rect;
+    t.shard = r.shard;
     t.state = r.state;
     t.attempts = r.attempts;
     t.not_before = r.not_before;

@@ -50,6 +50,8 @@ class RunQueue {
     Batch* batch = nullptr;
     TaskKind kind = TaskKind::kRenderTile;
     int frame = -1;
+    Rect rect;      // render tiles: where the staged output is (claim checks)
+    int shard = 0;
     TaskState state = TaskState::kPending;
     int attempts = 0;          // the current lease is attempt `attempts`
     double not_before = 0;     // back-off

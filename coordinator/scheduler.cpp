@@ -371,16 +371,15 @@ std::optional<ExpectedOutput> Scheduler::expected_output(const std::string& work
                                                          int attempt) {
   RunQueue::Task* t = held(worker, task, attempt);
   if (!t) return std::nullopt;
-  const std::optional<TaskRow> row = store_.task(task);
-  if (!row) return std::nullopt;
   const BatchRow& batch = t->batch->row;
   ExpectedOutput e;
-  e.kind = row->kind;
-  if (row->kind == TaskKind::kRenderTile) {
-    e.path = staged_tile_path(batch.out_dir, batch.id, row->frame, row->rect).string();
-    e.max_bytes = staged_tile_max_bytes(row->rect);
+  e.kind = t->kind;
+  if (t->kind == TaskKind::kRenderTile) {
+    // From memory: this is on the path of every tile's `done`.
+    e.path = staged_tile_path(batch.out_dir, batch.id, t->frame, t->rect).string();
+    e.max_bytes = staged_tile_max_bytes(t->rect);
   } else {
-    e.path = (std::filesystem::path(batch.out_dir) / t->batch->shards.at(row->shard).file).string();
+    e.path = (std::filesystem::path(batch.out_dir) / t->batch->shards.at(t->shard).file).string();
     // A shard holds the pixels of its tiles (plus HDF5 metadata).
     uint64_t bytes = uint64_t(4) << 20;
     for (int64_t id : store_.dependencies(task))

@@ -1,9 +1,10 @@
-// Issue 10, defects 1, 2, 3 and 12: a batch is one immutable job. The job is
+// Issue 10, defects 1, 2, 3, 12 and the submit half of 6: a batch is one immutable job. The job is
 // resolved once into a snapshot (spec, scene, buffers, textures, environment
 // map, each by content hash), an output folder belongs to one job, workers
 // render the snapshot and never re-read a path, and content errors are found
 // before anything is written. Real processes on loopback throughout.
 #include <gtest/gtest.h>
+#include <sys/stat.h>
 
 #include <regex>
 
@@ -300,6 +301,52 @@ TEST(JobValue, ContentErrorsAreBadInputAndWriteNothing) {
       EXPECT_FALSE(fs::exists(out)) << args[0] << " created " << out;
     }
   }
+  EXPECT_EQ(farm_status(coord.endpoint()).at("batches").size(), 0u);
+}
+
+}  // namespace
+}  // namespace dofarm::farm_testing
+
+namespace dofarm::farm_testing {
+namespace {
+
+// Defect 6, the submit half: a spec "file" that is a FIFO or a device is
+// refused at once (it used to stall the coordinator for seconds and grow it
+// by gigabytes); the coordinator itself never opens a path a client names
+// unless it is a regular file of bounded size, so a FIFO planted as a job's
+// snapshot is refused without blocking.
+TEST(JobValue, FifoAndDeviceSpecsAreRefusedAtOnce) {
+  TempDir dir;
+  const fs::path fifo = dir / "spec.fifo";
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0644), 0);
+  CoordinatorProcess coord(dir.path(), "coord", dir / "state", 30);
+  for (const fs::path& spec : {fifo, fs::path("/dev/zero")}) {
+    for (const std::vector<std::string>& args :
+         {std::vector<std::string>{"run", spec.string(), "--out", (dir / "out").string()},
+          std::vector<std::string>{"submit", spec.string(), "--coordinator", coord.endpoint(),
+                                   "--out", (dir / "out").string()}}) {
+      const auto t0 = Clock::now();
+      CliResult r = run_cli(dir.path(), "cli", args, 20);
+      EXPECT_EQ(r.status, 2) << args[0] << " " << spec << ": " << r.err;
+      EXPECT_NE(r.err.find("not a regular file"), std::string::npos) << r.err;
+      EXPECT_LT(seconds_since(t0), 10) << args[0] << " " << spec << " took too long";
+      EXPECT_FALSE(fs::exists(dir / "out"));
+    }
+  }
+  // A job folder whose job.json is a FIFO: the coordinator answers at once.
+  worker::ResolvedJob job = worker::resolve_job(two_frame_job(dir.path()), {});
+  const fs::path planted = job_dir(dir / "out", job.snapshot.hash());
+  fs::create_directories(planted);
+  ASSERT_EQ(::mkfifo((planted / "job.json").c_str(), 0644), 0);
+  const auto t0 = Clock::now();
+  protocol::Message reply = call_coordinator(
+      {coord.endpoint(), std::nullopt, 10000},
+      protocol::encode("submit", {{"snapshot", job.snapshot.to_json(-1)},
+                                  {"out_dir", (dir / "out").string()}}));
+  EXPECT_EQ(reply.type, "error");
+  EXPECT_NE(reply.str("message").find("not a regular file"), std::string::npos)
+      << reply.str("message");
+  EXPECT_LT(seconds_since(t0), 5);
   EXPECT_EQ(farm_status(coord.endpoint()).at("batches").size(), 0u);
 }
 
