@@ -30,9 +30,9 @@ std::string to_hex(const unsigned char* d, size_t n) {
   return s;
 }
 
-// Opens `path` for reading only if it is a regular file, without following a
-// symlink and without blocking on a FIFO; returns the descriptor and its size.
-int open_regular(const fs::path& path, uint64_t max_bytes, uint64_t* size) {
+}  // namespace
+
+int open_regular_file(const fs::path& path, uint64_t max_bytes, uint64_t* size) {
   int fd = ::open(path.c_str(), O_RDONLY | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC);
   if (fd < 0) {
     if (errno == ELOOP)
@@ -52,6 +52,24 @@ int open_regular(const fs::path& path, uint64_t max_bytes, uint64_t* size) {
   *size = uint64_t(st.st_size);
   return fd;
 }
+
+void write_new_file(const fs::path& path, std::string_view bytes, unsigned mode) {
+  const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_NOFOLLOW | O_CLOEXEC, mode);
+  if (fd < 0)
+    throw RuntimeError("cannot create \"" + path.string() + "\": " + std::strerror(errno));
+  size_t done = 0;
+  while (done < bytes.size()) {
+    const ssize_t n = ::write(fd, bytes.data() + done, bytes.size() - done);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) break;
+    done += size_t(n);
+  }
+  const bool ok = done == bytes.size() && ::fsync(fd) == 0;
+  ::close(fd);
+  if (!ok) throw RuntimeError("cannot write \"" + path.string() + "\"");
+}
+
+namespace {
 
 // Reads up to `size` bytes (the size fstat gave), calling `sink` per block;
 // a file that grows or shrinks meanwhile is an error.
@@ -108,7 +126,7 @@ std::string content_hash(std::string_view bytes) {
 
 FileHash hash_regular_file(const fs::path& path, uint64_t max_bytes) {
   FileHash out;
-  Fd fd{open_regular(path, max_bytes, &out.size)};
+  Fd fd{open_regular_file(path, max_bytes, &out.size)};
   ContentHasher h;
   read_all(fd.fd, path, out.size, [&](const unsigned char* d, size_t n) { h.update(d, n); });
   out.hash = h.hex();
@@ -117,7 +135,7 @@ FileHash hash_regular_file(const fs::path& path, uint64_t max_bytes) {
 
 std::string read_regular_file(const fs::path& path, uint64_t max_bytes) {
   uint64_t size = 0;
-  Fd fd{open_regular(path, max_bytes, &size)};
+  Fd fd{open_regular_file(path, max_bytes, &size)};
   std::string bytes;
   bytes.reserve(size);
   read_all(fd.fd, path, size,

@@ -45,6 +45,14 @@ FileHash hash_regular_file(const std::filesystem::path& path, uint64_t max_bytes
 // job snapshots, ownership records).
 std::string read_regular_file(const std::filesystem::path& path, uint64_t max_bytes);
 
+// Opens a regular file for reading under the same rules; returns the file
+// descriptor (the caller closes it) and sets `size`.
+int open_regular_file(const std::filesystem::path& path, uint64_t max_bytes, uint64_t* size);
+
+// Creates `path` (never replacing a file, never through a symlink) with
+// `mode` from the start, writes `bytes` and fsyncs it; throws RuntimeError.
+void write_new_file(const std::filesystem::path& path, std::string_view bytes, unsigned mode = 0644);
+
 bool is_content_hash(std::string_view s);  // 32 lowercase hex digits
 
 // Files read while an InputFileLog is alive on this thread are recorded in

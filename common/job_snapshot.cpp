@@ -1,8 +1,6 @@
 #include "common/job_snapshot.h"
 
-#include <fcntl.h>
 #include <fmt/format.h>
-#include <unistd.h>
 
 #include <algorithm>
 #include <map>
@@ -290,15 +288,12 @@ void write_output_owner(const fs::path& out_dir, const OutputOwner& owner) {
       Json{{"job", owner.job}, {"batch", owner.batch}, {"spec", owner.spec}}.dump(2) + "\n";
   std::random_device rd;
   const fs::path tmp = out_dir / fmt::format(".dofarm-owner.json.tmp-{:08x}", rd());
-  int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_NOFOLLOW | O_CLOEXEC, 0644);
-  if (fd < 0) throw RuntimeError("cannot create " + tmp.string());
-  bool ok = ::write(fd, text.data(), text.size()) == ssize_t(text.size()) && ::fsync(fd) == 0;
-  ::close(fd);
+  write_new_file(tmp, text);
   std::error_code ec;
-  if (ok) fs::rename(tmp, owner_file(out_dir), ec);
-  if (!ok || ec) {
+  fs::rename(tmp, owner_file(out_dir), ec);
+  if (ec) {
     fs::remove(tmp, ec);
-    throw RuntimeError("cannot write " + owner_file(out_dir).string());
+    throw RuntimeError("cannot write " + owner_file(out_dir).string() + ": " + ec.message());
   }
 }
 

@@ -2,7 +2,6 @@
 
 #include <fcntl.h>
 #include <fmt/format.h>
-#include <sys/stat.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -47,10 +46,8 @@ struct Fd {
 // Copies a regular file (never through a symlink, never a FIFO) to `to`,
 // fsynced; returns the hash and size of the bytes copied.
 FileHash copy_and_hash(const fs::path& from, const fs::path& to) {
-  Fd in{::open(from.c_str(), O_RDONLY | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC)};
-  struct stat st;
-  if (in.fd < 0 || ::fstat(in.fd, &st) != 0 || !S_ISREG(st.st_mode))
-    throw RuntimeError("job input \"" + from.string() + "\": not a readable regular file");
+  uint64_t size = 0;
+  Fd in{open_regular_file(from, UINT64_MAX, &size)};
   fs::create_directories(to.parent_path());
   Fd out{::open(to.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_NOFOLLOW | O_CLOEXEC, 0644)};
   if (out.fd < 0)
@@ -75,13 +72,6 @@ FileHash copy_and_hash(const fs::path& from, const fs::path& to) {
   if (::fsync(out.fd) != 0) throw RuntimeError("fsync \"" + to.string() + "\" failed");
   r.hash = h.hex();
   return r;
-}
-
-void write_small_file(const fs::path& to, const std::string& text) {
-  Fd out{::open(to.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_NOFOLLOW | O_CLOEXEC, 0644)};
-  if (out.fd < 0 || ::write(out.fd, text.data(), text.size()) != ssize_t(text.size()) ||
-      ::fsync(out.fd) != 0)
-    throw RuntimeError("cannot write \"" + to.string() + "\"");
 }
 
 }  // namespace
@@ -216,8 +206,8 @@ fs::path materialize_job(const ResolvedJob& job, const fs::path& out_dir) {
         throw RuntimeError("\"" + from.string() +
                            "\" changed while the job was being submitted; submit it again");
     }
-    write_small_file(tmp / "job.json", job.snapshot.to_json());
-    write_small_file(tmp / "job.toml", job.snapshot.spec_toml);
+    write_new_file(tmp / "job.json", job.snapshot.to_json());
+    write_new_file(tmp / "job.toml", job.snapshot.spec_toml);
     fs::rename(tmp, dir, ec);
     if (ec) {
       // Another process published the same job meanwhile: use theirs if whole.
