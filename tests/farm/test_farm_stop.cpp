@@ -14,43 +14,54 @@ namespace {
 // be well inside it.
 constexpr double kStopSeconds = 5;
 
+// A coordinator with one batch of one long task (a 128x128 tile at 512
+// reference spp: seconds of work, so a SIGTERM certainly finds the worker
+// rendering) and worker w1 holding its lease.
+struct LongTaskFarm {
+  explicit LongTaskFarm(const TempDir& tmp, double lease_seconds)
+      : coord(tmp.path(), "coordinator", tmp / "state", lease_seconds) {
+    TinyJob big;
+    big.width = big.height = 128;
+    big.tile = 128;
+    big.frame_end = 0;
+    big.per_shard = 1;
+    big.reference_spp = 512;
+    const fs::path job = write_job(tmp.path(), "big.toml", big);
+    CliResult sub = run_cli(tmp.path(), "submit",
+                            {"submit", job.string(), "--coordinator", coord.endpoint(), "--out",
+                             (tmp / "out").string()});
+    EXPECT_EQ(sub.status, 0) << sub.out << sub.err;
+    batch = sub.out.substr(0, sub.out.find('\n'));
+    worker = start_worker(tmp.path(), coord.endpoint(), "w1");
+    leased = poll_until("w1 to hold a lease",
+                        [&] { return !leases_of(farm_status(coord.endpoint()), "w1").empty(); });
+  }
+  CoordinatorProcess coord;
+  std::string batch;
+  Child worker;
+  ::testing::AssertionResult leased = ::testing::AssertionFailure();
+};
+
 enum class CoordinatorFate { kFrozen, kKilled };
 
 void worker_exits_promptly_on_sigterm(CoordinatorFate fate) {
   TempDir tmp;
-  // One large tile with many reference samples: the task runs for seconds,
-  // so the SIGTERM certainly finds the worker rendering.
-  TinyJob big;
-  big.width = big.height = 128;
-  big.tile = 128;
-  big.frame_end = 0;
-  big.per_shard = 1;
-  big.reference_spp = 512;
-  const fs::path job = write_job(tmp.path(), "big.toml", big);
-  CoordinatorProcess coord(tmp.path(), "coordinator", tmp / "state", 30);
-  const std::string ep = coord.endpoint();
-  CliResult sub =
-      run_cli(tmp.path(), "submit",
-              {"submit", job.string(), "--coordinator", ep, "--out", (tmp / "out").string()});
-  ASSERT_EQ(sub.status, 0) << sub.out << sub.err;
-
-  Child worker = start_worker(tmp.path(), ep, "w1");
-  ASSERT_TRUE(poll_until("w1 to hold a lease", [&] {
-    return !leases_of(farm_status(ep), "w1").empty();
-  })) << worker.describe();
+  LongTaskFarm farm(tmp, 30);
+  ASSERT_FALSE(farm.batch.empty());
+  ASSERT_TRUE(farm.leased) << farm.worker.describe();
   if (fate == CoordinatorFate::kFrozen) {
-    coord.child().signal(SIGSTOP);
+    farm.coord.child().signal(SIGSTOP);
   } else {
-    coord.child().kill9();
+    farm.coord.child().kill9();
   }
   const auto t0 = Clock::now();
-  worker.signal(SIGTERM);
-  std::optional<int> rc = worker.wait(kStopSeconds);
+  farm.worker.signal(SIGTERM);
+  std::optional<int> rc = farm.worker.wait(kStopSeconds);
   const double took = seconds_since(t0);
-  if (fate == CoordinatorFate::kFrozen) coord.child().signal(SIGCONT);
+  if (fate == CoordinatorFate::kFrozen) farm.coord.child().signal(SIGCONT);
   ASSERT_TRUE(rc.has_value()) << "the worker still runs " << kStopSeconds << " s after SIGTERM\n"
-                              << worker.describe();
-  EXPECT_EQ(*rc, 0) << worker.describe();
+                              << farm.worker.describe();
+  EXPECT_EQ(*rc, 0) << farm.worker.describe();
   EXPECT_LT(took, kStopSeconds);
   std::fprintf(stderr, "[ farm    ] worker exited %.2f s after SIGTERM\n", took);
 }
@@ -67,29 +78,15 @@ TEST(FarmStop, WorkerMidTaskExitsWithinFiveSecondsOfSigtermWhenTheCoordinatorIsG
 // pending again at once, not after its lease expires.
 TEST(FarmStop, WorkerStoppedMidTaskHandsItsTaskBack) {
   TempDir tmp;
-  TinyJob big;
-  big.width = big.height = 128;
-  big.tile = 128;
-  big.frame_end = 0;
-  big.per_shard = 1;
-  big.reference_spp = 512;
-  const fs::path job = write_job(tmp.path(), "big.toml", big);
-  CoordinatorProcess coord(tmp.path(), "coordinator", tmp / "state", 60);
-  const std::string ep = coord.endpoint();
-  CliResult sub =
-      run_cli(tmp.path(), "submit",
-              {"submit", job.string(), "--coordinator", ep, "--out", (tmp / "out").string()});
-  ASSERT_EQ(sub.status, 0) << sub.out << sub.err;
-  const std::string batch = sub.out.substr(0, sub.out.find('\n'));
-  Child worker = start_worker(tmp.path(), ep, "w1");
-  ASSERT_TRUE(poll_until("w1 to hold a lease", [&] {
-    return !leases_of(farm_status(ep), "w1").empty();
-  })) << worker.describe();
+  LongTaskFarm farm(tmp, 60);
+  ASSERT_FALSE(farm.batch.empty());
+  ASSERT_TRUE(farm.leased) << farm.worker.describe();
   const auto t0 = Clock::now();
-  worker.signal(SIGTERM);
-  ASSERT_TRUE(worker.wait(kStopSeconds).has_value()) << worker.describe();
+  farm.worker.signal(SIGTERM);
+  ASSERT_TRUE(farm.worker.wait(kStopSeconds).has_value()) << farm.worker.describe();
   EXPECT_LT(seconds_since(t0), kStopSeconds);
-  const Json b = batch_of(farm_status(ep, batch), batch);
+  const std::string ep = farm.coord.endpoint();
+  const Json b = batch_of(farm_status(ep, farm.batch), farm.batch);
   EXPECT_EQ(b.at("tasks_leased"), 0) << b.dump(2);
   EXPECT_EQ(b.at("tasks_pending"), b.at("tasks_total")) << b.dump(2);
 }
