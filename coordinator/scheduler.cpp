@@ -43,18 +43,6 @@ bool contains(const std::vector<std::string>& v, const std::string& s) {
   return std::find(v.begin(), v.end(), s) != v.end();
 }
 
-// Quotes for a POSIX shell only where needed, so the common case stays readable.
-std::string shell_quote(const std::string& arg) {
-  const bool plain = !arg.empty() && std::all_of(arg.begin(), arg.end(), [](char c) {
-    return std::isalnum(static_cast<unsigned char>(c)) ||
-           std::string_view("_./=,:+-@%").find(c) != std::string_view::npos;
-  });
-  if (plain) return arg;
-  std::string out = "'";
-  for (char c : arg) out += c == '\'' ? std::string("'\\''") : std::string(1, c);
-  return out + "'";
-}
-
 }  // namespace
 
 const char* to_string(CompleteStatus s) {
@@ -731,127 +719,6 @@ OpResult Scheduler::resume(const std::string& batch_id) {
   });
 }
 
-StatusReport Scheduler::status(const std::string& batch_id) {
-  flush();  // last_seen of the workers, as of now
-  const double now = clock_.now();
-  StatusReport report;
-  report.now = now;
-  std::vector<BatchRow> batches;
-  if (batch_id.empty()) {
-    batches = store_.batches();
-  } else if (auto b = store_.batch(batch_id)) {
-    batches.push_back(*b);
-  }
-  for (const BatchRow& batch : batches) {
-    BatchStatus st;
-    st.batch = batch;
-    st.frames_total = batch.frame_end - batch.frame_start + 1;
-    struct Frame {
-      int tiles = 0, done = 0;
-      double last_done = 0;  // when its last tile was done
-      int shard = 0;
-    };
-    std::map<int, Frame> frames;
-    std::set<int> packed_shards;
-    for (const TaskRow& t : store_.tasks(batch.id)) {
-      ++st.tasks_total;
-      switch (t.state) {
-        case TaskState::kPending:
-          ++st.tasks_pending;
-          break;
-        case TaskState::kLeased:
-          ++st.tasks_leased;
-          break;
-        case TaskState::kDone:
-          ++st.tasks_done;
-          break;
-        case TaskState::kFailed:
-          ++st.tasks_failed;
-          st.failed.push_back({t.id, t.kind, t.frame, t.rect, t.shard, t.last_error,
-                               t.kind == TaskKind::kRenderTile ? reproduce_command(batch, t) : ""});
-          break;
-      }
-      if (t.kind == TaskKind::kPackShard) {
-        if (t.state == TaskState::kDone) packed_shards.insert(t.shard);
-        continue;
-      }
-      Frame& f = frames[t.frame];
-      f.shard = t.shard;
-      ++f.tiles;
-      if (t.state == TaskState::kDone) {
-        ++f.done;
-        f.last_done = std::max(f.last_done, t.updated);  // a done task's last change
-      }
-    }
-    // The rate counts frames rendered within the window; a batch younger than
-    // the window is measured over its own age, so a fresh batch is not
-    // underrated.
-    const double window_start = std::max(now - options_.rate_window, batch.created);
-    int recent = 0;
-    for (const auto& [frame, f] : frames) {
-      if (f.done < f.tiles) continue;
-      ++st.frames_rendered;
-      if (packed_shards.count(f.shard)) ++st.frames_packed;
-      if (f.last_done >= window_start) ++recent;
-    }
-    if (now > window_start) st.frames_per_hour = recent / (now - window_start) * 3600.0;
-    if (batch.state == BatchState::kRunning && st.frames_per_hour > 0) {
-      st.eta_seconds = (st.frames_total - st.frames_rendered) / st.frames_per_hour * 3600.0;
-    }
-    st.blocklisted = store_.blocked_workers(batch.id);
-    if (batch.state == BatchState::kFailed) {
-      for (const EventRow& e : store_.events(batch.id, 50)) {
-        if (e.level != "error") continue;
-        st.reason = e.text;
-        break;
-      }
-    }
-    if (auto it = stalled_since_.find(batch.id);
-        it != stalled_since_.end() && batch.state == BatchState::kRunning) {
-      st.stalled_seconds = now - it->second;
-    }
-    report.batches.push_back(std::move(st));
-  }
-  std::map<std::string, std::vector<int64_t>> leases;
-  for (const TaskRow& t : store_.leased_tasks("")) leases[t.lease_worker].push_back(t.id);
-  for (const WorkerRow& w : store_.workers()) {
-    WorkerStatus ws;
-    ws.worker = w;
-    ws.live = !w.left && now - w.last_seen <= 2 * options_.lease_seconds;
-    ws.leased_tasks = leases[w.id];
-    report.workers.push_back(std::move(ws));
-  }
-  return report;
-}
-
-std::vector<StagedTile> Scheduler::staged_tiles_to_verify(const std::string& batch_id) {
-  const std::vector<TaskRow> tasks = store_.tasks(batch_id);
-  std::set<int> packed;
-  for (const TaskRow& t : tasks) {
-    if (t.kind == TaskKind::kPackShard && t.state == TaskState::kDone) packed.insert(t.shard);
-  }
-  std::vector<StagedTile> out;
-  for (const TaskRow& t : tasks) {
-    if (t.kind == TaskKind::kRenderTile && t.state == TaskState::kDone && !packed.count(t.shard)) {
-      out.push_back({t.id, t.frame, t.rect, t.shard, t.staged_path, t.checksum});
-    }
-  }
-  return out;
-}
-
-std::vector<PackedShard> Scheduler::packed_shards(const std::string& batch_id) {
-  const std::optional<BatchRow> batch = store_.batch(batch_id);
-  if (!batch) return {};
-  const std::vector<ShardRange> ranges =
-      shard_ranges(batch->frame_start, batch->frame_end, batch->per_shard);
-  std::vector<PackedShard> out;
-  for (const TaskRow& t : store_.tasks(batch_id)) {
-    if (t.kind != TaskKind::kPackShard || t.state != TaskState::kDone) continue;
-    out.push_back({t.id, batch->out_dir, ranges.at(t.shard), t.checksum, inputs_of(t)});
-  }
-  return out;
-}
-
 OpResult Scheduler::invalidate(int64_t task) {
   const double now = clock_.now();
   return guarded([&]() -> OpResult {
@@ -909,41 +776,6 @@ std::string Scheduler::new_batch_id() {
     std::snprintf(id, sizeof id, "b-%08x", static_cast<unsigned>(rng()));
     if (!store_.batch(id)) return id;
   }
-}
-
-std::vector<std::string> Scheduler::running_batch_ids() {
-  std::vector<std::string> out;
-  for (const BatchRow& b : store_.batches())
-    if (b.state == BatchState::kRunning) out.push_back(b.id);
-  return out;
-}
-
-std::optional<int64_t> Scheduler::input_with_staged_path(int64_t pack,
-                                                         const std::string& staged_path) {
-  return store_.input_with_staged_path(pack, staged_path);
-}
-
-std::vector<BatchRow> Scheduler::batches_in(const std::string& out_dir) {
-  std::vector<BatchRow> out;
-  for (BatchRow& b : store_.batches())
-    if (b.out_dir == out_dir) out.push_back(std::move(b));
-  return out;
-}
-
-std::string reproduce_command(const BatchRow& batch, const TaskRow& task) {
-  const Rect& r = task.rect;
-  // A snapshot batch is rendered from its job folder's canonical spec, which
-  // already holds the overrides: exactly what the workers rendered.
-  const bool snapshot = !batch.job_hash.empty();
-  const std::string spec = snapshot ? (job_dir(batch.out_dir, batch.job_hash) / "job.toml").string()
-                                    : batch.spec_path;
-  std::string cmd = "dofarm render " + shell_quote(spec) + " --frame " +
-                    std::to_string(task.frame) + " --tile " + std::to_string(r.x) + "," +
-                    std::to_string(r.y) + "," + std::to_string(r.w) + "," + std::to_string(r.h) +
-                    " --out repro.exr";
-  if (!snapshot)
-    for (const std::string& o : batch.overrides) cmd += " --set " + shell_quote(o);
-  return cmd;
 }
 
 }  // namespace dofarm::coordinator
