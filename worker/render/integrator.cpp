@@ -91,7 +91,7 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
           Vec3 origin = scene.offset_origin(hit, ls.wi);
           float t_max = std::isinf(ls.distance) ? ls.distance : ls.distance * (1.0f - 1e-4f);
           if (!scene.occluded(origin, ls.wi, t_max)) {
-            float w = use_mis ? power_heuristic(ls.pdf, bsdf_pdf) : 1.0f;
+            float w = use_mis && !ls.is_delta ? power_heuristic(ls.pdf, bsdf_pdf) : 1.0f;
             L += beta * f * ls.radiance * (w / ls.pdf);
           }
         }

@@ -50,6 +50,10 @@ struct LightSample {
   float distance = 0;  // to the light point (infinity for the environment)
   Vec3 radiance;
   float pdf = 0;  // solid angle, including the light-selection probability
+  // A point, spot or directional light: `pdf` is then the selection
+  // probability alone and `radiance` the irradiance-giving intensity over
+  // distance squared; no BSDF sample can hit it, so MIS does not weigh it.
+  bool is_delta = false;
 };
 
 class Scene {

@@ -401,6 +401,7 @@ void Loader::camera_track() {
     key.position = to_vec3(world * cam_position);
     key.rotation = quat_from_axes(w_right, w_up, w_back);
     key.yfov_deg = yfov * 180.0f / kPi;
+    key.aspect = cam->mAspect > 0 ? cam->mAspect : 0.0f;
     if (!is_finite(key.position) || !std::isfinite(key.yfov_deg)) {
       fail(path_, "camera \"" + std::string(cam->mName.C_Str()) + "\" has a non-finite transform");
     }

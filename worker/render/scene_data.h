@@ -46,6 +46,9 @@ struct CameraTrackKey {
   Vec3 position;
   Quat rotation;  // camera looks down its -z
   float yfov_deg = 40;
+  // Width over height of the camera's film as the file gives it (glTF
+  // camera.perspective.aspectRatio); 0 when the file does not say.
+  float aspect = 0;
 };
 
 struct SceneData {
