@@ -1,15 +1,23 @@
 // dofarm-train: trains and applies the denoiser (DESIGN.md, "Command line").
 //
 //   dofarm-train train --data DIR --run RUNDIR [--config TRAIN.toml] [--set K=V]...
-//   dofarm-train eval --run RUNDIR --data DIR --out REPORTDIR
-//   dofarm-train denoise --run RUNDIR IN.exr OUT.exr
-//   dofarm-train export --run RUNDIR --out MODEL.pt
+//                      [--save-every STEPS]
+//   dofarm-train eval --run RUNDIR --data DIR --out REPORTDIR [--checkpoint best|last|PATH]
+//   dofarm-train denoise --run RUNDIR IN.exr OUT.exr [--checkpoint ...] [--repair-nonfinite]
+//   dofarm-train export --run RUNDIR --out MODEL.pt [--checkpoint ...]
 //
 // Exit status: 0 success, 2 bad input (SpecError, CLI11 parse errors), 1 any
-// other failure, with the error as one line "dofarm-train: error: ..." on stderr.
+// other failure, with the error as one line "dofarm-train: error: ..." on
+// stderr; 3 (kExitStopped) when `train` stopped on SIGINT/SIGTERM after
+// finishing its step and writing last.pt (run the same command to resume).
+// A second signal ends the process at once, as the signal's default does.
 #include <spdlog/spdlog.h>
 
+#include <signal.h>
+
 #include <CLI/CLI.hpp>
+#include <atomic>
+#include <csignal>
 #include <cstdio>
 #include <filesystem>
 #include <functional>
@@ -22,6 +30,7 @@
 #include "common/log.h"
 #include "trainer/config.h"
 #include "trainer/eval.h"
+#include "trainer/run_folder.h"
 #include "trainer/train.h"
 
 namespace dofarm {
@@ -30,11 +39,39 @@ namespace {
 namespace fs = std::filesystem;
 using namespace dofarm::trainer;
 
+// `train` stopped on request with its checkpoint written.
+constexpr int kExitStopped = 3;
+
+std::atomic<bool> g_stop{false};
+
+extern "C" void on_train_signal(int sig) {
+  if (g_stop.exchange(true)) {
+    // The second signal: the default action (terminate), now.
+    std::signal(sig, SIG_DFL);
+    std::raise(sig);
+  }
+}
+
+void install_train_signals() {
+  struct sigaction sa = {};
+  sa.sa_handler = on_train_signal;
+  sigemptyset(&sa.sa_mask);
+  sigaction(SIGINT, &sa, nullptr);
+  sigaction(SIGTERM, &sa, nullptr);
+}
+
+void add_checkpoint_option(CLI::App* cmd, std::string* which) {
+  cmd->add_option("--checkpoint", *which,
+                  "best (lowest validation loss), last, or a checkpoint file")
+      ->capture_default_str();
+}
+
 Command add_train(CLI::App& app) {
   auto* cmd = app.add_subcommand("train", "train a denoiser; resumes when RUNDIR holds a run");
   struct Opts {
     std::string data, run, config;
     std::vector<std::string> sets;
+    int64_t save_every = 0;
   };
   auto o = std::make_shared<Opts>();
   cmd->add_option("--data", o->data, "farm output folder (manifest.json or *.h5 shards)")
@@ -48,22 +85,40 @@ Command add_train(CLI::App& app) {
                   "train.epochs=2 (repeatable)")
       ->type_name("KEY=VALUE")
       ->allow_extra_args(false);
+  cmd->add_option("--save-every", o->save_every,
+                  "also write a checkpoint every this many steps, kept as "
+                  "checkpoints/step-NNNNNNNN.pt (0 = at the end of each epoch only)")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
   return {cmd, [o] {
             TrainOptions t;
             t.data_dir = o->data;
             t.run_dir = o->run;
-            t.config = load_train_config(o->config, o->sets);
+            const fs::path stored = t.run_dir / "config.toml";
+            if (fs::exists(stored)) {
+              // A resumed run keeps its settings: --config and --set change
+              // only the keys they name, and each change is logged.
+              const TrainConfig saved = parse_train_config(read_text_file(stored), stored);
+              t.config = load_train_config(o->config, o->sets, &saved);
+              for (const std::string& c : config_changes(saved, t.config))
+                spdlog::info("resume with a changed setting: {}", c);
+            } else {
+              t.config = load_train_config(o->config, o->sets);
+            }
+            t.save_every = o->save_every;
+            t.stop = &g_stop;
+            install_train_signals();
             TrainResult r = train(t);
             spdlog::info("{} epochs ({} steps); best loss {:.5f}; {} skipped steps, {} rollbacks",
                          r.epochs, r.steps, r.best_val, r.skipped_steps, r.rollbacks);
-            return kExitOk;
+            return r.stopped ? kExitStopped : kExitOk;
           }};
 }
 
 Command add_eval(CLI::App& app) {
   auto* cmd = app.add_subcommand("eval", "score the run on its validation frames (report)");
   struct Opts {
-    std::string run, data, out;
+    std::string run, data, out, checkpoint = "best";
     int frames = 0, images = 8, version = 0;
   };
   auto o = std::make_shared<Opts>();
@@ -81,8 +136,9 @@ Command add_eval(CLI::App& app) {
   cmd->add_option("--noisy-version", o->version, "noisy version fed to the network")
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
+  add_checkpoint_option(cmd, &o->checkpoint);
   return {cmd, [o] {
-            EvalOptions e{o->run, o->data, o->out, o->frames, o->images, o->version};
+            EvalOptions e{o->run, o->data, o->out, o->frames, o->images, o->version, o->checkpoint};
             EvalSummary s = evaluate(e);
             std::printf("%d frames: SSIM %.4f  PSNR %.2f dB  relMSE %.4f  %.2f ms/frame\n",
                         s.frames, s.ssim, s.psnr, s.rel_mse, s.ms);
@@ -93,8 +149,9 @@ Command add_eval(CLI::App& app) {
 Command add_denoise(CLI::App& app) {
   auto* cmd = app.add_subcommand("denoise", "denoise one frame EXR (as `dofarm render` writes)");
   struct Opts {
-    std::string run, in, out;
+    std::string run, in, out, checkpoint = "best";
     int version = 0;
+    bool repair = false;
   };
   auto o = std::make_shared<Opts>();
   cmd->add_option("--run", o->run, "run folder")->required()->check(CLI::ExistingDirectory);
@@ -103,8 +160,18 @@ Command add_denoise(CLI::App& app) {
   cmd->add_option("--noisy-version", o->version, "noisy version to denoise")
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
+  add_checkpoint_option(cmd, &o->checkpoint);
+  cmd->add_flag("--repair-nonfinite", o->repair,
+                "set NaN/Inf input values to 0 (counted in the log) instead of refusing the frame");
   return {cmd, [o] {
-            FrameDenoiser den(o->run, pick_device("auto"));
+            // Never over the input: same path, or another name of the same file.
+            std::error_code ec;
+            if (fs::weakly_canonical(o->in, ec) == fs::weakly_canonical(o->out, ec) ||
+                fs::equivalent(o->in, o->out, ec))
+              throw SpecError(FileLoc{o->out}, "OUT",
+                              "is the input frame; denoise writes a new file and never "
+                              "replaces its input");
+            FrameDenoiser den(o->run, pick_device("auto"), o->checkpoint);
             ExrFrame frame;
             try {
               frame = read_frame_exr(o->in);
@@ -112,12 +179,24 @@ Command add_denoise(CLI::App& app) {
               // A file that is not a dofarm frame EXR is bad input, not a failure.
               throw SpecError(FileLoc{o->in}, "", e.what());
             }
-            const FrameBuffers& fb = frame.buffers;
+            FrameBuffers& fb = frame.buffers;
             if (o->version >= fb.versions)
               throw SpecError(FileLoc{"--noisy-version"}, "",
                               "the frame has " + std::to_string(fb.versions) + " noisy versions");
             if (den.config().model.dof && fb.coc.empty())
               throw SpecError(FileLoc{o->in}, "coc", "the model needs a coc layer");
+            const auto bad = non_finite_inputs(fb, o->version, den.config(), o->repair);
+            if (!bad.empty()) {
+              std::string list;
+              for (const auto& [layer, count] : bad)
+                list += (list.empty() ? "" : ", ") + layer + ": " + std::to_string(count);
+              if (!o->repair)
+                throw SpecError(FileLoc{o->in}, "",
+                                "non-finite input values (" + list +
+                                    "); the frame is damaged (or pass --repair-nonfinite to "
+                                    "set them to 0)");
+              spdlog::warn("{}: set non-finite input values to 0 ({})", o->in, list);
+            }
             double sec = 0;
             std::vector<float> out = den.denoise(fb, o->version, &sec);
             RgbImage img;
@@ -137,13 +216,14 @@ Command add_denoise(CLI::App& app) {
 Command add_export(CLI::App& app) {
   auto* cmd = app.add_subcommand("export", "write the trained model as TorchScript");
   struct Opts {
-    std::string run, out;
+    std::string run, out, checkpoint = "best";
   };
   auto o = std::make_shared<Opts>();
   cmd->add_option("--run", o->run, "run folder")->required()->check(CLI::ExistingDirectory);
   cmd->add_option("--out", o->out, "TorchScript file (torch.jit.load)")->required();
+  add_checkpoint_option(cmd, &o->checkpoint);
   return {cmd, [o] {
-            LoadedRun r = load_run(o->run, torch::kCPU);
+            LoadedRun r = load_run(o->run, torch::kCPU, o->checkpoint);
             r.model->export_torchscript(o->out);
             spdlog::info("exported {} ({} parameters{}) to {}", r.checkpoint.string(),
                          parameter_count(*r.model),

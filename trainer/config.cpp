@@ -8,6 +8,8 @@
 #include <limits>
 #include <sstream>
 
+#include <fmt/format.h>
+
 #include "common/error.h"
 
 namespace dofarm::trainer {
@@ -76,6 +78,10 @@ Field number_field(std::string key, T* p, double lo, double hi, bool affects_mod
   f.write = [p](toml::table& t, const std::string& name) {
     if constexpr (std::is_integral_v<T>)
       t.insert_or_assign(name, int64_t(*p));
+    else if constexpr (std::is_same_v<T, float>)
+      // The shortest decimal that reads back as this float (0.8, not
+      // 0.800000011920929), as the user wrote it.
+      t.insert_or_assign(name, std::stod(fmt::format("{}", *p)));
     else
       t.insert_or_assign(name, double(*p));
   };
@@ -221,10 +227,18 @@ void apply(std::vector<Field>& fs, const std::string& key, const toml::node& nod
   for (Field& f : fs) {
     if (f.key != key) continue;
     std::string err = f.read(node);
-    if (!err.empty()) throw SpecError(loc, key.substr(key.find('.') + 1), err);
+    if (!err.empty()) throw SpecError(loc, key, err);
     return;
   }
-  throw SpecError(loc, key, "unknown key");
+  // Like the job spec: say what would have been accepted.
+  const std::string section = key.substr(0, key.find('.'));
+  std::string allowed;
+  for (const Field& f : fs)
+    if (f.key.compare(0, section.size() + 1, section + ".") == 0)
+      allowed += (allowed.empty() ? "" : ", ") + f.key;
+  if (allowed.empty())
+    throw SpecError(loc, key, "unknown key (settings live in [model], [data], [loss] or [train])");
+  throw SpecError(loc, key, "unknown key; [" + section + "] takes " + allowed);
 }
 
 void apply_table(std::vector<Field>& fs, const toml::table& root,
@@ -244,17 +258,17 @@ void apply_table(std::vector<Field>& fs, const toml::table& root,
 void check_consistency(const TrainConfig& c, const FileLoc& loc) {
   if (c.data.crop % 32 != 0)
     throw SpecError(
-        loc, "crop",
+        loc, "data.crop",
         "must be a multiple of 32 (five 2x2 poolings), got " + std::to_string(c.data.crop));
   if (!c.model.channels.empty() && c.model.channels.size() != 5)
-    throw SpecError(loc, "channels",
+    throw SpecError(loc, "model.channels",
                     "expected 5 encoder widths, got " + std::to_string(c.model.channels.size()));
-  if (c.train.lr_min > c.train.lr) throw SpecError(loc, "lr_min", "must not exceed train.lr");
+  if (c.train.lr_min > c.train.lr) throw SpecError(loc, "train.lr_min", "must not exceed train.lr");
 }
 
 TrainConfig parse_impl(const toml::table* root, const std::filesystem::path& file,
-                       const std::vector<std::string>& overrides) {
-  TrainConfig cfg;
+                       const std::vector<std::string>& overrides, const TrainConfig* base) {
+  TrainConfig cfg = base ? *base : TrainConfig{};
   std::vector<Field> fs = fields(cfg);
   if (root) apply_table(fs, *root, file);
   for (const std::string& ov : overrides) {
@@ -280,7 +294,8 @@ TrainConfig parse_impl(const toml::table* root, const std::filesystem::path& fil
 
 TrainConfig parse_train_config(const std::string& toml_text,
                                const std::filesystem::path& virtual_path,
-                               const std::vector<std::string>& overrides) {
+                               const std::vector<std::string>& overrides,
+                               const TrainConfig* base) {
   toml::table root;
   try {
     root = toml::parse(toml_text, virtual_path.string());
@@ -289,31 +304,65 @@ TrainConfig parse_train_config(const std::string& toml_text,
     throw SpecError(FileLoc{virtual_path.string(), int(b.line), int(b.column)}, "",
                     std::string(e.description()));
   }
-  return parse_impl(&root, virtual_path, overrides);
+  return parse_impl(&root, virtual_path, overrides, base);
 }
 
 TrainConfig load_train_config(const std::filesystem::path& path,
-                              const std::vector<std::string>& overrides) {
-  if (path.empty()) return parse_impl(nullptr, "", overrides);
+                              const std::vector<std::string>& overrides,
+                              const TrainConfig* base) {
+  if (path.empty()) return parse_impl(nullptr, "", overrides, base);
   std::ifstream in(path);
   if (!in) throw SpecError(FileLoc{path.string()}, "", "cannot open the training config");
   std::stringstream ss;
   ss << in.rdbuf();
-  return parse_train_config(ss.str(), path, overrides);
+  return parse_train_config(ss.str(), path, overrides, base);
 }
+
+namespace {
+
+// One field's value as TOML text. Floats in their shortest round-trip form
+// (0.8, not toml++'s 17-digit 0.80000000000000004).
+std::string value_text(const Field& f) {
+  toml::table t;
+  f.write(t, "v");
+  const toml::node& n = *t.get("v");
+  if (n.is_floating_point()) {
+    std::string s = fmt::format("{}", n.as_floating_point()->get());
+    if (s.find_first_of(".e") == std::string::npos) s += ".0";  // stays a float
+    return s;
+  }
+  std::ostringstream os;
+  os << t;
+  return os.str().substr(4);  // "v = "
+}
+
+}  // namespace
 
 std::string to_toml(const TrainConfig& cfg_in) {
   TrainConfig cfg = cfg_in;  // fields() needs mutable pointers; nothing is changed
-  toml::table root;
-  for (const Field& f : fields(cfg)) {
-    size_t dot = f.key.find('.');
-    std::string section = f.key.substr(0, dot);
-    if (!root.contains(section)) root.insert(section, toml::table{});
-    f.write(*root.get_as<toml::table>(section), f.key.substr(dot + 1));
-  }
   std::ostringstream os;
-  os << "# Effective training config of this run (written by dofarm-train).\n" << root << "\n";
+  os << "# Effective training config of this run (written by dofarm-train).\n";
+  std::string section;
+  for (const Field& f : fields(cfg)) {
+    const size_t dot = f.key.find('.');
+    if (f.key.substr(0, dot) != section) {
+      section = f.key.substr(0, dot);
+      os << "\n[" << section << "]\n";
+    }
+    os << f.key.substr(dot + 1) << " = " << value_text(f) << "\n";
+  }
   return os.str();
+}
+
+std::vector<std::string> config_changes(const TrainConfig& from_in, const TrainConfig& to_in) {
+  TrainConfig from = from_in, to = to_in;
+  std::vector<Field> a = fields(from), b = fields(to);
+  std::vector<std::string> out;
+  for (size_t i = 0; i < a.size(); ++i) {
+    const std::string va = value_text(a[i]), vb = value_text(b[i]);
+    if (va != vb) out.push_back(a[i].key + ": " + va + " -> " + vb);
+  }
+  return out;
 }
 
 std::string incompatible_reason(const TrainConfig& saved_in, const TrainConfig& wanted_in) {

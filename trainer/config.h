@@ -91,13 +91,20 @@ struct TrainConfig {
   OptimConfig train;
 };
 
-// Parses `path` (empty path: defaults only) and applies overrides in order.
+// Parses `path` (empty path: no file) over `base` (null: the defaults) and
+// applies overrides in order. A resumed run passes its stored config as
+// `base`, so that only what the user names changes.
 TrainConfig load_train_config(const std::filesystem::path& path,
-                              const std::vector<std::string>& overrides = {});
+                              const std::vector<std::string>& overrides = {},
+                              const TrainConfig* base = nullptr);
 // Parses TOML text as if it were the file `virtual_path`.
 TrainConfig parse_train_config(const std::string& toml_text,
                                const std::filesystem::path& virtual_path,
-                               const std::vector<std::string>& overrides = {});
+                               const std::vector<std::string>& overrides = {},
+                               const TrainConfig* base = nullptr);
+
+// The keys whose values differ, as "train.epochs: 3 -> 5", in key order.
+std::vector<std::string> config_changes(const TrainConfig& from, const TrainConfig& to);
 
 // Every key, with its current value, as TOML (round-trips through parse).
 std::string to_toml(const TrainConfig& cfg);

@@ -21,8 +21,37 @@ namespace dofarm::trainer {
 namespace fs = std::filesystem;
 using nlohmann::json;
 
-FrameDenoiser::FrameDenoiser(const fs::path& run_dir, torch::Device device)
-    : run_(load_run(run_dir, device)), device_(device) {}
+FrameDenoiser::FrameDenoiser(const fs::path& run_dir, torch::Device device,
+                             const std::string& checkpoint)
+    : run_(load_run(run_dir, device, checkpoint)), device_(device) {}
+
+std::vector<std::pair<std::string, size_t>> non_finite_inputs(FrameBuffers& f, int version,
+                                                              const TrainConfig& cfg,
+                                                              bool repair) {
+  const size_t n = f.plane();
+  std::vector<std::pair<std::string, size_t>> out;
+  auto scan = [&](const std::string& name, std::vector<float>& data, size_t begin, size_t count) {
+    if (data.size() < begin + count) return;
+    size_t bad = 0;
+    for (size_t i = begin; i < begin + count; ++i)
+      if (!std::isfinite(data[i])) {
+        ++bad;
+        if (repair) data[i] = 0.0f;
+      }
+    if (bad) out.emplace_back(name, bad);
+  };
+  const size_t vo = size_t(version) * 3 * n;
+  scan("noisy", f.noisy, vo, 3 * n);
+  if (cfg.data.albedo == AlbedoSource::kVersion)
+    scan("albedo", f.albedo, vo, 3 * n);
+  else
+    scan("albedo_ref", f.albedo_ref, 0, 3 * n);
+  scan("normal", f.normal, 0, 3 * n);
+  scan("depth", f.depth, 0, n);
+  scan("roughness", f.roughness, 0, n);
+  if (cfg.model.dof) scan("coc", f.coc, 0, n);
+  return out;
+}
 
 std::vector<float> FrameDenoiser::denoise(const FrameBuffers& f, int version, double* seconds) {
   const TrainConfig& cfg = run_.config;
@@ -59,6 +88,12 @@ std::vector<float> FrameDenoiser::denoise(const FrameBuffers& f, int version, do
   if (device_.is_cuda()) torch::cuda::synchronize();
   if (seconds)
     *seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  // Finite inputs and finite weights (checked at load) can still overflow:
+  // never hand out a non-finite pixel.
+  const int64_t bad = (~torch::isfinite(out)).sum().item<int64_t>();
+  if (bad > 0)
+    throw RuntimeError("the network produced " + std::to_string(bad) +
+                       " non-finite output values (checkpoint " + run_.checkpoint.string() + ")");
   return std::vector<float>(out.data_ptr<float>(), out.data_ptr<float>() + 3 * n);
 }
 
@@ -120,7 +155,8 @@ std::string cell(double v, int prec) {
 
 EvalSummary evaluate(const EvalOptions& o) {
   const torch::Device device = pick_device("auto");
-  FrameDenoiser den(o.run_dir, device);
+  FrameDenoiser den(o.run_dir, device, o.checkpoint);
+  const LoadedRun& used = den.run();
   const TrainConfig& cfg = den.config();
   fs::create_directories(o.out_dir);
 
@@ -209,6 +245,11 @@ EvalSummary evaluate(const EvalOptions& o) {
                  {"data", o.data_dir.string()},
                  {"device", device.str()},
                  {"noisy_version", o.version},
+                 {"checkpoint",
+                  {{"file", used.checkpoint.string()},
+                   {"epoch", used.state.epoch},
+                   {"step", used.state.step},
+                   {"best_loss", std::isfinite(used.state.best) ? json(used.state.best) : json()}}},
                  {"metrics_note",
                   "SSIM and PSNR on sRGB-encoded images clamped to [0,1]; relative MSE on "
                   "linear HDR, (d-r)^2/(r^2+0.01); in focus = CoC < 1 px"},
@@ -221,6 +262,8 @@ EvalSummary evaluate(const EvalOptions& o) {
   md << "# Denoiser evaluation\n\n"
      << "Run `" << o.run_dir.string() << "`, data `" << o.data_dir.string() << "`, " << done
      << " validation frames, device " << device.str() << ".\n\n"
+     << "Checkpoint `" << used.checkpoint.string() << "`: epoch " << used.state.epoch << ", step "
+     << used.state.step << ", best loss " << cell(used.state.best, 5) << ".\n\n"
      << "SSIM and PSNR are taken on sRGB-encoded images clamped to [0, 1]; relative MSE on "
         "linear HDR radiance, mean of (d - r)^2 / (r^2 + 0.01). In focus: CoC < 1 pixel. "
         "Time: network + remodulation per frame, no IO.\n\n"

@@ -7,7 +7,7 @@
 #include <vector>
 
 #include "common/image.h"
-#include "trainer/train.h"
+#include "trainer/run_folder.h"
 
 namespace dofarm::trainer {
 
@@ -15,13 +15,16 @@ namespace dofarm::trainer {
 // sequence must come in order: the recurrent model carries its state.
 class FrameDenoiser {
  public:
-  FrameDenoiser(const std::filesystem::path& run_dir, torch::Device device);
+  // `checkpoint`: "best", "last" or a checkpoint file (load_run).
+  FrameDenoiser(const std::filesystem::path& run_dir, torch::Device device,
+                const std::string& checkpoint = "best");
   // Linear RGB (3, H, W) from noisy version `version` of `frame`.
   // `seconds` receives the time of network + remodulation (no IO, no input
   // preparation), synchronised with the device.
   std::vector<float> denoise(const FrameBuffers& frame, int version, double* seconds = nullptr);
   void reset_sequence() { state_.clear(); }
   const TrainConfig& config() const { return run_.config; }
+  const LoadedRun& run() const { return run_; }
 
  private:
   LoadedRun run_;
@@ -34,12 +37,20 @@ struct EvalOptions {
   int max_frames = 0;  // 0 = every validation frame
   int max_images = 8;  // comparison PNGs written (first frames)
   int version = 0;     // noisy version fed to the network
+  std::string checkpoint = "best";  // best | last | PATH
 };
 
 struct EvalSummary {
   int frames = 0;
   double ssim = 0, psnr = 0, rel_mse = 0, ms = 0;  // means over frames, denoised
 };
+
+// The buffers denoise() reads for noisy version `version` with `cfg`, and how
+// many non-finite values each holds: {layer name, count} for every layer
+// with at least one. With `repair`, those values are set to 0.
+std::vector<std::pair<std::string, size_t>> non_finite_inputs(FrameBuffers& frame, int version,
+                                                              const TrainConfig& cfg,
+                                                              bool repair);
 
 // Writes OUT/report.md, OUT/report.json, OUT/frame-*.png, OUT/loss.png.
 EvalSummary evaluate(const EvalOptions& options);

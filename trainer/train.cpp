@@ -17,6 +17,7 @@
 #include "common/progress.h"
 #include "trainer/dataset.h"
 #include "trainer/losses.h"
+#include "trainer/run_folder.h"
 
 namespace dofarm::trainer {
 
@@ -28,95 +29,7 @@ double learning_rate(const OptimConfig& o, int64_t step, int epoch) {
   return std::max(lr, double(o.lr_min));
 }
 
-torch::Device pick_device(const std::string& device) {
-  if (device == "cpu") return torch::kCPU;
-  if (torch::cuda::is_available()) return torch::kCUDA;
-  if (device == "cuda") throw RuntimeError("train.device is \"cuda\" but no CUDA device is usable");
-  return torch::kCPU;
-}
-
 namespace {
-
-std::string read_text(const fs::path& p) {
-  std::ifstream in(p);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-
-void write_atomic(const fs::path& p, const std::string& text) {
-  fs::path tmp = p;
-  tmp += ".tmp";
-  {
-    std::ofstream out(tmp);
-    out << text;
-    if (!out) throw RuntimeError(tmp.string() + ": cannot write");
-  }
-  fs::rename(tmp, p);
-}
-
-// Everything that, with the config and the data, determines the rest of a run.
-struct RunState {
-  int64_t epoch = 0;         // next epoch to run
-  int64_t step = 0;          // optimizer steps taken
-  int64_t sample_index = 0;  // next training sample of the stream
-  double lr_scale = 1.0;     // lowered by rollbacks
-  double best = INFINITY;    // lowest validation loss
-};
-
-bool all_finite(const torch::nn::Module& m) {
-  for (const auto& p : m.parameters())
-    if (!torch::isfinite(p).all().item<bool>()) return false;
-  return true;
-}
-
-void save_checkpoint(const fs::path& path, Denoiser& model, torch::optim::Adam& opt,
-                     const RunState& st, const TrainConfig& cfg) {
-  // No NaN/Inf ever reaches a checkpoint: a model that diverged is not saved.
-  if (!all_finite(*model)) throw RuntimeError("refusing to checkpoint non-finite weights");
-  torch::serialize::OutputArchive ar, m, o;
-  model->save(m);
-  opt.save(o);
-  ar.write("model", m);
-  ar.write("optimizer", o);
-  ar.write("state", torch::tensor({st.epoch, st.step, st.sample_index}, torch::kInt64));
-  ar.write("state_f", torch::tensor({st.lr_scale, st.best}, torch::kFloat64));
-  ar.write("config", c10::IValue(to_toml(cfg)));
-  fs::path tmp = path;
-  tmp += ".tmp";
-  ar.save_to(tmp.string());
-  fs::rename(tmp, path);  // a crash mid-write leaves the previous checkpoint intact
-}
-
-RunState load_checkpoint(const fs::path& path, Denoiser& model, torch::optim::Adam* opt,
-                         torch::Device device) {
-  torch::serialize::InputArchive ar, m, o;
-  try {
-    ar.load_from(path.string(), device);
-  } catch (const c10::Error& e) {
-    throw RuntimeError(path.string() + ": cannot read checkpoint: " + e.what_without_backtrace());
-  }
-  ar.read("model", m);
-  model->load(m);
-  // load() adopts the stored tensors' strides: back to the model's format.
-  model->set_memory_format(model->memory_format());
-  if (opt) {
-    ar.read("optimizer", o);
-    opt->load(o);
-  }
-  torch::Tensor s, f;
-  ar.read("state", s);
-  ar.read("state_f", f);
-  s = s.to(torch::kCPU);
-  f = f.to(torch::kCPU);
-  RunState st;
-  st.epoch = s[0].item<int64_t>();
-  st.step = s[1].item<int64_t>();
-  st.sample_index = s[2].item<int64_t>();
-  st.lr_scale = f[0].item<double>();
-  st.best = f[1].item<double>();
-  return st;
-}
 
 class EventLog {
  public:
@@ -392,7 +305,52 @@ void keep_freed_memory() {
   mallopt(M_TRIM_THRESHOLD, 1 << 30);
 }
 
+namespace {
+
+// Epoch rows in loss.csv (lines after the header).
+int64_t csv_epochs(const fs::path& csv) {
+  std::ifstream in(csv);
+  std::string line;
+  int64_t rows = -1;  // the header
+  while (std::getline(in, line))
+    if (!line.empty()) ++rows;
+  return std::max<int64_t>(0, rows);
+}
+
+TrainResult train_in(const TrainOptions& opt_in);
+
+}  // namespace
+
 TrainResult train(const TrainOptions& opt_in) {
+  const fs::path run = opt_in.run_dir;
+  std::error_code ec;
+  const bool existed = fs::exists(run);
+  const bool fresh = !existed || fs::is_empty(run, ec);
+  try {
+    return train_in(opt_in);
+  } catch (...) {
+    // A start that failed before any step was saved leaves nothing behind:
+    // the folder would otherwise pin its config on the retry.
+    if (fresh) {
+      bool progress = fs::exists(run / "loss.csv") && csv_epochs(run / "loss.csv") > 0;
+      for (const auto& e : fs::directory_iterator(run / "checkpoints", ec))
+        if (e.path().filename().string().rfind("step-", 0) == 0) progress = true;
+      if (!progress) {
+        spdlog::warn("{}: removed again: the run failed before saving any progress", run.string());
+        if (existed) {  // the user's empty folder stays, empty again
+          for (const auto& e : fs::directory_iterator(run, ec)) fs::remove_all(e.path(), ec);
+        } else {
+          fs::remove_all(run, ec);
+        }
+      }
+    }
+    throw;
+  }
+}
+
+namespace {
+
+TrainResult train_in(const TrainOptions& opt_in) {
   keep_freed_memory();
   const TrainConfig& cfg = opt_in.config;
   const fs::path run = opt_in.run_dir;
@@ -402,15 +360,24 @@ TrainResult train(const TrainOptions& opt_in) {
 
   // The run folder is the unit of resume (STYLE.md 10).
   if (fs::exists(run / "config.toml")) {
-    TrainConfig saved = parse_train_config(read_text(run / "config.toml"), run / "config.toml");
+    TrainConfig saved =
+        parse_train_config(read_text_file(run / "config.toml"), run / "config.toml");
     std::string why = incompatible_reason(saved, cfg);
     if (!why.empty())
       throw SpecError(FileLoc{(run / "config.toml").string()}, "",
                       "cannot resume this run with the given config: " + why);
     result.resumed = fs::exists(last);
   }
+  if (!result.resumed && fs::exists(run / "loss.csv")) {
+    const int64_t rows = csv_epochs(run / "loss.csv");
+    if (rows > 0)
+      throw RuntimeError(last.string() + ": missing, but " + (run / "loss.csv").string() +
+                         " records " + std::to_string(rows) +
+                         " epoch(s): the run's checkpoint is lost; restore it (or use a "
+                         "checkpoints/step-*.pt copy as last.pt) or train into a new run folder");
+  }
   fs::create_directories(ckpt_dir);
-  write_atomic(run / "config.toml", to_toml(cfg));
+  write_text_atomic(run / "config.toml", to_toml(cfg));
   EventLog log(run / "events.log");
 
   const torch::Device device = pick_device(cfg.train.device);
@@ -476,6 +443,16 @@ TrainResult train(const TrainOptions& opt_in) {
         loss_sum += loss_value;
         ++good;
         bad_in_a_row = 0;
+        if (opt_in.save_every > 0 && st.step % opt_in.save_every == 0) {
+          save_checkpoint(last, model, adam, st, cfg);
+          const fs::path kept = ckpt_dir / fmt::format("step-{:08d}.pt", st.step);
+          fs::copy_file(last, kept, fs::copy_options::overwrite_existing);
+          log(spdlog::level::info, "step {}: checkpoint {}", st.step, kept.string());
+        }
+        if (opt_in.stop && opt_in.stop->load()) {
+          result.stopped = true;
+          break;
+        }
         continue;
       }
       // Non-finite: never let it into the weights, the CSV or a checkpoint.
@@ -535,28 +512,20 @@ TrainResult train(const TrainOptions& opt_in) {
     if (improved) fs::copy_file(last, best, fs::copy_options::overwrite_existing);
     ++result.epochs;
   }
-  if (opt_in.stop_at_step >= 0 && st.step >= opt_in.stop_at_step && st.epoch < cfg.train.epochs)
+  if (result.stopped) {
     save_checkpoint(last, model, adam, st, cfg);
+    log(spdlog::level::warn,
+        "stopped on request at epoch {} step {}: {} written; run the same command to resume",
+        st.epoch, st.step, last.string());
+  } else if (opt_in.stop_at_step >= 0 && st.step >= opt_in.stop_at_step &&
+             st.epoch < cfg.train.epochs) {
+    save_checkpoint(last, model, adam, st, cfg);
+  }
   result.steps = st.step;
   result.best_val = st.best;
   return result;
 }
 
-LoadedRun load_run(const fs::path& run_dir, torch::Device device) {
-  LoadedRun r;
-  if (!fs::exists(run_dir / "config.toml"))
-    throw SpecError(FileLoc{run_dir.string()}, "", "not a training run (no config.toml)");
-  r.config = parse_train_config(read_text(run_dir / "config.toml"), run_dir / "config.toml");
-  r.checkpoint = run_dir / "checkpoints" / "best.pt";
-  if (!fs::exists(r.checkpoint)) r.checkpoint = run_dir / "checkpoints" / "last.pt";
-  if (!fs::exists(r.checkpoint))
-    throw SpecError(FileLoc{run_dir.string()}, "", "the run has no checkpoint yet");
-  r.model = Denoiser(r.config.model);
-  r.model->to(device);
-  r.model->set_memory_format(preferred_memory_format(device));
-  load_checkpoint(r.checkpoint, r.model, nullptr, device);
-  r.model->eval();
-  return r;
-}
+}  // namespace
 
 }  // namespace dofarm::trainer

@@ -16,6 +16,7 @@
 
 #include <torch/torch.h>
 
+#include <atomic>
 #include <cstdint>
 #include <filesystem>
 #include <functional>
@@ -27,6 +28,7 @@
 #include "trainer/augment.h"
 #include "trainer/config.h"
 #include "trainer/model.h"
+#include "trainer/run_folder.h"
 
 namespace dofarm::trainer {
 
@@ -127,6 +129,12 @@ struct TrainOptions {
   std::function<torch::Tensor(int64_t step, const torch::Tensor& loss)> loss_hook = {};
   // Stop (after saving) once this many steps are done in total; -1 = never.
   int64_t stop_at_step = -1;
+  // Set asynchronously (a signal handler): the current step finishes, last.pt
+  // is written and train() returns with TrainResult::stopped.
+  const std::atomic<bool>* stop = nullptr;
+  // Every this many steps write last.pt and keep a copy as
+  // checkpoints/step-NNNNNNNN.pt; 0 = only at the end of each epoch.
+  int64_t save_every = 0;
 };
 
 struct TrainResult {
@@ -136,6 +144,7 @@ struct TrainResult {
   int skipped_steps = 0;  // this session
   int rollbacks = 0;      // this session
   bool resumed = false;
+  bool stopped = false;  // by TrainOptions::stop, with last.pt written
 };
 
 // Makes glibc's malloc keep freed blocks up to 32 MiB in the heap instead of
@@ -146,23 +155,14 @@ struct TrainResult {
 void keep_freed_memory();
 
 // Trains (or resumes) the run in options.run_dir. Throws SpecError when the run
-// cannot be resumed with this config, RuntimeError on data or IO failure.
+// cannot be resumed with this config, RuntimeError on data or IO failure (a
+// missing last.pt beside a loss.csv with epochs in it is one). A run folder
+// that this call created is removed again when it fails before writing any
+// progress, so that a corrected retry starts clean.
 TrainResult train(const TrainOptions& options);
 
 // Thesis eq. 4.5 as implemented: a linear warm-up over warmup_steps to lr,
 // then exponential decay by lr_decay per epoch, never below lr_min.
 double learning_rate(const OptimConfig& o, int64_t step, int epoch);
-
-// The device the config asks for: CUDA when `auto` and available.
-torch::Device pick_device(const std::string& device);
-
-// A trained model from a run folder (checkpoints/best.pt, else last.pt), its
-// config, on `device`, in eval mode.
-struct LoadedRun {
-  TrainConfig config;
-  Denoiser model{nullptr};
-  std::filesystem::path checkpoint;
-};
-LoadedRun load_run(const std::filesystem::path& run_dir, torch::Device device);
 
 }  // namespace dofarm::trainer

@@ -38,7 +38,11 @@ TEST(TrainConfig, UnknownKeyIsALocatedError) {
     parse_train_config("[train]\nepochs = 5\n  epoch = 3\n", "t.toml");
     FAIL() << "no error";
   } catch (const SpecError& e) {
-    EXPECT_STREQ(e.what(), "t.toml:3:11: \"train.epoch\": unknown key");
+    const std::string what = e.what();
+    EXPECT_EQ(what.rfind("t.toml:3:11: \"train.epoch\": unknown key; [train] takes ", 0), 0u)
+        << what;
+    EXPECT_NE(what.find("train.epochs"), std::string::npos) << what;
+    EXPECT_NE(what.find("train.steps_per_epoch"), std::string::npos) << what;
   }
 }
 
@@ -49,13 +53,48 @@ TEST(TrainConfig, BadValueIsALocatedError) {
   } catch (const SpecError& e) {
     EXPECT_EQ(e.loc().line, 2);
     EXPECT_EQ(e.loc().column, 10);
-    EXPECT_EQ(e.key(), "epochs");
+    EXPECT_EQ(e.key(), "train.epochs");
     EXPECT_NE(std::string(e.what()).find("got -1"), std::string::npos) << e.what();
   }
   EXPECT_THROW(parse_train_config("", "t.toml", {"train.epochs=zero"}), SpecError);
   EXPECT_THROW(parse_train_config("", "t.toml", {"train.nothing=1"}), SpecError);
   EXPECT_THROW(parse_train_config("", "t.toml", {"data.crop=48"}), SpecError);
   EXPECT_THROW(parse_train_config("[train\n", "t.toml"), SpecError);
+}
+
+// Errors from --set name the dotted key, as errors from the file do.
+TEST(TrainConfig, OverrideErrorsNameTheDottedKey) {
+  try {
+    parse_train_config("", "t.toml", {"train.lr=abc"});
+    FAIL() << "no error";
+  } catch (const SpecError& e) {
+    EXPECT_EQ(e.key(), "train.lr") << e.what();
+  }
+  try {
+    parse_train_config("", "t.toml", {"data.crop=48"});
+    FAIL() << "no error";
+  } catch (const SpecError& e) {
+    EXPECT_EQ(e.key(), "data.crop") << e.what();
+  }
+}
+
+// Floats are written as the user gave them, not widened to double digits.
+TEST(TrainConfig, FloatsAreWrittenAsGiven) {
+  TrainConfig c = parse_train_config("", "t.toml", {"loss.l1=0.8", "train.lr=3e-4"});
+  const std::string text = to_toml(c);
+  EXPECT_NE(text.find("l1 = 0.8\n"), std::string::npos) << text;
+  EXPECT_EQ(text.find("0.800000"), std::string::npos) << text;
+  EXPECT_EQ(parse_train_config(text, "c.toml").loss.l1, 0.8f);
+}
+
+// A resumed run starts from its stored config: only the named keys change.
+TEST(TrainConfig, OverridesApplyOverABaseConfig) {
+  TrainConfig saved = parse_train_config("", "t.toml", {"train.epochs=3", "train.warmup_steps=2"});
+  TrainConfig now = load_train_config("", {"train.epochs=5"}, &saved);
+  EXPECT_EQ(now.train.epochs, 5);
+  EXPECT_EQ(now.train.warmup_steps, 2);  // kept, not the default 500
+  EXPECT_EQ(config_changes(saved, now), (std::vector<std::string>{"train.epochs: 3 -> 5"}));
+  EXPECT_TRUE(config_changes(saved, saved).empty());
 }
 
 TEST(TrainConfig, RoundTripsThroughToml) {

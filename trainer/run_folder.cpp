@@ -1,0 +1,210 @@
+#include "trainer/run_folder.h"
+
+#include <fcntl.h>
+#include <spdlog/spdlog.h>
+#include <unistd.h>
+
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <sstream>
+
+#include "common/content_hash.h"
+#include "common/error.h"
+
+namespace dofarm::trainer {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+constexpr const char* kMagic = "dofarm-checkpoint";
+constexpr int kVersion = 1;
+// A checkpoint of the thesis model with Adam state is about 10 MB; this
+// bounds what a damaged size field can make the loader allocate.
+constexpr uint64_t kMaxCheckpointBytes = uint64_t(4) << 30;
+
+bool all_finite(const torch::nn::Module& m) {
+  for (const auto& p : m.parameters())
+    if (!torch::isfinite(p).all().item<bool>()) return false;
+  return true;
+}
+
+void fsync_dir(const fs::path& dir) {
+  const int fd = ::open(dir.empty() ? "." : dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (fd < 0) return;
+  ::fsync(fd);
+  ::close(fd);
+}
+
+// `bytes` to `path` atomically: a fresh temporary beside it, fsynced, renamed.
+void replace_file(const fs::path& path, std::string_view bytes) {
+  fs::path tmp = path;
+  tmp += ".tmp";
+  std::error_code ec;
+  fs::remove(tmp, ec);  // left by a crash mid-write
+  write_new_file(tmp, bytes);
+  fs::rename(tmp, path);
+  fsync_dir(path.parent_path());
+}
+
+[[noreturn]] void damaged(const fs::path& path, const std::string& why) {
+  throw RuntimeError(path.string() + ": damaged checkpoint: " + why +
+                     "; nothing was loaded (use another checkpoint, e.g. --checkpoint last or "
+                     "a checkpoints/step-*.pt file)");
+}
+
+}  // namespace
+
+std::string read_text_file(const fs::path& p) {
+  std::ifstream in(p);
+  if (!in) throw RuntimeError(p.string() + ": cannot read");
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+void write_text_atomic(const fs::path& p, const std::string& text) { replace_file(p, text); }
+
+void save_checkpoint(const fs::path& path, Denoiser& model, torch::optim::Adam& opt,
+                     const RunState& st, const TrainConfig& cfg) {
+  // No NaN/Inf ever reaches a checkpoint: a model that diverged is not saved.
+  if (!all_finite(*model)) throw RuntimeError("refusing to checkpoint non-finite weights");
+  torch::serialize::OutputArchive ar, m, o;
+  model->save(m);
+  opt.save(o);
+  ar.write("model", m);
+  ar.write("optimizer", o);
+  ar.write("state", torch::tensor({st.epoch, st.step, st.sample_index}, torch::kInt64));
+  ar.write("state_f", torch::tensor({st.lr_scale, st.best}, torch::kFloat64));
+  ar.write("config", c10::IValue(to_toml(cfg)));
+  std::string payload;
+  ar.save_to([&payload](const void* data, size_t n) {
+    payload.append(static_cast<const char*>(data), n);
+    return n;
+  });
+  std::string file = fmt::format("{} {} {} {}\n", kMagic, kVersion, content_hash(payload),
+                                 payload.size());
+  file += payload;
+  replace_file(path, file);
+}
+
+RunState load_checkpoint(const fs::path& path, Denoiser& model, torch::optim::Adam* opt,
+                         torch::Device device) {
+  std::string file;
+  try {
+    file = read_regular_file(path, kMaxCheckpointBytes);
+  } catch (const RuntimeError& e) {
+    throw RuntimeError(std::string(e.what()) + " (checkpoint)");
+  }
+  // Header: magic, version, hash, size; then exactly `size` payload bytes.
+  const size_t eol = file.find('\n');
+  if (eol == std::string::npos || eol > 200 || file.compare(0, std::strlen(kMagic), kMagic) != 0)
+    damaged(path, "not a dofarm checkpoint (no \"dofarm-checkpoint\" header)");
+  std::istringstream header(file.substr(0, eol));
+  std::string magic, hash;
+  int version = 0;
+  uint64_t size = 0;
+  header >> magic >> version >> hash >> size;
+  if (!header || magic != kMagic) damaged(path, "unreadable header");
+  if (version != kVersion)
+    damaged(path, "format version " + std::to_string(version) + " (this build reads " +
+                      std::to_string(kVersion) + ")");
+  const std::string_view payload = std::string_view(file).substr(eol + 1);
+  if (payload.size() != size)
+    damaged(path, fmt::format("{} payload bytes where the header records {} (truncated?)",
+                              payload.size(), size));
+  const std::string actual = content_hash(payload);
+  if (actual != hash)
+    damaged(path, "content hash " + actual + " does not match the recorded " + hash +
+                      " (the file changed after it was written)");
+
+  torch::serialize::InputArchive ar, m, o;
+  torch::Tensor s, f;
+  try {
+    ar.load_from(payload.data(), payload.size(), device);
+    ar.read("model", m);
+  } catch (const c10::Error& e) {
+    damaged(path, std::string("cannot read the archive: ") + e.what_without_backtrace());
+  }
+  try {
+    model->load(m);
+  } catch (const c10::Error& e) {
+    // The checksum held, so the file is as written: it is another model.
+    throw RuntimeError(path.string() + ": the checkpoint's weights do not fit the run's model "
+                       "(model.* keys differ from the run that wrote it): " +
+                       e.what_without_backtrace());
+  }
+  try {
+    if (opt) {
+      ar.read("optimizer", o);
+      opt->load(o);
+    }
+    ar.read("state", s);
+    ar.read("state_f", f);
+  } catch (const c10::Error& e) {
+    damaged(path, std::string("cannot read the archive: ") + e.what_without_backtrace());
+  }
+  // load() adopts the stored tensors' strides: back to the model's format.
+  model->set_memory_format(model->memory_format());
+  if (!all_finite(*model)) damaged(path, "non-finite weights");
+  if (opt) {
+    for (const auto& group : opt->state())
+      for (const auto& t : {static_cast<torch::optim::AdamParamState&>(*group.second).exp_avg(),
+                            static_cast<torch::optim::AdamParamState&>(*group.second).exp_avg_sq()})
+        if (t.defined() && !torch::isfinite(t).all().item<bool>())
+          damaged(path, "non-finite optimizer state");
+  }
+  s = s.to(torch::kCPU);
+  f = f.to(torch::kCPU);
+  if (s.numel() != 3 || f.numel() != 2) damaged(path, "state record of the wrong size");
+  RunState st;
+  st.epoch = s[0].item<int64_t>();
+  st.step = s[1].item<int64_t>();
+  st.sample_index = s[2].item<int64_t>();
+  st.lr_scale = f[0].item<double>();
+  st.best = f[1].item<double>();
+  if (st.epoch < 0 || st.step < 0 || st.sample_index < 0 || !(st.lr_scale > 0) ||
+      !std::isfinite(st.lr_scale) || std::isnan(st.best))
+    damaged(path, "state out of range");
+  return st;
+}
+
+torch::Device pick_device(const std::string& device) {
+  if (device == "cpu") return torch::kCPU;
+  if (torch::cuda::is_available()) return torch::kCUDA;
+  if (device == "cuda") throw RuntimeError("train.device is \"cuda\" but no CUDA device is usable");
+  return torch::kCPU;
+}
+
+fs::path checkpoint_path(const fs::path& run_dir, const std::string& which) {
+  const fs::path dir = run_dir / "checkpoints";
+  if (which == "best") {
+    if (fs::exists(dir / "best.pt")) return dir / "best.pt";
+    return dir / "last.pt";
+  }
+  if (which == "last") return dir / "last.pt";
+  if (which.empty()) throw SpecError(FileLoc{"--checkpoint"}, "", "empty checkpoint name");
+  return fs::path(which);
+}
+
+LoadedRun load_run(const fs::path& run_dir, torch::Device device, const std::string& which) {
+  LoadedRun r;
+  if (!fs::exists(run_dir / "config.toml"))
+    throw SpecError(FileLoc{run_dir.string()}, "", "not a training run (no config.toml)");
+  r.config = parse_train_config(read_text_file(run_dir / "config.toml"), run_dir / "config.toml");
+  r.checkpoint = checkpoint_path(run_dir, which);
+  if (!fs::exists(r.checkpoint))
+    throw SpecError(FileLoc{r.checkpoint.string()}, "",
+                    which == "best" || which == "last" ? "the run has no checkpoint yet"
+                                                       : "no such checkpoint file");
+  r.model = Denoiser(r.config.model);
+  r.model->to(device);
+  r.model->set_memory_format(preferred_memory_format(device));
+  r.state = load_checkpoint(r.checkpoint, r.model, nullptr, device);
+  r.model->eval();
+  return r;
+}
+
+}  // namespace dofarm::trainer

@@ -1,0 +1,70 @@
+// A training run's folder as files: its checkpoints (written atomically and
+// verified on every load), the choice of checkpoint for eval / denoise /
+// export, and loading a trained model without the training loop.
+//
+// Checkpoint file (docs/trainer.md, "Checkpoints"):
+//   line 1   "dofarm-checkpoint 1 <BLAKE2b-128 of the payload, hex> <payload bytes>\n"
+//   payload  a libtorch archive (torch::serialize::OutputArchive) holding
+//            model, optimizer, state (epoch, step, sample index),
+//            state_f (LR scale, best loss) and the run's config TOML.
+// A file whose payload does not match its header is refused with an error
+// naming it; nothing is ever trained or denoised from a damaged checkpoint.
+#pragma once
+
+#include <torch/torch.h>
+
+#include <cstdint>
+#include <filesystem>
+#include <string>
+
+#include "trainer/config.h"
+#include "trainer/model.h"
+
+namespace dofarm::trainer {
+
+// Everything that, with the config and the data, determines the rest of a run.
+struct RunState {
+  int64_t epoch = 0;         // next epoch to run
+  int64_t step = 0;          // optimizer steps taken
+  int64_t sample_index = 0;  // next training sample of the stream
+  double lr_scale = 1.0;     // lowered by rollbacks
+  double best = INFINITY;    // lowest validation loss (training loss without validation)
+};
+
+// Writes `path` through a temporary file in the same folder, fsynced, then
+// renamed over the old one (a crash leaves the previous checkpoint intact).
+// Throws RuntimeError for non-finite weights: no NaN/Inf reaches a checkpoint.
+void save_checkpoint(const std::filesystem::path& path, Denoiser& model,
+                     torch::optim::Adam& opt, const RunState& st, const TrainConfig& cfg);
+
+// Verifies the file's checksum, then loads the model (and the optimizer when
+// `opt` is given). Throws RuntimeError naming the file when it is missing,
+// damaged, not a checkpoint, or holds non-finite values.
+RunState load_checkpoint(const std::filesystem::path& path, Denoiser& model,
+                         torch::optim::Adam* opt, torch::Device device);
+
+// Whole small text files; write_text_atomic as save_checkpoint.
+std::string read_text_file(const std::filesystem::path& path);
+void write_text_atomic(const std::filesystem::path& path, const std::string& text);
+
+// The device the config asks for: CUDA when `auto` and available.
+torch::Device pick_device(const std::string& device);
+
+// `which`: "best" (the lowest validation loss; the default), "last", or a
+// path to a checkpoint file. "best" falls back to "last" while a run has
+// no best checkpoint yet (it is written after the first epoch).
+std::filesystem::path checkpoint_path(const std::filesystem::path& run_dir,
+                                      const std::string& which);
+
+// A trained model from a run folder, its config, on `device`, in eval mode,
+// with the checkpoint it came from and that checkpoint's state.
+struct LoadedRun {
+  TrainConfig config;
+  Denoiser model{nullptr};
+  std::filesystem::path checkpoint;
+  RunState state;
+};
+LoadedRun load_run(const std::filesystem::path& run_dir, torch::Device device,
+                   const std::string& which = "best");
+
+}  // namespace dofarm::trainer
