@@ -8,6 +8,7 @@
 #include <fstream>
 #include <nlohmann/json.hpp>
 
+#include "common/checksum.h"
 #include "common/error.h"
 #include "common/manifest.h"
 
@@ -44,28 +45,63 @@ constexpr uint64_t kValidationStream = 0x76616c6964ull;  // separates val seeds 
 
 }  // namespace
 
-ShardSplit assign_split(const std::string& file, int frames, const DataConfig& data) {
+ShardSplit assign_split(const std::string& file, const std::string& key, int frames,
+                        const DataConfig& data) {
   ShardSplit s;
   s.file = file;
+  s.key = key;
   s.frames = frames;
   s.train_end = frames;
   if (data.val_fraction <= 0) return s;
+  // A uniform number in [0, 1) from the content, the same on every machine.
+  const double u = double(hash_name(key) >> 11) / double(uint64_t(1) << 53);
   if (data.split == SplitMode::kShard) {
-    double u = double(hash_name(file) >> 11) / double(uint64_t(1) << 53);
     if (u < data.val_fraction) {
       s.train_end = 0;
       s.val_end = frames;
     }
     return s;
   }
-  // By frames: the last part of the shard, at least one sequence long, so a
-  // validation sequence never shares a frame with a training one.
-  int n_val = std::max(data.sequence, int(std::lround(frames * data.val_fraction)));
-  if (frames - n_val < data.sequence) return s;  // too short to split: train only
-  s.train_end = frames - n_val;
+  // By whole sequences at the end of the shard, so a validation sequence
+  // never shares a frame with a training one; stochastic rounding keeps the
+  // expected share exactly val_fraction even for shards of one or two
+  // sequences.
+  const int sequences = frames / data.sequence;
+  const double want = sequences * double(data.val_fraction);
+  const int n = std::min(sequences, int(std::floor(want)) + (u < want - std::floor(want) ? 1 : 0));
+  if (n == 0) return s;
+  s.train_end = frames - n * data.sequence;
   s.val_begin = s.train_end;
   s.val_end = frames;
   return s;
+}
+
+std::string shard_content_key(const ShardInfo& info) {
+  return checksum_to_string(info.data_checksum);
+}
+
+std::vector<ShardSplit> load_split_file(const fs::path& run_dir) {
+  std::vector<ShardSplit> out;
+  std::ifstream in(run_dir / "split.json");
+  if (!in) return out;
+  try {
+    json j = json::parse(in);
+    const bool keyed = j.value("version", 1) >= 2;
+    for (const auto& [name, v] : j.at("shards").items()) {
+      ShardSplit s;
+      s.key = keyed ? name : "";
+      s.file = keyed ? v.at("file").get<std::string>() : name;
+      s.frames = v.at("frames");
+      s.train_begin = v.at("train")[0];
+      s.train_end = v.at("train")[1];
+      s.val_begin = v.at("val")[0];
+      s.val_end = v.at("val")[1];
+      out.push_back(s);
+    }
+  } catch (const json::exception& e) {
+    throw RuntimeError((run_dir / "split.json").string() + ": malformed: " + e.what());
+  }
+  return out;
 }
 
 std::vector<std::string> list_shards(const fs::path& dir) {
@@ -97,25 +133,27 @@ SequenceStream::SequenceStream(fs::path data_dir, fs::path run_dir, DataConfig d
       next_(first_index),
       claimed_(first_index) {
   if (!fs::is_directory(data_dir_)) throw RuntimeError(data_dir_.string() + ": no such folder");
-  std::ifstream in(run_dir_ / "split.json");
-  if (in) {
-    try {
-      json j = json::parse(in);
-      for (const auto& [file, v] : j.at("shards").items()) {
-        ShardSplit s;
-        s.file = file;
-        s.frames = v.at("frames");
-        s.train_begin = v.at("train")[0];
-        s.train_end = v.at("train")[1];
-        s.val_begin = v.at("val")[0];
-        s.val_end = v.at("val")[1];
-        known_splits_[file] = s;
-      }
-    } catch (const json::exception& e) {
-      throw RuntimeError((run_dir_ / "split.json").string() + ": malformed: " + e.what());
+  for (ShardSplit& sp : load_split_file(run_dir_)) {
+    if (sp.key.empty()) {
+      legacy_splits_[sp.file] = sp;
+    } else {
+      known_splits_[sp.key] = sp;
     }
   }
   rescan();
+  {
+    // What the split came to: whole sequences on each side.
+    int train_seq = 0, val_seq = 0;
+    for (const auto& sh : shards_) {
+      train_seq += (sh->split.train_end - sh->split.train_begin) / data_.sequence;
+      val_seq += (sh->split.val_end - sh->split.val_begin) / data_.sequence;
+    }
+    spdlog::info("split: {} of {} whole {}-frame sequences are validation ({:.1f}%; "
+                 "data.val_fraction {})",
+                 val_seq, train_seq + val_seq, data_.sequence,
+                 train_seq + val_seq ? 100.0 * val_seq / (train_seq + val_seq) : 0.0,
+                 data_.val_fraction);
+  }
   bool any = false;
   for (const auto& s : shards_) any |= s->split.train_end - s->split.train_begin >= data_.sequence;
   if (!any) {
@@ -187,11 +225,21 @@ void SequenceStream::rescan() {
       continue;
     }
     std::lock_guard lock(mu_);
-    auto known = known_splits_.find(f);
-    shard->split = known != known_splits_.end()
-                       ? known->second
-                       : assign_split(f, shard->reader->frame_count(), data_);
-    known_splits_[f] = shard->split;
+    const std::string key = shard_content_key(shard->reader->info());
+    const int frames = shard->reader->frame_count();
+    auto known = known_splits_.find(key);
+    auto legacy = legacy_splits_.find(f);
+    if (known != known_splits_.end()) {
+      shard->split = known->second;
+      shard->split.file = f;  // the same content under another name
+    } else if (legacy != legacy_splits_.end() && legacy->second.frames == frames) {
+      shard->split = legacy->second;  // a run from before content keys
+      shard->split.key = key;
+      legacy_splits_.erase(legacy);
+    } else {
+      shard->split = assign_split(f, key, frames, data_);
+    }
+    known_splits_[key] = shard->split;
     added.push_back(shard);
   }
   if (added.empty()) return;
@@ -209,12 +257,14 @@ void SequenceStream::save_splits() const {
   json j;
   {
     std::lock_guard lock(mu_);
+    j["version"] = 2;
     j["mode"] = data_.split == SplitMode::kShard ? "shard" : "frames";
     j["shards"] = json::object();
-    for (const auto& [file, s] : known_splits_)
-      j["shards"][file] = {{"frames", s.frames},
-                           {"train", {s.train_begin, s.train_end}},
-                           {"val", {s.val_begin, s.val_end}}};
+    for (const auto& [key, s] : known_splits_)
+      j["shards"][key] = {{"file", s.file},
+                          {"frames", s.frames},
+                          {"train", {s.train_begin, s.train_end}},
+                          {"val", {s.val_begin, s.val_end}}};
   }
   fs::create_directories(run_dir_);
   fs::path tmp = run_dir_ / "split.json.tmp", dst = run_dir_ / "split.json";

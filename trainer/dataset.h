@@ -13,10 +13,12 @@
 // fails to open or to read is logged with the reason and dropped; the stream
 // fails only when no usable shard is left.
 //
-// Train/validation split: by frame ranges within each shard, or by whole
-// shards (DataConfig::split). The assignment of every shard is written to
-// RUN/split.json the first time the shard is seen and reused on resume, so the
-// two sets never overlap, even while new shards arrive.
+// Train/validation split: by whole sequences at the end of each shard, or by
+// whole shards (DataConfig::split), decided by the shard's content (its data
+// checksum), never its file name. The assignment of every shard is written to
+// RUN/split.json (keyed by that checksum) the first time the shard is seen and
+// reused on resume, so the two sets never overlap, even while new shards
+// arrive, and a new shard that reuses an old file name is a new shard.
 #pragma once
 
 #include <condition_variable>
@@ -38,7 +40,8 @@ namespace dofarm::trainer {
 
 // Frame ranges [begin, end) of one shard; an empty range has begin == end.
 struct ShardSplit {
-  std::string file;  // name inside the data folder
+  std::string file;  // name inside the data folder (for people; not the key)
+  std::string key;   // the shard's data checksum ("xxh64:..."): what identifies it
   int frames = 0;
   int train_begin = 0, train_end = 0;
   int val_begin = 0, val_end = 0;
@@ -46,7 +49,19 @@ struct ShardSplit {
 };
 
 // The split of a shard seen for the first time (pure: same input, same split).
-ShardSplit assign_split(const std::string& file, int frames, const DataConfig& data);
+// "frames": of the K = frames / sequence whole sequences, floor(K f) + b are
+// validation (f = val_fraction), where b is 1 with probability frac(K f)
+// drawn from the content key, so the expected share of validation sequences
+// is exactly f; they are the last n * sequence frames. "shard": the whole
+// shard is validation with probability f, drawn from the key.
+ShardSplit assign_split(const std::string& file, const std::string& key, int frames,
+                        const DataConfig& data);
+
+// RUN/split.json as written by SequenceStream, keyed by content key; empty
+// when there is none. Entries of the first format (keyed by file name) are
+// returned with an empty key and their file name.
+std::vector<ShardSplit> load_split_file(const std::filesystem::path& run_dir);
+std::string shard_content_key(const ShardInfo& info);
 
 // Shard file names of a data folder (manifest first), sorted.
 std::vector<std::string> list_shards(const std::filesystem::path& data_dir);
@@ -106,7 +121,8 @@ class SequenceStream {
   mutable std::mutex mu_;
   std::condition_variable cv_;
   std::vector<std::shared_ptr<const Shard>> shards_;  // sorted by file
-  std::map<std::string, ShardSplit> known_splits_;    // from split.json
+  std::map<std::string, ShardSplit> known_splits_;    // by content key, from split.json
+  std::map<std::string, ShardSplit> legacy_splits_;   // by file, split.json format 1
   std::map<std::string, std::string> problems_;       // file -> reason
   std::map<uint64_t, Sample> ready_;
   uint64_t next_ = 0;     // next index handed out

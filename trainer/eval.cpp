@@ -162,14 +162,9 @@ EvalSummary evaluate(const EvalOptions& o) {
 
   // Validation frames: the run's own split (split.json), so eval never
   // scores frames the model was trained on.
-  std::map<std::string, ShardSplit> splits;
-  std::ifstream sj(o.run_dir / "split.json");
-  if (sj) {
-    json j = json::parse(sj);
-    for (const auto& [file, v] : j.at("shards").items())
-      splits[file] = ShardSplit{file,           v.at("frames"), v.at("train")[0], v.at("train")[1],
-                                v.at("val")[0], v.at("val")[1]};
-  }
+  std::map<std::string, ShardSplit> splits, legacy;  // by content key / by file
+  for (const ShardSplit& sp : load_split_file(o.run_dir))
+    (sp.key.empty() ? legacy[sp.file] : splits[sp.key]) = sp;
   Accumulator all;
   std::map<std::string, Accumulator> by_scene;  // thesis table 5.1 has a row per scene
   json frames = json::array();
@@ -177,8 +172,10 @@ EvalSummary evaluate(const EvalOptions& o) {
   for (const std::string& file : list_shards(o.data_dir)) {
     ShardReader reader(o.data_dir / file);
     Accumulator& scene = by_scene[reader.info().scene_id];
-    ShardSplit sp =
-        splits.count(file) ? splits[file] : assign_split(file, reader.frame_count(), cfg.data);
+    const std::string key = shard_content_key(reader.info());
+    ShardSplit sp = splits.count(key)    ? splits[key]
+                    : legacy.count(file) ? legacy[file]
+                                         : assign_split(file, key, reader.frame_count(), cfg.data);
     den.reset_sequence();
     for (int f = sp.val_begin; f < sp.val_end; ++f) {
       if (o.max_frames > 0 && done >= o.max_frames) break;

@@ -28,7 +28,7 @@ DataConfig small_data() {
 TEST(Split, TrainAndValidationNeverOverlap) {
   DataConfig d;
   for (int frames : {7, 13, 14, 16, 40, 100}) {
-    ShardSplit s = assign_split("shard-00001.h5", frames, d);
+    ShardSplit s = assign_split("shard-00001.h5", "xxh64:000000000000000" + std::to_string(frames % 10), frames, d);
     EXPECT_LE(s.train_end, s.val_begin == s.val_end ? frames : s.val_begin) << frames;
     EXPECT_EQ(s.train_begin, 0);
     if (s.val_end > s.val_begin) {
@@ -40,14 +40,64 @@ TEST(Split, TrainAndValidationNeverOverlap) {
   d.val_fraction = 0.5f;
   int val = 0;
   for (int i = 0; i < 200; ++i) {
-    ShardSplit s = assign_split("shard-" + std::to_string(i) + ".h5", 16, d);
+    ShardSplit s = assign_split("shard.h5", "key-" + std::to_string(i), 16, d);
     bool is_val = s.val_end > 0;
     EXPECT_EQ(is_val ? s.train_end : s.val_end, 0);  // whole shard one side
     val += is_val;
-    EXPECT_EQ(s, assign_split("shard-" + std::to_string(i) + ".h5", 16, d));
+    EXPECT_EQ(s, assign_split("shard.h5", "key-" + std::to_string(i), 16, d));
   }
   EXPECT_GT(val, 60);
   EXPECT_LT(val, 140);
+}
+
+// val_fraction is the share of whole sequences, also for shards that hold
+// only two (16 frames of 7: the old rule gave 7 of 16 frames, 44%).
+TEST(Split, ValFractionIsTheShareOfWholeSequences) {
+  DataConfig d;  // sequence 7, val_fraction 0.1
+  for (int frames : {7, 16, 50, 100}) {
+    int val = 0, total = 0;
+    for (int i = 0; i < 4000; ++i) {
+      ShardSplit s = assign_split("a.h5", "xxh64:" + std::to_string(i * 7919 + frames), frames, d);
+      EXPECT_EQ((s.val_end - s.val_begin) % d.sequence, 0);
+      EXPECT_EQ(s.val_end == s.val_begin ? frames : s.val_end, frames);
+      EXPECT_EQ(s.train_end, s.val_end == s.val_begin ? frames : s.val_begin);
+      val += (s.val_end - s.val_begin) / d.sequence;
+      total += frames / d.sequence;
+    }
+    EXPECT_NEAR(double(val) / total, 0.1, 0.015) << frames;
+  }
+  // A whole number of sequences is exact: 10 sequences, 1 for validation.
+  ShardSplit s = assign_split("a.h5", "xxh64:1", 70, d);
+  EXPECT_EQ(s.val_end - s.val_begin, 7);
+  // The file name plays no part.
+  EXPECT_EQ(assign_split("a.h5", "xxh64:5", 16, d).val_begin,
+            assign_split("b.h5", "xxh64:5", 16, d).val_begin);
+}
+
+// split.json is keyed by content: a new shard under an old name (more
+// frames) is a new shard, not a mismatch with the old one's ranges.
+TEST(SequenceStream, SplitIsKeyedByShardContent) {
+  fs::path data = fresh_dir("ds_key_data"), run = fresh_dir("ds_key_run");
+  DataConfig d = small_data();
+  d.val_fraction = 0.25f;
+  testing::write_synthetic_shard(data / "shard-00000.h5", 8, 48, 48, 2, 1);
+  std::string first_key;
+  {
+    SequenceStream s(data, run, d, true, 1);
+    ASSERT_EQ(s.splits().size(), 1u);
+    first_key = s.splits()[0].key;
+    EXPECT_EQ(first_key.rfind("xxh64:", 0), 0u);
+  }
+  fs::remove(data / "shard-00000.h5");
+  testing::write_synthetic_shard(data / "shard-00000.h5", 16, 48, 48, 2, 2);
+  SequenceStream s(data, run, d, true, 1);
+  ASSERT_EQ(s.splits().size(), 1u);
+  EXPECT_NE(s.splits()[0].key, first_key);
+  EXPECT_EQ(s.splits()[0].frames, 16);
+  EXPECT_EQ(s.splits()[0].val_end - s.splits()[0].val_begin, 4);  // 4 sequences, 1 validation
+  EXPECT_FALSE(s.next().input.empty());
+  // Both shards' assignments stay on record.
+  EXPECT_EQ(load_split_file(run).size(), 2u);
 }
 
 TEST(SequenceStream, HoldsAtMostQueueSamplesWhateverTheData) {

@@ -36,7 +36,8 @@ TrainConfig small_config(int epochs, int steps) {
       "", {"model.channels=[8, 8, 8, 8, 8]", "data.crop=32", "data.sequence=3", "data.queue=4",
            "data.readers=1", "train.epochs=" + std::to_string(epochs),
            "train.steps_per_epoch=" + std::to_string(steps), "train.batch=2",
-           "train.warmup_steps=2", "train.val_sequences=2", "train.device=cpu"});
+           "train.warmup_steps=2", "train.val_sequences=2", "train.device=cpu",
+           "data.val_fraction=0.25"});
 }
 
 fs::path data_dir() {

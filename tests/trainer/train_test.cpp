@@ -232,6 +232,7 @@ fs::path trained_run() {
     fs::path r = fresh_dir("run_eval");
     TrainOptions o{shared_data(), r, tiny_config()};
     o.config.data.sequence = 3;  // 12 frames: 9 to train, 3 to validate
+    o.config.data.val_fraction = 0.25f;
     o.config.train.epochs = 6;
     o.config.train.steps_per_epoch = 5;
     train(o);
