@@ -488,13 +488,14 @@ TEST(GgxAlbedoTable, AveragesMatchAnIndependentRule) {
       b += wgt * e.b;
       ak += wgt * e.a * e.k();
     }
-    const ggx::AlbedoAverages avg = ggx::albedo_averages(table, row);
+    const ggx::AlbedoTable::Averages avg = ggx::albedo_averages(table, row);
     EXPECT_NEAR(avg.a, a, 1e-4) << "row " << i;
     EXPECT_NEAR(avg.b, b, 1e-4) << "row " << i;
     EXPECT_NEAR(avg.ak, ak, 1e-4) << "row " << i;
   }
   // The smooth limit in closed form: avg(B) = 2 ∫ (1 - mu)^5 mu dmu = 1/21.
-  const ggx::AlbedoAverages smooth = ggx::albedo_averages(table, ggx::albedo_row(table, 0.0f));
+  const ggx::AlbedoTable::Averages smooth =
+      ggx::albedo_averages(table, ggx::albedo_row(table, 0.0f));
   EXPECT_NEAR(smooth.b, 1.0 / 21.0, 2e-4);
   EXPECT_NEAR(smooth.a + smooth.b, 1.0, 1e-4);
   EXPECT_NEAR(smooth.ak, 0.0, 1e-6);

@@ -33,23 +33,25 @@ Bsdf::Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, f
   alpha_ = ggx::alpha_from_roughness(roughness);
   delta_specular_ = roughness * roughness < ggx::kDeltaAlpha;
   has_specular_ = metal_weight_ > 0 || dielectric_weight_ > 0;
+  // The base's normalisation; a mirror's albedo F(mu) has the closed-form
+  // average f0 + (1 - f0) / 21.
+  diffuse_norm_ = kInvPi;
+  if (has_specular_ && delta_specular_ && dielectric_weight_ > 0) {
+    const float f0 = dielectric_f0_;
+    diffuse_norm_ = kInvPi / std::max(1.0f - (f0 + (1.0f - f0) * kSchlickWeightAverage), 1e-6f);
+  }
+  if (!has_specular_ || delta_specular_) return;  // no table needed
   const ggx::AlbedoTable& table = ggx::albedo_table();
-  row_ = ggx::albedo_row(table, delta_specular_ ? 0.0f : alpha_);
+  row_ = ggx::albedo_row(table, alpha_);
 
   // The base's normalisation 1 / (pi (1 - E_s_avg)) (Kulla & Conty 2017), with
   // E_s(mu) = (f0 A + B)(1 + f0 k) the dielectric's compensated specular
   // albedo, k = (1 - E) / E; its cosine-weighted average is therefore
   // f0 avg(A) + avg(B) + f0^2 avg(A k) + f0 avg(B k).
-  diffuse_norm_ = kInvPi;
-  if (dielectric_weight_ > 0) {
+  if (diffuse_weight_ > 0 && dielectric_weight_ > 0) {
     const float f0 = dielectric_f0_;
-    float e_avg;
-    if (delta_specular_) {
-      e_avg = f0 + (1.0f - f0) * kSchlickWeightAverage;
-    } else {
-      const ggx::AlbedoAverages avg = ggx::albedo_averages(table, row_);
-      e_avg = f0 * avg.a + avg.b + f0 * f0 * avg.ak + f0 * avg.bk;
-    }
+    const ggx::AlbedoTable::Averages avg = ggx::albedo_averages(table, row_);
+    const float e_avg = f0 * avg.a + avg.b + f0 * f0 * avg.ak + f0 * avg.bk;
     diffuse_norm_ = kInvPi / std::max(1.0f - e_avg, 1e-6f);
   }
 }
@@ -63,9 +65,8 @@ ggx::Albedo Bsdf::specular_albedo(float mu) const {
   return ggx::albedo(row_, mu);
 }
 
-float Bsdf::base_transmission(float mu) const {
+float Bsdf::base_transmission(const ggx::Albedo& e) const {
   if (!(dielectric_weight_ > 0)) return 1.0f;
-  const ggx::Albedo e = specular_albedo(mu);
   const float f0 = dielectric_f0_;
   const float k = delta_specular_ ? 0.0f : e.k();
   return std::max(0.0f, 1.0f - (f0 * e.a + e.b) * (1.0f + f0 * k));
@@ -78,8 +79,9 @@ Bsdf::Outgoing Bsdf::outgoing(Vec3 wo_w) const {
   if (!o.valid) return o;
   const float mu = o.wo.z;
   Vec3 specular_albedo_o(0);
+  ggx::Albedo e;
   if (has_specular_) {
-    const ggx::Albedo e = specular_albedo(mu);
+    e = specular_albedo(mu);
     // Turquin 2019: each part's single-scattering lobe times
     // 1 + F0 (1 - E(mu_o)) / E(mu_o); a mirror loses nothing (k = 0).
     // Schlick's F = F0 + (1 - F0) w is affine in w, and so is the sum of the
@@ -94,7 +96,7 @@ Bsdf::Outgoing Bsdf::outgoing(Vec3 wo_w) const {
     specular_albedo_o = o.fresnel_c0 * e.e() + o.fresnel_c1 * e.b;
   }
   if (diffuse_weight_ > 0) {
-    const float t = base_transmission(mu);
+    const float t = base_transmission(e);
     o.diffuse = diffuse_color_ * (t * diffuse_norm_);
     if (!has_specular_) {
       o.specular_prob = 0.0f;
@@ -124,7 +126,10 @@ Vec3 Bsdf::evaluate_local(const Outgoing& o, Vec3 wi, float* pdf_out) const {
   const float ps = o.specular_prob;
   Vec3 f(0);
   float p = (1.0f - ps) * wi.z * kInvPi;
-  if (diffuse_weight_ > 0) f += o.diffuse * (base_transmission(wi.z) * wi.z);
+  if (diffuse_weight_ > 0) {
+    const float t = dielectric_weight_ > 0 ? base_transmission(specular_albedo(wi.z)) : 1.0f;
+    f += o.diffuse * (t * wi.z);
+  }
   if (has_specular_ && !delta_specular_) {
     // Both directions are above the surface, so wo + wi is never zero.
     const Vec3 sum = wo + wi;

@@ -76,12 +76,13 @@ class Bsdf {
   Vec3 evaluate_local(const Outgoing& o, Vec3 wi, float* pdf) const;
   // Single-scattering albedo terms A, B of the specular lobe at mu.
   ggx::Albedo specular_albedo(float mu) const;
-  // 1 - E_s(mu): what the dielectric's specular layer lets through to the base.
-  float base_transmission(float mu) const;
+  // 1 - E_s(mu) from mu's A and B: what the dielectric's specular layer lets
+  // through to the base (1 without a dielectric interface).
+  float base_transmission(const ggx::Albedo& e) const;
 
   Frame frame_;
   Vec3 ng_;
-  ggx::AlbedoRow row_;
+  ggx::AlbedoRow row_;       // set only for a rough specular lobe
   Vec3 metal_f0_;            // the base colour
   float metal_weight_;       // metallic; 0 for a black metal (no interface)
   float dielectric_f0_;      // from the IOR

@@ -89,10 +89,7 @@ AlbedoTable compute_albedo_table(int n) {
       sak += wgt * e.a * k;
       sbk += wgt * e.b * k;
     }
-    t.avg_a[i] = float(sa);
-    t.avg_b[i] = float(sb);
-    t.avg_ak[i] = float(sak);
-    t.avg_bk[i] = float(sbk);
+    t.average[i] = {float(sa), float(sb), float(sak), float(sbk)};
   }
   return t;
 }
@@ -100,23 +97,6 @@ AlbedoTable compute_albedo_table(int n) {
 const AlbedoTable& albedo_table() {
   static const AlbedoTable table = compute_albedo_table(48);
   return table;
-}
-
-AlbedoRow albedo_row(const AlbedoTable& table, float alpha) {
-  const float x = std::sqrt(std::sqrt(clamp01(alpha))) * float(AlbedoTable::kRoughness - 1);
-  const int i = std::min(int(x), AlbedoTable::kRoughness - 2);
-  AlbedoRow row;
-  row.index = i;
-  row.t = std::clamp(x - float(i), 0.0f, 1.0f);
-  row.lo = table.entry[i];
-  row.hi = table.entry[i + 1];
-  return row;
-}
-
-AlbedoAverages albedo_averages(const AlbedoTable& table, const AlbedoRow& row) {
-  const int i = row.index;
-  auto mix = [&](const float* v) { return v[i] + (v[i + 1] - v[i]) * row.t; };
-  return {mix(table.avg_a), mix(table.avg_b), mix(table.avg_ak), mix(table.avg_bk)};
 }
 
 }  // namespace dofarm::render::ggx

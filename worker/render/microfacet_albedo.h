@@ -35,7 +35,10 @@ struct AlbedoTable {
   // factor without F0), taken over the same piecewise-linear A and B that
   // lookups return, so that the layered diffuse lobe's normalisation matches
   // what evaluation integrates (see bsdf.cpp).
-  float avg_a[kRoughness], avg_b[kRoughness], avg_ak[kRoughness], avg_bk[kRoughness];
+  struct Averages {
+    float a, b, ak, bk;
+  };
+  Averages average[kRoughness];
 };
 
 // Row 0 (alpha -> 0) is the smooth limit: E = 1, A = 1 - (1 - mu)^5,
@@ -49,11 +52,21 @@ AlbedoTable compute_albedo_table(int n);
 // Where one alpha falls on the roughness axis: computed once per BSDF.
 struct AlbedoRow {
   const AlbedoTable::Entry* lo = nullptr;  // row below
-  const AlbedoTable::Entry* hi = nullptr;  // row above (== lo at the last row)
+  const AlbedoTable::Entry* hi = nullptr;  // row above
   float t = 0;                             // weight of `hi`
   int index = 0;                           // of `lo`
 };
-AlbedoRow albedo_row(const AlbedoTable& table, float alpha);
+inline AlbedoRow albedo_row(const AlbedoTable& table, float alpha) {
+  float a = std::clamp(alpha, 0.0f, 1.0f);  // NaN stays NaN: caught below
+  float x = std::sqrt(std::sqrt(a)) * float(AlbedoTable::kRoughness - 1);  // alpha^(1/4)
+  if (!(x >= 0.0f)) x = 0.0f;
+  AlbedoRow row;
+  row.index = std::min(int(x), AlbedoTable::kRoughness - 2);
+  row.t = std::min(x - float(row.index), 1.0f);
+  row.lo = table.entry[row.index];
+  row.hi = table.entry[row.index + 1];
+  return row;
+}
 
 struct Albedo {
   float a = 0, b = 0;
@@ -80,9 +93,12 @@ inline Albedo albedo(const AlbedoRow& row, float mu) {
 }
 
 // The four averages of AlbedoTable at this row, linear in alpha^(1/4).
-struct AlbedoAverages {
-  float a, b, ak, bk;
-};
-AlbedoAverages albedo_averages(const AlbedoTable& table, const AlbedoRow& row);
+inline AlbedoTable::Averages albedo_averages(const AlbedoTable& table, const AlbedoRow& row) {
+  const AlbedoTable::Averages& p = table.average[row.index];
+  const AlbedoTable::Averages& q = table.average[row.index + 1];
+  const float t = row.t;
+  return {p.a + (q.a - p.a) * t, p.b + (q.b - p.b) * t, p.ak + (q.ak - p.ak) * t,
+          p.bk + (q.bk - p.bk) * t};
+}
 
 }  // namespace dofarm::render::ggx
