@@ -1,8 +1,9 @@
-// The full material (Lambert + GGX mixture, worker/render/bsdf.h): sample()
+// The full material (layered base + compensated GGX, worker/render/bsdf.h): sample()
 // draws directions distributed as pdf() says (chi-square, missing mass
-// included), sample().weight agrees with eval() / pdf(), the Fresnel-weighted
-// diffuse lobe is reciprocal, no material reflects more than it receives, and
-// a perfect mirror is a delta lobe in the mirror direction.
+// included), sample().weight agrees with eval() / pdf(), the layered diffuse
+// lobe is reciprocal, a white material reflects exactly what it receives
+// (furnace) at every roughness, metallic and angle, outputs are finite for
+// every input, and a perfect mirror is a delta lobe in the mirror direction.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -52,6 +53,11 @@ const Material kMaterials[] = {
     {"metal_r01", 1.0f, 0.1f, Vec3(0.95f, 0.64f, 0.54f)},
     {"metal_r05", 1.0f, 0.5f, Vec3(0.91f, 0.92f, 0.92f)},
     {"metal_r1", 1.0f, 1.0f, Vec3(0.5f, 0.5f, 0.5f)},
+    // Where the multiple-scattering compensation and the layering matter
+    // most: a coloured rough half-metal, a bright rough plastic whose coat
+    // takes a sizeable share of the lobe choice at grazing angles.
+    {"half_metal_r1", 0.5f, 1.0f, Vec3(0.7f, 0.2f, 0.9f)},
+    {"plastic_r03", 0.0f, 0.3f, Vec3(0.95f, 0.9f, 0.2f)},
     // A smooth coat over a diffuse base: the mirror is a delta lobe, so only
     // the diffuse part has a pdf and every delta sample is missing mass.
     {"plastic_r0", 0.0f, 0.0f, Vec3(0.6f, 0.6f, 0.6f)},
@@ -202,8 +208,8 @@ TEST(Bsdf, SampleWeightEqualsEvalOverPdf) {
   EXPECT_GT(checked, 50000);
 }
 
-// The (1 - F(wo)) (1 - F(wi)) weighting of the diffuse lobe is symmetric, so
-// f = eval / cos(wi) is too. Roughness 0 leaves only the diffuse lobe in eval().
+// The (1 - E_s(wo)) (1 - E_s(wi)) weighting of the diffuse base is symmetric,
+// so f = eval / cos(wi) is too. Roughness 0 leaves only the base in eval().
 TEST(Bsdf, DiffuseLobeIsReciprocal) {
   std::mt19937_64 rng(23);
   std::uniform_real_distribution<float> uni(0.0f, 1.0f);
