@@ -358,9 +358,10 @@ TEST(BsdfFurnace, GreyRoughDielectricIsItsBaseColourPlusTheCoat) {
   EXPECT_LT(average, 0.76);
 }
 
-// Sampling cannot create energy either: the mean of sample().weight is at
-// most 1 for white, over a finer grid of roughness and angles than above.
-TEST(Bsdf, DirectionalAlbedoOfWhiteIsAtMostOne) {
+// The mean of sample().weight for white is 1 (never more, hardly less) over a
+// finer grid of roughness and angles than above, down to 89 degrees, with
+// every weight finite, non-negative and grey.
+TEST(Bsdf, SampledAlbedoOfWhiteIsOneOnAFinerGrid) {
   const int kSamples = 40000;
   std::mt19937_64 rng(29);
   std::uniform_real_distribution<float> uni(0.0f, 0.999999f);
@@ -387,8 +388,8 @@ TEST(Bsdf, DirectionalAlbedoOfWhiteIsAtMostOne) {
         EXPECT_LE(mean, 1.0 + 4.0 * std_error + 2e-3)
             << "metallic " << metallic << " roughness " << roughness << " theta " << angle
             << ": albedo " << mean << " +- " << std_error;
-        // Nor lose much: the compensated model keeps (nearly) everything.
-        EXPECT_GT(mean, 0.98 - 4.0 * std_error)
+        // Nor lose any: the compensated model keeps everything (to the table error).
+        EXPECT_GE(mean, 1.0 - 4.0 * std_error - 2e-3)
             << "metallic " << metallic << " roughness " << roughness << " theta " << angle;
       }
     }
