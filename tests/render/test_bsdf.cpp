@@ -252,11 +252,12 @@ Vec3 incident_mu(float mu, double phi = 0.7) {
 // Directional albedo by quadrature of eval() over the sphere (cells that
 // shrink towards the mirror direction resolve narrow lobes), plus the delta
 // lobe's weight times its probability. Independent of sample().
-Vec3 albedo_by_quadrature(const Bsdf& bsdf, Vec3 wo, float roughness) {
+// `channels` < 3 integrates only the first ones (the rest stay 0).
+Vec3 albedo_by_quadrature(const Bsdf& bsdf, Vec3 wo, float roughness, int channels = 3) {
   const double width = 2.0 * dofarm::render::ggx::alpha_from_roughness(roughness);
   const SphereCells cells{mirror(wo), width, 20, 40};
   Vec3 sum;
-  for (int c = 0; c < 3; ++c)
+  for (int c = 0; c < channels; ++c)
     sum[c] = float(dofarm::test::integrate_sphere(
         [&](Vec3 wi) { return double(bsdf.eval(wo, wi)[c]); }, cells, 1e-6));
   const Bsdf::Outgoing o = bsdf.outgoing(wo);
@@ -325,6 +326,23 @@ TEST(BsdfFurnace, WhiteMaterialReflectsOneAtEveryRoughnessMetallicAndAngle) {
       }
       std::printf("  %4.2f  %4.2f  |%s |%s\n", roughness, metallic, quadrature.c_str(),
                   sampled.c_str());
+    }
+  }
+}
+
+// Any IOR: the coat's F0 runs from 0 (IOR 1: no interface, a pure Lambert
+// base) to 0.67 (IOR 10), which weighs the quadratic terms of E_s,avg.
+TEST(BsdfFurnace, WhiteMaterialReflectsOneForAnyIor) {
+  for (float ior : {1.0f, 1.33f, 2.5f, 10.0f}) {
+    for (float metallic : {0.0f, 0.5f}) {
+      for (float roughness : {0.0f, 0.6f}) {
+        const Bsdf bsdf(kUp, kUp, Vec3(1.0f), metallic, roughness, ior);
+        for (float mu : {1.0f, 0.2f, 0.05f}) {
+          const float q = albedo_by_quadrature(bsdf, incident_mu(mu), roughness, 1).x;
+          EXPECT_NEAR(q, 1.0f, 2e-3f) << "ior " << ior << " metallic " << metallic << " roughness "
+                                      << roughness << " mu " << mu;
+        }
+      }
     }
   }
 }
