@@ -305,13 +305,12 @@ TEST(BsdfFurnace, WhiteMaterialReflectsOneAtEveryRoughnessMetallicAndAngle) {
       std::string quadrature, sampled;
       for (float mu : kFurnaceMu) {
         const Vec3 wo = incident_mu(mu);
-        const Vec3 q = albedo_by_quadrature(bsdf, wo, roughness);
+        // White in, white out (every channel is the same; the sampled test
+        // below checks that): channel 0 stands for all.
+        const Vec3 q = albedo_by_quadrature(bsdf, wo, roughness, 1);
         const MeanWeight s = albedo_by_sampling(bsdf, wo, ++seed);
         const std::string where = "roughness " + std::to_string(roughness) + " metallic " +
                                   std::to_string(metallic) + " mu " + std::to_string(mu);
-        // White in, white out: the channels agree.
-        EXPECT_NEAR(q.y, q.x, 1e-6f) << where;
-        EXPECT_NEAR(q.z, q.x, 1e-6f) << where;
         // The quadrature has no noise: what is left is the table's error
         // (quadrature of its nodes, interpolation), measured at < 6e-4.
         EXPECT_GE(q.x, 0.998f) << where;
