@@ -1,6 +1,6 @@
 // Known answers for the path tracer: the white furnace (diffuse, and every
-// roughness and metallic of the energy-conserving material), and agreement of the three
-// light-sampling strategies.
+// roughness and metallic of the energy-conserving material), and agreement
+// of the three light-sampling strategies.
 #include <gtest/gtest.h>
 
 #include <cmath>
