@@ -19,10 +19,10 @@ inline constexpr float kMinAlpha = 1e-3f;
 float alpha_from_roughness(float roughness);
 bool is_delta(float alpha);
 
-float D(Vec3 h, float alpha);             // normal distribution, h in the upper hemisphere
-float lambda(Vec3 w, float alpha);        // Smith Lambda
-float G1(Vec3 w, float alpha);            // Smith masking, 1 / (1 + Lambda)
-float G2(Vec3 wo, Vec3 wi, float alpha);  // height-correlated masking-shadowing
+float D(Vec3 h, float alpha);               // normal distribution, h in the upper hemisphere
+float lambda(Vec3 w, float alpha);          // Smith Lambda
+float G1(Vec3 w, float alpha);              // Smith masking, 1 / (1 + Lambda)
+float G2(Vec3 wo, Vec3 wi, float alpha);    // height-correlated masking-shadowing
 // Visible normal for direction wo (wo.z > 0), u in [0,1)^2. Heitz 2018.
 Vec3 sample_vndf(Vec3 wo, float alpha, Vec2 u);
 // pdf of sample_vndf over half-vectors: G1(wo) max(0, wo.h) D(h) / wo.z.

@@ -4,9 +4,9 @@
 
 #include <atomic>
 #include <filesystem>
+#include <stdexcept>
 #include <map>
 #include <optional>
-#include <stdexcept>
 #include <string>
 
 #include "common/image.h"
