@@ -1,18 +1,21 @@
-// The full material (Lambert + GGX mixture, worker/render/bsdf.h): sample()
+// The full material (layered base + compensated GGX, worker/render/bsdf.h): sample()
 // draws directions distributed as pdf() says (chi-square, missing mass
-// included), sample().weight agrees with eval() / pdf(), the Fresnel-weighted
-// diffuse lobe is reciprocal, no material reflects more than it receives, and
-// a perfect mirror is a delta lobe in the mirror direction.
+// included), sample().weight agrees with eval() / pdf(), the layered diffuse
+// lobe is reciprocal, a white material reflects exactly what it receives
+// (furnace) at every roughness, metallic and angle, outputs are finite for
+// every input, and a perfect mirror is a delta lobe in the mirror direction.
 #include <gtest/gtest.h>
 
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <iterator>
+#include <limits>
 #include <optional>
 #include <random>
 #include <string>
 #include <tuple>
+#include <vector>
 
 #include "common/math.h"
 #include "tests/render/chi2.h"
@@ -50,6 +53,11 @@ const Material kMaterials[] = {
     {"metal_r01", 1.0f, 0.1f, Vec3(0.95f, 0.64f, 0.54f)},
     {"metal_r05", 1.0f, 0.5f, Vec3(0.91f, 0.92f, 0.92f)},
     {"metal_r1", 1.0f, 1.0f, Vec3(0.5f, 0.5f, 0.5f)},
+    // Where the multiple-scattering compensation and the layering matter
+    // most: a coloured rough half-metal, a bright rough plastic whose coat
+    // takes a sizeable share of the lobe choice at grazing angles.
+    {"half_metal_r1", 0.5f, 1.0f, Vec3(0.7f, 0.2f, 0.9f)},
+    {"plastic_r03", 0.0f, 0.3f, Vec3(0.95f, 0.9f, 0.2f)},
     // A smooth coat over a diffuse base: the mirror is a delta lobe, so only
     // the diffuse part has a pdf and every delta sample is missing mass.
     {"plastic_r0", 0.0f, 0.0f, Vec3(0.6f, 0.6f, 0.6f)},
@@ -200,8 +208,8 @@ TEST(Bsdf, SampleWeightEqualsEvalOverPdf) {
   EXPECT_GT(checked, 50000);
 }
 
-// The (1 - F(wo)) (1 - F(wi)) weighting of the diffuse lobe is symmetric, so
-// f = eval / cos(wi) is too. Roughness 0 leaves only the diffuse lobe in eval().
+// The (1 - E_s(wo)) (1 - E_s(wi)) weighting of the diffuse base is symmetric,
+// so f = eval / cos(wi) is too. Roughness 0 leaves only the base in eval().
 TEST(Bsdf, DiffuseLobeIsReciprocal) {
   std::mt19937_64 rng(23);
   std::uniform_real_distribution<float> uni(0.0f, 1.0f);
@@ -223,10 +231,154 @@ TEST(Bsdf, DiffuseLobeIsReciprocal) {
 }
 
 // ---------------------------------------------------------------------------
-// Energy: directional albedo, the mean of sample().weight, never exceeds 1
-// for a white base colour.
+// Energy: the white furnace. With base colour 1 every material reflects all
+// the light it receives, at every roughness, metallic and angle: the
+// multiple-scattering compensation gives back what the single-scattering
+// lobe loses, and the diffuse base gets exactly what the specular layer lets
+// through.
 
-TEST(Bsdf, DirectionalAlbedoOfWhiteIsAtMostOne) {
+namespace {
+
+const float kFurnaceRoughness[] = {0.0f, 0.05f, 0.3f, 0.6f, 1.0f};
+const float kFurnaceMetallic[] = {0.0f, 0.5f, 1.0f};
+// Incidence as mu = cos(theta), down to grazing (mu = 0.05, theta 87.1).
+const float kFurnaceMu[] = {1.0f, 0.7f, 0.3f, 0.1f, 0.05f};
+
+Vec3 incident_mu(float mu, double phi = 0.7) {
+  const float s = std::sqrt(1.0f - mu * mu);
+  return Vec3(s * float(std::cos(phi)), s * float(std::sin(phi)), mu);
+}
+
+// Directional albedo by quadrature of eval() over the sphere (cells that
+// shrink towards the mirror direction resolve narrow lobes), plus the delta
+// lobe's weight times its probability. Independent of sample().
+// `channels` < 3 integrates only the first ones (the rest stay 0).
+Vec3 albedo_by_quadrature(const Bsdf& bsdf, Vec3 wo, float roughness, int channels = 3) {
+  const double width = 2.0 * dofarm::render::ggx::alpha_from_roughness(roughness);
+  const SphereCells cells{mirror(wo), width, 20, 40};
+  Vec3 sum;
+  for (int c = 0; c < channels; ++c)
+    sum[c] = float(dofarm::test::integrate_sphere(
+        [&](Vec3 wi) { return double(bsdf.eval(wo, wi)[c]); }, cells, 1e-6));
+  const Bsdf::Outgoing o = bsdf.outgoing(wo);
+  const BsdfSample s = bsdf.sample(o, 0.0f, Vec2(0.5f, 0.5f));
+  if (s.valid && s.is_delta) sum += s.weight * o.specular_prob;
+  return sum;
+}
+
+struct MeanWeight {
+  double mean = 0, std_error = 0;
+};
+
+// Directional albedo as the mean of sample().weight (channel 0), which is
+// what the path tracer's continuation sees; u on a stratified grid.
+MeanWeight albedo_by_sampling(const Bsdf& bsdf, Vec3 wo, uint64_t seed, int n = 200) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<float> uni(0.0f, 0.999999f);
+  double sum = 0, sum2 = 0;
+  for (int i = 0; i < n; ++i) {
+    for (int j = 0; j < n; ++j) {
+      const Vec2 u((i + uni(rng)) / n, (j + uni(rng)) / n);
+      const BsdfSample s = bsdf.sample(wo, uni(rng), u);
+      if (!s.valid) continue;
+      EXPECT_TRUE(dofarm::is_finite(s.weight));
+      sum += s.weight.x;
+      sum2 += double(s.weight.x) * s.weight.x;
+    }
+  }
+  const double count = double(n) * n;
+  MeanWeight m;
+  m.mean = sum / count;
+  m.std_error = std::sqrt(std::max(0.0, sum2 / count - m.mean * m.mean) / (count - 1));
+  return m;
+}
+
+}  // namespace
+
+TEST(BsdfFurnace, WhiteMaterialReflectsOneAtEveryRoughnessMetallicAndAngle) {
+  std::printf("  white furnace: quadrature of eval (+ delta) | mean sample weight\n");
+  std::printf("  rough metal |   mu=1.00   0.70   0.30   0.10   0.05\n");
+  uint64_t seed = 41;
+  for (float roughness : kFurnaceRoughness) {
+    for (float metallic : kFurnaceMetallic) {
+      const Bsdf bsdf(kUp, kUp, Vec3(1.0f), metallic, roughness, kIor);
+      std::string quadrature, sampled;
+      for (float mu : kFurnaceMu) {
+        const Vec3 wo = incident_mu(mu);
+        // White in, white out (every channel is the same; the sampled test
+        // below checks that): channel 0 stands for all.
+        const Vec3 q = albedo_by_quadrature(bsdf, wo, roughness, 1);
+        const MeanWeight s = albedo_by_sampling(bsdf, wo, ++seed);
+        const std::string where = "roughness " + std::to_string(roughness) + " metallic " +
+                                  std::to_string(metallic) + " mu " + std::to_string(mu);
+        // The quadrature has no noise: what is left is the table's error
+        // (quadrature of its nodes, interpolation), measured at < 6e-4.
+        EXPECT_GE(q.x, 0.998f) << where;
+        EXPECT_LE(q.x, 1.002f) << where;
+        EXPECT_GE(s.mean, 0.99) << where << " +- " << s.std_error;
+        EXPECT_LE(s.mean, 1.01) << where << " +- " << s.std_error;
+        char buf[32];
+        std::snprintf(buf, sizeof buf, " %.4f", q.x);
+        quadrature += buf;
+        std::snprintf(buf, sizeof buf, " %.4f", s.mean);
+        sampled += buf;
+      }
+      std::printf("  %4.2f  %4.2f  |%s |%s\n", roughness, metallic, quadrature.c_str(),
+                  sampled.c_str());
+    }
+  }
+}
+
+// Any IOR: the coat's F0 runs from 0 (IOR 1: no interface, a pure Lambert
+// base) to 0.67 (IOR 10), which weighs the quadratic terms of E_s,avg.
+TEST(BsdfFurnace, WhiteMaterialReflectsOneForAnyIor) {
+  for (float ior : {1.0f, 1.33f, 2.5f, 10.0f}) {
+    for (float metallic : {0.0f, 0.5f}) {
+      for (float roughness : {0.0f, 0.6f}) {
+        const Bsdf bsdf(kUp, kUp, Vec3(1.0f), metallic, roughness, ior);
+        for (float mu : {1.0f, 0.2f, 0.05f}) {
+          const float q = albedo_by_quadrature(bsdf, incident_mu(mu), roughness, 1).x;
+          EXPECT_NEAR(q, 1.0f, 2e-3f) << "ior " << ior << " metallic " << metallic << " roughness "
+                                      << roughness << " mu " << mu;
+        }
+      }
+    }
+  }
+}
+
+// The layering is linear in the base colour: albedo(c) = S + c (1 - S), S
+// the specular layer's albedo (the albedo of a black base). A grey rough
+// dielectric therefore reflects a little more than its base colour alone
+// (Lambert: 0.73), where the former model, which weighted Lambert by
+// (1 - F(n.wo)) (1 - F(n.wi)) next to an uncompensated GGX lobe, reflected 0.632.
+TEST(BsdfFurnace, GreyRoughDielectricIsItsBaseColourPlusTheCoat) {
+  const float c = 0.73f;
+  const Bsdf grey(kUp, kUp, Vec3(c), 0.0f, 1.0f, kIor);
+  const Bsdf black(kUp, kUp, Vec3(0.0f), 0.0f, 1.0f, kIor);
+  // Cosine-weighted average over incidence, 2 ∫ albedo(mu) mu dmu, by the
+  // midpoint rule in mu^2 (uniform in projected solid angle).
+  const int kSteps = 16;
+  double average = 0;
+  std::printf("  base 0.73, roughness 1, dielectric (ior 1.5):\n");
+  for (int i = 0; i < kSteps; ++i) {
+    const float mu = float(std::sqrt((i + 0.5) / kSteps));
+    const Vec3 wo = incident_mu(mu);
+    const float a = albedo_by_quadrature(grey, wo, 1.0f).x;
+    const float s = albedo_by_quadrature(black, wo, 1.0f).x;
+    EXPECT_NEAR(a, s + c * (1.0f - s), 2e-3f) << "mu " << mu;
+    EXPECT_GT(a, c - 2e-3f) << "mu " << mu;
+    std::printf("    mu %.3f: albedo %.4f (coat alone %.4f)\n", mu, a, s);
+    average += a / kSteps;
+  }
+  std::printf("  hemispherical average albedo %.4f (Lambert %.2f)\n", average, c);
+  EXPECT_GT(average, 0.725);
+  EXPECT_LT(average, 0.76);
+}
+
+// The mean of sample().weight for white is 1 (never more, hardly less) over a
+// finer grid of roughness and angles than above, down to 89 degrees, with
+// every weight finite, non-negative and grey.
+TEST(Bsdf, SampledAlbedoOfWhiteIsOneOnAFinerGrid) {
   const int kSamples = 40000;
   std::mt19937_64 rng(29);
   std::uniform_real_distribution<float> uni(0.0f, 0.999999f);
@@ -250,14 +402,54 @@ TEST(Bsdf, DirectionalAlbedoOfWhiteIsAtMostOne) {
         const double mean = sum / kSamples;
         const double std_error =
             std::sqrt(std::max(0.0, sum2 / kSamples - mean * mean) / (kSamples - 1));
-        EXPECT_LE(mean, 1.0 + 4.0 * std_error + 1e-4)
+        EXPECT_LE(mean, 1.0 + 4.0 * std_error + 2e-3)
             << "metallic " << metallic << " roughness " << roughness << " theta " << angle
             << ": albedo " << mean << " +- " << std_error;
-        // Not vacuous: single-scattering GGX loses energy at high roughness
-        // (a white rough metal keeps ~0.3 at normal incidence), but a white
-        // material never goes dark.
-        EXPECT_GT(mean, 0.1) << "metallic " << metallic << " roughness " << roughness << " theta "
-                             << angle;
+        // Nor lose any: the compensated model keeps everything (to the table error).
+        EXPECT_GE(mean, 1.0 - 4.0 * std_error - 2e-3)
+            << "metallic " << metallic << " roughness " << roughness << " theta " << angle;
+      }
+    }
+  }
+}
+
+// No input makes a weight, eval or pdf NaN or infinite: alpha at its
+// minimum, grazing directions on either side, extreme IORs.
+TEST(Bsdf, EveryOutputIsFiniteOnTheEdgesOfItsDomain) {
+  std::vector<Vec3> directions;
+  for (float z : {1.0f, 0.5f, 1e-2f, 1e-4f, 1e-6f, 1e-7f, 0.0f, -1e-6f, -0.5f})
+    for (float phi : {0.0f, 1.3f, -2.0f}) {
+      const float s = std::sqrt(1.0f - z * z);
+      directions.push_back(Vec3(s * std::cos(phi), s * std::sin(phi), z));
+    }
+  const float us[] = {0.0f, 1e-7f, 0.5f, 0x1.fffffep-1f};
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  for (float roughness : {0.0f, 0.0316f, 0.032f, 0.05f, 1e-3f, 0.5f, 1.0f, nan}) {
+    for (float metallic : {0.0f, 0.5f, 1.0f}) {
+      for (float ior : {1.0f, 1.0001f, 1.5f, 1e30f, 0.5f, 0.0f, nan}) {
+        for (Vec3 base : {Vec3(0.0f), Vec3(1.0f), Vec3(1.0f, 0.0f, 0.5f)}) {
+          const Bsdf bsdf(kUp, kUp, base, metallic, roughness, ior);
+          for (Vec3 wo : directions) {
+            const Bsdf::Outgoing o = bsdf.outgoing(wo);
+            for (Vec3 wi : directions) {
+              float p = -1;
+              const Vec3 f = bsdf.evaluate(o, wi, &p);
+              ASSERT_TRUE(dofarm::is_finite(f) && std::isfinite(p))
+                  << roughness << " " << metallic << " " << ior << " " << wo.z << " " << wi.z;
+              ASSERT_GE(std::min({f.x, f.y, f.z}), 0.0f);
+              ASSERT_GE(p, 0.0f);
+            }
+            for (float ul : us)
+              for (float u1 : us)
+                for (float u2 : us) {
+                  const BsdfSample s = bsdf.sample(o, ul, Vec2(u1, u2));
+                  if (!s.valid) continue;
+                  ASSERT_TRUE(dofarm::is_finite(s.weight) && std::isfinite(s.pdf))
+                      << roughness << " " << metallic << " " << ior << " " << wo.z;
+                  ASSERT_GE(std::min({s.weight.x, s.weight.y, s.weight.z}), 0.0f);
+                }
+          }
+        }
       }
     }
   }

@@ -1,8 +1,10 @@
 // GGX microfacet distribution: normalisation, known values, finiteness at
 // the edges of the domain, energy conservation, and chi-square tests of the
-// visible-normal sampler against its pdf.
+// visible-normal sampler against its pdf; the directional-albedo table
+// against an independent quadrature.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <iterator>
@@ -14,6 +16,7 @@
 #include "common/math.h"
 #include "tests/render/chi2.h"
 #include "worker/render/microfacet.h"
+#include "worker/render/microfacet_albedo.h"
 
 namespace ggx = dofarm::render::ggx;
 using dofarm::kPi;
@@ -365,6 +368,137 @@ TEST(Ggx, WhiteFurnaceNeverCreatesEnergy) {
   // 2 theta_h and G2 = cos(2 theta_h) / cos^2(theta_h), so the albedo is
   // 2 ∫_0^{pi/4} cos(2t) tan(t) dt = 1 - ln 2.
   EXPECT_NEAR(albedo_by_quadrature(Vec3(0, 0, 1), 1.0f), 1.0 - std::log(2.0), 1e-5);
+}
+
+// ---------------------------------------------------------------------------
+// The directional-albedo table (microfacet_albedo.h) against an independent
+// computation: adaptive quadrature of D G2 / (4 mu_o) over the sphere with
+// Schlick's weight w = (1 - wo.h)^5 split off, A = ∫ f (1 - w), B = ∫ f w.
+
+namespace {
+
+struct FresnelTerms {
+  double a, b;
+};
+
+FresnelTerms fresnel_terms_by_quadrature(Vec3 wo, float alpha) {
+  SphereCells cells{mirror(wo), 2.0 * alpha, 20, 40};
+  auto term = [&](bool weighted) {
+    return dofarm::test::integrate_sphere(
+        [&](Vec3 wi) {
+          if (!(wi.z > 0.0f)) return 0.0;
+          Vec3 h = dofarm::normalize(wo + wi);
+          double m = 1.0 - std::clamp(double(dot(wo, h)), 0.0, 1.0);
+          double w = m * m * m * m * m;
+          double f = double(ggx::D(h, alpha)) * ggx::G2(wo, wi, alpha) / (4.0 * wo.z);
+          return f * (weighted ? w : 1.0 - w);
+        },
+        cells, 1e-8);
+  };
+  return {term(false), term(true)};
+}
+
+float node_alpha(int i) {
+  float x = float(i) / float(ggx::AlbedoTable::kRoughness - 1);
+  return std::max(ggx::kMinAlpha, x * x * x * x);
+}
+float node_mu(int j) {
+  float x = float(j) / float(ggx::AlbedoTable::kMu - 1);
+  return x * x;
+}
+
+}  // namespace
+
+TEST(GgxAlbedoTable, NodesMatchQuadrature) {
+  const ggx::AlbedoTable& table = ggx::albedo_table();
+  // Rows from alpha 0.055 to 1 (quadrature needs alpha >= ~0.05, see
+  // albedo_by_quadrature), columns from mu 0.026 to 1.
+  for (int i : {15, 20, 25, 31}) {
+    for (int j : {5, 12, 20, 31}) {
+      const float mu = node_mu(j);
+      const Vec3 wo(std::sqrt(1.0f - mu * mu), 0.0f, mu);
+      const FresnelTerms q = fresnel_terms_by_quadrature(wo, node_alpha(i));
+      const ggx::AlbedoTable::Entry e = table.entry[i][j];
+      EXPECT_NEAR(e.a, q.a, 1e-3) << "alpha " << node_alpha(i) << " mu " << mu;
+      EXPECT_NEAR(e.b, q.b, 1e-3) << "alpha " << node_alpha(i) << " mu " << mu;
+    }
+  }
+  // Known answer: alpha = 1, normal incidence, E = 1 - ln 2.
+  const ggx::AlbedoTable::Entry e = table.entry[ggx::AlbedoTable::kRoughness - 1][31];
+  EXPECT_NEAR(e.a + e.b, 1.0 - std::log(2.0), 1e-3);
+  // The smooth limit: all of F reflected.
+  for (int j = 0; j < ggx::AlbedoTable::kMu; ++j) {
+    const float w = std::pow(1.0f - node_mu(j), 5.0f);
+    EXPECT_NEAR(table.entry[0][j].a, 1.0f - w, 1e-6f);
+    EXPECT_NEAR(table.entry[0][j].b, w, 1e-6f);
+  }
+}
+
+// Lookups return the nodes at the nodes and stay between neighbours in
+// between; every entry is a valid albedo.
+TEST(GgxAlbedoTable, LookupInterpolatesBetweenNodes) {
+  const ggx::AlbedoTable& table = ggx::albedo_table();
+  for (int i = 0; i < ggx::AlbedoTable::kRoughness; ++i) {
+    const ggx::AlbedoRow row = ggx::albedo_row(table, i == 0 ? 0.0f : node_alpha(i));
+    for (int j = 0; j < ggx::AlbedoTable::kMu; ++j) {
+      const ggx::AlbedoTable::Entry e = table.entry[i][j];
+      ASSERT_GE(e.a, 0.0f);
+      ASSERT_GE(e.b, 0.0f);
+      ASSERT_GE(e.a + e.b, 0.3f);  // 1 - ln 2 at alpha 1 is the least
+      ASSERT_LE(e.a + e.b, 1.0f + 1e-4f);
+      // Nodes 1 to 5 lie below kMinAlpha, which their alpha is clamped to
+      // (no material reads them: the smallest rough alpha falls at 5.5).
+      if (i >= 1 && i <= 5) continue;
+      const ggx::Albedo l = ggx::albedo(row, node_mu(j));
+      EXPECT_NEAR(l.a, e.a, 1e-4f) << i << " " << j;
+      EXPECT_NEAR(l.b, e.b, 1e-4f) << i << " " << j;
+    }
+  }
+  const ggx::AlbedoRow row = ggx::albedo_row(table, 0.3f);
+  for (float mu : {0.0f, 0.01f, 0.2f, 0.77f, 1.0f}) {
+    const float e = ggx::albedo(row, mu).e();
+    float lo = 2, hi = -1;
+    for (int i : {row.index, row.index + 1})
+      for (int j = 0; j < ggx::AlbedoTable::kMu; ++j)
+        if (std::abs(node_mu(j) - mu) <= 1.0f / 15.0f) {
+          lo = std::min(lo, table.entry[i][j].a + table.entry[i][j].b);
+          hi = std::max(hi, table.entry[i][j].a + table.entry[i][j].b);
+        }
+    EXPECT_GE(e, lo - 1e-6f) << mu;
+    EXPECT_LE(e, hi + 1e-6f) << mu;
+  }
+  // Out-of-range inputs are clamped, not read out of bounds.
+  EXPECT_TRUE(std::isfinite(ggx::albedo(ggx::albedo_row(table, 7.0f), 2.0f).e()));
+  EXPECT_TRUE(std::isfinite(ggx::albedo(ggx::albedo_row(table, -1.0f), -1.0f).e()));
+}
+
+// The cosine-weighted averages against a trapezoid rule in mu over the
+// nodes (a different rule from the table's own).
+TEST(GgxAlbedoTable, AveragesMatchAnIndependentRule) {
+  const ggx::AlbedoTable& table = ggx::albedo_table();
+  for (int i = 0; i < ggx::AlbedoTable::kRoughness; i += 5) {
+    const ggx::AlbedoRow row = ggx::albedo_row(table, i == 0 ? 0.0f : node_alpha(i));
+    const int steps = 4000;
+    double a = 0, b = 0, ak = 0;
+    for (int s = 0; s <= steps; ++s) {
+      const double mu = double(s) / steps;
+      const double wgt = (s == 0 || s == steps ? 0.5 : 1.0) * 2.0 * mu / steps;
+      const ggx::Albedo e = ggx::albedo(row, float(mu));
+      a += wgt * e.a;
+      b += wgt * e.b;
+      ak += wgt * e.a * e.k();
+    }
+    const ggx::AlbedoTable::Averages avg = ggx::albedo_averages(table, row);
+    EXPECT_NEAR(avg.a, a, 1e-4) << "row " << i;
+    EXPECT_NEAR(avg.b, b, 1e-4) << "row " << i;
+    EXPECT_NEAR(avg.ak, ak, 1e-4) << "row " << i;
+  }
+  // The smooth limit in closed form: avg(B) = 2 ∫ (1 - mu)^5 mu dmu = 1/21.
+  const ggx::AlbedoTable::Averages smooth =
+      ggx::albedo_averages(table, ggx::albedo_row(table, 0.0f));
+  EXPECT_NEAR(smooth.b, 1.0 / 21.0, 2e-4);
+  EXPECT_NEAR(smooth.a + smooth.b, 1.0, 1e-4);
+  EXPECT_NEAR(smooth.ak, 0.0, 1e-6);
 }
 
 TEST(Ggx, EveryFunctionIsFiniteOnTheEdgesOfItsDomain) {

@@ -6,21 +6,70 @@
 
 namespace dofarm::render {
 
+namespace {
+
+float schlick_weight(float cos_theta) {
+  float m = 1.0f - clamp01(cos_theta);
+  float m2 = m * m;
+  return m2 * m2 * m;
+}
+
+// 2 ∫_0^1 (1 - mu)^5 mu dmu: the cosine-weighted average of Schlick's weight.
+constexpr float kSchlickWeightAverage = 1.0f / 21.0f;
+
+}  // namespace
+
 Bsdf::Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, float ior)
     : frame_(ns), ng_(ng) {
   metallic = clamp01(metallic);
   roughness = clamp01(roughness);
   float f = (ior - 1.0f) / (ior + 1.0f);
-  Vec3 dielectric_f0(std::isfinite(f) ? f * f : 0.04f);
-  f0_ = lerp(dielectric_f0, base_color, metallic);
+  dielectric_f0_ = std::isfinite(f) ? std::min(f * f, 1.0f) : 0.04f;
+  metal_f0_ = base_color;
+  metal_weight_ = max_component(base_color) > 0 ? metallic : 0.0f;
+  dielectric_weight_ = dielectric_f0_ > 0 ? 1.0f - metallic : 0.0f;
   diffuse_color_ = base_color * (1.0f - metallic);
   diffuse_weight_ = max_component(diffuse_color_);
-  diffuse_luminance_ = luminance(diffuse_color_);
   alpha_ = ggx::alpha_from_roughness(roughness);
   delta_specular_ = roughness * roughness < ggx::kDeltaAlpha;
-  // IOR 1 (F0 = 0) is no interface at all: Schlick's curve would still rise
-  // to 1 at grazing angles, so the specular lobe is switched off instead.
-  has_specular_ = max_component(f0_) > 0;
+  has_specular_ = metal_weight_ > 0 || dielectric_weight_ > 0;
+  // The base's normalisation; a mirror's albedo F(mu) has the closed-form
+  // average f0 + (1 - f0) / 21.
+  diffuse_norm_ = kInvPi;
+  if (has_specular_ && delta_specular_ && dielectric_weight_ > 0) {
+    const float f0 = dielectric_f0_;
+    diffuse_norm_ = kInvPi / std::max(1.0f - (f0 + (1.0f - f0) * kSchlickWeightAverage), 1e-6f);
+  }
+  if (!has_specular_ || delta_specular_) return;  // no table needed
+  const ggx::AlbedoTable& table = ggx::albedo_table();
+  row_ = ggx::albedo_row(table, alpha_);
+
+  // The base's normalisation 1 / (pi (1 - E_s_avg)) (Kulla & Conty 2017), with
+  // E_s(mu) = (f0 A + B)(1 + f0 k) the dielectric's compensated specular
+  // albedo, k = (1 - E) / E; its cosine-weighted average is therefore
+  // f0 avg(A) + avg(B) + f0^2 avg(A k) + f0 avg(B k).
+  if (diffuse_weight_ > 0 && dielectric_weight_ > 0) {
+    const float f0 = dielectric_f0_;
+    const ggx::AlbedoTable::Averages avg = ggx::albedo_averages(table, row_);
+    const float e_avg = f0 * avg.a + avg.b + f0 * f0 * avg.ak + f0 * avg.bk;
+    diffuse_norm_ = kInvPi / std::max(1.0f - e_avg, 1e-6f);
+  }
+}
+
+ggx::Albedo Bsdf::specular_albedo(float mu) const {
+  if (delta_specular_) {
+    // A mirror reflects F(mu) exactly: no table, no interpolation error.
+    const float w = schlick_weight(mu);
+    return {1.0f - w, w};
+  }
+  return ggx::albedo(row_, mu);
+}
+
+float Bsdf::base_transmission(const ggx::Albedo& e) const {
+  if (!(dielectric_weight_ > 0)) return 1.0f;
+  const float f0 = dielectric_f0_;
+  const float k = delta_specular_ ? 0.0f : e.k();
+  return std::max(0.0f, 1.0f - (f0 * e.a + e.b) * (1.0f + f0 * k));
 }
 
 Bsdf::Outgoing Bsdf::outgoing(Vec3 wo_w) const {
@@ -28,25 +77,46 @@ Bsdf::Outgoing Bsdf::outgoing(Vec3 wo_w) const {
   o.wo = frame_.to_local(wo_w);
   o.valid = o.wo.z > 0 && dot(wo_w, ng_) > 0;
   if (!o.valid) return o;
+  const float mu = o.wo.z;
+  Vec3 specular_albedo_o(0);
+  ggx::Albedo e;
   if (has_specular_) {
-    const Vec3 f = ggx::fresnel_schlick(f0_, o.wo.z);
-    o.fresnel = f;
-    if (diffuse_weight_ <= 0) {
-      o.specular_prob = 1.0f;
+    e = specular_albedo(mu);
+    // Turquin 2019: each part's single-scattering lobe times
+    // 1 + F0 (1 - E(mu_o)) / E(mu_o); a mirror loses nothing (k = 0).
+    // Schlick's F = F0 + (1 - F0) w is affine in w, and so is the sum of the
+    // two parts: c0 + c1 w.
+    const float k = delta_specular_ ? 0.0f : e.k();
+    const Vec3 one(1.0f);
+    const Vec3 metal = (one + metal_f0_ * k) * metal_weight_;
+    const float dielectric = dielectric_weight_ * (1.0f + dielectric_f0_ * k);
+    o.fresnel_c0 = metal * metal_f0_ + Vec3(dielectric * dielectric_f0_);
+    o.fresnel_c1 = metal * (one - metal_f0_) + Vec3(dielectric * (1.0f - dielectric_f0_));
+    // The lobe's albedo: c0 E + c1 B (microfacet_albedo.h).
+    specular_albedo_o = o.fresnel_c0 * e.e() + o.fresnel_c1 * e.b;
+  }
+  if (diffuse_weight_ > 0) {
+    const float t = base_transmission(e);
+    o.diffuse = diffuse_color_ * (t * diffuse_norm_);
+    if (!has_specular_) {
+      o.specular_prob = 0.0f;
     } else {
-      // The lobes' shares of the reflected energy at this wo, bounded away
-      // from 0 and 1 so that neither lobe is ever starved.
-      const float fs = luminance(f);
-      const float fd = diffuse_luminance_ * (1.0f - fs);
-      o.specular_prob = std::clamp(fs / (fs + fd), 0.05f, 0.95f);
+      // The lobes' albedos at this wo (the base's is diffuse_color (1 - E_s(mu_o))),
+      // bounded away from 0 and 1 so that neither lobe is ever starved.
+      const float fs = luminance(specular_albedo_o);
+      const float fd = luminance(diffuse_color_) * t;
+      const float sum = fs + fd;
+      o.specular_prob = sum > 0 ? std::clamp(fs / sum, 0.05f, 0.95f) : 0.5f;
     }
-    if (!delta_specular_) {
-      o.smith_r = ggx::smith_r(o.wo, alpha_);
-      o.inv_4_cos_o = 1.0f / (4.0f * o.wo.z);
-      // VNDF pdf of h (Heitz 2018: 2 (wo.h) D / (wo.z + r)) times the
-      // reflection Jacobian 1 / (4 wo.h): wo.h cancels, D remains.
-      o.specular_pdf_scale = o.specular_prob / (2.0f * (o.wo.z + o.smith_r));
-    }
+  } else {
+    o.specular_prob = has_specular_ ? 1.0f : 0.0f;
+  }
+  if (has_specular_ && !delta_specular_) {
+    o.smith_r = ggx::smith_r(o.wo, alpha_);
+    o.inv_4_cos_o = 1.0f / (4.0f * o.wo.z);
+    // VNDF pdf of h (Heitz 2018: 2 (wo.h) D / (wo.z + r)) times the
+    // reflection Jacobian 1 / (4 wo.h): wo.h cancels, D remains.
+    o.specular_pdf_scale = o.specular_prob / (2.0f * (o.wo.z + o.smith_r));
   }
   return o;
 }
@@ -57,9 +127,8 @@ Vec3 Bsdf::evaluate_local(const Outgoing& o, Vec3 wi, float* pdf_out) const {
   Vec3 f(0);
   float p = (1.0f - ps) * wi.z * kInvPi;
   if (diffuse_weight_ > 0) {
-    Vec3 t(1);
-    if (has_specular_) t = (Vec3(1) - o.fresnel) * (Vec3(1) - ggx::fresnel_schlick(f0_, wi.z));
-    f += diffuse_color_ * t * (kInvPi * wi.z);
+    const float t = dielectric_weight_ > 0 ? base_transmission(specular_albedo(wi.z)) : 1.0f;
+    f += o.diffuse * (t * wi.z);
   }
   if (has_specular_ && !delta_specular_) {
     // Both directions are above the surface, so wo + wi is never zero.
@@ -68,7 +137,7 @@ Vec3 Bsdf::evaluate_local(const Outgoing& o, Vec3 wi, float* pdf_out) const {
     const float d = ggx::D(h, alpha_);
     const float g = ggx::G2_from_r(wo.z, o.smith_r, wi.z, ggx::smith_r(wi, alpha_));
     const float wo_h = dot(wo, h);
-    const Vec3 fr = ggx::fresnel_schlick(f0_, wo_h);
+    const Vec3 fr = o.fresnel_c0 + o.fresnel_c1 * schlick_weight(wo_h);
     f += fr * (d * g * o.inv_4_cos_o);  // times cos(wi) / cos(wi) cancels
     if (wo_h > 0) p += d * o.specular_pdf_scale;
   }
@@ -116,11 +185,14 @@ BsdfSample Bsdf::sample(const Outgoing& o, float u_lobe, Vec2 u) const {
       wi = Vec3(-wo.x, -wo.y, wo.z);
       s.wi = frame_.to_world(wi);
       if (dot(s.wi, ng_) <= 0) return s;
-      s.weight = o.fresnel / ps;
+      // h = n, so wo.h = mu_o.
+      s.weight = (o.fresnel_c0 + o.fresnel_c1 * schlick_weight(wo.z)) / ps;
       s.is_delta = true;
-      s.valid = true;
+      s.valid = is_finite(s.weight);
       return s;
     }
+    // The compensated lobe is the single-scattering lobe scaled by a factor
+    // of wo alone, so visible normals sample it as well as before.
     Vec3 h = ggx::sample_vndf(wo, alpha_, u);
     wi = reflect(wo, h);
   } else {

@@ -1,15 +1,32 @@
-// The material model at one surface point: glTF metallic-roughness mapped
-// onto a Lambertian diffuse lobe plus a GGX specular lobe (Walter et al.
-// 2007; sampled through visible normals, Heitz 2018). Dielectric F0 comes
-// from the IOR, metals use the base colour as F0 (glTF 2.0 appendix B).
-// The diffuse lobe is weighted by (1 - F(n.wo)) (1 - F(n.wi)) so that no
-// combination of parameters creates energy. Below ggx::kDeltaAlpha the
-// specular lobe is a perfect mirror (a delta lobe: no eval, no NEE).
+// The material model at one surface point: glTF 2.0 metallic-roughness
+// (appendix B) as the mix metallic * metal + (1 - metallic) * dielectric,
+// made energy-conserving:
 //
+// - Both parts share one GGX specular lobe shape (Walter et al. 2007,
+//   height-correlated Smith G2 of Heitz 2014, sampled through visible normals,
+//   Heitz 2018) with Schlick's Fresnel: F0 = the base colour for the metal,
+//   ((ior - 1) / (ior + 1))^2 for the dielectric.
+// - Multiple scattering between microfacets, which the single-scattering lobe
+//   loses (about 70% at roughness 1 and normal incidence), is put back by Turquin 2019's scaling
+//   of that lobe, f_ss (1 + F0 (1 - E(mu_o)) / E(mu_o)), with E the lobe's
+//   directional albedo for F = 1 (microfacet_albedo.h): a white metal reflects
+//   exactly 1 at every roughness and angle, and the lobe is sampled as before.
+// - The dielectric's Lambertian base lies under its specular layer and
+//   receives what that layer does not reflect (Kulla & Conty 2017):
+//   base (1 - E_s(mu_o)) (1 - E_s(mu_i)) / (pi (1 - E_s_avg)), E_s the
+//   compensated specular albedo for the dielectric's F0, so that a white
+//   dielectric reflects exactly 1 too and the lobe stays reciprocal.
+// - Below ggx::kDeltaAlpha the specular lobe is a perfect mirror (a delta
+//   lobe: no eval, no NEE); its albedo is F(mu) and the base's layering uses that.
+// - F0 = 0 (IOR 1, or a black metal) is no interface: that part has no
+//   specular lobe (Schlick's curve would still rise to 1 at grazing angles).
+//
+// docs/renderer.md (Materials) has the equations and the furnace figures.
 // All directions are in world space; the BSDF works in the shading frame.
 #pragma once
 
 #include "common/math.h"
+#include "worker/render/microfacet_albedo.h"
 
 namespace dofarm::render {
 
@@ -26,12 +43,16 @@ class Bsdf {
   // `ns` shading normal, `ng` geometric normal, both facing wo's side.
   Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, float ior);
 
-  // What depends on the outgoing direction alone (its local form, Fresnel,
-  // lobe probability, Smith term), computed once per path vertex and shared
-  // by the light sample's evaluate() and sample().
+  // What depends on the outgoing direction alone (its local form, the
+  // compensated Fresnel, the base's share, lobe probability, Smith term),
+  // computed once per path vertex and shared by the light sample's
+  // evaluate() and sample().
   struct Outgoing {
-    Vec3 wo;                       // local
-    Vec3 fresnel;                  // F(n.wo), per channel (0 without a specular lobe)
+    Vec3 wo;  // local
+    // The specular lobe's Fresnel factor, multiple-scattering compensation
+    // included: fresnel_c0 + fresnel_c1 (1 - wo.h)^5, per channel.
+    Vec3 fresnel_c0, fresnel_c1;
+    Vec3 diffuse;                  // base lobe's f / (1 - E_s(mu_i)), per channel
     float specular_prob = 0;       // of choosing the specular lobe in sample()
     float smith_r = 0;             // ggx::smith_r(wo, alpha)
     float inv_4_cos_o = 0;         // 1 / (4 wo.z), of the microfacet BRDF
@@ -53,13 +74,23 @@ class Bsdf {
  private:
   // evaluate() with both directions local and above the surfaces.
   Vec3 evaluate_local(const Outgoing& o, Vec3 wi, float* pdf) const;
+  // Single-scattering albedo terms A, B of the specular lobe at mu.
+  ggx::Albedo specular_albedo(float mu) const;
+  // 1 - E_s(mu) from mu's A and B: what the dielectric's specular layer lets
+  // through to the base (1 without a dielectric interface).
+  float base_transmission(const ggx::Albedo& e) const;
+
   Frame frame_;
   Vec3 ng_;
-  Vec3 diffuse_color_;  // (1 - metallic) * base_color
-  Vec3 f0_;
+  ggx::AlbedoRow row_;       // set only for a rough specular lobe
+  Vec3 metal_f0_;            // the base colour
+  float metal_weight_;       // metallic; 0 for a black metal (no interface)
+  float dielectric_f0_;      // from the IOR
+  float dielectric_weight_;  // of the dielectric's specular lobe: 1 - metallic, 0 for IOR 1
+  Vec3 diffuse_color_;       // (1 - metallic) * base_color
+  float diffuse_norm_;       // 1 / (pi (1 - E_s_avg)); 1 / pi without an interface
   float alpha_;
   float diffuse_weight_;
-  float diffuse_luminance_;
   bool delta_specular_;
   bool has_specular_;
 };
