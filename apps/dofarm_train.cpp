@@ -30,6 +30,7 @@
 #include "common/log.h"
 #include "trainer/config.h"
 #include "trainer/eval.h"
+#include "trainer/export_contract.h"
 #include "trainer/run_folder.h"
 #include "trainer/train.h"
 
@@ -224,7 +225,7 @@ Command add_export(CLI::App& app) {
   add_checkpoint_option(cmd, &o->checkpoint);
   return {cmd, [o] {
             LoadedRun r = load_run(o->run, torch::kCPU, o->checkpoint);
-            r.model->export_torchscript(o->out);
+            r.model->export_torchscript(o->out, {{kContractFile, denoiser_contract(r)}});
             spdlog::info("exported {} ({} parameters{}) to {}", r.checkpoint.string(),
                          parameter_count(*r.model),
                          r.config.model.recurrent ? ", recurrent: forward(x, s0..s4)" : "", o->out);

@@ -116,7 +116,8 @@ torch::Tensor DenoiserImpl::forward(const torch::Tensor& seq) {
   return torch::stack(outs, 1);
 }
 
-void DenoiserImpl::export_torchscript(const std::filesystem::path& path) const {
+void DenoiserImpl::export_torchscript(const std::filesystem::path& path,
+                                     const std::map<std::string, std::string>& extra_files) const {
   torch::jit::Module m("DofarmDenoiser");
   auto reg = [&](const Conv& c) {
     // NCHW weights: the export does not depend on the training layout.
@@ -143,7 +144,12 @@ void DenoiserImpl::export_torchscript(const std::filesystem::path& path) const {
     for (int i = 0; i < kLevels; ++i) src << ", Tensor";
     src << "]";
   }
-  src << ":\n  h = x\n";
+  // Any size: pad like pad_to_multiple() (edge replication), crop the output.
+  src << ":\n  H = x.size(2)\n  W = x.size(3)\n"
+      << "  ph = (" << kSizeMultiple << " - H % " << kSizeMultiple << ") % " << kSizeMultiple << "\n"
+      << "  pw = (" << kSizeMultiple << " - W % " << kSizeMultiple << ") % " << kSizeMultiple << "\n"
+      << "  if ph + pw > 0:\n    x = torch.replication_pad2d(x, [0, pw, 0, ph])\n"
+      << "  h = x\n";
   for (int i = 0; i < kLevels; ++i) {
     if (cfg_.recurrent) src << "  h = torch.cat([h, s" << i << "], 1)\n";
     for (const Conv& c : enc_[i]) {
@@ -165,7 +171,7 @@ void DenoiserImpl::export_torchscript(const std::filesystem::path& path) const {
     }
   }
   reg(out_);
-  src << "  y = " << conv(out_, "h", false) << "\n";
+  src << "  y = " << conv(out_, "h", false) << "\n  y = y[:, :, 0:H, 0:W]\n";
   if (cfg_.recurrent) {
     src << "  return (y";
     for (int i = 0; i < kLevels; ++i) src << ", k" << i;
@@ -174,7 +180,8 @@ void DenoiserImpl::export_torchscript(const std::filesystem::path& path) const {
     src << "  return y\n";
   }
   m.define(src.str());
-  m.save(path.string());
+  torch::jit::ExtraFilesMap extra(extra_files.begin(), extra_files.end());
+  m.save(path.string(), extra);
 }
 
 torch::MemoryFormat preferred_memory_format(torch::Device device) {

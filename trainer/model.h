@@ -14,6 +14,7 @@
 #include <torch/torch.h>
 
 #include <filesystem>
+#include <map>
 #include <vector>
 
 #include "trainer/config.h"
@@ -49,9 +50,13 @@ class DenoiserImpl : public torch::nn::Module {
 
   // A TorchScript module with the same weights and arithmetic, loadable by
   // torch.jit.load in Python or torch::jit::load in C++. Its forward takes one
-  // frame [B, C, H, W]; with the recurrent model also the five hidden states
-  // (zeros on the first frame) and it returns (output, states...).
-  void export_torchscript(const std::filesystem::path& path) const;
+  // frame [B, C, H, W] of any size (padded inside by edge replication to a
+  // multiple of kSizeMultiple, the output cropped back); with the recurrent
+  // model also the five hidden states at the padded size (zeros on the first
+  // frame) and it returns (output, states...). `extra_files` are stored in
+  // the archive (torch.jit.load(..., _extra_files=...) reads them).
+  void export_torchscript(const std::filesystem::path& path,
+                          const std::map<std::string, std::string>& extra_files = {}) const;
 
  private:
   struct Conv {

@@ -4,6 +4,7 @@
 #include "trainer/run_folder.h"
 
 #include <gtest/gtest.h>
+#include <torch/script.h>
 #include <fcntl.h>
 #include <signal.h>
 #include <spawn.h>
@@ -15,6 +16,7 @@
 #include <cmath>
 #include <fstream>
 #include <limits>
+#include <nlohmann/json.hpp>
 #include <sstream>
 #include <thread>
 
@@ -22,6 +24,7 @@
 #include "common/exr_io.h"
 #include "tests/trainer/synthetic.h"
 #include "trainer/eval.h"
+#include "trainer/export_contract.h"
 #include "trainer/train.h"
 
 extern char** environ;
@@ -234,6 +237,32 @@ TEST(Denoise, NonFiniteInputsAreNamedAndCountedOrRepaired) {
   auto repaired = non_finite_inputs(fb, 1, cfg, true);
   EXPECT_EQ(repaired, v1);
   EXPECT_TRUE(non_finite_inputs(fb, 1, cfg, false).empty());
+}
+
+// The exported file alone says how to use it, and takes any size.
+TEST(Export, CarriesItsContractAndTakesAnySize) {
+  LoadedRun r = load_run(trained(), torch::kCPU, "last");
+  const fs::path file = testing::scratch_dir("rf_export") / "model.pt";
+  r.model->export_torchscript(file, {{kContractFile, denoiser_contract(r)}});
+  torch::jit::ExtraFilesMap extra{{kContractFile, ""}};
+  torch::jit::Module m = torch::jit::load(file.string(), torch::kCPU, extra);
+  const nlohmann::json c = nlohmann::json::parse(extra[kContractFile]);
+  EXPECT_EQ(c["format"], kContractFormat);
+  EXPECT_EQ(c["input_channels"], r.config.model.input_channels());
+  ASSERT_EQ(c["inputs"].size(), size_t(r.config.model.input_channels()));
+  EXPECT_EQ(c["inputs"][11]["name"], "coc");
+  EXPECT_EQ(c["checkpoint"]["step"], 6);
+  EXPECT_EQ(parse_train_config(c["model_config"].get<std::string>(), "contract").model.channels,
+            r.config.model.channels);
+  torch::NoGradGuard ng;
+  for (auto [h, w] : {std::pair{48, 40}, std::pair{32, 64}, std::pair{7, 33}}) {
+    torch::Tensor x = torch::rand({1, r.config.model.input_channels(), h, w});
+    std::vector<torch::Tensor> state;
+    torch::Tensor want = r.model->forward_frame(pad_to_multiple(x), state).narrow(2, 0, h).narrow(3, 0, w);
+    torch::Tensor got = m.forward({x}).toTensor();
+    ASSERT_EQ(got.sizes(), want.sizes()) << h << "x" << w;
+    EXPECT_LT((got - want).abs().max().item<float>(), 1e-5f) << h << "x" << w;
+  }
 }
 
 // Real processes and real signals.
