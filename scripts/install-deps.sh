@@ -22,6 +22,7 @@ PKGS=(
   zlib1g-dev
   slurm-wlm munge          # the cluster engine the deployment is tested against
   python3                  # scene generator (jobs/scenes/make_scenes.py)
+  chromium                 # tests only: the eval report page opened in a headless browser
 )
 
 missing=()

@@ -7,6 +7,7 @@
 #include <fstream>
 #include <map>
 #include <nlohmann/json.hpp>
+#include <sstream>
 
 #include "common/error.h"
 #include "common/shard.h"
@@ -165,6 +166,12 @@ EvalSummary evaluate(const EvalOptions& o) {
   std::map<std::string, ShardSplit> splits, legacy;  // by content key / by file
   for (const ShardSplit& sp : load_split_file(o.run_dir))
     (sp.key.empty() ? legacy[sp.file] : splits[sp.key]) = sp;
+  struct Strip {
+    std::string shard;
+    int frame, width, height;
+    std::string png;
+  };
+  std::vector<Strip> strips;
   Accumulator all;
   std::map<std::string, Accumulator> by_scene;  // thesis table 5.1 has a row per scene
   json frames = json::array();
@@ -217,6 +224,8 @@ EvalSummary evaluate(const EvalOptions& o) {
         char name[64];
         std::snprintf(name, sizeof name, "frame-%03d.png", images);
         write_comparison_png(o.out_dir / name, noisy, out, fb.reference, w, h);
+        strips.push_back({file, reader.info().frame_start + f, w, h,
+                          comparison_png_bytes(noisy, out, fb.reference, w, h)});
         ++images;
       }
       ++done;
@@ -233,8 +242,25 @@ EvalSummary evaluate(const EvalOptions& o) {
   sum.rel_mse = mean_of(all.v[1][0][2]);
   sum.ms = mean_of(all.ms);
 
-  std::string caption =
-      write_loss_plot_png(o.out_dir / "loss.png", read_loss_csv(o.run_dir / "loss.csv"));
+  // Plots (SVG, with text): loss per epoch and per step, learning rate.
+  const LossCurve epochs = read_loss_csv(o.run_dir / "loss.csv");
+  const StepCurve steps = read_steps_csv(o.run_dir / "steps.csv");
+  PlotSpec loss_plot{"Loss per epoch", "epoch", "loss (L1 + LoG terms)", true,
+                     {{"training (mean over the epoch)", "#1f77b4", epochs.epoch, epochs.train},
+                      {"validation", "#ff7f0e", epochs.epoch, epochs.val}}};
+  PlotSpec step_plot{"Training loss per step", "optimizer step", "loss (L1 + LoG terms)", true,
+                     {{"training batch loss", "#1f77b4", steps.step, steps.loss}}};
+  PlotSpec lr_plot{"Learning rate", "optimizer step", "learning rate", true,
+                   {{"Adam step size", "#2ca02c", steps.step, steps.lr}}};
+  if (steps.step.empty())  // a run from before steps.csv: per epoch
+    lr_plot = PlotSpec{"Learning rate", "epoch", "learning rate", true,
+                       {{"Adam step size (last step of the epoch)", "#2ca02c", epochs.epoch,
+                         epochs.lr}}};
+  const std::string loss_svg = svg_plot(loss_plot), step_svg = svg_plot(step_plot),
+                    lr_svg = svg_plot(lr_plot);
+  std::ofstream(o.out_dir / "loss.svg") << loss_svg << "\n";
+  std::ofstream(o.out_dir / "steps.svg") << step_svg << "\n";
+  std::ofstream(o.out_dir / "lr.svg") << lr_svg << "\n";
   json summary = all.summary();
   json scenes = json::object();
   for (const auto& [name, a] : by_scene) scenes[name] = a.summary();
@@ -279,8 +305,10 @@ EvalSummary evaluate(const EvalOptions& o) {
   for (const auto& [name, a] : by_scene) table_rows(name.empty() ? "(unnamed)" : name, a);
   if (by_scene.size() > 1) table_rows("all scenes", all);
   md << "\nMean denoise time: " << cell(sum.ms, 2) << " ms per frame.\n\n"
-     << "![loss](loss.png)\n\nLoss curves: " << caption << ".\n\n"
-     << "Comparison images (`frame-NNN.png`): noisy | denoised | reference | 4x error.\n\n"
+     << "![loss per epoch](loss.svg)\n\n![loss per step](steps.svg)\n\n![learning rate](lr.svg)\n\n"
+     << "Comparison images (`frame-NNN.png`): noisy | denoised | reference | error "
+        "(mean absolute sRGB difference, ×4, black-red-yellow-white; white = 0.25). "
+        "`report.html` shows all of this on one page.\n\n"
      << "## Per frame\n\n| shard | frame | ms | SSIM | PSNR | relMSE |\n| --- | --- | --- | --- | "
         "--- | --- |\n";
   for (const json& r : frames) {
@@ -291,6 +319,66 @@ EvalSummary evaluate(const EvalOptions& o) {
     md << "| " << r["shard"].get<std::string>() << " | " << r["frame"].get<int>() << " | "
        << cell(r["denoise_ms"].get<double>(), 2) << " | " << v("ssim") << " | " << v("psnr")
        << " | " << v("rel_mse") << " |\n";
+  }
+
+  // One self-contained page: the same numbers, the plots inline, the strips
+  // embedded, labelled and shown at least 256 px a panel (pixelated).
+  std::ostringstream html;
+  html << "<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\">"
+       << "<title>Denoiser evaluation</title><style>"
+       << "body{font-family:sans-serif;margin:24px;max-width:1400px}"
+       << "table{border-collapse:collapse;margin:8px 0}td,th{border:1px solid #bbb;"
+          "padding:3px 7px;text-align:right}th{background:#eee}td:first-child,"
+          "td:nth-child(2){text-align:left}"
+       << ".strip img{image-rendering:pixelated;display:block}.labels{display:grid;"
+          "grid-template-columns:repeat(4,1fr);font-size:13px;text-align:center}"
+       << "figure{margin:16px 0}</style></head><body>"
+       << "<h1>Denoiser evaluation</h1><p>Run <code>" << html_escape(o.run_dir.string())
+       << "</code>, data <code>" << html_escape(o.data_dir.string()) << "</code>, <span id=\"frames\">"
+       << done << "</span> validation frames, device " << html_escape(device.str()) << ".</p>"
+       << "<p>Checkpoint <code id=\"checkpoint\">" << html_escape(used.checkpoint.string())
+       << "</code>: epoch " << used.state.epoch << ", step " << used.state.step << ", best loss "
+       << cell(used.state.best, 5) << ".</p>"
+       << "<p>SSIM and PSNR on sRGB-encoded images clamped to [0, 1]; relative MSE on linear HDR "
+          "radiance, mean of (d − r)² / (r² + 0.01). In focus: CoC &lt; 1 pixel. Time: network + "
+          "remodulation per frame, no IO.</p><table id=\"summary\"><tr><th>scene</th><th>input</th>"
+          "<th>SSIM all</th><th>SSIM in focus</th><th>SSIM out of focus</th><th>PSNR all (dB)</th>"
+          "<th>PSNR in (dB)</th><th>PSNR out (dB)</th><th>relMSE all</th><th>relMSE in</th>"
+          "<th>relMSE out</th><th>ms/frame</th></tr>";
+  auto html_rows = [&](const std::string& name, const Accumulator& a) {
+    for (int k = 0; k < 2; ++k) {
+      html << "<tr><td>" << html_escape(name) << " (" << a.frames << " frames)</td><td>"
+           << (k == 0 ? "noisy (1 spp)" : "denoised") << "</td>";
+      for (int m = 0; m < 3; ++m)
+        for (int r = 0; r < 3; ++r)
+          html << "<td>" << cell(mean_of(a.v[k][r][m]), m == 1 ? 2 : 4) << "</td>";
+      html << "<td>" << (k == 1 ? cell(mean_of(a.ms), 2) : std::string("–")) << "</td></tr>";
+    }
+  };
+  for (const auto& [name, a] : by_scene) html_rows(name.empty() ? "(unnamed)" : name, a);
+  if (by_scene.size() > 1) html_rows("all scenes", all);
+  html << "</table><h2>Training</h2>" << loss_svg << step_svg << lr_svg << "<h2>Comparisons</h2>";
+  for (const Strip& st : strips) {
+    const int panel = std::max(st.width, 256);
+    const int shown_h = int(std::lround(double(st.height) * panel / st.width));
+    html << "<figure class=\"strip\" style=\"width:" << 4 * panel << "px\"><div class=\"labels\">"
+         << "<span>noisy (1 spp)</span><span>denoised</span><span>reference</span>"
+            "<span>error ×4</span></div><img alt=\"noisy, denoised, reference and error of "
+         << html_escape(st.shard) << " frame " << st.frame << "\" width=\"" << 4 * panel
+         << "\" height=\"" << shown_h << "\" src=\"data:image/png;base64," << base64(st.png)
+         << "\"><figcaption>" << html_escape(st.shard) << ", frame " << st.frame << " ("
+         << st.width << "×" << st.height << " px"
+         << (panel > st.width ? ", shown enlarged " + cell(double(panel) / st.width, 1) + "×" : "")
+         << ")</figcaption></figure>";
+  }
+  if (!strips.empty()) html << "<p>Error colour scale:</p>" << error_scale_svg();
+  html << "<script>document.body.dataset.svgs = document.querySelectorAll('svg').length;"
+          "document.body.dataset.images = Array.from(document.images).filter("
+          "i => i.complete && i.naturalWidth > 0).length;</script></body></html>\n";
+  {
+    const fs::path tmp = o.out_dir / "report.html.tmp";
+    std::ofstream(tmp) << html.str();
+    fs::rename(tmp, o.out_dir / "report.html");
   }
   return sum;
 }

@@ -12,6 +12,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
 #include <fstream>
 #include <sstream>
 
@@ -37,11 +38,21 @@ void heat(float t, uint8_t* px) {
   px[2] = to_byte(t - 2.0f);
 }
 
+// A tick value without trailing zeros: 0.05, 2, 1e-05.
+std::string fmt_number(double v) {
+  if (v == 0) return "0";
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.6g", v);
+  return buf;
+}
+
 }  // namespace
 
-void write_comparison_png(const std::filesystem::path& path, const std::vector<float>& noisy,
-                          const std::vector<float>& denoised, const std::vector<float>& reference,
-                          int w, int h) {
+namespace {
+
+std::vector<uint8_t> comparison_rgb(const std::vector<float>& noisy,
+                                    const std::vector<float>& denoised,
+                                    const std::vector<float>& reference, int w, int h) {
   const size_t n = size_t(w) * h;
   const int total_w = 4 * w;
   std::vector<uint8_t> rgb(size_t(total_w) * h * 3);
@@ -59,11 +70,55 @@ void write_comparison_png(const std::filesystem::path& path, const std::vector<f
                         srgb_encode_clamped(reference[c * n + p]));
       heat(4.0f * err / 3.0f, &rgb[(size_t(y) * total_w + 3 * w + x) * 3]);
     }
-  write_png(path, rgb, total_w, h);
+  return rgb;
 }
 
-LossCurve read_loss_csv(const std::filesystem::path& csv) {
-  LossCurve c;
+}  // namespace
+
+void write_comparison_png(const std::filesystem::path& path, const std::vector<float>& noisy,
+                          const std::vector<float>& denoised, const std::vector<float>& reference,
+                          int w, int h) {
+  write_png(path, comparison_rgb(noisy, denoised, reference, w, h), 4 * w, h);
+}
+
+std::string comparison_png_bytes(const std::vector<float>& noisy, const std::vector<float>& denoised,
+                                 const std::vector<float>& reference, int w, int h) {
+  std::vector<uint8_t> rgb = comparison_rgb(noisy, denoised, reference, w, h);
+  std::string out;
+  auto sink = [](void* ctx, void* data, int size) {
+    static_cast<std::string*>(ctx)->append(static_cast<const char*>(data), size_t(size));
+  };
+  if (!stbi_write_png_to_func(sink, &out, 4 * w, h, 3, rgb.data(), 4 * w * 3))
+    throw RuntimeError("cannot encode the comparison PNG");
+  return out;
+}
+
+std::string error_scale_svg() {
+  // The ramp of heat(): 0 -> black, 1/3 -> red, 2/3 -> yellow, 1 -> white,
+  // reached at a mean absolute error of 0.25 (the panel shows 4x the error).
+  std::ostringstream os;
+  os << "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"340\" height=\"46\" "
+        "class=\"scale\" role=\"img\" aria-label=\"error colour scale\">"
+     << "<defs><linearGradient id=\"heat\"><stop offset=\"0\" stop-color=\"#000\"/>"
+     << "<stop offset=\"0.3333\" stop-color=\"#f00\"/><stop offset=\"0.6667\" "
+        "stop-color=\"#ff0\"/><stop offset=\"1\" stop-color=\"#fff\"/></linearGradient></defs>"
+     << "<rect x=\"10\" y=\"4\" width=\"320\" height=\"14\" fill=\"url(#heat)\" "
+        "stroke=\"#444\"/>";
+  for (int i = 0; i <= 5; ++i) {
+    const double x = 10 + 320.0 * i / 5;
+    os << "<line x1=\"" << x << "\" x2=\"" << x << "\" y1=\"18\" y2=\"23\" stroke=\"#444\"/>"
+       << "<text x=\"" << x << "\" y=\"34\" font-size=\"10\" text-anchor=\"middle\">"
+       << fmt_number(0.05 * i) << "</text>";
+  }
+  os << "<text x=\"170\" y=\"45\" font-size=\"10\" text-anchor=\"middle\">mean |denoised - "
+        "reference| per pixel (sRGB, 0..1)</text></svg>";
+  return os.str();
+}
+
+namespace {
+
+std::vector<std::vector<std::string>> read_csv_rows(const std::filesystem::path& csv) {
+  std::vector<std::vector<std::string>> rows;
   std::ifstream in(csv);
   std::string line;
   std::getline(in, line);  // header
@@ -72,72 +127,197 @@ LossCurve read_loss_csv(const std::filesystem::path& csv) {
     std::stringstream ss(line);
     std::string cell;
     while (std::getline(ss, cell, ',')) f.push_back(cell);
-    if (f.size() < 4) continue;
-    auto num = [](const std::string& s) { return s.empty() ? NAN : std::stod(s); };
+    if (!line.empty() && line.back() == ',') f.emplace_back();
+    rows.push_back(f);
+  }
+  return rows;
+}
+
+double num(const std::string& s) {
+  if (s.empty()) return NAN;
+  try {
+    return std::stod(s);
+  } catch (const std::exception&) {
+    return NAN;
+  }
+}
+
+}  // namespace
+
+LossCurve read_loss_csv(const std::filesystem::path& csv) {
+  LossCurve c;
+  for (const auto& f : read_csv_rows(csv)) {
+    if (f.size() < 5) continue;
     c.epoch.push_back(num(f[0]));
     c.train.push_back(num(f[2]));
     c.val.push_back(num(f[3]));
+    c.lr.push_back(num(f[4]));
   }
   return c;
 }
 
-std::string write_loss_plot_png(const std::filesystem::path& path, const LossCurve& curve) {
-  const int w = 640, h = 360, left = 40, right = 10, top = 10, bottom = 30;
-  std::vector<uint8_t> rgb(size_t(w) * h * 3, 255);
-  auto put = [&](int x, int y, const uint8_t* col) {
-    if (x < 0 || y < 0 || x >= w || y >= h) return;
-    std::copy(col, col + 3, &rgb[(size_t(y) * w + x) * 3]);
-  };
-  auto line = [&](int x0, int y0, int x1, int y1, const uint8_t* col) {  // Bresenham
-    int dx = std::abs(x1 - x0), dy = -std::abs(y1 - y0), sx = x0 < x1 ? 1 : -1,
-        sy = y0 < y1 ? 1 : -1, e = dx + dy;
-    for (;;) {
-      put(x0, y0, col);
-      put(x0, y0 + 1, col);  // two pixels thick
-      if (x0 == x1 && y0 == y1) break;
-      int e2 = 2 * e;
-      if (e2 >= dy) e += dy, x0 += sx;
-      if (e2 <= dx) e += dx, y0 += sy;
-    }
-  };
-  double lo = INFINITY, hi = -INFINITY, emax = 1;
-  for (size_t i = 0; i < curve.epoch.size(); ++i) {
-    for (double v : {curve.train[i], curve.val[i]})
-      if (std::isfinite(v) && v > 0) lo = std::min(lo, v), hi = std::max(hi, v);
-    emax = std::max(emax, curve.epoch[i]);
+StepCurve read_steps_csv(const std::filesystem::path& csv) {
+  StepCurve c;
+  for (const auto& f : read_csv_rows(csv)) {
+    if (f.size() < 3) continue;
+    c.step.push_back(num(f[0]));
+    c.loss.push_back(num(f[1]));
+    c.lr.push_back(num(f[2]));
   }
-  if (!std::isfinite(lo)) lo = 0.1, hi = 1;
-  double llo = std::floor(std::log10(lo)), lhi = std::ceil(std::log10(hi));
-  if (lhi <= llo) lhi = llo + 1;
-  const uint8_t axis[3] = {0, 0, 0}, grid[3] = {220, 220, 220};
-  const uint8_t blue[3] = {31, 119, 180}, orange[3] = {255, 127, 14};
-  auto px = [&](double e) { return left + int(std::lround(e / emax * (w - left - right - 1))); };
-  auto py = [&](double v) {
-    double t = (std::log10(v) - llo) / (lhi - llo);
-    return top + int(std::lround((1 - t) * (h - top - bottom - 1)));
-  };
-  for (double d = llo; d <= lhi; d += 1)
-    line(left, py(std::pow(10, d)), w - right, py(std::pow(10, d)), grid);
-  for (double e = 10; e <= emax; e += 10) line(px(e), h - bottom, px(e), h - bottom + 6, axis);
-  line(left, top, left, h - bottom, axis);
-  line(left, h - bottom, w - right, h - bottom, axis);
-  for (int k = 0; k < 2; ++k) {
-    const std::vector<double>& ys = k == 0 ? curve.train : curve.val;
-    int lx = -1, ly = -1;
-    for (size_t i = 0; i < ys.size(); ++i) {
-      if (!(std::isfinite(ys[i]) && ys[i] > 0)) continue;
-      int x = px(curve.epoch[i]), y = py(ys[i]);
-      if (lx >= 0)
-        line(lx, ly, x, y, k == 0 ? blue : orange);
-      else
-        put(x, y, k == 0 ? blue : orange);
-      lx = x, ly = y;
+  return c;
+}
+
+namespace {
+
+// Ticks at 1, 2 or 5 times a power of ten, about `target` of them over [lo, hi].
+std::vector<double> nice_ticks(double lo, double hi, int target) {
+  std::vector<double> t;
+  if (!(hi > lo)) return {lo};
+  const double raw = (hi - lo) / target;
+  const double mag = std::pow(10.0, std::floor(std::log10(raw)));
+  double step = mag;
+  for (double m : {1.0, 2.0, 5.0, 10.0})
+    if (m * mag >= raw) {
+      step = m * mag;
+      break;
+    }
+  for (double v = std::ceil(lo / step) * step; v <= hi + step * 1e-9; v += step)
+    t.push_back(std::abs(v) < step * 1e-9 ? 0.0 : v);
+  return t;
+}
+
+}  // namespace
+
+std::string html_escape(const std::string& s) {
+  std::string o;
+  for (char c : s) {
+    switch (c) {
+      case '&': o += "&amp;"; break;
+      case '<': o += "&lt;"; break;
+      case '>': o += "&gt;"; break;
+      case '"': o += "&quot;"; break;
+      default: o += c;
     }
   }
-  write_png(path, rgb, w, h);
+  return o;
+}
+
+std::string base64(const std::string& in) {
+  static const char* k = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+  std::string out;
+  out.reserve((in.size() + 2) / 3 * 4);
+  size_t i = 0;
+  for (; i + 2 < in.size(); i += 3) {
+    const uint32_t v = uint32_t(uint8_t(in[i])) << 16 | uint32_t(uint8_t(in[i + 1])) << 8 |
+                       uint8_t(in[i + 2]);
+    for (int s = 18; s >= 0; s -= 6) out += k[(v >> s) & 63];
+  }
+  if (i < in.size()) {
+    uint32_t v = uint32_t(uint8_t(in[i])) << 16;
+    if (i + 1 < in.size()) v |= uint32_t(uint8_t(in[i + 1])) << 8;
+    out += k[(v >> 18) & 63];
+    out += k[(v >> 12) & 63];
+    out += i + 1 < in.size() ? k[(v >> 6) & 63] : '=';
+    out += '=';
+  }
+  return out;
+}
+
+std::string svg_plot(const PlotSpec& p) {
+  const int w = p.width, h = p.height, left = 70, right = 16, top = 30, bottom = 48;
+  const int pw = w - left - right, ph = h - top - bottom;
+  auto usable = [&](double x, double y) {
+    return std::isfinite(x) && std::isfinite(y) && (!p.log_y || y > 0);
+  };
+  double x0 = INFINITY, x1 = -INFINITY, y0 = INFINITY, y1 = -INFINITY;
+  for (const PlotSeries& s : p.series)
+    for (size_t i = 0; i < s.x.size() && i < s.y.size(); ++i) {
+      if (!usable(s.x[i], s.y[i])) continue;
+      const double y = p.log_y ? std::log10(s.y[i]) : s.y[i];
+      x0 = std::min(x0, s.x[i]), x1 = std::max(x1, s.x[i]);
+      y0 = std::min(y0, y), y1 = std::max(y1, y);
+    }
   std::ostringstream os;
-  os << "x: epoch 0.." << emax << " (ticks every 10); y: log10 loss, 1e" << llo << "..1e" << lhi
-     << " (grid per decade); blue = training, orange = validation";
+  os << "<svg xmlns=\"http://www.w3.org/2000/svg\" class=\"plot\" width=\"" << w
+     << "\" height=\"" << h << "\" viewBox=\"0 0 " << w << " " << h << "\" role=\"img\" aria-label=\""
+     << html_escape(p.title) << "\" font-family=\"sans-serif\">"
+     << "<text class=\"title\" x=\"" << w / 2 << "\" y=\"18\" font-size=\"14\" "
+        "text-anchor=\"middle\">" << html_escape(p.title) << "</text>";
+  if (!std::isfinite(x0)) {
+    os << "<text x=\"" << w / 2 << "\" y=\"" << h / 2
+       << "\" font-size=\"12\" text-anchor=\"middle\">no data yet</text></svg>";
+    return os.str();
+  }
+  if (p.log_y) y0 = std::floor(y0), y1 = std::ceil(y1);
+  if (!(x1 > x0)) x0 -= 0.5, x1 += 0.5;
+  if (!(y1 > y0)) {
+    const double pad = p.log_y ? 1.0 : std::max(1e-12, std::abs(y0) * 0.1);
+    y0 -= pad, y1 += pad;
+  }
+  auto X = [&](double x) { return left + (x - x0) / (x1 - x0) * pw; };
+  auto Y = [&](double y) { return top + (1 - (y - y0) / (y1 - y0)) * ph; };
+  char buf[64];
+  auto f = [&](double v) {
+    std::snprintf(buf, sizeof buf, "%.1f", v);
+    return std::string(buf);
+  };
+  // Grid and y ticks.
+  std::vector<double> yt;
+  if (p.log_y) {
+    for (double d = y0; d <= y1 + 1e-9; d += 1) yt.push_back(d);
+  } else {
+    yt = nice_ticks(y0, y1, 5);
+  }
+  for (double t : yt) {
+    os << "<line x1=\"" << left << "\" x2=\"" << left + pw << "\" y1=\"" << f(Y(t)) << "\" y2=\""
+       << f(Y(t)) << "\" stroke=\"#ddd\"/>"
+       << "<text class=\"ytick\" x=\"" << left - 6 << "\" y=\"" << f(Y(t) + 4)
+       << "\" font-size=\"11\" text-anchor=\"end\">"
+       << (p.log_y ? fmt_number(std::pow(10.0, t)) : fmt_number(t)) << "</text>";
+  }
+  for (double t : nice_ticks(x0, x1, 6)) {
+    os << "<line x1=\"" << f(X(t)) << "\" x2=\"" << f(X(t)) << "\" y1=\"" << top + ph << "\" y2=\""
+       << top + ph + 5 << "\" stroke=\"#444\"/>"
+       << "<text class=\"xtick\" x=\"" << f(X(t)) << "\" y=\"" << top + ph + 18
+       << "\" font-size=\"11\" text-anchor=\"middle\">" << fmt_number(t) << "</text>";
+  }
+  os << "<rect x=\"" << left << "\" y=\"" << top << "\" width=\"" << pw << "\" height=\"" << ph
+     << "\" fill=\"none\" stroke=\"#444\"/>"
+     << "<text class=\"xtitle\" x=\"" << left + pw / 2 << "\" y=\"" << h - 8
+     << "\" font-size=\"12\" text-anchor=\"middle\">" << html_escape(p.x_title) << "</text>"
+     << "<text class=\"ytitle\" x=\"16\" y=\"" << top + ph / 2 << "\" font-size=\"12\" "
+        "text-anchor=\"middle\" transform=\"rotate(-90 16 " << top + ph / 2 << ")\">"
+     << html_escape(p.y_title + (p.log_y ? " (log scale)" : "")) << "</text>";
+  // Series: polylines broken at gaps, a dot for an isolated point.
+  int legend_y = top + 14;
+  for (const PlotSeries& s : p.series) {
+    std::vector<std::string> runs(1);
+    for (size_t i = 0; i < s.x.size() && i < s.y.size(); ++i) {
+      if (!usable(s.x[i], s.y[i])) {
+        if (!runs.back().empty()) runs.emplace_back();
+        continue;
+      }
+      const double y = p.log_y ? std::log10(s.y[i]) : s.y[i];
+      runs.back() += f(X(s.x[i])) + "," + f(Y(y)) + " ";
+    }
+    for (const std::string& r : runs) {
+      if (r.empty()) continue;
+      if (std::count(r.begin(), r.end(), ' ') == 1) {
+        const size_t comma = r.find(',');
+        os << "<circle cx=\"" << r.substr(0, comma) << "\" cy=\"" << r.substr(comma + 1, r.size() - comma - 2)
+           << "\" r=\"2.5\" fill=\"" << s.colour << "\"/>";
+      } else {
+        os << "<polyline class=\"series\" fill=\"none\" stroke-width=\"1.8\" stroke=\"" << s.colour
+           << "\" points=\"" << r << "\"/>";
+      }
+    }
+    os << "<line x1=\"" << left + pw - 215 << "\" x2=\"" << left + pw - 193 << "\" y1=\"" << legend_y - 4
+       << "\" y2=\"" << legend_y - 4 << "\" stroke=\"" << s.colour << "\" stroke-width=\"2\"/>"
+       << "<text class=\"legend\" x=\"" << left + pw - 187 << "\" y=\"" << legend_y
+       << "\" font-size=\"11\">" << html_escape(s.label) << "</text>";
+    legend_y += 15;
+  }
+  os << "</svg>";
   return os.str();
 }
 

@@ -1,5 +1,6 @@
-// Pictures for evaluation reports, drawn without a plotting library:
-// side-by-side comparison strips with an error heat map, and loss curves.
+// Pictures for evaluation reports: side-by-side comparison strips with an
+// error heat map (PNG), and plots as SVG (text: axis titles, tick values,
+// legends), for report.html and report.md.
 #pragma once
 
 #include <filesystem>
@@ -16,14 +17,40 @@ void write_comparison_png(const std::filesystem::path& path, const std::vector<f
                           const std::vector<float>& denoised, const std::vector<float>& reference,
                           int width, int height);
 
+// The same strip as PNG file bytes (for embedding in report.html).
+std::string comparison_png_bytes(const std::vector<float>& noisy, const std::vector<float>& denoised,
+                                 const std::vector<float>& reference, int width, int height);
+// The error panel's scale: display-space mean absolute error 0 .. 0.25 on the
+// heat ramp, as an SVG colour bar with tick values.
+std::string error_scale_svg();
+
 struct LossCurve {
-  std::vector<double> epoch, train, val;  // val may hold NaN (no validation set)
+  std::vector<double> epoch, train, val, lr;  // val may hold NaN (no validation set)
 };
 // Reads RUN/loss.csv (empty curve when absent).
 LossCurve read_loss_csv(const std::filesystem::path& csv);
-// Writes a 640x360 PNG: training loss blue, validation orange, log10 y axis
-// between the curves' min and max, one tick per decade and per 10 epochs.
-// Returns a one-line caption with the axis ranges (the image has no text).
-std::string write_loss_plot_png(const std::filesystem::path& path, const LossCurve& curve);
+struct StepCurve {
+  std::vector<double> step, loss, lr;  // loss NaN for a skipped step
+};
+// Reads RUN/steps.csv (step,loss,lr; empty curve when absent).
+StepCurve read_steps_csv(const std::filesystem::path& csv);
+
+struct PlotSeries {
+  std::string label, colour;
+  std::vector<double> x, y;  // non-finite y (and y <= 0 on a log axis) are gaps
+};
+struct PlotSpec {
+  std::string title, x_title, y_title;
+  bool log_y = false;
+  std::vector<PlotSeries> series;
+  int width = 640, height = 360;
+};
+// A self-contained <svg> element: axes with titles, tick values (decades on
+// a log axis, "nice" steps otherwise), grid, one polyline per series and a
+// legend. An empty plot says so instead of drawing nothing.
+std::string svg_plot(const PlotSpec& spec);
+
+std::string base64(const std::string& bytes);
+std::string html_escape(const std::string& s);
 
 }  // namespace dofarm::trainer

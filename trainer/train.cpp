@@ -405,6 +405,20 @@ TrainResult train_in(const TrainOptions& opt_in) {
   const bool new_csv = !fs::exists(run / "loss.csv");
   std::ofstream csv(run / "loss.csv", std::ios::app);
   if (new_csv) csv << "epoch,step,train_loss,val_loss,lr,skipped,seconds\n";
+  // One row per step (the report's per-step curves). Rows past the checkpoint
+  // (a process killed before it could save) are dropped: those steps run again.
+  {
+    std::vector<std::string> keep;
+    std::ifstream in(run / "steps.csv");
+    std::string line;
+    std::getline(in, line);
+    while (std::getline(in, line))
+      if (!line.empty() && std::stoll(line.substr(0, line.find(','))) <= st.step) keep.push_back(line);
+    std::string text = "step,loss,lr\n";
+    for (const std::string& l : keep) text += l + "\n";
+    write_text_atomic(run / "steps.csv", text);
+  }
+  std::ofstream steps_csv(run / "steps.csv", std::ios::app);
 
   int bad_in_a_row = 0;
   const int64_t total_steps = int64_t(cfg.train.epochs) * cfg.train.steps_per_epoch;
@@ -438,12 +452,15 @@ TrainResult train_in(const TrainOptions& opt_in) {
       const bool ok = outcome.finite;
       ++st.step;
       progress.advance();
+      steps_csv << st.step << "," << (ok ? fmt::format("{:.6g}", loss_value) : "") << ","
+                << fmt::format("{:.6g}", lr) << "\n";
       if (ok) {
         adam.step();
         loss_sum += loss_value;
         ++good;
         bad_in_a_row = 0;
         if (opt_in.save_every > 0 && st.step % opt_in.save_every == 0) {
+          steps_csv.flush();
           save_checkpoint(last, model, adam, st, cfg);
           const fs::path kept = ckpt_dir / fmt::format("step-{:08d}.pt", st.step);
           fs::copy_file(last, kept, fs::copy_options::overwrite_existing);
@@ -499,6 +516,7 @@ TrainResult train_in(const TrainOptions& opt_in) {
         << fmt::format("{:.6g}", lr) << "," << skipped << "," << fmt::format("{:.3f}", seconds)
         << "\n";
     csv.flush();
+    steps_csv.flush();
     spdlog::info("epoch {}/{}: train {:.5f} val {:.5f} lr {:.3g} ({:.1f} s)", st.epoch,
                  cfg.train.epochs, train_loss, val, lr, seconds);
     // Best by validation loss; by training loss when there is no validation set.
@@ -512,6 +530,7 @@ TrainResult train_in(const TrainOptions& opt_in) {
     if (improved) fs::copy_file(last, best, fs::copy_options::overwrite_existing);
     ++result.epochs;
   }
+  steps_csv.flush();
   if (result.stopped) {
     save_checkpoint(last, model, adam, st, cfg);
     log(spdlog::level::warn,

@@ -246,7 +246,8 @@ TEST(Eval, ReportHasEveryFrameAndBeatsTheNoisyInput) {
   EvalOptions e{trained_run(), shared_data(), out, 0, 1, 0};
   EvalSummary s = evaluate(e);
   EXPECT_EQ(s.frames, 3);
-  for (const char* f : {"report.md", "report.json", "loss.png", "frame-000.png"})
+  for (const char* f : {"report.md", "report.json", "report.html", "loss.svg", "steps.svg",
+                        "lr.svg", "frame-000.png"})
     EXPECT_TRUE(fs::exists(out / f)) << f;
   EXPECT_FALSE(fs::exists(out / "frame-001.png"));  // max_images = 1
   std::ifstream in(out / "report.json");
@@ -257,6 +258,46 @@ TEST(Eval, ReportHasEveryFrameAndBeatsTheNoisyInput) {
   EXPECT_GT(den, noisy);
   EXPECT_TRUE(std::isfinite(s.psnr));
   EXPECT_GT(s.ms, 0.0);
+}
+
+// The page as a reader sees it: opened by a real browser (Debian's
+// chromium, headless), its script run, its plots and images decoded, its
+// numbers those of report.json.
+TEST(Eval, ReportPageLoadsInABrowserWithItsPlotsAndNumbers) {
+  const char* browsers[] = {"/usr/bin/chromium", "/usr/bin/chromium-browser"};
+  std::string browser;
+  for (const char* b : browsers)
+    if (fs::exists(b)) browser = b;
+  if (browser.empty()) GTEST_SKIP() << "no chromium (scripts/install-deps.sh installs it)";
+  fs::path out = fresh_dir("eval_html");
+  EvalOptions e{trained_run(), shared_data(), out, 0, 2, 0};
+  evaluate(e);
+  const fs::path dom = out / "dom.html";
+  const std::string cmd = browser +
+                          " --headless --no-sandbox --disable-gpu --disable-dev-shm-usage "
+                          "--no-first-run --user-data-dir=" + (out / "profile").string() +
+                          " --virtual-time-budget=5000 --dump-dom file://" +
+                          (out / "report.html").string() + " > " + dom.string() + " 2>/dev/null";
+  ASSERT_EQ(std::system(cmd.c_str()), 0) << cmd;
+  std::ifstream in(dom);
+  const std::string page((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  // The script ran: 3 plots + the error scale; both strips decoded.
+  EXPECT_NE(page.find("data-svgs=\"4\""), std::string::npos) << page.substr(0, 2000);
+  EXPECT_NE(page.find("data-images=\"2\""), std::string::npos);
+  // Plots with axis titles, tick values and legends.
+  for (const char* text : {"Loss per epoch", ">epoch<", ">optimizer step<", "learning rate",
+                           "class=\"ytick\"", "class=\"xtick\"", ">validation<",
+                           ">training (mean over the epoch)<", ">noisy (1 spp)<", ">error ×4<",
+                           "mean |denoised - reference| per pixel"})
+    EXPECT_NE(page.find(text), std::string::npos) << text;
+  // The numbers are report.json's.
+  std::ifstream js(out / "report.json");
+  nlohmann::json j = nlohmann::json::parse(js);
+  char ssim[32];
+  std::snprintf(ssim, sizeof ssim, "<td>%.4f</td>",
+                j["summary"]["denoised"]["all"]["ssim"].get<double>());
+  EXPECT_NE(page.find(ssim), std::string::npos) << ssim;
+  EXPECT_NE(page.find(j["checkpoint"]["file"].get<std::string>()), std::string::npos);
 }
 
 TEST(Denoise, ExrFrameGivesTheSameResultAsTheShardFrame) {
