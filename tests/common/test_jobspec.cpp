@@ -291,14 +291,17 @@ TEST_F(JobSpecFiles, CameraKeysAreSortedByFrame) {
 frame = 48
 rotation = [0, 0, 0]
 aperture = 0.48
+focal_distance = 4.8
 [[camera.key]]
 frame = 0
 rotation = [0, 0, 0]
 aperture = 0.0
+focal_distance = 1
 [[camera.key]]
 frame = 95
 rotation = [0, 0, 0]
 aperture = 0.95
+focal_distance = 9.5
 )");
   ASSERT_EQ(spec.camera_keys.size(), 3u);
   EXPECT_EQ(spec.camera_keys[0].frame, 0);
@@ -308,6 +311,7 @@ aperture = 0.95
   EXPECT_EQ(spec.camera_keys[0].aperture, 0.0f);
   EXPECT_EQ(spec.camera_keys[1].aperture, 0.48f);
   EXPECT_EQ(spec.camera_keys[2].aperture, 0.95f);
+  EXPECT_EQ(spec.camera_keys[2].focal_distance, 9.5f);
   EXPECT_TRUE(spec.camera_keys[1].rotation_deg.has_value());
   EXPECT_FALSE(spec.camera_keys[1].look_at.has_value());
 }
@@ -374,7 +378,7 @@ TEST_F(JobSpecFiles, OverridesSetValuesOfEveryKind) {
   touch("hdri/sky.exr");
   JobSpec spec =
       parse(kOneKey, {"image.width=64", "buffers.reference_spp=16", "camera.key.0.aperture=0.1",
-                      "camera.key.0.position=[1, 2, 3]", "environment.map=hdri/sky.exr",
+                      "camera.key.0.focal_distance=2.5", "camera.key.0.position=[1, 2, 3]", "environment.map=hdri/sky.exr",
                       "render.sampler=independent", "seed=99"});
   EXPECT_EQ(spec.width, 64);
   EXPECT_EQ(spec.reference_spp, 16);
