@@ -281,7 +281,19 @@ TEST(JobValue, ContentErrorsAreBadInputAndWriteNothing) {
   const fs::path empty_spec = write_job(dir.path(), "empty_scene.toml", empty_scene);
   const std::string env_text = read_text(env_job);  // the map is on its last line
   const int env_line = int(std::count(env_text.begin(), env_text.end(), '\n'));
+  // camera.from_scene on a scene without a camera (it used to render from
+  // the origin), and autofocus looking out of the open box at nothing.
+  const fs::path no_camera = dir / "no_camera.toml";
+  write_text(no_camera, "scene = \"" + cornell_scene().string() +
+                            "\"\nseed = 7\n\n[camera]\nfrom_scene = true\n");
+  const fs::path nothing_to_focus = dir / "nothing_to_focus.toml";
+  write_text(nothing_to_focus, "scene = \"" + cornell_scene().string() +
+                                   "\"\n[image]\nwidth = 16\nheight = 16\n[[camera.key]]\n"
+                                   "position = [0.0, 1.0, 3.9]\nlook_at = [0.0, 1.0, 10.0]\n"
+                                   "aperture = 0.05\nfocus = \"auto\"\n");
   const std::vector<Case> cases = {
+      {no_camera, no_camera.string() + ":5:14: \"camera.from_scene\": the scene"},
+      {nothing_to_focus, nothing_to_focus.string() + ":9:9: \"camera.key.0.focus\": autofocus"},
       {bad_spec, bad_spec.string() + ":1:1: \"scene\""},
       {empty_spec, empty_spec.string() + ":1:1: \"scene\""},
       {env_job, env_job.string() + ":" + std::to_string(env_line) + ":1: \"environment.map\""}};
