@@ -420,9 +420,8 @@ void read_lens(const Section& s, CameraKey& key) {
   }
   if (auto v = s.string("focus")) {
     if (*v != "auto") {
-      s.fail_at("focus",
-                "expected \"auto\" (focus on the surface at the image centre), got \"" + *v +
-                    "\"; a distance is focal_distance, a point focus_point");
+      s.fail_at("focus", "expected \"auto\" (focus on the surface at the image centre), got \"" +
+                             *v + "\"; a distance is focal_distance, a point focus_point");
     }
     key.focus = FocusMode::kAuto;
   }
@@ -519,9 +518,8 @@ void read_camera(const Section& s, JobSpec& spec) {
   }
   // The lens interpolates between keys, so a pinhole key next to a lens key
   // needs a focus too (else the frames between would focus at a made-up 1).
-  auto lens_key = std::find_if(read.begin(), read.end(), [](const Keyed& k) {
-    return k.key.has_lens();
-  });
+  auto lens_key =
+      std::find_if(read.begin(), read.end(), [](const Keyed& k) { return k.key.has_lens(); });
   if (lens_key != read.end()) {
     for (const Keyed& k : read) {
       if (k.key.focus != FocusMode::kNone) continue;
@@ -602,7 +600,8 @@ void record_locations(const toml::node& node, const std::string& prefix, const O
                       std::map<std::string, FileLoc>& out) {
   if (!prefix.empty()) out[prefix] = origins.of(node);
   if (const toml::table* t = node.as_table()) {
-    for (const auto& [k, child] : *t) record_locations(child, join_key(prefix, k.str()), origins, out);
+    for (const auto& [k, child] : *t)
+      record_locations(child, join_key(prefix, k.str()), origins, out);
   } else if (const toml::array* a = node.as_array(); a && a->is_array_of_tables()) {
     for (size_t i = 0; i < a->size(); ++i)
       record_locations(*a->get(i), prefix + "." + std::to_string(i), origins, out);

@@ -36,8 +36,8 @@ struct CameraKey {
   float sensor_width_mm = 36.0f;  // spans the image's longer side (Blender's auto fit)
   // Focus: set whenever the key has a lens (load_job_spec checks it).
   FocusMode focus = FocusMode::kNone;
-  float focal_distance = 1.0f;    // kDistance (kNone records 1), > 0, scene units
-  Vec3 focus_point{0, 0, 0};      // kPoint: world space
+  float focal_distance = 1.0f;  // kDistance (kNone records 1), > 0, scene units
+  Vec3 focus_point{0, 0, 0};    // kPoint: world space
   bool has_lens() const { return aperture > 0 || fstop > 0; }
 };
 

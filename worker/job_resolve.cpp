@@ -2,6 +2,7 @@
 
 #include <fcntl.h>
 #include <fmt/format.h>
+#include <spdlog/spdlog.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -9,8 +10,6 @@
 #include <cstring>
 #include <random>
 #include <sstream>
-
-#include <spdlog/spdlog.h>
 
 #include "common/content_hash.h"
 #include "common/error.h"
@@ -138,9 +137,8 @@ void complete_spec_from_scene(JobSpec& spec, const render::Scene& scene) {
                           "and give the pose in [[camera.key]]");
     }
     const float aspect = track.front().aspect;
-    const render::ImageSize size =
-        render::image_size_for_aspect(aspect, spec.width_given ? spec.width : 0,
-                                      spec.height_given ? spec.height : 0);
+    const render::ImageSize size = render::image_size_for_aspect(
+        aspect, spec.width_given ? spec.width : 0, spec.height_given ? spec.height : 0);
     for (auto [key, side, given] : {std::tuple{"image.width", size.width, spec.width_given},
                                     std::tuple{"image.height", size.height, spec.height_given}}) {
       if (side > kMaxImageSide) {

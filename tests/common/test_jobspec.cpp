@@ -379,8 +379,8 @@ TEST_F(JobSpecFiles, OverridesSetValuesOfEveryKind) {
   touch("hdri/sky.exr");
   JobSpec spec =
       parse(kOneKey, {"image.width=64", "buffers.reference_spp=16", "camera.key.0.aperture=0.1",
-                      "camera.key.0.focal_distance=2.5", "camera.key.0.position=[1, 2, 3]", "environment.map=hdri/sky.exr",
-                      "render.sampler=independent", "seed=99"});
+                      "camera.key.0.focal_distance=2.5", "camera.key.0.position=[1, 2, 3]",
+                      "environment.map=hdri/sky.exr", "render.sampler=independent", "seed=99"});
   EXPECT_EQ(spec.width, 64);
   EXPECT_EQ(spec.reference_spp, 16);
   EXPECT_EQ(spec.camera_keys[0].aperture, 0.1f);
@@ -521,9 +521,10 @@ focal_distance = 3
   EXPECT_EQ(spec.where("camera.key.1.focus").str(), (dir_ / "job.toml").string() + ":15:9");
 
   const std::string text = canonical_spec_toml(spec, "scene.gltf", "");
-  for (const char* line : {"fstop = 2.8\nfocal_length = 50.0\n", "focus_point = [0.5, 1.0, -0.25]\n",
-                           "focus = \"auto\"\nfstop = 1.4\nsensor_width = 23.5\n",
-                           "focal_distance = 3.0\naperture = 0.02\n"})
+  for (const char* line :
+       {"fstop = 2.8\nfocal_length = 50.0\n", "focus_point = [0.5, 1.0, -0.25]\n",
+        "focus = \"auto\"\nfstop = 1.4\nsensor_width = 23.5\n",
+        "focal_distance = 3.0\naperture = 0.02\n"})
     EXPECT_NE(text.find(line), std::string::npos) << line << " not in\n" << text;
   JobSpec back = parse_job_spec(text, dir_ / "job.toml");
   EXPECT_EQ(canonical_spec_toml(back, "scene.gltf", ""), text);

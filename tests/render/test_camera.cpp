@@ -6,10 +6,9 @@
 #include <cstring>
 
 #include "common/error.h"
-#include "worker/render/render_job.h"
-
 #include "tests/render/render_fixtures.h"
 #include "worker/render/camera.h"
+#include "worker/render/render_job.h"
 
 namespace dofarm::render {
 namespace {
@@ -196,10 +195,10 @@ TEST(SceneCamera, FieldOfViewSpansTheLongerSideAsBlendersAutoFit) {
   };
   auto atan_deg = [](double t) { return std::atan(t) * 180 / M_PI; };
   const double t_angle = std::tan(angle * M_PI / 360);
-  for (const Case& c : {Case{512, 288, angle / 2, yfov / 2},  // the camera's own shape
-                        Case{512, 512, angle / 2, angle / 2},
-                        Case{512, 256, angle / 2, atan_deg(t_angle / 2)},
-                        Case{288, 512, atan_deg(t_angle * 288 / 512), angle / 2}}) {
+  for (const Case& c :
+       {Case{512, 288, angle / 2, yfov / 2},  // the camera's own shape
+        Case{512, 512, angle / 2, angle / 2}, Case{512, 256, angle / 2, atan_deg(t_angle / 2)},
+        Case{288, 512, atan_deg(t_angle * 288 / 512), angle / 2}}) {
     SCOPED_TRACE(::testing::Message() << c.w << "x" << c.h);
     const JobSpec spec = from_scene_spec(c.w, c.h);
     const CameraState cam = camera_for_frame(spec, d, 0);
@@ -227,7 +226,7 @@ TEST(SceneCamera, DefaultImageSizeFollowsTheAspectRatio) {
   EXPECT_EQ(size(wide, 0, 1080), std::make_pair(1920, 1080));
   EXPECT_EQ(size(wide, 640, 640), std::make_pair(640, 640));  // both given: kept
   EXPECT_EQ(size(0.0f, 0, 0), std::make_pair(512, 512));      // no aspect in the file
-  EXPECT_EQ(size(1000.0f, 0, 0), std::make_pair(512, 1));      // never 0 pixels
+  EXPECT_EQ(size(1000.0f, 0, 0), std::make_pair(512, 1));     // never 0 pixels
 }
 
 TEST(SceneCamera, MismatchSaysWhatTheImageCropsOrAdds) {

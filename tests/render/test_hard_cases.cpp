@@ -6,7 +6,6 @@
 
 #include "common/error.h"
 #include "common/exr_io.h"
-
 #include "tests/render/render_fixtures.h"
 
 namespace dofarm::render {

@@ -137,7 +137,8 @@ float fitted_vertical_fov(float yfov_deg, float camera_aspect, int width, int he
 
 ImageSize image_size_for_aspect(float camera_aspect, int width, int height) {
   constexpr int kDefaultSide = 512;
-  if (!(camera_aspect > 0)) return {width > 0 ? width : kDefaultSide, height > 0 ? height : kDefaultSide};
+  if (!(camera_aspect > 0))
+    return {width > 0 ? width : kDefaultSide, height > 0 ? height : kDefaultSide};
   auto side = [](double v) { return int(std::max(1.0, std::min(std::round(v), 1e9))); };
   if (width > 0 && height > 0) return {width, height};
   if (width > 0) return {width, side(width / double(camera_aspect))};
