@@ -261,6 +261,47 @@ TEST(EmbeddedRun, RunsResumesAndRefusesAnotherJobInProcess) {
   EXPECT_TRUE(shards_match_render(o.out, o.spec));
 }
 
+// The size a from-scene spec leaves out follows the glTF camera (courtyard:
+// aspectRatio 16:9) and is written into the canonical spec, so the job hash,
+// the planner and the workers all see it; a derived side beyond the limit is
+// an error at the key that was given.
+TEST(JobValue, SceneCameraSizeIsResolvedIntoTheCanonicalSpec) {
+  TempDir dir;
+  const fs::path courtyard = fs::path(DOFARM_SOURCE_DIR) / "jobs/scenes/courtyard.gltf";
+  auto spec_with = [&](const std::string& name, const std::string& image) {
+    const fs::path p = dir / name;
+    write_text(p, "scene = \"" + courtyard.string() + "\"\n" + image +
+                      "[camera]\nfrom_scene = true\n");
+    return p;
+  };
+  struct Case {
+    std::string image;
+    int width, height;
+  };
+  for (const Case& c : {Case{"", 512, 288}, Case{"[image]\nwidth = 1920\n", 1920, 1080},
+                        Case{"[image]\nheight = 90\n", 160, 90},
+                        Case{"[image]\nwidth = 64\nheight = 64\n", 64, 64}}) {
+    SCOPED_TRACE(c.image);
+    worker::ResolvedJob job = worker::resolve_job(spec_with("job.toml", c.image), {});
+    EXPECT_EQ(job.spec.width, c.width);
+    EXPECT_EQ(job.spec.height, c.height);
+    const std::string size = "[image]\nwidth = " + std::to_string(c.width) +
+                             "\nheight = " + std::to_string(c.height) + "\n";
+    EXPECT_NE(job.snapshot.spec_toml.find(size), std::string::npos) << job.snapshot.spec_toml;
+  }
+  // The default and the explicit 16:9 size are the same job.
+  EXPECT_EQ(worker::resolve_job(spec_with("a.toml", ""), {}).snapshot.hash(),
+            worker::resolve_job(spec_with("b.toml", "[image]\nwidth = 512\nheight = 288\n"), {})
+                .snapshot.hash());
+  try {
+    worker::resolve_job(spec_with("tall.toml", "[image]\nheight = 16384\n"), {});
+    ADD_FAILURE() << "a 29127-pixel width was accepted";
+  } catch (const SpecError& e) {
+    EXPECT_EQ(e.key(), "image.height");
+    EXPECT_EQ(e.loc().line, 3) << e.what();
+  }
+}
+
 // Defect 12: content errors are found before anything exists.
 TEST(JobValue, ContentErrorsAreBadInputAndWriteNothing) {
   TempDir dir;
