@@ -213,6 +213,29 @@ TEST(SceneCamera, FieldOfViewSpansTheLongerSideAsBlendersAutoFit) {
   EXPECT_NEAR(half_angle_y(camera_for_frame(keyed, d, 0), 512, 256), 15.0, 1e-3);
 }
 
+// Known answers from Blender 3.4.1 itself: a 50 mm lens on a 36 mm sensor
+// (sensor fit auto), Camera.view_frame() half-angles in degrees at each
+// render size. The glTF the exporter writes for the 1920x1080 render holds
+// yfov = 2 atan(tan(angle/2) / (16/9)) and aspectRatio 16/9.
+TEST(SceneCamera, MatchesBlendersViewFrameAtEveryImageSize) {
+  const double angle = 2 * std::atan(18.0 / 50.0);
+  const double a = 1920.0 / 1080.0;
+  const SceneData d =
+      scene_camera(float(2 * std::atan(std::tan(angle / 2) / a) * 180 / M_PI), float(a));
+  struct Blender {
+    int w, h;
+    double half_x, half_y;
+  };
+  for (const Blender& b :
+       {Blender{1920, 1080, 19.7989, 11.4476}, Blender{512, 512, 19.7989, 19.7989},
+        Blender{1024, 512, 19.7989, 10.2040}, Blender{288, 512, 11.4476, 19.7989}}) {
+    SCOPED_TRACE(::testing::Message() << b.w << "x" << b.h);
+    const CameraState cam = camera_for_frame(from_scene_spec(b.w, b.h), d, 0);
+    EXPECT_NEAR(half_angle_x(cam, b.w, b.h), b.half_x, 1e-4);
+    EXPECT_NEAR(half_angle_y(cam, b.w, b.h), b.half_y, 1e-4);
+  }
+}
+
 TEST(SceneCamera, DefaultImageSizeFollowsTheAspectRatio) {
   auto size = [](float a, int w, int h) {
     ImageSize s = image_size_for_aspect(a, w, h);
