@@ -112,13 +112,14 @@ Command add_render(CLI::App& app) {
                               ", " + std::to_string(spec.frame_end) + "]");
         }
         std::optional<Rect> tile;
-        if (!args->tile.empty()) {
-          tile = parse_tile(args->tile);
-          check_tile(*tile, args->tile, spec);
-        }
+        if (!args->tile.empty()) tile = parse_tile(args->tile);
         // The scene and environment map are content too: loaded (and any
         // problem reported against the spec) before anything is written.
+        // The image size may follow the scene camera: the tile is checked
+        // against the completed spec.
         auto scene = worker::load_scene_checked(spec);
+        worker::complete_spec_from_scene(spec, *scene);
+        if (tile) check_tile(*tile, args->tile, spec);
         // All input is checked: only now touch the filesystem.
         fs::path out(args->out);
         if (out.has_parent_path()) {

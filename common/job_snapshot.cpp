@@ -120,8 +120,29 @@ std::string canonical_spec_toml(const JobSpec& spec, const std::string& scene,
       }
       line("fov = " + number(k.fov_deg));
     }
-    line("focal_distance = " + number(k.focal_distance));
-    line("aperture = " + number(k.aperture));
+    // The keys as given: an f-number without a focal length, a focus point
+    // or autofocus depend on each frame's camera and are resolved there.
+    switch (k.focus) {
+      case FocusMode::kNone:  // a pinhole: records 1, as it always has
+      case FocusMode::kDistance:
+        line("focal_distance = " + number(k.focal_distance));
+        break;
+      case FocusMode::kPoint:
+        line("focus_point = " + vec3(k.focus_point));
+        break;
+      case FocusMode::kAuto:
+        line("focus = \"auto\"");
+        break;
+    }
+    if (k.fstop > 0) {
+      line("fstop = " + number(k.fstop));
+      if (k.focal_length_mm > 0)
+        line("focal_length = " + number(k.focal_length_mm));
+      else
+        line("sensor_width = " + number(k.sensor_width_mm));
+    } else {
+      line("aperture = " + number(k.aperture));
+    }
   }
   if (spec.environment) {
     const EnvironmentSpec& e = *spec.environment;

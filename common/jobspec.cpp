@@ -13,6 +13,7 @@
 #include <cmath>
 #include <fstream>
 #include <limits>
+#include <map>
 #include <sstream>
 #include <string_view>
 #include <system_error>
@@ -351,8 +352,14 @@ class Section {
 
 void read_image(const Section& s, JobSpec& spec) {
   s.check_keys({"width", "height"});
-  if (auto v = s.integer("width", IntRange::between(1, 16384))) spec.width = int(*v);
-  if (auto v = s.integer("height", IntRange::between(1, 16384))) spec.height = int(*v);
+  if (auto v = s.integer("width", IntRange::between(1, kMaxImageSide))) {
+    spec.width = int(*v);
+    spec.width_given = true;
+  }
+  if (auto v = s.integer("height", IntRange::between(1, kMaxImageSide))) {
+    spec.height = int(*v);
+    spec.height_given = true;
+  }
 }
 
 void read_frames(const Section& s, JobSpec& spec) {
@@ -382,9 +389,53 @@ void read_frames(const Section& s, JobSpec& spec) {
                     spec.frame_count(), spec.frame_start, spec.frame_end, kMaxFramesPerBatch));
 }
 
+// The lens and focus keys of one camera key (jobs/README.md, "Lens and focus").
+void read_lens(const Section& s, CameraKey& key) {
+  s.exclusive("aperture", "fstop");
+  if (auto v = s.number("aperture", Interval::non_negative())) key.aperture = float(*v);
+  if (auto v = s.number("fstop", Interval::positive())) key.fstop = float(*v);
+  for (std::string_view k : {"focal_length", "sensor_width"}) {
+    if (s.find(k) && !s.find("fstop")) {
+      s.fail_at(k, "only applies with fstop (the lens radius is focal_length / (2 fstop))");
+    }
+  }
+  if (s.find("sensor_width") && s.find("focal_length")) {
+    s.fail_at("sensor_width",
+              "only applies when focal_length is not given (it derives the focal length from "
+              "the field of view); give one of them");
+  }
+  if (auto v = s.number("focal_length", Interval::positive())) key.focal_length_mm = float(*v);
+  if (auto v = s.number("sensor_width", Interval::positive())) key.sensor_width_mm = float(*v);
+
+  s.exclusive("focal_distance", "focus_point");
+  s.exclusive("focal_distance", "focus");
+  s.exclusive("focus_point", "focus");
+  if (auto v = s.number("focal_distance", Interval::positive())) {
+    key.focal_distance = float(*v);
+    key.focus = FocusMode::kDistance;
+  }
+  if (auto v = s.vec3("focus_point")) {
+    key.focus_point = *v;
+    key.focus = FocusMode::kPoint;
+  }
+  if (auto v = s.string("focus")) {
+    if (*v != "auto") {
+      s.fail_at("focus", "expected \"auto\" (focus on the surface at the image centre), got \"" +
+                             *v + "\"; a distance is focal_distance, a point focus_point");
+    }
+    key.focus = FocusMode::kAuto;
+  }
+  if (key.has_lens() && key.focus == FocusMode::kNone) {
+    const char* lens = key.fstop > 0 ? "fstop" : "aperture";
+    s.fail_at(lens, fmt::format("a lens ({} = {}) needs a focus: set focal_distance, "
+                                "focus_point = [x, y, z] or focus = \"auto\"",
+                                lens, key.fstop > 0 ? key.fstop : key.aperture));
+  }
+}
+
 CameraKey read_camera_key(const Section& s, bool from_scene) {
-  s.check_keys(
-      {"frame", "position", "look_at", "rotation", "up", "fov", "focal_distance", "aperture"});
+  s.check_keys({"frame", "position", "look_at", "rotation", "up", "fov", "aperture", "fstop",
+                "focal_length", "sensor_width", "focal_distance", "focus_point", "focus"});
   CameraKey key;
   if (from_scene) {
     // Pose and fov come from the scene's camera; only the lens is keyed here.
@@ -392,7 +443,8 @@ CameraKey read_camera_key(const Section& s, bool from_scene) {
       if (s.find(k)) {
         s.fail_at(k,
                   "not allowed with camera.from_scene = true (pose and fov come from the "
-                  "scene; keys may only set frame, focal_distance, aperture)");
+                  "scene; keys may only set frame and the lens: aperture or fstop, "
+                  "focal_length, sensor_width, focal_distance, focus_point, focus)");
       }
     }
   }
@@ -422,8 +474,7 @@ CameraKey read_camera_key(const Section& s, bool from_scene) {
     }
     if (auto v = s.number("fov", Interval::open(0, 180))) key.fov_deg = float(*v);
   }
-  if (auto v = s.number("focal_distance", Interval::positive())) key.focal_distance = float(*v);
-  if (auto v = s.number("aperture", Interval::non_negative())) key.aperture = float(*v);
+  read_lens(s, key);
   return key;
 }
 
@@ -442,6 +493,7 @@ void read_camera(const Section& s, JobSpec& spec) {
       Section ks(s.origins(), keys->get(i)->as_table(), fmt::format("{}.key.{}", s.name(), i),
                  s.loc());
       read.push_back({read_camera_key(ks, spec.camera_from_scene), i});
+      read.back().key.index = int(i);
     }
   }
   if (read.empty() && !spec.camera_from_scene) {
@@ -464,6 +516,21 @@ void read_camera(const Section& s, JobSpec& spec) {
     if (ks.find("frame")) ks.fail_at("frame", msg);
     fail(ks.loc(), ks.name(), msg);
   }
+  // The lens interpolates between keys, so a pinhole key next to a lens key
+  // needs a focus too (else the frames between would focus at a made-up 1).
+  auto lens_key =
+      std::find_if(read.begin(), read.end(), [](const Keyed& k) { return k.key.has_lens(); });
+  if (lens_key != read.end()) {
+    for (const Keyed& k : read) {
+      if (k.key.focus != FocusMode::kNone) continue;
+      Section ks(s.origins(), keys->get(k.index)->as_table(),
+                 fmt::format("{}.key.{}", s.name(), k.index), s.loc());
+      fail(ks.loc(), ks.name(),
+           fmt::format("needs a focus (focal_distance, focus_point or focus = \"auto\"): "
+                       "{}.key.{} has a lens, and the lens interpolates between keys",
+                       s.name(), lens_key->index));
+    }
+  }
   for (auto& k : read) spec.camera_keys.push_back(k.key);
 }
 
@@ -476,6 +543,16 @@ void read_environment(const Section& s, const fs::path& base, JobSpec& spec) {
   if (env.map.empty() && !env.color) fail(s.loc(), s.name(), "needs map or color");
   if (auto v = s.number("intensity", Interval::non_negative())) env.intensity = float(*v);
   if (auto v = s.number("rotation", Interval::any())) env.rotation_deg = float(*v);
+  if (env.color) {
+    const double brightest =
+        double(std::max({env.color->x, env.color->y, env.color->z})) * env.intensity;
+    if (brightest > kMaxRadiance) {
+      s.fail_at(s.find("intensity") ? "intensity" : "color",
+                fmt::format("color times intensity is {:g}, above the {:g} a radiance may be "
+                            "(keeps every buffer finite)",
+                            brightest, kMaxRadiance));
+    }
+  }
   spec.environment = env;
 }
 
@@ -517,40 +594,18 @@ void read_farm(const Section& s, JobSpec& spec) {
   if (auto v = s.number("task_seconds", Interval::positive())) spec.task_seconds = float(*v);
 }
 
-// The batch's task count against kMaxTasksPerBatch, with a fixed tile side.
-// With task_seconds the planner picks the side and keeps under the limit by
-// itself (one tile per frame always fits).
-void check_batch_size(const Section& top, const JobSpec& spec) {
-  if (spec.task_seconds > 0) return;
-  const int64_t tasks = batch_task_count(spec, spec.tile);
-  const int64_t shard_tiles = shard_tile_count(spec, spec.tile);
-  if (tasks <= kMaxTasksPerBatch && shard_tiles <= kMaxTilesPerShard) return;
-  const int64_t per_frame = (int64_t(spec.width) + spec.tile - 1) / spec.tile *
-                            ((int64_t(spec.height) + spec.tile - 1) / spec.tile);
-  const std::string tiles = fmt::format("{} tiles of {}x{} px of a {}x{} image", per_frame,
-                                        spec.tile, spec.tile, spec.width, spec.height);
-  std::string msg;
-  std::vector<std::pair<const char*, const char*>> blame;
-  if (tasks > kMaxTasksPerBatch) {
-    msg = fmt::format(
-        "the batch would have {} tasks ({} frames x {}, plus the packs), more than the {} one "
-        "batch may have; use a larger farm.tile, fewer frames or a smaller image",
-        tasks, spec.frame_count(), tiles, kMaxTasksPerBatch);
-    blame = {{"farm", "tile"}, {"frames", "end"}, {"image", "width"}, {"image", "height"}};
-  } else {
-    msg = fmt::format(
-        "a shard would have {} tiles ({} frames x {}), more than the {} one pack task may "
-        "take; use a larger farm.tile or a smaller frames.per_shard",
-        shard_tiles, std::min<int64_t>(spec.per_shard, spec.frame_count()), tiles,
-        kMaxTilesPerShard);
-    blame = {{"farm", "tile"}, {"frames", "per_shard"}, {"image", "width"}, {"image", "height"}};
+// Every key of the spec with the place of its value, dotted as the
+// spec's messages name them ("camera.key.0.focus").
+void record_locations(const toml::node& node, const std::string& prefix, const Origins& origins,
+                      std::map<std::string, FileLoc>& out) {
+  if (!prefix.empty()) out[prefix] = origins.of(node);
+  if (const toml::table* t = node.as_table()) {
+    for (const auto& [k, child] : *t)
+      record_locations(child, join_key(prefix, k.str()), origins, out);
+  } else if (const toml::array* a = node.as_array(); a && a->is_array_of_tables()) {
+    for (size_t i = 0; i < a->size(); ++i)
+      record_locations(*a->get(i), prefix + "." + std::to_string(i), origins, out);
   }
-  // Blame the key that made it too large, as far as the file says.
-  for (const auto& [table, key] : blame) {
-    const Section s = top.table(table);
-    if (s.find(key)) s.fail_at(key, msg);
-  }
-  fail(top.loc(), "farm.tile", msg);
 }
 
 JobSpec read_spec(const toml::table& root, const Origins& origins, const fs::path& spec_path) {
@@ -573,7 +628,10 @@ JobSpec read_spec(const toml::table& root, const Origins& origins, const fs::pat
   read_buffers(top.table("buffers"), spec);
   read_render(top.table("render"), spec);
   read_farm(top.table("farm"), spec);
-  check_batch_size(top, spec);
+  record_locations(root, "", origins, spec.key_locations);
+  // A size that follows the scene camera is checked once it is known.
+  const bool size_from_scene = spec.camera_from_scene && !(spec.width_given && spec.height_given);
+  if (!size_from_scene) check_batch_size(spec);
   return spec;
 }
 
@@ -591,6 +649,8 @@ const std::vector<Alternatives>& alternatives() {
   static const std::vector<Alternatives> kAlternatives = {
       {"buffers", {{"reference_spp"}, {"reference_error", "reference_max_spp"}}},
       {"camera.key.#", {{"look_at", "up"}, {"rotation"}}},
+      {"camera.key.#", {{"aperture"}, {"fstop", "focal_length", "sensor_width"}}},
+      {"camera.key.#", {{"focal_distance"}, {"focus_point"}, {"focus"}}},
       {"environment", {{"map"}, {"color"}}},
       {"farm", {{"tile"}, {"task_seconds"}}},
   };
@@ -717,6 +777,45 @@ void apply_override(toml::table& root, const std::string& text, Origins& origins
 }
 
 }  // namespace
+
+FileLoc JobSpec::where(const std::string& key) const {
+  auto it = key_locations.find(key);
+  return it != key_locations.end() ? it->second : FileLoc{spec_path.string()};
+}
+
+// With task_seconds the planner picks the tile side and keeps under the
+// limits by itself (one tile per frame always fits).
+void check_batch_size(const JobSpec& spec) {
+  if (spec.task_seconds > 0) return;
+  const int64_t tasks = batch_task_count(spec, spec.tile);
+  const int64_t shard_tiles = shard_tile_count(spec, spec.tile);
+  if (tasks <= kMaxTasksPerBatch && shard_tiles <= kMaxTilesPerShard) return;
+  const int64_t per_frame = (int64_t(spec.width) + spec.tile - 1) / spec.tile *
+                            ((int64_t(spec.height) + spec.tile - 1) / spec.tile);
+  const std::string tiles = fmt::format("{} tiles of {}x{} px of a {}x{} image", per_frame,
+                                        spec.tile, spec.tile, spec.width, spec.height);
+  std::string msg;
+  std::vector<const char*> blame;
+  if (tasks > kMaxTasksPerBatch) {
+    msg = fmt::format(
+        "the batch would have {} tasks ({} frames x {}, plus the packs), more than the {} one "
+        "batch may have; use a larger farm.tile, fewer frames or a smaller image",
+        tasks, spec.frame_count(), tiles, kMaxTasksPerBatch);
+    blame = {"farm.tile", "frames.end", "image.width", "image.height"};
+  } else {
+    msg = fmt::format(
+        "a shard would have {} tiles ({} frames x {}), more than the {} one pack task may "
+        "take; use a larger farm.tile or a smaller frames.per_shard",
+        shard_tiles, std::min<int64_t>(spec.per_shard, spec.frame_count()), tiles,
+        kMaxTilesPerShard);
+    blame = {"farm.tile", "frames.per_shard", "image.width", "image.height"};
+  }
+  // Blame the key that made it too large, as far as the file says.
+  for (const char* key : blame) {
+    if (spec.key_locations.count(key)) throw SpecError(spec.where(key), key, msg);
+  }
+  throw SpecError(FileLoc{spec.spec_path.string()}, "farm.tile", msg);
+}
 
 int64_t batch_task_count(const JobSpec& spec, int tile_side) {
   DOFARM_CHECK_OP(tile_side, >, 0);

@@ -6,24 +6,39 @@
 
 #include <cstdint>
 #include <filesystem>
+#include <map>
 #include <optional>
 #include <string>
 #include <vector>
 
+#include "common/error.h"
 #include "common/math.h"
 
 namespace dofarm {
 
+// How a camera key sets the distance the lens focuses at (jobs/README.md,
+// "Lens and focus"). kNone only for a pinhole key, which records 1.
+enum class FocusMode { kNone, kDistance, kPoint, kAuto };
+
 struct CameraKey {
   int frame = 0;
+  int index = 0;  // its place among the file's [[camera.key]] tables, for messages
   Vec3 position{0, 0, 0};
   // Exactly one of look_at / rotation is set after parsing.
   std::optional<Vec3> look_at;
   std::optional<Vec3> rotation_deg;  // Euler XYZ, degrees; camera looks down -z
   Vec3 up{0, 1, 0};
   float fov_deg = 40.0f;          // vertical field of view, (0, 180)
-  float focal_distance = 1.0f;    // > 0, scene units
+  // Lens: a radius, or an f-number (1 scene unit = 1 m, as in glTF/Blender).
   float aperture = 0.0f;          // lens radius, scene units, >= 0; 0 = pinhole
+  float fstop = 0.0f;             // > 0: f-number N; radius = focal_length / (2 N)
+  float focal_length_mm = 0.0f;   // with fstop; 0 = from the fov and sensor_width
+  float sensor_width_mm = 36.0f;  // spans the image's longer side (Blender's auto fit)
+  // Focus: set whenever the key has a lens (load_job_spec checks it).
+  FocusMode focus = FocusMode::kNone;
+  float focal_distance = 1.0f;  // kDistance (kNone records 1), > 0, scene units
+  Vec3 focus_point{0, 0, 0};    // kPoint: world space
+  bool has_lens() const { return aperture > 0 || fstop > 0; }
 };
 
 struct EnvironmentSpec {
@@ -40,9 +55,13 @@ struct JobSpec {
   std::filesystem::path scene;      // absolute, resolved relative to spec_path
   uint64_t seed = 0;
 
-  // [image]
+  // [image]; with camera.from_scene a size the spec does not give follows
+  // the scene camera's aspect ratio (complete_spec_from_scene in
+  // worker/job_resolve.h fills it in; the canonical spec always has both).
   int width = 512;
   int height = 512;
+  bool width_given = false;
+  bool height_given = false;
 
   // [frames]
   int frame_start = 0;
@@ -73,9 +92,22 @@ struct JobSpec {
   int tile = 64;
   float task_seconds = 0.0f;       // > 0: size tiles to take about this long
 
+  // Where keys that are checked again once the scene is loaded (image size,
+  // camera.from_scene, focus keys) are set: "camera.key.0.focus" -> file:line:col.
+  std::map<std::string, FileLoc> key_locations;
+  // The location of `key`, or the spec file alone when it is not recorded.
+  FileLoc where(const std::string& key) const;
+
   // 64 bits: safe for any int range, not only the limits below.
   int64_t frame_count() const { return int64_t(frame_end) - frame_start + 1; }
 };
+
+// The brightest radiance a spec or an environment map may give (emission,
+// environment colour times intensity, a map's texel times intensity): far
+// above any physical scene (the sun's disk is about 2e7 W/(m^2 sr) in
+// luminance units), far enough below float's 3.4e38 that sums and squares of
+// samples stay finite.
+inline constexpr float kMaxRadiance = 1e12f;
 
 // The limits of one batch (jobs/README.md, "Limits"); load_job_spec() refuses
 // a spec beyond them and the planner refuses a plan beyond them (the
@@ -84,6 +116,8 @@ struct JobSpec {
 // Frame numbers: 0 to 2^24 - 1. The shard's camera table and the animation
 // time (frame / fps) are 32-bit floats, exact for integers up to 2^24 only;
 // a larger frame number would be stored as another one.
+// image.width and image.height, given or derived from the scene camera.
+inline constexpr int kMaxImageSide = 16384;
 inline constexpr int64_t kMaxFrameNumber = (int64_t(1) << 24) - 1;
 inline constexpr int64_t kMaxFramesPerBatch = 1'000'000;
 // The task limit bounds the coordinator's memory (each task of a running
@@ -102,6 +136,11 @@ inline constexpr int64_t kMaxTilesPerShard = 4096;
 int64_t batch_task_count(const JobSpec& spec, int tile_side);
 // Render tasks of the largest shard, the inputs of its pack task.
 int64_t shard_tile_count(const JobSpec& spec, int tile_side);
+
+// The batch's task count against kMaxTasksPerBatch and kMaxTilesPerShard at
+// the spec's image size and tile (load_job_spec runs it; run it again after
+// changing the size): throws a SpecError blaming the key that made it too large.
+void check_batch_size(const JobSpec& spec);
 
 // Parses `path` and applies `overrides` ("a.b=value", applied in order, each
 // checked like the file). Throws SpecError on any bad input.

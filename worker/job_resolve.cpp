@@ -2,6 +2,7 @@
 
 #include <fcntl.h>
 #include <fmt/format.h>
+#include <spdlog/spdlog.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -12,6 +13,8 @@
 
 #include "common/content_hash.h"
 #include "common/error.h"
+#include "worker/render/camera.h"
+#include "worker/render/render_job.h"
 #include "worker/render/scene.h"
 
 namespace dofarm::worker {
@@ -124,6 +127,48 @@ std::shared_ptr<const render::Scene> load_scene_checked(const JobSpec& spec) {
   }
 }
 
+void complete_spec_from_scene(JobSpec& spec, const render::Scene& scene) {
+  const auto& track = scene.data().camera_track;
+  if (spec.camera_from_scene) {
+    if (track.empty()) {
+      throw SpecError(spec.where("camera.from_scene"), "camera.from_scene",
+                      "the scene \"" + spec.scene.string() +
+                          "\" has no camera; add one to it, or set camera.from_scene = false "
+                          "and give the pose in [[camera.key]]");
+    }
+    const float aspect = track.front().aspect;
+    const render::ImageSize size = render::image_size_for_aspect(
+        aspect, spec.width_given ? spec.width : 0, spec.height_given ? spec.height : 0);
+    for (auto [key, side, given] : {std::tuple{"image.width", size.width, spec.width_given},
+                                    std::tuple{"image.height", size.height, spec.height_given}}) {
+      if (side > kMaxImageSide) {
+        const char* blame = given ? key : (spec.width_given ? "image.width" : "image.height");
+        throw SpecError(spec.where(blame), blame,
+                        fmt::format("the scene camera's aspect ratio {:.4g} makes the image {}x{}: "
+                                    "{} would be above {}; give a smaller size",
+                                    aspect, size.width, size.height, key, kMaxImageSide));
+      }
+    }
+    spec.width = size.width;
+    spec.height = size.height;
+    spec.width_given = spec.height_given = true;
+    check_batch_size(spec);
+    if (std::string why = render::describe_aspect_mismatch(aspect, spec.width, spec.height);
+        !why.empty())
+      spdlog::warn("{}: {}", spec.spec_path.string(), why);
+  }
+  // Focus points and autofocus depend on each frame's camera: resolve every
+  // frame now (one ray at most per frame) so that a bad one fails here.
+  const bool per_frame_focus =
+      std::any_of(spec.camera_keys.begin(), spec.camera_keys.end(), [](const CameraKey& k) {
+        return k.focus == FocusMode::kPoint || k.focus == FocusMode::kAuto;
+      });
+  if (per_frame_focus) {
+    for (int64_t f = spec.frame_start; f <= spec.frame_end; ++f)
+      render::frame_camera(scene, spec, int(f));
+  }
+}
+
 ResolvedJob resolve_job(const fs::path& spec_path_in, const std::vector<std::string>& overrides) {
   const fs::path spec_path = normal(spec_path_in);
   std::string text;
@@ -134,11 +179,11 @@ ResolvedJob resolve_job(const fs::path& spec_path_in, const std::vector<std::str
   }
   ResolvedJob job;
   job.spec = parse_job_spec(text, spec_path, overrides);
-  const JobSpec& spec = job.spec;
 
   // Load what a worker loads, noting every file read.
   InputFileLog log;
-  load_scene_checked(spec);
+  complete_spec_from_scene(job.spec, *load_scene_checked(job.spec));
+  const JobSpec& spec = job.spec;
   std::vector<fs::path> files = log.files();
   const fs::path scene = normal(spec.scene);
   if (std::find(files.begin(), files.end(), scene) == files.end()) files.push_back(scene);

@@ -18,7 +18,7 @@ namespace dofarm::worker {
 
 struct ResolvedJob {
   JobSnapshot snapshot;
-  JobSpec spec;  // as read from the user's files
+  JobSpec spec;  // as read from the user's files, completed from the scene
   // Each input: the user's file and its path in the job folder ("files/...").
   std::vector<std::pair<std::filesystem::path, std::string>> files;
 };
@@ -26,6 +26,18 @@ struct ResolvedJob {
 // Loads the job's scene and environment map; anything wrong with them is a
 // SpecError naming the spec file and the key ("scene" or "environment.map").
 std::shared_ptr<const render::Scene> load_scene_checked(const JobSpec& spec);
+
+// What the spec leaves to the scene, filled in and checked once the scene is
+// loaded (`dofarm run`, `submit` and `render` call it; the canonical spec
+// then holds the result, so workers and the coordinator never redo it):
+// - camera.from_scene on a scene without a camera is a SpecError at the key;
+// - an image size the spec does not give follows the scene camera's aspect
+//   (longer side 512, or the other side from the one given), within
+//   kMaxImageSide and the batch limits; a size whose ratio differs from the
+//   camera's logs a warning saying what the image crops or adds;
+// - every frame's focus (focus_point in front of the camera, autofocus
+//   hitting something) is resolved once, so a bad one fails here, located.
+void complete_spec_from_scene(JobSpec& spec, const render::Scene& scene);
 
 // Reads the spec (a regular file of at most kMaxSpecBytes, never a FIFO or
 // device), applies `overrides`, and loads the scene and environment map as

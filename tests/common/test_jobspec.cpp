@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "common/error.h"
+#include "common/job_snapshot.h"
 #include "common/jobspec.h"
 
 namespace dofarm {
@@ -291,14 +292,17 @@ TEST_F(JobSpecFiles, CameraKeysAreSortedByFrame) {
 frame = 48
 rotation = [0, 0, 0]
 aperture = 0.48
+focal_distance = 4.8
 [[camera.key]]
 frame = 0
 rotation = [0, 0, 0]
 aperture = 0.0
+focal_distance = 1
 [[camera.key]]
 frame = 95
 rotation = [0, 0, 0]
 aperture = 0.95
+focal_distance = 9.5
 )");
   ASSERT_EQ(spec.camera_keys.size(), 3u);
   EXPECT_EQ(spec.camera_keys[0].frame, 0);
@@ -308,6 +312,7 @@ aperture = 0.95
   EXPECT_EQ(spec.camera_keys[0].aperture, 0.0f);
   EXPECT_EQ(spec.camera_keys[1].aperture, 0.48f);
   EXPECT_EQ(spec.camera_keys[2].aperture, 0.95f);
+  EXPECT_EQ(spec.camera_keys[2].focal_distance, 9.5f);
   EXPECT_TRUE(spec.camera_keys[1].rotation_deg.has_value());
   EXPECT_FALSE(spec.camera_keys[1].look_at.has_value());
 }
@@ -374,8 +379,8 @@ TEST_F(JobSpecFiles, OverridesSetValuesOfEveryKind) {
   touch("hdri/sky.exr");
   JobSpec spec =
       parse(kOneKey, {"image.width=64", "buffers.reference_spp=16", "camera.key.0.aperture=0.1",
-                      "camera.key.0.position=[1, 2, 3]", "environment.map=hdri/sky.exr",
-                      "render.sampler=independent", "seed=99"});
+                      "camera.key.0.focal_distance=2.5", "camera.key.0.position=[1, 2, 3]",
+                      "environment.map=hdri/sky.exr", "render.sampler=independent", "seed=99"});
   EXPECT_EQ(spec.width, 64);
   EXPECT_EQ(spec.reference_spp, 16);
   EXPECT_EQ(spec.camera_keys[0].aperture, 0.1f);
@@ -472,6 +477,88 @@ TEST_F(JobSpecFiles, SyntaxErrorIsLocated) {
   EXPECT_EQ(e.loc().file, (dir_ / "job.toml").string());
   EXPECT_EQ(e.loc().line, 2);
   EXPECT_GT(e.loc().column, 0);
+}
+
+// ---------------------------------------------------------------------------
+// Lens and focus keys
+
+TEST_F(JobSpecFiles, LensAndFocusKeysAreReadAndWrittenBackCanonically) {
+  JobSpec spec = parse(R"(scene = "scene.gltf"
+[[camera.key]]
+frame = 0
+position = [0, 1, 4]
+look_at = [0, 1, 0]
+fstop = 2.8
+focal_length = 50
+focus_point = [0.5, 1, -0.25]
+[[camera.key]]
+frame = 10
+position = [0, 1, 4]
+look_at = [0, 1, 0]
+fstop = 1.4
+sensor_width = 23.5
+focus = "auto"
+[[camera.key]]
+frame = 20
+position = [0, 1, 4]
+look_at = [0, 1, 0]
+aperture = 0.02
+focal_distance = 3
+)");
+  ASSERT_EQ(spec.camera_keys.size(), 3u);
+  const CameraKey& a = spec.camera_keys[0];
+  EXPECT_EQ(a.fstop, 2.8f);
+  EXPECT_EQ(a.focal_length_mm, 50.0f);
+  EXPECT_EQ(a.focus, FocusMode::kPoint);
+  EXPECT_EQ(a.focus_point.z, -0.25f);
+  EXPECT_TRUE(a.has_lens());
+  const CameraKey& b = spec.camera_keys[1];
+  EXPECT_EQ(b.fstop, 1.4f);
+  EXPECT_EQ(b.focal_length_mm, 0.0f);  // from the fov, at render time
+  EXPECT_EQ(b.sensor_width_mm, 23.5f);
+  EXPECT_EQ(b.focus, FocusMode::kAuto);
+  EXPECT_EQ(spec.camera_keys[2].focus, FocusMode::kDistance);
+  EXPECT_EQ(spec.where("camera.key.1.focus").str(), (dir_ / "job.toml").string() + ":15:9");
+
+  const std::string text = canonical_spec_toml(spec, "scene.gltf", "");
+  for (const char* line :
+       {"fstop = 2.8\nfocal_length = 50.0\n", "focus_point = [0.5, 1.0, -0.25]\n",
+        "focus = \"auto\"\nfstop = 1.4\nsensor_width = 23.5\n",
+        "focal_distance = 3.0\naperture = 0.02\n"})
+    EXPECT_NE(text.find(line), std::string::npos) << line << " not in\n" << text;
+  JobSpec back = parse_job_spec(text, dir_ / "job.toml");
+  EXPECT_EQ(canonical_spec_toml(back, "scene.gltf", ""), text);
+}
+
+TEST_F(JobSpecFiles, PinholeKeysKeepTheirCanonicalText) {
+  // Job hashes of pinhole specs written before the focus keys stay the same.
+  const std::string text = canonical_spec_toml(parse(kOneKey), "s.gltf", "");
+  EXPECT_NE(text.find("fov = 40.0\nfocal_distance = 1.0\naperture = 0.0\n"), std::string::npos)
+      << text;
+}
+
+TEST_F(JobSpecFiles, OverrideSwitchesBetweenApertureAndFstop) {
+  const std::string lens = std::string(kOneKey) + "aperture = 0.1\nfocal_distance = 2\n";
+  JobSpec spec = parse(lens, {"camera.key.0.fstop=4", "camera.key.0.focus=auto"});
+  EXPECT_EQ(spec.camera_keys[0].aperture, 0.0f);
+  EXPECT_EQ(spec.camera_keys[0].fstop, 4.0f);
+  EXPECT_EQ(spec.camera_keys[0].focus, FocusMode::kAuto);
+  SpecError e = parse_error(kOneKey, {"camera.key.0.fstop=2"});
+  EXPECT_EQ(e.key(), "camera.key.0.fstop");
+  EXPECT_NE(e.message().find("needs a focus"), std::string::npos) << e.what();
+}
+
+TEST_F(JobSpecFiles, ImageSizeGivenIsRecordedForTheSceneCamera) {
+  const std::string from_scene = "scene = \"scene.gltf\"\n[camera]\nfrom_scene = true\n";
+  JobSpec none = parse(from_scene);
+  EXPECT_FALSE(none.width_given);
+  EXPECT_FALSE(none.height_given);
+  EXPECT_EQ(none.where("camera.from_scene").str(), (dir_ / "job.toml").string() + ":3:14");
+  JobSpec w = parse(from_scene + "[image]\nwidth = 1920\n");
+  EXPECT_TRUE(w.width_given);
+  EXPECT_FALSE(w.height_given);
+  JobSpec both = parse(kOneKey, {"image.height=100", "image.width=50"});
+  EXPECT_TRUE(both.width_given && both.height_given);
 }
 
 }  // namespace

@@ -261,6 +261,47 @@ TEST(EmbeddedRun, RunsResumesAndRefusesAnotherJobInProcess) {
   EXPECT_TRUE(shards_match_render(o.out, o.spec));
 }
 
+// The size a from-scene spec leaves out follows the glTF camera (courtyard:
+// aspectRatio 16:9) and is written into the canonical spec, so the job hash,
+// the planner and the workers all see it; a derived side beyond the limit is
+// an error at the key that was given.
+TEST(JobValue, SceneCameraSizeIsResolvedIntoTheCanonicalSpec) {
+  TempDir dir;
+  const fs::path courtyard = fs::path(DOFARM_SOURCE_DIR) / "jobs/scenes/courtyard.gltf";
+  auto spec_with = [&](const std::string& name, const std::string& image) {
+    const fs::path p = dir / name;
+    write_text(p, "scene = \"" + courtyard.string() + "\"\n" + image +
+                      "[camera]\nfrom_scene = true\n");
+    return p;
+  };
+  struct Case {
+    std::string image;
+    int width, height;
+  };
+  for (const Case& c : {Case{"", 512, 288}, Case{"[image]\nwidth = 1920\n", 1920, 1080},
+                        Case{"[image]\nheight = 90\n", 160, 90},
+                        Case{"[image]\nwidth = 64\nheight = 64\n", 64, 64}}) {
+    SCOPED_TRACE(c.image);
+    worker::ResolvedJob job = worker::resolve_job(spec_with("job.toml", c.image), {});
+    EXPECT_EQ(job.spec.width, c.width);
+    EXPECT_EQ(job.spec.height, c.height);
+    const std::string size = "[image]\nwidth = " + std::to_string(c.width) +
+                             "\nheight = " + std::to_string(c.height) + "\n";
+    EXPECT_NE(job.snapshot.spec_toml.find(size), std::string::npos) << job.snapshot.spec_toml;
+  }
+  // The default and the explicit 16:9 size are the same job.
+  EXPECT_EQ(worker::resolve_job(spec_with("a.toml", ""), {}).snapshot.hash(),
+            worker::resolve_job(spec_with("b.toml", "[image]\nwidth = 512\nheight = 288\n"), {})
+                .snapshot.hash());
+  try {
+    worker::resolve_job(spec_with("tall.toml", "[image]\nheight = 16384\n"), {});
+    ADD_FAILURE() << "a 29127-pixel width was accepted";
+  } catch (const SpecError& e) {
+    EXPECT_EQ(e.key(), "image.height");
+    EXPECT_EQ(e.loc().line, 3) << e.what();
+  }
+}
+
 // Defect 12: content errors are found before anything exists.
 TEST(JobValue, ContentErrorsAreBadInputAndWriteNothing) {
   TempDir dir;
@@ -281,7 +322,19 @@ TEST(JobValue, ContentErrorsAreBadInputAndWriteNothing) {
   const fs::path empty_spec = write_job(dir.path(), "empty_scene.toml", empty_scene);
   const std::string env_text = read_text(env_job);  // the map is on its last line
   const int env_line = int(std::count(env_text.begin(), env_text.end(), '\n'));
+  // camera.from_scene on a scene without a camera (it used to render from
+  // the origin), and autofocus looking out of the open box at nothing.
+  const fs::path no_camera = dir / "no_camera.toml";
+  write_text(no_camera, "scene = \"" + cornell_scene().string() +
+                            "\"\nseed = 7\n\n[camera]\nfrom_scene = true\n");
+  const fs::path nothing_to_focus = dir / "nothing_to_focus.toml";
+  write_text(nothing_to_focus, "scene = \"" + cornell_scene().string() +
+                                   "\"\n[image]\nwidth = 16\nheight = 16\n[[camera.key]]\n"
+                                   "position = [0.0, 1.0, 3.9]\nlook_at = [0.0, 1.0, 10.0]\n"
+                                   "aperture = 0.05\nfocus = \"auto\"\n");
   const std::vector<Case> cases = {
+      {no_camera, no_camera.string() + ":5:14: \"camera.from_scene\": the scene"},
+      {nothing_to_focus, nothing_to_focus.string() + ":9:9: \"camera.key.0.focus\": autofocus"},
       {bad_spec, bad_spec.string() + ":1:1: \"scene\""},
       {empty_spec, empty_spec.string() + ":1:1: \"scene\""},
       {env_job, env_job.string() + ":" + std::to_string(env_line) + ":1: \"environment.map\""}};

@@ -3,9 +3,12 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
 
+#include "common/error.h"
 #include "tests/render/render_fixtures.h"
 #include "worker/render/camera.h"
+#include "worker/render/render_job.h"
 
 namespace dofarm::render {
 namespace {
@@ -145,6 +148,246 @@ TEST(CameraKeys, InterpolateLinearlyAndSlerpRotation) {
   EXPECT_NEAR(mid.rotation[0], 1.0f, 1e-6);  // both keys look down -z
   CameraState after = camera_for_frame(s, none, 10);
   EXPECT_FLOAT_EQ(after.position[0], 10.0f);
+}
+
+// ---------------------------------------------------------------------------
+// The scene camera's shape
+
+// A glTF camera track of one key at the origin looking down -z.
+SceneData scene_camera(float yfov_deg, float aspect) {
+  SceneData d;
+  d.source = "camera.gltf";
+  CameraTrackKey k;
+  k.yfov_deg = yfov_deg;
+  k.aspect = aspect;
+  d.camera_track.push_back(k);
+  return d;
+}
+
+JobSpec from_scene_spec(int w, int h) {
+  JobSpec s = make_spec(w, h, Vec3(0, 0, 0), Vec3(0, 0, -1));
+  s.camera_from_scene = true;
+  s.camera_keys.clear();
+  return s;
+}
+
+// Half-angle (degrees) between the axis and the pinhole ray through the
+// middle of the image's left edge / top edge.
+double half_angle_x(const CameraState& c, int w, int h) {
+  Ray r = Camera(c, w, h).pinhole_ray({0.0f, 0.5f * h});
+  return std::atan2(std::fabs(r.d.x), -r.d.z) * 180.0 / M_PI;
+}
+double half_angle_y(const CameraState& c, int w, int h) {
+  Ray r = Camera(c, w, h).pinhole_ray({0.5f * w, 0.0f});
+  return std::atan2(std::fabs(r.d.y), -r.d.z) * 180.0 / M_PI;
+}
+
+// Blender's default sensor fit (auto): the camera's angle spans the longer
+// side of any image it renders. A 16:9 camera exported with yfov Y has the
+// angle 2 atan(tan(Y/2) 16/9) (Blender's glTF exporter, gather_cameras).
+TEST(SceneCamera, FieldOfViewSpansTheLongerSideAsBlendersAutoFit) {
+  const double yfov = 40, a = 16.0 / 9.0;
+  const double angle = 2 * std::atan(std::tan(yfov * M_PI / 360) * a) * 180 / M_PI;
+  const SceneData d = scene_camera(float(yfov), float(a));
+  struct Case {
+    int w, h;
+    double half_x, half_y;  // expected, degrees
+  };
+  auto atan_deg = [](double t) { return std::atan(t) * 180 / M_PI; };
+  const double t_angle = std::tan(angle * M_PI / 360);
+  for (const Case& c :
+       {Case{512, 288, angle / 2, yfov / 2},  // the camera's own shape
+        Case{512, 512, angle / 2, angle / 2}, Case{512, 256, angle / 2, atan_deg(t_angle / 2)},
+        Case{288, 512, atan_deg(t_angle * 288 / 512), angle / 2}}) {
+    SCOPED_TRACE(::testing::Message() << c.w << "x" << c.h);
+    const JobSpec spec = from_scene_spec(c.w, c.h);
+    const CameraState cam = camera_for_frame(spec, d, 0);
+    EXPECT_NEAR(half_angle_x(cam, c.w, c.h), c.half_x, 1e-3);
+    EXPECT_NEAR(half_angle_y(cam, c.w, c.h), c.half_y, 1e-3);
+  }
+  // Without an aspect ratio in the file, yfov is vertical for any image (glTF).
+  const SceneData no_aspect = scene_camera(float(yfov), 0.0f);
+  EXPECT_FLOAT_EQ(camera_for_frame(from_scene_spec(512, 512), no_aspect, 0).fov_deg, 40.0f);
+  // The job spec's own cameras keep their vertical fov whatever the image.
+  JobSpec keyed = make_spec(512, 256, Vec3(0, 0, 0), Vec3(0, 0, -1), 30);
+  EXPECT_NEAR(half_angle_y(camera_for_frame(keyed, d, 0), 512, 256), 15.0, 1e-3);
+}
+
+// Known answers from Blender 3.4.1 itself: a 50 mm lens on a 36 mm sensor
+// (sensor fit auto), Camera.view_frame() half-angles in degrees at each
+// render size. The glTF the exporter writes for the 1920x1080 render holds
+// yfov = 2 atan(tan(angle/2) / (16/9)) and aspectRatio 16/9.
+TEST(SceneCamera, MatchesBlendersViewFrameAtEveryImageSize) {
+  const double angle = 2 * std::atan(18.0 / 50.0);
+  const double a = 1920.0 / 1080.0;
+  const SceneData d =
+      scene_camera(float(2 * std::atan(std::tan(angle / 2) / a) * 180 / M_PI), float(a));
+  struct Blender {
+    int w, h;
+    double half_x, half_y;
+  };
+  for (const Blender& b :
+       {Blender{1920, 1080, 19.7989, 11.4476}, Blender{512, 512, 19.7989, 19.7989},
+        Blender{1024, 512, 19.7989, 10.2040}, Blender{288, 512, 11.4476, 19.7989}}) {
+    SCOPED_TRACE(::testing::Message() << b.w << "x" << b.h);
+    const CameraState cam = camera_for_frame(from_scene_spec(b.w, b.h), d, 0);
+    EXPECT_NEAR(half_angle_x(cam, b.w, b.h), b.half_x, 1e-4);
+    EXPECT_NEAR(half_angle_y(cam, b.w, b.h), b.half_y, 1e-4);
+  }
+}
+
+TEST(SceneCamera, DefaultImageSizeFollowsTheAspectRatio) {
+  auto size = [](float a, int w, int h) {
+    ImageSize s = image_size_for_aspect(a, w, h);
+    return std::make_pair(s.width, s.height);
+  };
+  const float wide = 16.0f / 9.0f;
+  EXPECT_EQ(size(wide, 0, 0), std::make_pair(512, 288));
+  EXPECT_EQ(size(0.5f, 0, 0), std::make_pair(256, 512));
+  EXPECT_EQ(size(1.0f, 0, 0), std::make_pair(512, 512));
+  EXPECT_EQ(size(wide, 1920, 0), std::make_pair(1920, 1080));
+  EXPECT_EQ(size(wide, 0, 1080), std::make_pair(1920, 1080));
+  EXPECT_EQ(size(wide, 640, 640), std::make_pair(640, 640));  // both given: kept
+  EXPECT_EQ(size(0.0f, 0, 0), std::make_pair(512, 512));      // no aspect in the file
+  EXPECT_EQ(size(1000.0f, 0, 0), std::make_pair(512, 1));     // never 0 pixels
+}
+
+TEST(SceneCamera, MismatchSaysWhatTheImageCropsOrAdds) {
+  const float wide = 16.0f / 9.0f;
+  EXPECT_EQ(describe_aspect_mismatch(wide, 512, 288), "");
+  EXPECT_EQ(describe_aspect_mismatch(wide, 1920, 1080), "");
+  EXPECT_EQ(describe_aspect_mismatch(1.5f, 512, 341), "");  // rounding is no crop
+  EXPECT_EQ(describe_aspect_mismatch(0.0f, 512, 512), "");  // nothing to compare with
+  const std::string square = describe_aspect_mismatch(wide, 512, 512);
+  EXPECT_NE(square.find("is 16:9 but the image is 512x512 (1:1)"), std::string::npos) << square;
+  EXPECT_NE(square.find("the camera's full width and 178% of the camera's height"),
+            std::string::npos)
+      << square;
+  const std::string two_to_one = describe_aspect_mismatch(wide, 1024, 512);
+  EXPECT_NE(two_to_one.find("the middle 89% of the camera's height"), std::string::npos)
+      << two_to_one;
+  const std::string portrait = describe_aspect_mismatch(wide, 288, 512);
+  EXPECT_NE(portrait.find("the middle 56% of the camera's width"), std::string::npos) << portrait;
+}
+
+TEST(SceneCamera, FromSceneWithoutACameraIsAnErrorAtTheKey) {
+  JobSpec spec = from_scene_spec(8, 8);
+  spec.key_locations["camera.from_scene"] = FileLoc{"job.toml", 4, 14};
+  SceneData none;
+  try {
+    camera_for_frame(spec, none, 0);
+    FAIL() << "rendered from the origin";
+  } catch (const SpecError& e) {
+    EXPECT_EQ(e.key(), "camera.from_scene");
+    EXPECT_EQ(e.loc().str(), "job.toml:4:14");
+  }
+}
+
+// ---------------------------------------------------------------------------
+// Lens keys
+
+TEST(Lens, FstopGivesFocalLengthOverTwoN) {
+  CameraKey k;
+  k.fstop = 2.0f;
+  k.focal_length_mm = 50.0f;
+  EXPECT_FLOAT_EQ(lens_radius(k, 40.0f, 512, 512), 0.0125f);  // 50 mm / (2 * 2), in metres
+  // No focal length: Blender's 50 mm lens on its 36 mm sensor has the angle
+  // 2 atan(18 / 50) across the image's longer side.
+  k.focal_length_mm = 0;
+  const float angle = float(2 * std::atan(18.0 / 50.0) * 180 / M_PI);
+  EXPECT_NEAR(lens_radius(k, angle, 512, 512), 0.0125f, 1e-6);
+  const float vfov_wide = float(2 * std::atan(18.0 / 50.0 * 288 / 512) * 180 / M_PI);
+  EXPECT_NEAR(lens_radius(k, vfov_wide, 512, 288), 0.0125f, 1e-6);
+  const float vfov_tall = angle;  // portrait: the longer side is vertical
+  EXPECT_NEAR(lens_radius(k, vfov_tall, 288, 512), 0.0125f, 1e-6);
+  k.sensor_width_mm = 24;  // a smaller sensor at the same angle: a shorter lens
+  EXPECT_NEAR(lens_radius(k, angle, 512, 512), 0.0125f * 24 / 36, 1e-6);
+  CameraKey radius;
+  radius.aperture = 0.3f;
+  EXPECT_EQ(lens_radius(radius, 40.0f, 64, 64), 0.3f);
+}
+
+TEST(Lens, FstopKeyRendersLikeTheEquivalentAperture) {
+  auto scene = make_scene(testing::small_room());
+  JobSpec a = make_spec(16, 12, Vec3(0, 1, 3), Vec3(0, 1, 0), 45, 2.5f, 0.0125f);
+  JobSpec b = a;
+  b.camera_keys[0].aperture = 0;
+  b.camera_keys[0].fstop = 2;
+  b.camera_keys[0].focal_length_mm = 50;
+  FrameBuffers fa = render_frame(*scene, a, 0), fb = render_frame(*scene, b, 0);
+  EXPECT_EQ(fb.camera.aperture, 0.0125f);
+  EXPECT_TRUE(testing::same_bytes(fa, fb));
+}
+
+// ---------------------------------------------------------------------------
+// Focus
+
+TEST(Focus, PointGivesItsViewDepthEveryFrame) {
+  // The camera moves from z = 5 to z = 9 looking down -z; the point stays.
+  JobSpec s = make_spec(8, 8, Vec3(0, 0, 5), Vec3(0, 0, 0), 40, 1.0f, 0.1f);
+  s.frame_end = 4;
+  s.camera_keys[0].focus = FocusMode::kPoint;
+  s.camera_keys[0].focus_point = Vec3(1.5f, -0.5f, 2.0f);
+  CameraKey k = s.camera_keys[0];
+  k.frame = 4;
+  k.position = Vec3(0, 0, 9);
+  k.look_at = Vec3(0, 0, 4);
+  s.camera_keys.push_back(k);
+  SceneData none;
+  for (int f = 0; f <= 4; ++f) {
+    EXPECT_NEAR(camera_for_frame(s, none, f).focal_distance, 3.0f + float(f), 1e-5) << f;
+  }
+}
+
+TEST(Focus, PointBehindTheCameraIsAnErrorNamingTheKeyAndFrame) {
+  JobSpec s = make_spec(8, 8, Vec3(0, 0, 5), Vec3(0, 0, 0), 40, 1.0f, 0.1f);
+  s.camera_keys[0].focus = FocusMode::kPoint;
+  s.camera_keys[0].focus_point = Vec3(0, 0, 6);
+  s.key_locations["camera.key.0.focus_point"] = FileLoc{"job.toml", 9, 15};
+  SceneData none;
+  try {
+    camera_for_frame(s, none, 0);
+    FAIL() << "accepted";
+  } catch (const SpecError& e) {
+    EXPECT_EQ(e.key(), "camera.key.0.focus_point");
+    EXPECT_EQ(e.loc().str(), "job.toml:9:15");
+    EXPECT_NE(e.message().find("frame 0"), std::string::npos) << e.what();
+  }
+}
+
+TEST(Focus, AutoFocusesOnTheSurfaceAtTheImageCentre) {
+  auto scene = wall_scene();
+  for (float dist : {1.5f, 4.0f}) {
+    JobSpec spec = make_spec(9, 7, Vec3(0.3f, -0.2f, dist), Vec3(0.3f, -0.2f, 0), 30, 1.0f, 0.1f);
+    spec.camera_keys[0].focus = FocusMode::kAuto;
+    FrameBuffers fb = render_frame(*scene, spec, 0);
+    // What the frame records is what the lens and the coc buffer used: the
+    // wall is in focus everywhere.
+    EXPECT_NEAR(fb.camera.focal_distance, dist, 1e-5 * dist);
+    for (float c : fb.coc) EXPECT_LT(c, 1e-3f);
+  }
+  // Looking away from the wall: nothing to focus on is an error.
+  JobSpec away = make_spec(8, 8, Vec3(0, 0, 3), Vec3(0, 0, 6), 30, 1.0f, 0.1f);
+  away.camera_keys[0].focus = FocusMode::kAuto;
+  try {
+    frame_camera(*scene, away, 0);
+    FAIL() << "accepted";
+  } catch (const SpecError& e) {
+    EXPECT_EQ(e.key(), "camera.key.0.focus");
+    EXPECT_NE(e.message().find("hits nothing"), std::string::npos) << e.what();
+  }
+}
+
+TEST(Focus, FocusPointRecordedInTheFrameIsTheOneTheCocUses) {
+  auto scene = wall_scene();
+  const float dist = 6, S = 2.5f, A = 0.1f, fov = 30;
+  const int W = 10, H = 8;
+  JobSpec spec = make_spec(W, H, Vec3(0, 0, dist), Vec3(0, 0, 0), fov, 1.0f, A);
+  spec.camera_keys[0].focus = FocusMode::kPoint;
+  spec.camera_keys[0].focus_point = Vec3(4, -3, dist - S);  // off-axis, depth S
+  FrameBuffers fb = render_frame(*scene, spec, 0);
+  EXPECT_NEAR(fb.camera.focal_distance, S, 1e-5);
+  for (float c : fb.coc) EXPECT_NEAR(c, analytic_coc(A, S, dist, fov, H), 1e-3);
 }
 
 }  // namespace

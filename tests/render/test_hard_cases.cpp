@@ -2,7 +2,10 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <filesystem>
 
+#include "common/error.h"
+#include "common/exr_io.h"
 #include "tests/render/render_fixtures.h"
 
 namespace dofarm::render {
@@ -146,6 +149,67 @@ TEST(HardCases, NonFiniteEnvironmentTexelsAreDropped) {
     EXPECT_TRUE(is_finite(s.radiance));
     EXPECT_TRUE(std::isfinite(s.pdf));
   }
+}
+
+// The brightest emission and environment a spec or scene may hold, seen
+// through an open lens from a path that can hit the light directly: the
+// reference's second moment (about kMaxRadiance^2 = 1e24 per sample) must
+// come out finite, as must everything else.
+TEST(HardCases, RadianceAtTheLimitKeepsEveryBufferFinite) {
+  SceneData d = testing::small_room();
+  add_quad(d, Vec3(0, 1, -0.5f), Vec3(0.2f, 0, 0), Vec3(0, 0.2f, 0),
+           testing::emitter(Vec3(kMaxRadiance)));
+  auto scene = make_scene(std::move(d), testing::constant_env(kMaxRadiance));
+  JobSpec spec = make_spec(12, 12, Vec3(0, 1, 3), Vec3(0, 1, -0.5f), 50, 3.5f, 0.05f);
+  spec.reference_error = 0.01f;  // the adaptive path: up to reference_max_spp samples
+  spec.reference_max_spp = 256;
+  FrameBuffers fb = render_small(*scene, spec);
+  expect_clean(fb, "radiance at the limit");
+  float brightest = 0;
+  for (float v : fb.reference) brightest = std::max(brightest, v);
+  EXPECT_GT(brightest, 1e10f);  // the light is in the picture
+}
+
+// focal_distance = 1e-38 is a valid positive number: the lens rays and the
+// circle of confusion must stay finite (they used to overflow to Inf/NaN).
+TEST(HardCases, TinyFocalDistanceKeepsEveryBufferFinite) {
+  auto scene = make_scene(testing::small_room(), testing::constant_env(1.0f));
+  for (float focal : {1e-38f, 1e-30f, 1e-7f, 3e38f}) {
+    JobSpec spec = make_spec(12, 10, Vec3(0, 1, 3), Vec3(0, 1, 0), 50, focal, 0.05f);
+    FrameBuffers fb = render_small(*scene, spec);
+    expect_clean(fb, "tiny focal distance");
+    EXPECT_EQ(fb.camera.focal_distance, focal);
+    for (float c : fb.coc) EXPECT_GT(c, 0.0f);
+  }
+}
+
+TEST(HardCases, EnvironmentMapTexelAboveTheLimitIsALoadErrorNamingTheFile) {
+  const auto dir = std::filesystem::temp_directory_path() / "dofarm_hard_cases_env";
+  std::filesystem::create_directories(dir);
+  RgbImage img;
+  img.width = 8;
+  img.height = 4;
+  img.rgb.assign(size_t(8) * 4 * 3, 0.5f);
+  img.rgb[(size_t(2) * 8 + 5) * 3 + 1] = 1e30f;
+  EnvironmentSpec env;
+  env.map = dir / "hot.exr";
+  write_rgb_exr(env.map, img);
+  try {
+    Environment::from_spec(env);
+    FAIL() << "a texel of 1e30 was accepted";
+  } catch (const RuntimeError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find(env.map.string()), std::string::npos) << what;
+    EXPECT_NE(what.find("texel (5, 2)"), std::string::npos) << what;
+  }
+  // Within the limit, but not times the intensity.
+  img.rgb[(size_t(2) * 8 + 5) * 3 + 1] = 1e6f;
+  std::filesystem::remove(env.map);
+  write_rgb_exr(env.map, img);
+  EXPECT_NO_THROW(Environment::from_spec(env));
+  env.intensity = 1e7f;
+  EXPECT_THROW(Environment::from_spec(env), RuntimeError);
+  std::filesystem::remove_all(dir);
 }
 
 }  // namespace

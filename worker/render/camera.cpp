@@ -1,7 +1,12 @@
 #include "worker/render/camera.h"
 
+#include <fmt/format.h>
+
 #include <algorithm>
+#include <cfloat>
 #include <cmath>
+
+#include "common/error.h"
 
 namespace dofarm::render {
 
@@ -30,19 +35,34 @@ Ray Camera::pinhole_ray(Vec2 film) const {
 }
 
 Ray Camera::generate_ray(Vec2 film, Vec2 lens) const {
-  if (!has_lens()) return pinhole_ray(film);                  // bit-identical to the pinhole
-  Vec3 focus = film_direction(film) * state_.focal_distance;  // on the plane z = -S
+  if (!has_lens()) return pinhole_ray(film);  // bit-identical to the pinhole
+  const Vec3 fd = film_direction(film);
+  Vec3 focus = fd * state_.focal_distance;  // on the plane z = -S
   Vec2 d = sample_concentric_disk(lens) * state_.aperture;
   Vec3 origin(d.x, d.y, 0.0f);
+  Vec3 dir = focus - origin;
+  // An extreme focus distance or lens (S = 1e-38) can make the float vector
+  // underflow to zero or overflow; the same direction in double stays exact
+  // enough to normalise.
+  const float len2 = dot(dir, dir);
+  if (!(len2 >= FLT_MIN && len2 <= FLT_MAX)) {
+    const double S = state_.focal_distance;
+    const double v[3] = {double(fd.x) * S - d.x, double(fd.y) * S - d.y, double(fd.z) * S};
+    const double len = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+    dir = len > 0 ? Vec3(float(v[0] / len), float(v[1] / len), float(v[2] / len)) : fd;
+  }
   // A rotation keeps lengths: one normalisation, after it, is enough.
-  return {position_ + rotation_.rotate(origin), normalize(rotation_.rotate(focus - origin))};
+  return {position_ + rotation_.rotate(origin), normalize(rotation_.rotate(dir))};
 }
 
 float Camera::coc_pixels(float z) const {
-  float a = state_.aperture, s = state_.focal_distance;
-  if (a <= 0) return 0;
-  float ratio = z > 0 ? std::fabs(z - s) / z : 1.0f;  // |1 - S/z|, -> 1 as z -> inf
-  return a * ratio * float(height_) / (s * tan_half_fov_);
+  if (state_.aperture <= 0) return 0;
+  // In double, clamped to float's range: an extreme but valid lens or focus
+  // distance (S = 1e-38) gives a huge circle, never Inf or NaN.
+  const double a = state_.aperture, s = state_.focal_distance;
+  const double ratio = z > 0 ? std::fabs(double(z) - s) / z : 1.0;  // |1 - S/z|, -> 1 as z -> inf
+  const double c = a * ratio * double(height_) / (s * double(tan_half_fov_));
+  return std::isfinite(c) ? float(std::min(c, double(FLT_MAX))) : FLT_MAX;
 }
 
 float Camera::view_depth(Vec3 p) const { return -to_view(p - position_).z; }
@@ -103,7 +123,123 @@ void store(CameraState* s, Vec3 p, Quat q) {
 
 }  // namespace
 
-CameraState camera_for_frame(const JobSpec& spec, const SceneData& scene, int frame) {
+float fitted_vertical_fov(float yfov_deg, float camera_aspect, int width, int height) {
+  if (!(camera_aspect > 0) || width <= 0 || height <= 0) return yfov_deg;
+  if (describe_aspect_mismatch(camera_aspect, width, height).empty()) return yfov_deg;
+  // Half-extents of the film at unit distance: (t a, t); the fov spans the
+  // longer one, L, and the image's longer side gets L.
+  const double t = std::tan(0.5 * double(yfov_deg) * M_PI / 180.0);
+  const double longer = t * std::max(double(camera_aspect), 1.0);
+  const double image_aspect = double(width) / height;
+  const double tv = image_aspect >= 1 ? longer / image_aspect : longer;
+  return float(2.0 * std::atan(tv) * 180.0 / M_PI);
+}
+
+ImageSize image_size_for_aspect(float camera_aspect, int width, int height) {
+  constexpr int kDefaultSide = 512;
+  if (!(camera_aspect > 0))
+    return {width > 0 ? width : kDefaultSide, height > 0 ? height : kDefaultSide};
+  auto side = [](double v) { return int(std::max(1.0, std::min(std::round(v), 1e9))); };
+  if (width > 0 && height > 0) return {width, height};
+  if (width > 0) return {width, side(width / double(camera_aspect))};
+  if (height > 0) return {side(height * double(camera_aspect)), height};
+  if (camera_aspect >= 1) return {kDefaultSide, side(kDefaultSide / double(camera_aspect))};
+  return {side(kDefaultSide * double(camera_aspect)), kDefaultSide};
+}
+
+namespace {
+
+// "16:9" when a small ratio of integers gives `a` to 0.1%, else "1.234:1".
+std::string ratio_text(double a) {
+  for (int q = 1; q <= 32; ++q) {
+    const double p = std::round(a * q);
+    if (p >= 1 && std::fabs(p / q - a) <= 1e-3 * a) return fmt::format("{}:{}", int(p), q);
+  }
+  return fmt::format("{:.3f}:1", a);
+}
+
+std::string share(double f, const char* side) {
+  if (std::fabs(f - 1) < 1e-4) return fmt::format("the camera's full {}", side);
+  std::string pct = fmt::format("{:.0f}", f * 100);
+  if (pct == "100") pct = fmt::format("{:.1f}", f * 100);
+  if (f < 1) return fmt::format("the middle {}% of the camera's {}", pct, side);
+  return fmt::format("{}% of the camera's {} (more than the camera frames)", pct, side);
+}
+
+}  // namespace
+
+std::string describe_aspect_mismatch(float camera_aspect, int width, int height) {
+  if (!(camera_aspect > 0) || width <= 0 || height <= 0) return "";
+  // The size either side derives from the other is a match: rounding to
+  // whole pixels is not a crop.
+  const double a = camera_aspect;
+  if (std::lround(width / a) == height || std::lround(height * a) == width) return "";
+  const double longer = std::max(a, 1.0), image_aspect = double(width) / height;
+  const double xr = image_aspect >= 1 ? longer : longer * image_aspect;
+  const double yr = image_aspect >= 1 ? longer / image_aspect : longer;
+  return fmt::format(
+      "the scene camera is {} but the image is {}x{} ({}): as in Blender (sensor fit auto: the "
+      "field of view spans the longer side), the image shows {} and {}",
+      ratio_text(a), width, height, ratio_text(image_aspect), share(xr / a, "width"),
+      share(yr, "height"));
+}
+
+float lens_radius(const CameraKey& key, float vertical_fov_deg, int width, int height) {
+  if (!(key.fstop > 0)) return key.aperture;
+  double focal_mm = key.focal_length_mm;
+  if (!(focal_mm > 0)) {
+    // Blender: fov = 2 atan(sensor / (2 f)) across the sensor-fitted side,
+    // here the image's longer side.
+    const double tv = std::tan(0.5 * double(vertical_fov_deg) * M_PI / 180.0);
+    const double t_longer = tv * std::max(1.0, double(width) / height);
+    focal_mm = key.sensor_width_mm / (2.0 * t_longer);
+  }
+  // Cycles' thin lens: aperture radius = focal length / (2 N), mm -> m.
+  const double r = focal_mm / (2.0 * key.fstop) * 1e-3;
+  return float(std::min(r, double(FLT_MAX)));
+}
+
+namespace {
+
+// The focus distance of `key` for the frame's camera `s` (pose and fov set).
+float focus_distance(const JobSpec& spec, const CameraKey& key, const CameraState& s,
+                     const Autofocus& autofocus) {
+  const std::string prefix = fmt::format("camera.key.{}.", key.index);
+  switch (key.focus) {
+    case FocusMode::kNone:
+    case FocusMode::kDistance:
+      return key.focal_distance;
+    case FocusMode::kPoint: {
+      const Quat q = conjugate(to_quat(s.rotation));
+      const Vec3 p = key.focus_point - Vec3(s.position[0], s.position[1], s.position[2]);
+      const float depth = -q.rotate(p).z;
+      if (!(depth > 0) || !std::isfinite(depth)) {
+        throw SpecError(spec.where(prefix + "focus_point"), prefix + "focus_point",
+                        fmt::format("the point is not in front of the camera at frame {} (view "
+                                    "depth {:g}): its depth cannot be the focus distance",
+                                    s.frame, depth));
+      }
+      return depth;
+    }
+    case FocusMode::kAuto: {
+      DOFARM_CHECK_OP(bool(autofocus), ==, true);
+      std::optional<float> depth = autofocus(s);
+      if (!depth || !(*depth > 0) || !std::isfinite(*depth)) {
+        throw SpecError(spec.where(prefix + "focus"), prefix + "focus",
+                        fmt::format("autofocus at frame {}: the ray through the image centre "
+                                    "hits nothing; use focal_distance or focus_point",
+                                    s.frame));
+      }
+      return *depth;
+    }
+  }
+  return key.focal_distance;
+}
+
+}  // namespace
+
+CameraState camera_for_frame(const JobSpec& spec, const SceneData& scene, int frame,
+                             const Autofocus& autofocus) {
   CameraState s;
   s.frame = frame;
   s.time = float(frame) / spec.fps;
@@ -112,24 +248,36 @@ CameraState camera_for_frame(const JobSpec& spec, const SceneData& scene, int fr
   const auto& keys = spec.camera_keys;
   auto key_frame = [](const CameraKey& k) { return float(k.frame); };
   bracket(keys, float(frame), key_frame, &i0, &i1, &w);
-  if (!keys.empty()) {
-    s.focal_distance = keys[i0].focal_distance * (1 - w) + keys[i1].focal_distance * w;
-    s.aperture = keys[i0].aperture * (1 - w) + keys[i1].aperture * w;
-  }
-  if (spec.camera_from_scene && !scene.camera_track.empty()) {
+  if (spec.camera_from_scene) {
     const auto& track = scene.camera_track;
+    if (track.empty()) {
+      throw SpecError(spec.where("camera.from_scene"), "camera.from_scene",
+                      "the scene \"" + scene.source.string() +
+                          "\" has no camera; add one to the scene or give [[camera.key]] poses "
+                          "with camera.from_scene = false");
+    }
     size_t j0, j1;
     float v;
     bracket(
         track, s.time, [](const CameraTrackKey& k) { return k.time; }, &j0, &j1, &v);
     store(&s, lerp(track[j0].position, track[j1].position, v),
           slerp(track[j0].rotation, track[j1].rotation, v));
-    s.fov_deg = track[j0].yfov_deg * (1 - v) + track[j1].yfov_deg * v;
-    if (keys.empty()) s.aperture = 0;
+    s.fov_deg = fitted_vertical_fov(track[j0].yfov_deg * (1 - v) + track[j1].yfov_deg * v,
+                                    track[j0].aspect, spec.width, spec.height);
   } else if (!keys.empty()) {
     store(&s, lerp(keys[i0].position, keys[i1].position, w),
           slerp(key_rotation(keys[i0]), key_rotation(keys[i1]), w));
     s.fov_deg = keys[i0].fov_deg * (1 - w) + keys[i1].fov_deg * w;
+  }
+  if (!keys.empty()) {
+    // Each key's lens for this frame's camera, then blended; a key of weight
+    // 0 is not evaluated (its focus point may be behind this frame's camera).
+    const float r0 = lens_radius(keys[i0], s.fov_deg, spec.width, spec.height);
+    const float r1 = w > 0 ? lens_radius(keys[i1], s.fov_deg, spec.width, spec.height) : r0;
+    const float d0 = focus_distance(spec, keys[i0], s, autofocus);
+    const float d1 = w > 0 && i1 != i0 ? focus_distance(spec, keys[i1], s, autofocus) : d0;
+    s.focal_distance = d0 * (1 - w) + d1 * w;
+    s.aperture = r0 * (1 - w) + r1 * w;
   }
   return s;
 }

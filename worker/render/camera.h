@@ -6,6 +6,10 @@
 // the distance along the viewing axis (positive in front of the camera).
 #pragma once
 
+#include <functional>
+#include <optional>
+#include <string>
+
 #include "common/image.h"
 #include "common/jobspec.h"
 #include "common/math.h"
@@ -46,10 +50,57 @@ class Camera {
   float tan_half_fov_, aspect_;
 };
 
+// ---------------------------------------------------------------------------
+// The scene camera's shape (glTF camera.perspective: yfov and aspectRatio)
+
+// The vertical field of view (degrees) that an image of width x height shows
+// of a camera with vertical fov `yfov_deg` and film aspect `camera_aspect`
+// (width / height; 0 = the file does not say, then yfov is vertical for any
+// image, as glTF specifies). Blender's default sensor fit (AUTO): the
+// camera's field of view spans the longer side of its film, and the longer
+// side of whatever image it renders; the other side follows the image. This
+// is what Blender's glTF exporter assumes when it writes yfov from its
+// render aspect (io_scene_gltf2 gather_cameras: yfov = 2 atan(tan(angle/2) /
+// aspect) for a landscape image).
+float fitted_vertical_fov(float yfov_deg, float camera_aspect, int width, int height);
+
+// The image size a job gets when its spec leaves width and/or height out
+// (`width`/`height` 0 = not given): the longer side 512 when neither is
+// given, the other side from the aspect (rounded, at least 1) otherwise.
+struct ImageSize {
+  int width = 0, height = 0;
+};
+ImageSize image_size_for_aspect(float camera_aspect, int width, int height);
+
+// "" when a width x height image shows exactly the camera's film, else one
+// line saying what it crops or adds, e.g. `the scene camera is 16:9 but the
+// image is 512x512: it shows the camera's full width and 178% of its height`.
+std::string describe_aspect_mismatch(float camera_aspect, int width, int height);
+
+// ---------------------------------------------------------------------------
+// One frame's camera
+
+// The view depth of what the pinhole ray through the image centre hits for
+// a camera pose (focus = "auto"); nullopt when it hits nothing.
+using Autofocus = std::function<std::optional<float>(const CameraState&)>;
+
 // The camera of `frame`: keyframes of the job spec interpolated linearly
 // (slerp for rotation), or the scene file's camera track when
-// camera.from_scene is set, with the job's lens keys.
-CameraState camera_for_frame(const JobSpec& spec, const SceneData& scene, int frame);
+// camera.from_scene is set (its fov fitted to the image), with the job's lens
+// keys. The lens radius and focus distance of each key are resolved for this
+// frame's camera (fstop -> radius, focus_point / autofocus -> distance), then
+// interpolated. Throws SpecError (the key, its place in the spec, the frame)
+// when camera.from_scene is set but the scene has no camera, a focus point is
+// not in front of the camera, or autofocus finds nothing; `autofocus` must be
+// given when a key uses focus = "auto".
+CameraState camera_for_frame(const JobSpec& spec, const SceneData& scene, int frame,
+                             const Autofocus& autofocus = {});
+
+// Lens radius in scene units (metres) of an f-number: Blender/Cycles' thin
+// lens, radius = focal_length / (2 N). Without a focal length it is
+// sensor_width / (2 tan(fov/2)) over the image's longer side, as Blender
+// relates the two (sensor fit AUTO).
+float lens_radius(const CameraKey& key, float vertical_fov_deg, int width, int height);
 
 // Concentric square-to-disk mapping (Shirley & Chiu 1997).
 Vec2 sample_concentric_disk(Vec2 u);

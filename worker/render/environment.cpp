@@ -1,17 +1,38 @@
 #include "worker/render/environment.h"
 
+#include <fmt/format.h>
+
+#include <algorithm>
 #include <cmath>
+
+#include "common/error.h"
 
 namespace dofarm::render {
 
 std::unique_ptr<Environment> Environment::from_spec(const EnvironmentSpec& spec) {
   if (spec.color) return std::make_unique<Environment>(*spec.color * spec.intensity);
-  return std::make_unique<Environment>(load_rgb_image(spec.map, /*srgb=*/true), spec.intensity,
-                                       spec.rotation_deg);
+  RgbImage image = load_rgb_image(spec.map, /*srgb=*/true);
+  // A texel brighter than kMaxRadiance (common/jobspec.h) is refused here,
+  // naming the file, rather than risking an Inf in a buffer after the frame
+  // has been rendered.
+  for (size_t i = 0; i < image.rgb.size(); ++i) {
+    const double v = double(image.rgb[i]) * spec.intensity;
+    if (v > kMaxRadiance) {
+      const size_t texel = i / 3;
+      throw RuntimeError(fmt::format(
+          "\"{}\": texel ({}, {}) has radiance {:g} (times intensity {:g}), above the {:g} a "
+          "radiance may be (it keeps every buffer finite)",
+          spec.map.string(), texel % size_t(image.width), texel / size_t(image.width),
+          double(image.rgb[i]), spec.intensity, kMaxRadiance));
+    }
+  }
+  return std::make_unique<Environment>(std::move(image), spec.intensity, spec.rotation_deg);
 }
 
 Environment::Environment(Vec3 c) : constant_(c) {
   if (!is_finite(c) || c.x < 0 || c.y < 0 || c.z < 0) constant_ = Vec3(0);
+  constant_ = Vec3(std::min(constant_.x, kMaxRadiance), std::min(constant_.y, kMaxRadiance),
+                   std::min(constant_.z, kMaxRadiance));
   mean_luminance_ = luminance(constant_);
 }
 
@@ -26,7 +47,9 @@ Environment::Environment(RgbImage image, float intensity, float rotation_deg)
       float* t = &image.rgb[(size_t(y) * w + x) * 3];
       for (int c = 0; c < 3; ++c) {
         float v = t[c] * intensity;
-        t[c] = std::isfinite(v) && v > 0 ? v : 0.0f;  // no NaN, Inf or negative light
+        // No NaN, Inf or negative light; from_spec refuses a file beyond
+        // kMaxRadiance, an image built in code is clamped to it.
+        t[c] = std::isfinite(v) && v > 0 ? std::min(v, kMaxRadiance) : 0.0f;
       }
       float lum = luminance(Vec3(t[0], t[1], t[2]));
       weights[size_t(y) * w + x] = lum * sin_theta;

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <cfloat>
 #include <chrono>
 #include <cmath>
 #include <exception>
@@ -17,6 +18,15 @@
 namespace dofarm::render {
 
 namespace {
+
+// A double for a float buffer: clamped into float's finite range (a
+// reference of 2^16 samples of radiance up to kMaxRadiance has a second
+// moment far beyond it). NaN never reaches here (trace_path returns finite
+// samples), but would become 0 rather than poison the frame.
+float to_buffer(double v) {
+  if (std::isnan(v)) return 0.0f;
+  return float(std::clamp(v, -double(FLT_MAX), double(FLT_MAX)));
+}
 
 // Per-pixel mean and variance of luminance (Welford), in double: a reference
 // accumulates up to 2^16 samples.
@@ -95,7 +105,10 @@ class PixelRenderer {
       bool found = scene_.intersect(lens_ray(alb, x, y), &h);
       albedo_sum += primary_albedo(found ? &h : nullptr);
     }
-    put3(out.albedo_ref, 0, albedo_sum / float(spec_.albedo_ref_spp));
+    const float n_alb = float(spec_.albedo_ref_spp);
+    put3(out.albedo_ref, 0,
+         Vec3(to_buffer(albedo_sum.x / n_alb), to_buffer(albedo_sum.y / n_alb),
+              to_buffer(albedo_sum.z / n_alb)));
 
     // Reference: a fixed sample count, or batches until the relative standard
     // error of the pixel's mean luminance meets the target. The stopping rule
@@ -110,9 +123,10 @@ class PixelRenderer {
       acc.add(trace_path(scene_, lens_ray(ref, x, y), ref, settings_));
       if (adaptive && (s + 1) % batch == 0 && acc.relative_error() <= spec_.reference_error) break;
     }
-    Vec3 mean(float(acc.sum[0] / acc.n), float(acc.sum[1] / acc.n), float(acc.sum[2] / acc.n));
+    Vec3 mean(to_buffer(acc.sum[0] / acc.n), to_buffer(acc.sum[1] / acc.n),
+              to_buffer(acc.sum[2] / acc.n));
     put3(out.reference, 0, mean);
-    out.reference_var[i] = float(acc.variance_of_mean());
+    out.reference_var[i] = to_buffer(acc.variance_of_mean());
   }
 
  private:
@@ -132,6 +146,17 @@ class PixelRenderer {
 };
 
 }  // namespace
+
+CameraState frame_camera(const Scene& scene, const JobSpec& spec, int frame) {
+  auto autofocus = [&](const CameraState& pose) -> std::optional<float> {
+    const Camera pinhole(pose, spec.width, spec.height);
+    SurfaceHit hit;
+    const Vec2 centre(0.5f * float(spec.width), 0.5f * float(spec.height));
+    if (!scene.intersect(pinhole.pinhole_ray(centre), &hit)) return std::nullopt;
+    return pinhole.view_depth(hit.p);
+  };
+  return camera_for_frame(spec, scene.data(), frame, autofocus);
+}
 
 Rect checked_rect(const JobSpec& spec, int frame, std::optional<Rect> tile) {
   const FileLoc loc{spec.spec_path.string()};
@@ -159,7 +184,7 @@ FrameBuffers render_frame(const Scene& scene, const JobSpec& spec, int frame,
   FrameBuffers out;
   out.allocate(rect.w, rect.h, spec.versions);
   out.rect = rect;
-  out.camera = camera_for_frame(spec, scene.data(), frame);
+  out.camera = frame_camera(scene, spec, frame);
   const Camera camera(out.camera, spec.width, spec.height);
   const PixelRenderer pixels(scene, spec, camera, frame);
 

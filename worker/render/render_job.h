@@ -49,6 +49,11 @@ FrameBuffers render_frame(const Scene& scene, const JobSpec& spec, int frame,
                           std::optional<Rect> tile = std::nullopt,
                           const RenderOptions& options = {});
 
+// The camera of `frame` (camera_for_frame) with focus = "auto" resolved in
+// `scene`: the view depth of the first hit of the pinhole ray through the
+// centre of the image (deterministic: one ray, no sampling).
+CameraState frame_camera(const Scene& scene, const JobSpec& spec, int frame);
+
 // Checks that `frame` is in the job's range and `tile` inside the image;
 // throws SpecError otherwise. Returns the rect to render.
 Rect checked_rect(const JobSpec& spec, int frame, std::optional<Rect> tile);
