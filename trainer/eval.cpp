@@ -256,8 +256,16 @@ EvalSummary evaluate(const EvalOptions& o) {
     lr_plot = PlotSpec{"Learning rate", "epoch", "learning rate", true,
                        {{"Adam step size (last step of the epoch)", "#2ca02c", epochs.epoch,
                          epochs.lr}}};
+  PlotSpec ssim_plot{"Validation SSIM per epoch", "epoch", "SSIM (sRGB, 0..1)", false,
+                     {{"validation frames (64 px crops)", "#9467bd", epochs.epoch, epochs.val_ssim}}};
+  PlotSpec psnr_plot{"Validation PSNR per epoch", "epoch", "PSNR (dB)", false,
+                     {{"validation frames (64 px crops)", "#8c564b", epochs.epoch, epochs.val_psnr}}};
   const std::string loss_svg = svg_plot(loss_plot), step_svg = svg_plot(step_plot),
-                    lr_svg = svg_plot(lr_plot);
+                    lr_svg = svg_plot(lr_plot), quality_svg = svg_plot(ssim_plot) + svg_plot(psnr_plot);
+  std::ofstream(o.out_dir / "quality.svg")
+      << "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"640\" height=\"720\">"
+      << svg_plot(ssim_plot) << "<g transform=\"translate(0 360)\">" << svg_plot(psnr_plot)
+      << "</g></svg>\n";
   std::ofstream(o.out_dir / "loss.svg") << loss_svg << "\n";
   std::ofstream(o.out_dir / "steps.svg") << step_svg << "\n";
   std::ofstream(o.out_dir / "lr.svg") << lr_svg << "\n";
@@ -305,7 +313,7 @@ EvalSummary evaluate(const EvalOptions& o) {
   for (const auto& [name, a] : by_scene) table_rows(name.empty() ? "(unnamed)" : name, a);
   if (by_scene.size() > 1) table_rows("all scenes", all);
   md << "\nMean denoise time: " << cell(sum.ms, 2) << " ms per frame.\n\n"
-     << "![loss per epoch](loss.svg)\n\n![loss per step](steps.svg)\n\n![learning rate](lr.svg)\n\n"
+     << "![loss per epoch](loss.svg)\n\n![loss per step](steps.svg)\n\n![learning rate](lr.svg)\n\n![validation SSIM and PSNR](quality.svg)\n\n"
      << "Comparison images (`frame-NNN.png`): noisy | denoised | reference | error "
         "(mean absolute sRGB difference, ×4, black-red-yellow-white; white = 0.25). "
         "`report.html` shows all of this on one page.\n\n"
@@ -357,7 +365,8 @@ EvalSummary evaluate(const EvalOptions& o) {
   };
   for (const auto& [name, a] : by_scene) html_rows(name.empty() ? "(unnamed)" : name, a);
   if (by_scene.size() > 1) html_rows("all scenes", all);
-  html << "</table><h2>Training</h2>" << loss_svg << step_svg << lr_svg << "<h2>Comparisons</h2>";
+  html << "</table><h2>Training</h2>" << loss_svg << step_svg << lr_svg << quality_svg
+       << "<h2>Comparisons</h2>";
   for (const Strip& st : strips) {
     const int panel = std::max(st.width, 256);
     const int shown_h = int(std::lround(double(st.height) * panel / st.width));

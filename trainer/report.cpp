@@ -152,6 +152,8 @@ LossCurve read_loss_csv(const std::filesystem::path& csv) {
     c.train.push_back(num(f[2]));
     c.val.push_back(num(f[3]));
     c.lr.push_back(num(f[4]));
+    c.val_ssim.push_back(f.size() > 7 ? num(f[7]) : NAN);
+    c.val_psnr.push_back(f.size() > 8 ? num(f[8]) : NAN);
   }
   return c;
 }

@@ -17,6 +17,7 @@
 #include "common/progress.h"
 #include "trainer/dataset.h"
 #include "trainer/losses.h"
+#include "trainer/metrics.h"
 #include "trainer/run_folder.h"
 
 namespace dofarm::trainer {
@@ -49,254 +50,7 @@ class EventLog {
   std::ofstream out_;
 };
 
-// Planar (C, S, S) frames into `n` frames of a [N, C, S, S] tensor in
-// `format`: NHWC is a transposing copy, NCHW a plain one. Plain loops: this
-// runs beside the training step and must not take its intra-op threads.
-void copy_frames(const float* src, int frames, int channels, int size, torch::MemoryFormat format,
-                 float* dst) {
-  const size_t plane = size_t(size) * size;
-  if (format != torch::MemoryFormat::ChannelsLast) {
-    std::copy(src, src + size_t(frames) * channels * plane, dst);
-    return;
-  }
-  for (int f = 0; f < frames; ++f) {
-    const float* s = src + size_t(f) * channels * plane;
-    float* d = dst + size_t(f) * channels * plane;
-    for (size_t p = 0; p < plane; ++p)
-      for (int c = 0; c < channels; ++c) d[p * channels + c] = s[size_t(c) * plane + p];
-  }
-}
-
 }  // namespace
-
-Batch make_batch(const std::vector<Sample>& samples, torch::Device device,
-                 torch::MemoryFormat format) {
-  DOFARM_CHECK(!samples.empty());
-  const Sample& first = samples[0];
-  const int64_t b = int64_t(samples.size()), t = first.frames, s = first.size;
-  const int64_t c = first.channels;
-  auto frames = [&](int64_t channels) {
-    return torch::empty({b * t, channels, s, s},
-                        torch::TensorOptions().dtype(torch::kFloat32).memory_format(format));
-  };
-  torch::Tensor in = frames(c), tg = frames(3);
-  const size_t in_stride = size_t(t) * c * s * s, tg_stride = size_t(t) * 3 * s * s;
-  for (int64_t i = 0; i < b; ++i) {
-    const Sample& x = samples[size_t(i)];
-    DOFARM_CHECK(x.frames == t && x.channels == c && x.size == s);
-    copy_frames(x.input.data(), int(t), int(c), int(s), format,
-                in.data_ptr<float>() + size_t(i) * in_stride);
-    copy_frames(x.target.data(), int(t), 3, int(s), format,
-                tg.data_ptr<float>() + size_t(i) * tg_stride);
-  }
-  // [B*T, C, S, S] -> [B, T, C, S, S] splits the outer dimension: a view in
-  // either format.
-  Batch out;
-  out.input = in.view({b, t, c, s, s}).to(device);
-  out.target = tg.view({b, t, 3, s, s}).to(device);
-  return out;
-}
-
-BatchPrefetcher::BatchPrefetcher(SequenceStream& stream, int batch, torch::Device device,
-                                 torch::MemoryFormat format)
-    : stream_(stream), batch_(batch), device_(device), format_(format) {
-  pending_ = std::async(std::launch::async, [this] { return assemble(); });
-}
-
-BatchPrefetcher::~BatchPrefetcher() {
-  if (pending_.valid()) pending_.wait();
-}
-
-Batch BatchPrefetcher::assemble() {
-  std::vector<Sample> samples;
-  for (int i = 0; i < batch_; ++i) samples.push_back(stream_.next());
-  Batch b = make_batch(samples, device_, format_);
-  b.next_index = stream_.next_index();
-  return b;
-}
-
-Batch BatchPrefetcher::next() {
-  auto t0 = std::chrono::steady_clock::now();
-  Batch b = pending_.get();  // rethrows the stream's failure
-  waited_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  pending_ = std::async(std::launch::async, [this] { return assemble(); });
-  return b;
-}
-
-StepOutcome compute_gradients(Denoiser& model, const Batch& batch, const LossConfig& loss_cfg,
-                              const torch::Tensor& kernel,
-                              const std::function<torch::Tensor(const torch::Tensor&)>& hook) {
-  // Gradients set, not added to zeros: no memset and no accumulation pass.
-  model->zero_grad(/*set_to_none=*/true);
-  torch::Tensor loss =
-      denoiser_loss(model->forward(batch.input), batch.target, loss_cfg, kernel).total;
-  if (hook) loss = hook(loss);
-  StepOutcome r;
-  r.loss = loss.item<double>();
-  r.finite = std::isfinite(r.loss);
-  if (!r.finite) return r;
-  loss.backward();
-  // One device sync for all gradients, not one per parameter.
-  std::vector<torch::Tensor> finite;
-  for (const auto& p : model->parameters())
-    if (p.grad().defined()) finite.push_back(torch::isfinite(p.grad()).all());
-  r.finite = finite.empty() || torch::stack(finite).all().item<bool>();
-  return r;
-}
-
-// One replica's thread: runs one job at a time, handed over by start().
-struct StepRunner::Worker {
-  explicit Worker(int threads) : thread_([this, threads] { loop(threads); }) {}
-  ~Worker() {
-    {
-      std::lock_guard<std::mutex> l(mu_);
-      quit_ = true;
-    }
-    cv_.notify_all();
-    thread_.join();
-  }
-  void start(std::function<void()> job) {
-    std::lock_guard<std::mutex> l(mu_);
-    job_ = std::move(job);
-    error_ = nullptr;
-    pending_ = busy_ = true;
-    cv_.notify_all();
-  }
-  void wait() {
-    std::unique_lock<std::mutex> l(mu_);
-    cv_.wait(l, [this] { return !busy_; });
-    if (error_) std::rethrow_exception(error_);
-  }
-
- private:
-  void loop(int threads) {
-    // This thread's own OpenMP team size, before its first kernel (oneDNN
-    // reads it from the calling thread, not from ATen's global setting).
-    at::set_num_threads(threads);
-    std::unique_lock<std::mutex> l(mu_);
-    for (;;) {
-      cv_.wait(l, [this] { return pending_ || quit_; });
-      if (!pending_) return;
-      pending_ = false;
-      std::function<void()> job = std::move(job_);
-      l.unlock();
-      std::exception_ptr error;
-      try {
-        job();
-      } catch (...) {
-        error = std::current_exception();
-      }
-      l.lock();
-      error_ = error;
-      busy_ = false;
-      cv_.notify_all();
-    }
-  }
-
-  std::mutex mu_;
-  std::condition_variable cv_;
-  std::function<void()> job_;
-  std::exception_ptr error_;
-  bool pending_ = false, busy_ = false, quit_ = false;
-  std::thread thread_;  // last: started once the state above exists
-};
-
-int step_replicas(int configured, torch::Device device, int threads, int batch) {
-  if (!device.is_cpu()) return 1;
-  int r = configured > 0 ? configured : (threads >= 2 ? 2 : 1);
-  return std::max(1, std::min(r, batch));
-}
-
-StepRunner::StepRunner(Denoiser model, int replicas) : model_(std::move(model)) {
-  DOFARM_CHECK(replicas >= 1);
-  if (replicas == 1) return;
-  saved_threads_ = at::get_num_threads();
-  const int per = std::max(1, saved_threads_ / replicas);
-  at::set_num_threads(per);
-  const torch::Device device = model_->parameters().front().device();
-  for (int k = 1; k < replicas; ++k) {
-    Denoiser copy(model_->config());
-    copy->to(device);
-    copy->set_memory_format(model_->memory_format());
-    copies_.push_back(copy);
-    workers_.push_back(std::make_unique<Worker>(per));
-  }
-}
-
-StepRunner::~StepRunner() {
-  workers_.clear();  // joins the threads
-  if (saved_threads_ > 0) at::set_num_threads(saved_threads_);
-}
-
-StepOutcome StepRunner::run(const Batch& batch, const LossConfig& loss, const torch::Tensor& kernel,
-                            const std::function<torch::Tensor(const torch::Tensor&)>& hook) {
-  if (copies_.empty()) return compute_gradients(model_, batch, loss, kernel, hook);
-  const int r = replicas();
-  const int64_t b = batch.input.size(0);
-  DOFARM_CHECK(b >= r);
-  // Part k: sequences [b k / r, b (k + 1) / r), weight n_k / n.
-  std::vector<int64_t> begin(static_cast<size_t>(r) + 1);
-  for (int k = 0; k <= r; ++k) begin[size_t(k)] = b * k / r;
-  std::vector<double> weight(static_cast<size_t>(r));
-  for (int k = 0; k < r; ++k)
-    weight[size_t(k)] = double(begin[size_t(k) + 1] - begin[size_t(k)]) / double(b);
-  auto part = [&](int k) {
-    const int64_t start = begin[size_t(k)], count = begin[size_t(k) + 1] - start;
-    Batch p;
-    p.input = batch.input.narrow(0, start, count);
-    p.target = batch.target.narrow(0, start, count);
-    return p;
-  };
-  const std::vector<torch::Tensor> params = model_->parameters();
-  std::vector<StepOutcome> out(static_cast<size_t>(r));
-  for (int k = 1; k < r; ++k) {
-    workers_[size_t(k) - 1]->start([&, k] {
-      Denoiser& copy = copies_[size_t(k) - 1];
-      {
-        torch::NoGradGuard no_grad;  // the replica takes the model's current weights
-        std::vector<torch::Tensor> dst = copy->parameters();
-        for (size_t i = 0; i < params.size(); ++i) dst[i].copy_(params[i]);
-      }
-      out[size_t(k)] = compute_gradients(copy, part(k), loss, kernel, hook);
-    });
-  }
-  std::exception_ptr error;
-  try {
-    out[0] = compute_gradients(model_, part(0), loss, kernel, hook);
-  } catch (...) {
-    error = std::current_exception();
-  }
-  for (auto& w : workers_) {
-    try {
-      w->wait();
-    } catch (...) {
-      if (!error) error = std::current_exception();
-    }
-  }
-  if (error) std::rethrow_exception(error);
-
-  StepOutcome total;
-  total.finite = true;
-  for (int k = 0; k < r; ++k) {
-    total.loss += weight[size_t(k)] * out[size_t(k)].loss;
-    total.finite = total.finite && out[size_t(k)].finite;
-  }
-  if (!total.finite) return total;
-  // g = sum_k (n_k / n) g_k, in replica order.
-  torch::NoGradGuard no_grad;
-  std::vector<std::vector<torch::Tensor>> copy_params;
-  for (auto& c : copies_) copy_params.push_back(c->parameters());
-  std::vector<torch::Tensor> finite;
-  for (size_t i = 0; i < params.size(); ++i) {
-    torch::Tensor g = params[i].grad();
-    if (!g.defined()) continue;
-    g.mul_(weight[0]);
-    for (int k = 1; k < r; ++k) g.add_(copy_params[size_t(k) - 1][i].grad(), weight[size_t(k)]);
-    finite.push_back(torch::isfinite(g).all());
-  }
-  total.finite = finite.empty() || torch::stack(finite).all().item<bool>();
-  return total;
-}
 
 void keep_freed_memory() {
   // 32 MiB is glibc's largest mmap threshold; the largest activation of the
@@ -318,6 +72,40 @@ int64_t csv_epochs(const fs::path& csv) {
 }
 
 TrainResult train_in(const TrainOptions& opt_in);
+
+// SSIM and PSNR of the validation frames (as eval scores them: remodulated,
+// sRGB-encoded, clamped), so the report can plot them over training.
+class ImageScores {
+ public:
+  void add(const torch::Tensor& y, const Batch& b, float eps) {
+    // Input channels 3..5 are the albedo the radiance was demodulated by.
+    const torch::Tensor albedo = b.input.narrow(2, 3, 3);
+    auto radiance = [&](const torch::Tensor& t) {
+      const int64_t s = t.size(-1);
+      return (torch::expm1(t.clamp_min(0)) * (albedo + eps))
+          .reshape({-1, 3, s, s})
+          .to(torch::kCPU, torch::kFloat32)
+          .contiguous();
+    };
+    const torch::Tensor p = radiance(y), r = radiance(b.target);
+    const int64_t n = p.size(0), s = p.size(-1);
+    for (int64_t i = 0; i < n; ++i) {
+      ImageView a{p.data_ptr<float>() + i * 3 * s * s, 3, int(s), int(s)};
+      ImageView c{r.data_ptr<float>() + i * 3 * s * s, 3, int(s), int(s)};
+      const std::vector<float> da = display_encode(a), dc = display_encode(c);
+      const ImageView ea{da.data(), 3, int(s), int(s)}, ec{dc.data(), 3, int(s), int(s)};
+      ssim_ += trainer::ssim(ea, ec);
+      psnr_ += trainer::psnr(ea, ec);
+      ++frames_;
+    }
+  }
+  double ssim() const { return frames_ ? ssim_ / frames_ : NAN; }
+  double psnr() const { return frames_ ? psnr_ / frames_ : NAN; }
+
+ private:
+  double ssim_ = 0, psnr_ = 0;
+  int64_t frames_ = 0;
+};
 
 }  // namespace
 
@@ -404,7 +192,7 @@ TrainResult train_in(const TrainOptions& opt_in) {
   const torch::Tensor kernel = log_kernel(cfg.loss.log_sigma).to(device);
   const bool new_csv = !fs::exists(run / "loss.csv");
   std::ofstream csv(run / "loss.csv", std::ios::app);
-  if (new_csv) csv << "epoch,step,train_loss,val_loss,lr,skipped,seconds\n";
+  if (new_csv) csv << "epoch,step,train_loss,val_loss,lr,skipped,seconds,val_ssim,val_psnr\n";
   // One row per step (the report's per-step curves). Rows past the checkpoint
   // (a process killed before it could save) are dropped: those steps run again.
   {
@@ -491,21 +279,25 @@ TrainResult train_in(const TrainOptions& opt_in) {
     if (interrupted) break;
 
     // Validation: the same sequences every epoch (while the shard set holds).
-    double val = NAN;
+    double val = NAN, val_ssim = NAN, val_psnr = NAN;
     std::vector<Sample> vs = stream.validation(cfg.train.val_sequences);
     if (!vs.empty()) {
       torch::NoGradGuard no_grad;
       model->eval();
       double sum = 0;
+      ImageScores scores;
       for (size_t i = 0; i < vs.size(); i += cfg.train.batch) {
         std::vector<Sample> part(vs.begin() + i,
                                  vs.begin() + std::min(vs.size(), i + cfg.train.batch));
         Batch b = make_batch(part, device, format);
-        sum += denoiser_loss(model->forward(b.input), b.target, cfg.loss, kernel)
-                   .total.item<double>() *
+        torch::Tensor y = model->forward(b.input);
+        sum += denoiser_loss(y, b.target, cfg.loss, kernel).total.item<double>() *
                double(part.size());
+        scores.add(y, b, cfg.data.demod_eps);
       }
       val = sum / double(vs.size());
+      val_ssim = scores.ssim();
+      val_psnr = scores.psnr();
     }
     double train_loss = good ? loss_sum / good : NAN;
     double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -514,7 +306,8 @@ TrainResult train_in(const TrainOptions& opt_in) {
         << (std::isfinite(train_loss) ? fmt::format("{:.6g}", train_loss) : "") << ","
         << (std::isfinite(val) ? fmt::format("{:.6g}", val) : "") << ","
         << fmt::format("{:.6g}", lr) << "," << skipped << "," << fmt::format("{:.3f}", seconds)
-        << "\n";
+        << "," << (std::isfinite(val_ssim) ? fmt::format("{:.6g}", val_ssim) : "") << ","
+        << (std::isfinite(val_psnr) ? fmt::format("{:.6g}", val_psnr) : "") << "\n";
     csv.flush();
     steps_csv.flush();
     spdlog::info("epoch {}/{}: train {:.5f} val {:.5f} lr {:.3g} ({:.1f} s)", st.epoch,

@@ -17,6 +17,7 @@
 #include "tests/trainer/synthetic.h"
 #include "trainer/eval.h"
 #include "trainer/losses.h"
+#include "trainer/report.h"
 
 namespace dofarm::trainer {
 namespace {
@@ -75,7 +76,7 @@ TEST(Train, ResumedRunTakesTheSameStepsAsAnUninterruptedOne) {
   std::ifstream csv(a / "loss.csv");
   std::string header, row;
   std::getline(csv, header);
-  EXPECT_EQ(header, "epoch,step,train_loss,val_loss,lr,skipped,seconds");
+  EXPECT_EQ(header, "epoch,step,train_loss,val_loss,lr,skipped,seconds,val_ssim,val_psnr");
   int rows = 0;
   while (std::getline(csv, row)) ++rows;
   EXPECT_EQ(rows, 2);
@@ -241,6 +242,18 @@ fs::path trained_run() {
   return run;
 }
 
+// Validation SSIM and PSNR are recorded per epoch (the report plots them).
+TEST(Train, LossCsvRecordsValidationSsimAndPsnr) {
+  const LossCurve c = read_loss_csv(trained_run() / "loss.csv");
+  ASSERT_EQ(c.val_ssim.size(), 6u);
+  for (size_t i = 0; i < c.val_ssim.size(); ++i) {
+    EXPECT_GT(c.val_ssim[i], 0.0) << i;
+    EXPECT_LE(c.val_ssim[i], 1.0) << i;
+    EXPECT_GT(c.val_psnr[i], 5.0) << i;
+    EXPECT_LT(c.val_psnr[i], 100.0) << i;
+  }
+}
+
 TEST(Eval, ReportHasEveryFrameAndBeatsTheNoisyInput) {
   fs::path out = fresh_dir("eval_report");
   EvalOptions e{trained_run(), shared_data(), out, 0, 1, 0};
@@ -281,13 +294,14 @@ TEST(Eval, ReportPageLoadsInABrowserWithItsPlotsAndNumbers) {
   ASSERT_EQ(std::system(cmd.c_str()), 0) << cmd;
   std::ifstream in(dom);
   const std::string page((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  // The script ran: 3 plots + the error scale; both strips decoded.
-  EXPECT_NE(page.find("data-svgs=\"4\""), std::string::npos) << page.substr(0, 2000);
+  // The script ran: 5 plots + the error scale; both strips decoded.
+  EXPECT_NE(page.find("data-svgs=\"6\""), std::string::npos) << page.substr(0, 2000);
   EXPECT_NE(page.find("data-images=\"2\""), std::string::npos);
   // Plots with axis titles, tick values and legends.
   for (const char* text : {"Loss per epoch", ">epoch<", ">optimizer step<", "learning rate",
                            "class=\"ytick\"", "class=\"xtick\"", ">validation<",
                            ">training (mean over the epoch)<", ">noisy (1 spp)<", ">error ×4<",
+                           "Validation SSIM per epoch", "PSNR (dB)",
                            "mean |denoised - reference| per pixel"})
     EXPECT_NE(page.find(text), std::string::npos) << text;
   // The numbers are report.json's.

@@ -1,0 +1,68 @@
+// One training step's forward, loss and backward, on one model or split
+// across model replicas (thesis 4.3 loss; the optimizer step is the caller's).
+#pragma once
+
+#include <torch/torch.h>
+
+#include <functional>
+#include <memory>
+#include <vector>
+
+#include "trainer/batches.h"
+#include "trainer/config.h"
+#include "trainer/model.h"
+
+namespace dofarm::trainer {
+
+// Forward, loss and backward of one batch, gradients set afresh (not
+// accumulated). Returns the loss and whether it and every gradient are
+// finite; the caller applies the step only then. `hook` (tests) may replace
+// the loss before backward.
+struct StepOutcome {
+  double loss = 0;
+  bool finite = false;
+};
+StepOutcome compute_gradients(Denoiser& model, const Batch& batch, const LossConfig& loss,
+                              const torch::Tensor& kernel,
+                              const std::function<torch::Tensor(const torch::Tensor&)>& hook = {});
+
+// Runs training steps, on the CPU split across model replicas (data
+// parallelism inside one process): the batch's sequences are divided into
+// `replicas` contiguous parts, part 0 runs on `model` in the calling thread,
+// part k on replica k (a copy of the model made before each step) in its own
+// thread, each with intra-op threads / replicas threads of its own. The
+// gradients are then combined in replica order, g = sum_k (n_k / n) g_k, which
+// is the gradient of the whole batch's mean loss (every loss term is a mean
+// over equal-sized sequences), up to float summation order; the order is
+// fixed, so a run stays deterministic. On 2 cores oneDNN's convolutions run
+// faster as two 1-thread halves than as one 2-thread whole (no per-layer
+// barrier, each half in its own cache), and so do the element-wise layers
+// (figures in docs/trainer.md). With replicas = 1 this is compute_gradients.
+// The hook, if any, is applied to each part's loss.
+class StepRunner {
+ public:
+  // Takes the process's intra-op threads down to threads / replicas for its
+  // lifetime (restored by the destructor); replicas <= batch.
+  StepRunner(Denoiser model, int replicas);
+  ~StepRunner();
+  StepRunner(const StepRunner&) = delete;
+  StepRunner& operator=(const StepRunner&) = delete;
+
+  int replicas() const { return int(copies_.size()) + 1; }
+  // Gradients of `batch` left in the model's parameters, as compute_gradients.
+  StepOutcome run(const Batch& batch, const LossConfig& loss, const torch::Tensor& kernel,
+                  const std::function<torch::Tensor(const torch::Tensor&)>& hook = {});
+
+ private:
+  struct Worker;
+  Denoiser model_;
+  std::vector<Denoiser> copies_;
+  std::vector<std::unique_ptr<Worker>> workers_;
+  int saved_threads_ = 0;
+};
+
+// Replicas for train.cpu_replicas = `configured` (0 = auto, see OptimConfig)
+// on `device` with `threads` intra-op threads; never more than `batch`.
+int step_replicas(int configured, torch::Device device, int threads, int batch);
+
+}  // namespace dofarm::trainer
