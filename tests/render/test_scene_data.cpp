@@ -639,6 +639,38 @@ TEST(GltfLights, SpotFalloffFollowsTheExtension) {
   EXPECT_EQ(spot_falloff(std::cos(0.51f), co, co), 0.0f);
 }
 
+TEST(GltfBlenderExport, LampsEmbeddedTextureAndMappingAsBlenderMeantThem) {
+  // A .glb from Blender 3.4 (tests/data/blender/make_lamps_and_texture.py).
+  const auto dir = std::filesystem::path(DOFARM_TEST_DATA) / "blender";
+  SceneData s = load_scene_data(dir / "lamps_and_texture.glb");
+  ASSERT_EQ(s.triangle_count(), 2u);
+  const Material& m = s.materials[s.tri_material[0]];
+  ASSERT_EQ(m.base_color_tex, 0);
+  // The PNG inside the .glb decodes exactly like the file it was made from.
+  RgbImage beside = load_rgb_image(dir / "tex.png", /*srgb=*/true);
+  EXPECT_EQ(s.textures[0].width, beside.width);
+  EXPECT_EQ(s.textures[0].height, beside.height);
+  EXPECT_EQ(s.textures[0].rgb, beside.rgb);
+  for (Vec2 uv : {Vec2(0, 0), Vec2(1, 1), Vec2(0.2f, 0.9f)}) {
+    Vec2 want = blender_mapping(uv, Vec2(0.25f, 0.5f), 0.3f, Vec2(2, 3));
+    EXPECT_NEAR(m.base_color_uv.apply(uv).x, want.x, 1e-5f);
+    EXPECT_NEAR(m.base_color_uv.apply(uv).y, want.y, 1e-5f);
+  }
+  ASSERT_EQ(s.lights.size(), 3u);
+  const float four_pi = 4.0f * float(M_PI);
+  EXPECT_EQ(s.lights[0].type, PunctualLight::Type::kPoint);
+  expect_near3(s.lights[0].intensity, Vec3(1000.0f / four_pi), 1e-3f);
+  expect_near3(s.lights[0].position, Vec3(0, 2, 0), 1e-6f);  // Blender z up -> glTF y up
+  EXPECT_EQ(s.lights[1].type, PunctualLight::Type::kSpot);
+  expect_near3(s.lights[1].intensity, Vec3(500.0f / four_pi), 1e-3f);
+  expect_near3(s.lights[1].position, Vec3(1, 3, 0), 1e-6f);
+  expect_near3(s.lights[1].direction, Vec3(0, -1, 0), 1e-6f);
+  EXPECT_NEAR(s.lights[1].cos_outer, std::cos(float(M_PI) / 6), 1e-6f);
+  EXPECT_NEAR(s.lights[1].cos_inner, std::cos(0.75f * float(M_PI) / 6), 1e-6f);
+  EXPECT_EQ(s.lights[2].type, PunctualLight::Type::kDirectional);
+  expect_near3(s.lights[2].intensity, Vec3(3.0f), 1e-5f);
+}
+
 // --- glTF extensions and load errors -----------------------------------------
 
 std::string load_error(const std::filesystem::path& p) {
