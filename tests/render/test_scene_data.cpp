@@ -717,6 +717,29 @@ TEST(GltfExtensions, UsedButUnimplementedAreNamedInOneWarning) {
   EXPECT_EQ(lines[0].find("KHR_lights_punctual"), std::string::npos) << lines[0];
 }
 
+TEST(GltfExtensions, NormalMapsAndTransparencyAreWarnedNamingTheMaterials) {
+  TempDir dir("core_warnings");
+  write_bytes(dir.path / "tex.png", test_png());
+  GltfQuad q = gltf_quad();
+  use_base_color_image(&q, {{"uri", "tex.png"}});
+  q.doc["materials"][0]["name"] = "bumpy glass";
+  q.doc["materials"][0]["normalTexture"] = {{"index", 0}};
+  q.doc["materials"][0]["alphaMode"] = "BLEND";
+  write_gltf(dir.path / "core.gltf", q);
+  auto sink = std::make_shared<spdlog::sinks::ringbuffer_sink_mt>(16);
+  auto previous = spdlog::default_logger();
+  spdlog::set_default_logger(std::make_shared<spdlog::logger>("capture", sink));
+  SceneData s = load_scene_data(dir.path / "core.gltf");
+  spdlog::set_default_logger(previous);
+  EXPECT_EQ(s.triangle_count(), 2u);
+  std::vector<std::string> lines = sink->last_formatted();
+  ASSERT_EQ(lines.size(), 2u);
+  EXPECT_NE(lines[0].find("normal maps ignored"), std::string::npos) << lines[0];
+  EXPECT_NE(lines[0].find("\"bumpy glass\""), std::string::npos) << lines[0];
+  EXPECT_NE(lines[1].find("alphaMode ignored"), std::string::npos) << lines[1];
+  EXPECT_NE(lines[1].find("core.gltf"), std::string::npos) << lines[1];
+}
+
 TEST(LoadSceneData, EmptyOrCameraOnlyGltfSaysWhy) {
   TempDir dir("empty");
   // What Blender 3.4 exports for an empty scene.

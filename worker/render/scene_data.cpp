@@ -143,6 +143,8 @@ struct GltfMaterialInfo {
   std::string name;  // to check that assimp kept the order
   float emissive_strength = 1.0f;
   GltfTextureInfo base_color, metal_rough, emission;
+  bool normal_map = false;      // normalTexture: not applied
+  bool not_opaque = false;      // alphaMode MASK or BLEND: rendered opaque
 };
 struct GltfInfo {
   std::vector<GltfMaterialInfo> materials;
@@ -231,6 +233,9 @@ GltfInfo read_gltf_info(const std::filesystem::path& path) {
         info.metal_rough = read_texture_info(pbr["metallicRoughnessTexture"]);
     }
     if (m.contains("emissiveTexture")) info.emission = read_texture_info(m["emissiveTexture"]);
+    info.normal_map = m.contains("normalTexture");
+    info.not_opaque = m.contains("alphaMode") && m["alphaMode"].is_string() &&
+                      m["alphaMode"].get<std::string>() != "OPAQUE";
     info.name = m.contains("name") && m["name"].is_string() ? m["name"].get<std::string>() : "";
     out.materials.push_back(std::move(info));
   }
@@ -254,6 +259,18 @@ void check_extensions(const std::filesystem::path& path, const GltfInfo& info) {
   if (!used.empty())
     spdlog::warn("{}: dofarm ignores the glTF extensions {} (the scene renders without them)",
                  path.string(), used);
+  // Core features dofarm does not render, named once each.
+  std::string normal_maps, transparent;
+  for (const GltfMaterialInfo& m : info.materials) {
+    if (m.normal_map) normal_maps += (normal_maps.empty() ? "\"" : ", \"") + m.name + "\"";
+    if (m.not_opaque) transparent += (transparent.empty() ? "\"" : ", \"") + m.name + "\"";
+  }
+  if (!normal_maps.empty())
+    spdlog::warn("{}: normal maps ignored (vertex normals are used) in materials {}",
+                 path.string(), normal_maps);
+  if (!transparent.empty())
+    spdlog::warn("{}: alphaMode ignored (rendered opaque) in materials {}", path.string(),
+                 transparent);
 }
 
 Vec3 to_vec3(const aiVector3D& v) { return {v.x, v.y, v.z}; }
@@ -345,8 +362,16 @@ class Loader {
     bool ok = is_finite(m.base_color) && is_finite(m.emission) && std::isfinite(m.metallic) &&
               std::isfinite(m.roughness);
     if (!ok) fail(path_, which + " has a non-finite value");
-    if (max_component(m.emission) > kMaxRadiance)
-      fail(path_, which + " emits radiance " + std::to_string(max_component(m.emission)) +
+    // An emission texture multiplies the factor: its brightest texel counts
+    // (an 8-bit one is at most 1; an HDR one loaded for an OBJ may be more).
+    float peak = max_component(m.emission);
+    if (m.emission_tex >= 0 && peak > 0) {
+      float texel = 0;
+      for (float v : out_->textures[m.emission_tex].rgb) texel = std::max(texel, v);
+      peak *= texel;
+    }
+    if (!(peak <= kMaxRadiance))
+      fail(path_, which + " emits radiance " + fmt::format("{:g}", peak) +
                       ", above the bound kMaxRadiance = 1e12");
   }
   const GltfMaterialInfo* gltf_material(unsigned i, const std::string& name) const {
@@ -633,7 +658,7 @@ void Loader::lights() {
     if (light.intensity.x < 0 || light.intensity.y < 0 || light.intensity.z < 0)
       fail(path_, which + " has a negative intensity");
     if (max_component(light.intensity) > kMaxRadiance)
-      fail(path_, which + " has intensity " + std::to_string(max_component(light.intensity)) +
+      fail(path_, which + " has intensity " + fmt::format("{:g}", max_component(light.intensity)) +
                       " (after dividing by 683 lm/W), above the bound kMaxRadiance = 1e12");
     out_->lights.push_back(std::move(light));
   }
