@@ -26,8 +26,8 @@
 #include <limits>
 #include <system_error>
 
-#include "common/content_hash.h"
 #include "common/checksum.h"
+#include "common/content_hash.h"
 #include "common/error.h"
 
 #define STB_IMAGE_IMPLEMENTATION
@@ -352,14 +352,16 @@ struct StbSource {
     return path ? stbi_is_16_bit(path->c_str()) : stbi_is_16_bit_from_memory(data, size);
   }
   float* loadf(int* w, int* h, int* c) const {
-    return path ? stbi_loadf(path->c_str(), w, h, c, 3) : stbi_loadf_from_memory(data, size, w, h, c, 3);
+    return path ? stbi_loadf(path->c_str(), w, h, c, 3)
+                : stbi_loadf_from_memory(data, size, w, h, c, 3);
   }
   stbi_us* load_16(int* w, int* h, int* c) const {
     return path ? stbi_load_16(path->c_str(), w, h, c, 3)
                 : stbi_load_16_from_memory(data, size, w, h, c, 3);
   }
   stbi_uc* load(int* w, int* h, int* c) const {
-    return path ? stbi_load(path->c_str(), w, h, c, 3) : stbi_load_from_memory(data, size, w, h, c, 3);
+    return path ? stbi_load(path->c_str(), w, h, c, 3)
+                : stbi_load_from_memory(data, size, w, h, c, 3);
   }
 };
 

@@ -55,8 +55,7 @@ RgbImage load_rgb_image(const std::filesystem::path& path, bool srgb = true);
 // a glTF. `name` names the image in errors. Same sRGB handling and
 // sanitising as load_rgb_image(); notes no input file (the bytes belong to a
 // file that was noted already).
-RgbImage decode_rgb_image(const void* data, size_t size, const std::string& name,
-                          bool srgb = true);
+RgbImage decode_rgb_image(const void* data, size_t size, const std::string& name, bool srgb = true);
 
 // Returns the XXH64 checksum (common/checksum.h) of the file's bytes, computed
 // over the encoded bytes before they are written, so that checksum_file() of

@@ -1,15 +1,14 @@
 // Scene loading (assimp -> SceneData), the bundled scenes as designed in
 // jobs/scenes/make_scenes.py, the shape builders and texture lookup.
 #include <gtest/gtest.h>
+#include <spdlog/sinks/ringbuffer_sink.h>
+#include <spdlog/spdlog.h>
 
 #include <cmath>
 #include <filesystem>
 #include <fstream>
-#include <string>
-
 #include <nlohmann/json.hpp>
-#include <spdlog/sinks/ringbuffer_sink.h>
-#include <spdlog/spdlog.h>
+#include <string>
 
 #include "common/error.h"
 #include "common/exr_io.h"
@@ -375,7 +374,8 @@ std::string base64(const std::string& in) {
 
 // A 3x2 RGB PNG with distinct texels, encoded in memory.
 std::string test_png() {
-  const unsigned char px[] = {255, 0, 0, 0, 255, 0, 0, 0, 255, 10, 128, 250, 77, 33, 1, 200, 200, 9};
+  const unsigned char px[] = {255, 0,   0,   0,  255, 0, 0,   0,   255,
+                              10,  128, 250, 77, 33,  1, 200, 200, 9};
   std::string out;
   stbi_write_png_to_func(
       [](void* ctx, void* data, int size) {
@@ -400,7 +400,7 @@ struct GltfQuad {
 GltfQuad gltf_quad() {
   GltfQuad q;
   q.bin = floats_bytes({0, 0, 0, 0, 0, 1, 1, 0, 1, 1, 0, 0});  // 48 bytes
-  q.bin += floats_bytes({0, 0, 0, 1, 1, 1, 1, 0});               // 32 bytes
+  q.bin += floats_bytes({0, 0, 0, 1, 1, 1, 1, 0});             // 32 bytes
   const uint16_t idx[6] = {0, 1, 2, 0, 2, 3};
   q.bin.append(reinterpret_cast<const char*>(idx), sizeof idx);  // 12 bytes
   q.doc = Json::parse(R"({
@@ -743,7 +743,8 @@ TEST(GltfExtensions, NormalMapsAndTransparencyAreWarnedNamingTheMaterials) {
 TEST(LoadSceneData, EmptyOrCameraOnlyGltfSaysWhy) {
   TempDir dir("empty");
   // What Blender 3.4 exports for an empty scene.
-  write_bytes(dir.path / "empty.gltf", R"({"asset": {"generator": "Khronos glTF Blender I/O v3.4.50",
+  write_bytes(dir.path / "empty.gltf",
+              R"({"asset": {"generator": "Khronos glTF Blender I/O v3.4.50",
     "version": "2.0"}, "scene": 0, "scenes": [{"name": "Scene"}]})");
   write_bytes(dir.path / "camera.gltf", R"({"asset": {"version": "2.0"},
     "scene": 0, "scenes": [{"nodes": [0]}],
@@ -765,15 +766,13 @@ TEST(LoadSceneData, EmissionAboveTheBoundOrInfiniteIsAnErrorNamingTheMaterial) {
   GltfQuad q = gltf_quad();
   q.doc["materials"][0]["name"] = "hot";
   q.doc["materials"][0]["emissiveFactor"] = {1, 1, 1};
-  q.doc["materials"][0]["extensions"]["KHR_materials_emissive_strength"]["emissiveStrength"] =
-      1e37;
+  q.doc["materials"][0]["extensions"]["KHR_materials_emissive_strength"]["emissiveStrength"] = 1e37;
   write_gltf(dir.path / "hot.gltf", q);
   std::string what = load_error(dir.path / "hot.gltf");
   EXPECT_NE(what.find("\"hot\""), std::string::npos) << what;
   EXPECT_NE(what.find("kMaxRadiance"), std::string::npos) << what;
 
-  q.doc["materials"][0]["extensions"]["KHR_materials_emissive_strength"]["emissiveStrength"] =
-      1e38;
+  q.doc["materials"][0]["extensions"]["KHR_materials_emissive_strength"]["emissiveStrength"] = 1e38;
   q.doc["materials"][0]["emissiveFactor"] = {10, 1, 1};  // 1e39 overflows float
   write_gltf(dir.path / "inf.gltf", q);
   what = load_error(dir.path / "inf.gltf");

@@ -100,11 +100,15 @@ Scene::Scene(SceneData data, std::unique_ptr<Environment> environment)
     const float i = luminance(l.intensity);
     float p = 0;
     switch (l.type) {
-      case PunctualLight::Type::kPoint: p = 4.0f * kPi * i; break;
+      case PunctualLight::Type::kPoint:
+        p = 4.0f * kPi * i;
+        break;
       case PunctualLight::Type::kSpot:
         p = 2.0f * kPi * (1.0f - 0.5f * (l.cos_inner + l.cos_outer)) * i;
         break;
-      case PunctualLight::Type::kDirectional: p = kPi * radius_ * radius_ * i; break;
+      case PunctualLight::Type::kDirectional:
+        p = kPi * radius_ * radius_ * i;
+        break;
     }
     power.push_back(std::isfinite(p) && p > 0 ? p : 0.0f);
   }

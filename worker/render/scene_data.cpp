@@ -1,12 +1,13 @@
 #include "worker/render/scene_data.h"
 
+#include <assimp/DefaultIOSystem.h>
 #include <assimp/GltfMaterial.h>
 #include <assimp/material.h>
 #include <assimp/postprocess.h>
 #include <assimp/scene.h>
+#include <spdlog/spdlog.h>
 
 #include <algorithm>
-#include <assimp/DefaultIOSystem.h>
 #include <assimp/Importer.hpp>
 #include <cmath>
 #include <cstring>
@@ -18,7 +19,6 @@
 #include "common/content_hash.h"
 #include "common/error.h"
 #include "common/exr_io.h"
-#include <spdlog/spdlog.h>
 
 namespace dofarm::render {
 
@@ -143,8 +143,8 @@ struct GltfMaterialInfo {
   std::string name;  // to check that assimp kept the order
   float emissive_strength = 1.0f;
   GltfTextureInfo base_color, metal_rough, emission;
-  bool normal_map = false;      // normalTexture: not applied
-  bool not_opaque = false;      // alphaMode MASK or BLEND: rendered opaque
+  bool normal_map = false;  // normalTexture: not applied
+  bool not_opaque = false;  // alphaMode MASK or BLEND: rendered opaque
 };
 struct GltfInfo {
   std::vector<GltfMaterialInfo> materials;
@@ -154,9 +154,9 @@ struct GltfInfo {
 // The extensions whose content dofarm reads (assimp: KHR_materials_ior,
 // KHR_lights_punctual; here: the other two).
 const std::set<std::string>& implemented_extensions() {
-  static const std::set<std::string> names = {
-      "KHR_materials_emissive_strength", "KHR_materials_ior", "KHR_lights_punctual",
-      "KHR_texture_transform"};
+  static const std::set<std::string> names = {"KHR_materials_emissive_strength",
+                                              "KHR_materials_ior", "KHR_lights_punctual",
+                                              "KHR_texture_transform"};
   return names;
 }
 
@@ -180,9 +180,9 @@ GltfTextureInfo read_texture_info(const nlohmann::json& info) {
   if (info.contains("extensions") && info["extensions"].is_object() &&
       info["extensions"].contains("KHR_texture_transform")) {
     const auto& t = info["extensions"]["KHR_texture_transform"];
-    out.transform = UvTransform::from_gltf(vec2_or(t, "offset", Vec2(0, 0)),
-                                           number_or(t, "rotation", 0),
-                                           vec2_or(t, "scale", Vec2(1, 1)));
+    out.transform =
+        UvTransform::from_gltf(vec2_or(t, "offset", Vec2(0, 0)), number_or(t, "rotation", 0),
+                               vec2_or(t, "scale", Vec2(1, 1)));
     if (t.is_object() && t.contains("texCoord") && t["texCoord"].is_number_integer())
       out.tex_coord = t["texCoord"].get<int>();
   }
@@ -266,8 +266,8 @@ void check_extensions(const std::filesystem::path& path, const GltfInfo& info) {
     if (m.not_opaque) transparent += (transparent.empty() ? "\"" : ", \"") + m.name + "\"";
   }
   if (!normal_maps.empty())
-    spdlog::warn("{}: normal maps ignored (vertex normals are used) in materials {}",
-                 path.string(), normal_maps);
+    spdlog::warn("{}: normal maps ignored (vertex normals are used) in materials {}", path.string(),
+                 normal_maps);
   if (!transparent.empty())
     spdlog::warn("{}: alphaMode ignored (rendered opaque) in materials {}", path.string(),
                  transparent);
@@ -332,9 +332,10 @@ class Loader {
             {"emissiveTexture", &g->emission}};
         for (const auto& [slot, tex] : slots) {
           if (tex->tex_coord != 0)
-            spdlog::warn("{}: material {} (\"{}\"): {} reads TEXCOORD_{}; dofarm reads TEXCOORD_0 "
-                         "only and uses that",
-                         path_.string(), i, m.name, slot, tex->tex_coord);
+            spdlog::warn(
+                "{}: material {} (\"{}\"): {} reads TEXCOORD_{}; dofarm reads TEXCOORD_0 "
+                "only and uses that",
+                path_.string(), i, m.name, slot, tex->tex_coord);
         }
       }
       check_material(m, i);
@@ -419,7 +420,8 @@ int Loader::texture(const aiMaterial* am, std::initializer_list<aiTextureType> t
 }
 
 RgbImage Loader::decode_embedded(const aiTexture* t, const std::string& name, bool srgb) {
-  const std::string label = name + (t->mFilename.length ? " (" + std::string(t->mFilename.C_Str()) + ")" : "");
+  const std::string label =
+      name + (t->mFilename.length ? " (" + std::string(t->mFilename.C_Str()) + ")" : "");
   if (t->mHeight == 0)  // compressed: mWidth bytes of a PNG, JPEG, ... file
     return decode_rgb_image(t->pcData, t->mWidth, label, srgb);
   // Raw 8-bit texels (formats other than glTF), converted like a file's.
@@ -606,7 +608,8 @@ aiMatrix4x4 world_at_start(const aiScene* scene, const aiNode* node) {
         }
   }
   aiMatrix4x4 world;
-  for (size_t k = 0; k < chain.size(); ++k) world = world * local_transform(chain[k], channels[k], 0.0);
+  for (size_t k = 0; k < chain.size(); ++k)
+    world = world * local_transform(chain[k], channels[k], 0.0);
   return world;
 }
 
@@ -636,16 +639,20 @@ void Loader::lights() {
     light.direction = normalize(to_vec3(aiMatrix3x3(world) * al->mDirection), Vec3(0, 0, -1));
     // assimp hands out colour x intensity, in candela (point, spot) or lux
     // (directional); see kLumensPerWatt for the conversion.
-    light.intensity = Vec3(al->mColorDiffuse.r, al->mColorDiffuse.g, al->mColorDiffuse.b) /
-                      kLumensPerWatt;
+    light.intensity =
+        Vec3(al->mColorDiffuse.r, al->mColorDiffuse.g, al->mColorDiffuse.b) / kLumensPerWatt;
     switch (al->mType) {
-      case aiLightSource_POINT: light.type = PunctualLight::Type::kPoint; break;
+      case aiLightSource_POINT:
+        light.type = PunctualLight::Type::kPoint;
+        break;
       case aiLightSource_SPOT:
         light.type = PunctualLight::Type::kSpot;
         light.cos_inner = std::cos(al->mAngleInnerCone);
         light.cos_outer = std::cos(al->mAngleOuterCone);
         break;
-      case aiLightSource_DIRECTIONAL: light.type = PunctualLight::Type::kDirectional; break;
+      case aiLightSource_DIRECTIONAL:
+        light.type = PunctualLight::Type::kDirectional;
+        break;
       default:
         spdlog::warn("{}: light \"{}\" of assimp type {} ignored", path_.string(), name,
                      int(al->mType));
@@ -706,8 +713,8 @@ SceneData load_scene_data(const std::filesystem::path& path) {
   if (scene->mNumMeshes == 0) fail(path, "the scene has no triangles (0 meshes)");
   if (scene->mFlags & AI_SCENE_FLAGS_INCOMPLETE) {
     std::string why = importer.GetErrorString();
-    fail(path, "cannot read: " + (why.empty() ? std::string("assimp reports the scene incomplete")
-                                              : why));
+    fail(path, "cannot read: " +
+                   (why.empty() ? std::string("assimp reports the scene incomplete") : why));
   }
   SceneData out;
   out.source = path;

@@ -87,8 +87,8 @@ struct PunctualLight {
   enum class Type { kPoint, kSpot, kDirectional };
   Type type = Type::kPoint;
   std::string name;
-  Vec3 position{0.0f};           // point, spot
-  Vec3 direction{0, 0, -1};      // spot, directional: where the light travels (unit)
+  Vec3 position{0.0f};       // point, spot
+  Vec3 direction{0, 0, -1};  // spot, directional: where the light travels (unit)
   // Point, spot: radiant intensity (radiance units x m^2 per sr), so the
   // irradiance at distance d facing the light is intensity / d^2.
   // Directional: the irradiance on a surface facing it.
