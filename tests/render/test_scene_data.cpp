@@ -627,6 +627,37 @@ TEST(GltfLights, BlenderUnitsGiveCyclesIntensityAndIrradiance) {
   expect_near3(sun.direction, Vec3(0, std::sin(a), -std::cos(a)), 1e-5f);
 }
 
+TEST(GltfLights, AnAnimatedLightIsPlacedAtTimeZero) {
+  // The light hangs 0.5 below a parent whose static translation (0, 1, 0) is
+  // animated: (0, 5, 0) at t = 0, (0, 9, 0) at t = 1. The light takes t = 0.
+  TempDir dir("animated_light");
+  GltfQuad q = gltf_quad();
+  q.bin += floats_bytes({0, 1, 0, 5, 0, 0, 9, 0});  // times at 92, translations at 100
+  q.doc["bufferViews"].push_back({{"buffer", 0}, {"byteOffset", 92}, {"byteLength", 8}});
+  q.doc["bufferViews"].push_back({{"buffer", 0}, {"byteOffset", 100}, {"byteLength", 24}});
+  q.doc["accessors"].push_back(Json::parse(
+      R"({"bufferView": 3, "componentType": 5126, "count": 2, "type": "SCALAR",
+          "min": [0], "max": [1]})"));
+  q.doc["accessors"].push_back(
+      Json::parse(R"({"bufferView": 4, "componentType": 5126, "count": 2, "type": "VEC3"})"));
+  q.doc["nodes"].push_back(Json::parse(R"({"name": "rig", "translation": [0, 1, 0], "children": [2]})"));
+  q.doc["nodes"].push_back(Json::parse(
+      R"({"name": "lamp", "translation": [0, -0.5, 0],
+          "extensions": {"KHR_lights_punctual": {"light": 0}}})"));
+  q.doc["scenes"][0]["nodes"].push_back(1);
+  q.doc["animations"] = Json::parse(R"([{"channels": [{"sampler": 0,
+      "target": {"node": 1, "path": "translation"}}],
+      "samplers": [{"input": 3, "output": 4, "interpolation": "LINEAR"}]}])");
+  q.doc["extensions"]["KHR_lights_punctual"]["lights"] =
+      Json::parse(R"([{"type": "point", "intensity": 683}])");
+  q.doc["extensionsUsed"] = {"KHR_lights_punctual"};
+  write_gltf(dir.path / "animated.gltf", q);
+  SceneData s = load_scene_data(dir.path / "animated.gltf");
+  ASSERT_EQ(s.lights.size(), 1u);
+  expect_near3(s.lights[0].position, Vec3(0, 4.5f, 0), 1e-5f);
+  expect_near3(s.lights[0].intensity, Vec3(1.0f), 1e-6f);  // 683 cd: 1 W/sr
+}
+
 TEST(GltfLights, SpotFalloffFollowsTheExtension) {
   const float ci = std::cos(0.3f), co = std::cos(0.5f);
   EXPECT_EQ(spot_falloff(1.0f, ci, co), 1.0f);
