@@ -240,8 +240,8 @@ TEST(PunctualLights, MisAndNeeAgreeWithAreaAndPointLightsTogether) {
         PixelSampler sampler(spec.sampler, spec.seed, 0, x, y, Stream::kTest);
         for (int s = 0; s < 128; ++s) {
           sampler.start_sample(uint32_t(s));
-          double l = luminance(trace_path(*scene, cam.pinhole_ray({x + 0.5f, y + 0.5f}), sampler,
-                                          settings));
+          double l = luminance(
+              trace_path(*scene, cam.pinhole_ray({x + 0.5f, y + 0.5f}), sampler, settings));
           sum += l;
           sum2 += l * l;
           ++n;

@@ -640,7 +640,8 @@ TEST(GltfLights, AnAnimatedLightIsPlacedAtTimeZero) {
           "min": [0], "max": [1]})"));
   q.doc["accessors"].push_back(
       Json::parse(R"({"bufferView": 4, "componentType": 5126, "count": 2, "type": "VEC3"})"));
-  q.doc["nodes"].push_back(Json::parse(R"({"name": "rig", "translation": [0, 1, 0], "children": [2]})"));
+  q.doc["nodes"].push_back(
+      Json::parse(R"({"name": "rig", "translation": [0, 1, 0], "children": [2]})"));
   q.doc["nodes"].push_back(Json::parse(
       R"({"name": "lamp", "translation": [0, -0.5, 0],
           "extensions": {"KHR_lights_punctual": {"light": 0}}})"));
