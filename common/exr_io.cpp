@@ -23,10 +23,11 @@
 #include <cmath>
 #include <cstring>
 #include <exception>
+#include <limits>
 #include <system_error>
 
-#include "common/content_hash.h"
 #include "common/checksum.h"
+#include "common/content_hash.h"
 #include "common/error.h"
 
 #define STB_IMAGE_IMPLEMENTATION
@@ -341,19 +342,43 @@ RgbImage load_exr_rgb(const std::filesystem::path& path) {
   return img;
 }
 
-RgbImage load_stb_rgb(const std::filesystem::path& path, bool hdr, bool srgb) {
+// Where stb_image reads from: a file, or encoded bytes in memory (a texture
+// embedded in a glTF). Both decode through the same code below.
+struct StbSource {
+  const std::filesystem::path* path = nullptr;
+  const stbi_uc* data = nullptr;
+  int size = 0;
+  bool is_16_bit() const {
+    return path ? stbi_is_16_bit(path->c_str()) : stbi_is_16_bit_from_memory(data, size);
+  }
+  float* loadf(int* w, int* h, int* c) const {
+    return path ? stbi_loadf(path->c_str(), w, h, c, 3)
+                : stbi_loadf_from_memory(data, size, w, h, c, 3);
+  }
+  stbi_us* load_16(int* w, int* h, int* c) const {
+    return path ? stbi_load_16(path->c_str(), w, h, c, 3)
+                : stbi_load_16_from_memory(data, size, w, h, c, 3);
+  }
+  stbi_uc* load(int* w, int* h, int* c) const {
+    return path ? stbi_load(path->c_str(), w, h, c, 3)
+                : stbi_load_from_memory(data, size, w, h, c, 3);
+  }
+};
+
+// Throws RuntimeError naming `what` (the file, or the embedded image).
+RgbImage load_stb_rgb(const StbSource& src, const std::string& what, bool hdr, bool srgb) {
   RgbImage img;
   int channels_in_file = 0;
   const size_t n = [&] {
     if (hdr) {
       // Radiance .hdr holds linear radiance; stbi_loadf returns it unchanged.
-      float* data = stbi_loadf(path.c_str(), &img.width, &img.height, &channels_in_file, 3);
+      float* data = src.loadf(&img.width, &img.height, &channels_in_file);
       if (!data) return size_t(0);
       img.rgb.assign(data, data + size_t(img.width) * img.height * 3);
       stbi_image_free(data);
-    } else if (stbi_is_16_bit(path.c_str())) {
+    } else if (src.is_16_bit()) {
       // 16-bit PNGs keep their precision instead of being cut to 8 bits.
-      stbi_us* data = stbi_load_16(path.c_str(), &img.width, &img.height, &channels_in_file, 3);
+      stbi_us* data = src.load_16(&img.width, &img.height, &channels_in_file);
       if (!data) return size_t(0);
       const size_t count = size_t(img.width) * img.height * 3;
       img.rgb.resize(count);
@@ -365,7 +390,7 @@ RgbImage load_stb_rgb(const std::filesystem::path& path, bool hdr, bool srgb) {
     } else {
       // Not stbi_loadf: for 8-bit files it applies a pure 2.2 gamma, not the
       // sRGB curve. Decode the exact curve through a table of the 256 codes.
-      stbi_uc* data = stbi_load(path.c_str(), &img.width, &img.height, &channels_in_file, 3);
+      stbi_uc* data = src.load(&img.width, &img.height, &channels_in_file);
       if (!data) return size_t(0);
       float table[256];
       for (int i = 0; i < 256; ++i) table[i] = srgb ? srgb_to_linear(i / 255.0f) : i / 255.0f;
@@ -378,10 +403,22 @@ RgbImage load_stb_rgb(const std::filesystem::path& path, bool hdr, bool srgb) {
   }();
   if (n == 0) {
     const char* reason = stbi_failure_reason();
-    throw RuntimeError("cannot read image " + quoted(path) + ": " +
+    throw RuntimeError("cannot read image " + what + ": " +
                        (reason ? reason : "unknown stb_image error"));
   }
   return img;
+}
+
+// Textures and environment maps feed the renderer, which must never see a
+// NaN, an Inf or negative radiance; such texels are zeroed here, once, and
+// counted so the caller can warn.
+void sanitize(RgbImage* img) {
+  for (float& v : img->rgb) {
+    if (!(v >= 0.0f) || std::isinf(v)) {
+      v = 0.0f;
+      ++img->sanitized_values;
+    }
+  }
 }
 
 }  // namespace
@@ -395,22 +432,25 @@ RgbImage load_rgb_image(const std::filesystem::path& path, bool srgb) {
   if (ext == ".exr") {
     img = load_exr_rgb(path);
   } else if (ext == ".hdr") {
-    img = load_stb_rgb(path, /*hdr=*/true, srgb);
+    img = load_stb_rgb(StbSource{&path}, quoted(path), /*hdr=*/true, srgb);
   } else if (ext == ".png" || ext == ".jpg" || ext == ".jpeg" || ext == ".tga" || ext == ".bmp") {
-    img = load_stb_rgb(path, /*hdr=*/false, srgb);
+    img = load_stb_rgb(StbSource{&path}, quoted(path), /*hdr=*/false, srgb);
   } else {
     throw RuntimeError("cannot read image " + quoted(path) + ": unknown extension '" + ext +
                        "' (expected .exr, .hdr, .png, .jpg, .jpeg, .tga or .bmp)");
   }
-  // Textures and environment maps feed the renderer, which must never see a
-  // NaN, an Inf or negative radiance; such texels are zeroed here, once, and
-  // counted so the caller can warn.
-  for (float& v : img.rgb) {
-    if (!(v >= 0.0f) || std::isinf(v)) {
-      v = 0.0f;
-      ++img.sanitized_values;
-    }
-  }
+  sanitize(&img);
+  return img;
+}
+
+RgbImage decode_rgb_image(const void* data, size_t size, const std::string& name, bool srgb) {
+  const std::string what = std::string(1, '"').append(name).append(1, '"');
+  if (size == 0 || size > size_t(std::numeric_limits<int>::max()))
+    throw RuntimeError("cannot read image " + what + ": " + std::to_string(size) + " bytes");
+  StbSource src{nullptr, static_cast<const stbi_uc*>(data), int(size)};
+  const bool hdr = stbi_is_hdr_from_memory(src.data, src.size) != 0;
+  RgbImage img = load_stb_rgb(src, what, hdr, srgb);
+  sanitize(&img);
   return img;
 }
 

@@ -50,6 +50,13 @@ struct RgbImage {
 
 RgbImage load_rgb_image(const std::filesystem::path& path, bool srgb = true);
 
+// The same decoding for an encoded image held in memory (PNG, JPEG, TGA, BMP,
+// HDR: stb_image tells them apart by their bytes), e.g. a texture embedded in
+// a glTF. `name` names the image in errors. Same sRGB handling and
+// sanitising as load_rgb_image(); notes no input file (the bytes belong to a
+// file that was noted already).
+RgbImage decode_rgb_image(const void* data, size_t size, const std::string& name, bool srgb = true);
+
 // Returns the XXH64 checksum (common/checksum.h) of the file's bytes, computed
 // over the encoded bytes before they are written, so that checksum_file() of
 // the result gives the same value without reading it back.

@@ -92,12 +92,34 @@ Scene::Scene(SceneData data, std::unique_ptr<Environment> environment)
     light_tri_area_.push_back(area);
     power.push_back(p);
   }
+  // Punctual lights by the power they send into the scene: 4 pi I for a
+  // point, I times the solid angle of the cone (to halfway between the inner
+  // and outer angle) for a spot, and E times the scene's cross-section pi r^2
+  // for a directional light. A light of zero power keeps a zero share.
+  for (const PunctualLight& l : data_.lights) {
+    const float i = luminance(l.intensity);
+    float p = 0;
+    switch (l.type) {
+      case PunctualLight::Type::kPoint:
+        p = 4.0f * kPi * i;
+        break;
+      case PunctualLight::Type::kSpot:
+        p = 2.0f * kPi * (1.0f - 0.5f * (l.cos_inner + l.cos_outer)) * i;
+        break;
+      case PunctualLight::Type::kDirectional:
+        p = kPi * radius_ * radius_ * i;
+        break;
+    }
+    power.push_back(std::isfinite(p) && p > 0 ? p : 0.0f);
+  }
   env_sampled_ = environment_ && !environment_->is_black();
   if (env_sampled_) power.push_back(kPi * kPi * radius_ * radius_ * environment_->mean_luminance());
-  if (power.empty())
+  bool any_power = false;
+  for (float p : power) any_power = any_power || p > 0;
+  if (!any_power)
     throw SpecError(loc, "scene",
-                    "the scene has no light: no emissive triangle with area > 0 and no "
-                    "environment");
+                    "the scene has no light: no emissive triangle with area > 0, no "
+                    "punctual light with a positive intensity and no environment");
   light_select_ = Distribution1D(power);
   if (env_sampled_) env_select_pmf_ = light_select_.pmf(power.size() - 1);
 
@@ -152,7 +174,8 @@ float Scene::triangle_area(uint32_t t) const {
 
 Vec3 Scene::material_emission(const Material& m, Vec2 uv) const {
   if (!m.is_emissive()) return Vec3(0);
-  if (m.emission_tex >= 0) return m.emission * data_.textures[m.emission_tex].lookup(uv);
+  if (m.emission_tex >= 0)
+    return m.emission * data_.textures[m.emission_tex].lookup(m.emission_uv.apply(uv));
   return m.emission;
 }
 
@@ -202,9 +225,10 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
   hit->ior = m.ior;
   // Only textured materials pay for lookups.
   if (m.base_color_tex >= 0)
-    hit->base_color = hit->base_color * data_.textures[m.base_color_tex].lookup(hit->uv);
+    hit->base_color =
+        hit->base_color * data_.textures[m.base_color_tex].lookup(m.base_color_uv.apply(hit->uv));
   if (m.metal_rough_tex >= 0) {
-    Vec3 mr = data_.textures[m.metal_rough_tex].lookup(hit->uv);
+    Vec3 mr = data_.textures[m.metal_rough_tex].lookup(m.metal_rough_uv.apply(hit->uv));
     hit->roughness *= mr.y;
     hit->metallic *= mr.z;
   }
@@ -232,6 +256,12 @@ bool Scene::sample_light(Vec3 from, float u_select, Vec2 u, LightSample* out) co
   float pmf;
   size_t i = light_select_.sample_discrete(u_select, &pmf);
   if (!(pmf > 0)) return false;
+  out->is_delta = false;
+  if (i >= light_tris_.size() && i < light_tris_.size() + data_.lights.size()) {
+    if (!sample_punctual(data_.lights[i - light_tris_.size()], from, out)) return false;
+    out->pdf = pmf;
+    return true;
+  }
   if (i >= light_tris_.size()) {  // the environment
     EnvSample es = environment_->sample(u);
     if (!(es.pdf > 0)) return false;
@@ -263,8 +293,34 @@ bool Scene::sample_light(Vec3 from, float u_select, Vec2 u, LightSample* out) co
   return std::isfinite(out->pdf);
 }
 
+bool Scene::sample_punctual(const PunctualLight& light, Vec3 from, LightSample* out) const {
+  out->is_delta = true;
+  if (light.type == PunctualLight::Type::kDirectional) {
+    out->wi = -light.direction;
+    out->distance = std::numeric_limits<float>::infinity();
+    out->radiance = light.intensity;  // irradiance on a surface facing the light
+    return true;
+  }
+  Vec3 d = light.position - from;
+  float dist2 = length_squared(d);
+  if (!(dist2 > 0) || !std::isfinite(dist2)) return false;
+  float dist = std::sqrt(dist2);
+  out->wi = d / dist;
+  out->distance = dist;
+  // Inverse-square law: irradiance I / d^2 on a surface facing the light.
+  Vec3 radiance = light.intensity / dist2;
+  if (light.type == PunctualLight::Type::kSpot) {
+    float falloff = spot_falloff(dot(-out->wi, light.direction), light.cos_inner, light.cos_outer);
+    if (!(falloff > 0)) return false;
+    radiance = radiance * falloff;
+  }
+  out->radiance = radiance;
+  return is_finite(radiance);
+}
+
 void Scene::prefetch_light_sample(float u_select, Vec2 u) const {
-  if (env_sampled_ && light_select_.sample_discrete(u_select, nullptr) >= light_tris_.size())
+  if (env_sampled_ &&
+      light_select_.sample_discrete(u_select, nullptr) >= light_tris_.size() + data_.lights.size())
     environment_->prefetch_sample(u);
 }
 

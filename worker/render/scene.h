@@ -72,9 +72,11 @@ class Scene {
 
   const SceneData& data() const { return data_; }
   const Environment* environment() const { return environment_.get(); }
-  bool has_lights() const { return !light_tris_.empty() || env_sampled_; }
+  bool has_lights() const { return !light_tris_.empty() || env_sampled_ || !data_.lights.empty(); }
 
-  // Next-event estimation: pick a light by power, then a point on it.
+  // Next-event estimation: pick a light by power (emissive triangles, the
+  // punctual lights, the environment), then a point on it. A punctual light's
+  // sample is_delta: its pdf is the selection probability alone.
   bool sample_light(Vec3 from, float u_select, Vec2 u, LightSample* out) const;
   // A hint: starts loading what sample_light(., u_select, u) will read first.
   void prefetch_light_sample(float u_select, Vec2 u) const;
@@ -98,6 +100,7 @@ class Scene {
  private:
   Vec3 material_emission(const Material& m, Vec2 uv) const;
   float triangle_area(uint32_t prim) const;
+  bool sample_punctual(const PunctualLight& light, Vec3 from, LightSample* out) const;
   // Texture coordinates at barycentrics (b0, b1, b2) of the triangle `idx`.
   Vec2 texcoord(const uint32_t* idx, float b0, float b1, float b2) const;
 
@@ -112,7 +115,9 @@ class Scene {
   std::vector<uint32_t> light_tris_;
   std::vector<float> light_tri_area_;
   std::vector<int> light_index_of_prim_;  // -1 where not a light
-  Distribution1D light_select_;           // light_tris_ then, if sampled, the environment
+  // Selection over light_tris_, then data_.lights, then (if sampled) the
+  // environment.
+  Distribution1D light_select_;
   bool env_sampled_ = false;
   float env_select_pmf_ = 0;
   Vec3 center_{0};

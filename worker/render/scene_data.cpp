@@ -1,12 +1,13 @@
 #include "worker/render/scene_data.h"
 
+#include <assimp/DefaultIOSystem.h>
 #include <assimp/GltfMaterial.h>
 #include <assimp/material.h>
 #include <assimp/postprocess.h>
 #include <assimp/scene.h>
+#include <spdlog/spdlog.h>
 
 #include <algorithm>
-#include <assimp/DefaultIOSystem.h>
 #include <assimp/Importer.hpp>
 #include <cmath>
 #include <cstring>
@@ -47,6 +48,31 @@ Vec3 Texture::lookup(Vec2 uv) const {
     return Vec3(p[0], p[1], p[2]);
   };
   return lerp(lerp(texel(x0, y0), texel(x1, y0), fx), lerp(texel(x0, y1), texel(x1, y1), fx), fy);
+}
+
+// ---------------------------------------------------------------------------
+// UvTransform, spot falloff
+
+UvTransform UvTransform::from_gltf(Vec2 offset, float rotation, Vec2 scale) {
+  // KHR_texture_transform: translation * rotation * scale, with the rotation
+  // matrix of the extension's specification (rows (cos, sin), (-sin, cos)).
+  const float c = std::cos(rotation), s = std::sin(rotation);
+  UvTransform t;
+  t.m[0] = c * scale.x;
+  t.m[1] = s * scale.y;
+  t.m[2] = offset.x;
+  t.m[3] = -s * scale.x;
+  t.m[4] = c * scale.y;
+  t.m[5] = offset.y;
+  return t;
+}
+
+float spot_falloff(float cos_angle, float cos_inner, float cos_outer) {
+  // KHR_lights_punctual, "Inner and Outer Cone Angles" (the recommended
+  // implementation): linear in the cosine between the cones, then squared.
+  const float scale = 1.0f / std::max(1e-3f, cos_inner - cos_outer);
+  const float t = std::clamp((cos_angle - cos_outer) * scale, 0.0f, 1.0f);
+  return t * t;
 }
 
 // ---------------------------------------------------------------------------
@@ -104,15 +130,74 @@ bool is_gltf(const std::filesystem::path& path) {
   return ext == ".gltf" || ext == ".glb";
 }
 
-// KHR_materials_emissive_strength per glTF material (1 where absent), with
-// the material names to check that assimp kept the order. assimp 5.2.5 does
-// not import the extension (it drops it silently), so it is read here.
-struct GltfEmissive {
-  std::vector<float> strength;
-  std::vector<std::string> name;
+// What dofarm reads of a glTF beyond what assimp 5.2.5 gives: per material,
+// KHR_materials_emissive_strength (assimp drops it silently) and each
+// texture's KHR_texture_transform (assimp converts it into its own
+// aiUVTransform convention; the file's numbers are taken as the extension
+// defines them instead); the file's extension lists.
+struct GltfTextureInfo {
+  UvTransform transform;
+  int tex_coord = 0;  // TEXCOORD_n the texture reads (texCoord, or the transform's override)
+};
+struct GltfMaterialInfo {
+  std::string name;  // to check that assimp kept the order
+  float emissive_strength = 1.0f;
+  GltfTextureInfo base_color, metal_rough, emission;
+  bool normal_map = false;  // normalTexture: not applied
+  bool not_opaque = false;  // alphaMode MASK or BLEND: rendered opaque
+};
+struct GltfInfo {
+  std::vector<GltfMaterialInfo> materials;
+  std::vector<std::string> extensions_used, extensions_required;
 };
 
-GltfEmissive read_gltf_emissive_strength(const std::filesystem::path& path) {
+// The extensions whose content dofarm reads (assimp: KHR_materials_ior,
+// KHR_lights_punctual; here: the other two).
+const std::set<std::string>& implemented_extensions() {
+  static const std::set<std::string> names = {"KHR_materials_emissive_strength",
+                                              "KHR_materials_ior", "KHR_lights_punctual",
+                                              "KHR_texture_transform"};
+  return names;
+}
+
+float number_or(const nlohmann::json& obj, const char* key, float fallback) {
+  if (!obj.is_object() || !obj.contains(key) || !obj[key].is_number()) return fallback;
+  return obj[key].get<float>();
+}
+
+Vec2 vec2_or(const nlohmann::json& obj, const char* key, Vec2 fallback) {
+  if (!obj.is_object() || !obj.contains(key) || !obj[key].is_array() || obj[key].size() != 2 ||
+      !obj[key][0].is_number() || !obj[key][1].is_number())
+    return fallback;
+  return {obj[key][0].get<float>(), obj[key][1].get<float>()};
+}
+
+// A textureInfo object (glTF 5.22) with its optional KHR_texture_transform.
+GltfTextureInfo read_texture_info(const nlohmann::json& info) {
+  GltfTextureInfo out;
+  if (!info.is_object()) return out;
+  out.tex_coord = static_cast<int>(number_or(info, "texCoord", 0));
+  if (info.contains("extensions") && info["extensions"].is_object() &&
+      info["extensions"].contains("KHR_texture_transform")) {
+    const auto& t = info["extensions"]["KHR_texture_transform"];
+    out.transform =
+        UvTransform::from_gltf(vec2_or(t, "offset", Vec2(0, 0)), number_or(t, "rotation", 0),
+                               vec2_or(t, "scale", Vec2(1, 1)));
+    if (t.is_object() && t.contains("texCoord") && t["texCoord"].is_number_integer())
+      out.tex_coord = t["texCoord"].get<int>();
+  }
+  return out;
+}
+
+std::vector<std::string> string_list(const nlohmann::json& doc, const char* key) {
+  std::vector<std::string> out;
+  if (!doc.contains(key) || !doc[key].is_array()) return out;
+  for (const auto& v : doc[key])
+    if (v.is_string()) out.push_back(v.get<std::string>());
+  return out;
+}
+
+GltfInfo read_gltf_info(const std::filesystem::path& path) {
   std::ifstream in(path, std::ios::binary);
   std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   std::string json_text = bytes;
@@ -123,23 +208,69 @@ GltfEmissive read_gltf_emissive_strength(const std::filesystem::path& path) {
     if (bytes.compare(16, 4, "JSON") != 0 || 20 + size_t{length} > bytes.size()) return {};
     json_text = bytes.substr(20, length);
   }
-  GltfEmissive out;
+  GltfInfo out;
   auto doc = nlohmann::json::parse(json_text, nullptr, /*allow_exceptions=*/false);
-  if (!doc.is_object() || !doc.contains("materials") || !doc["materials"].is_array()) return out;
+  if (!doc.is_object()) return out;  // assimp gives the reason
+  out.extensions_used = string_list(doc, "extensionsUsed");
+  out.extensions_required = string_list(doc, "extensionsRequired");
+  if (!doc.contains("materials") || !doc["materials"].is_array()) return out;
   for (const auto& m : doc["materials"]) {
-    float strength = 1.0f;
-    const auto* ext = m.contains("extensions") ? &m["extensions"] : nullptr;
-    if (ext && ext->contains("KHR_materials_emissive_strength")) {
-      const auto& e = (*ext)["KHR_materials_emissive_strength"];
-      if (e.contains("emissiveStrength") && e["emissiveStrength"].is_number()) {
-        strength = e["emissiveStrength"].get<float>();
-      }
+    GltfMaterialInfo info;
+    if (!m.is_object()) {
+      out.materials.push_back(info);
+      continue;
     }
-    out.strength.push_back(strength);
-    out.name.push_back(m.contains("name") && m["name"].is_string() ? m["name"].get<std::string>()
-                                                                   : std::string());
+    if (m.contains("extensions") && m["extensions"].is_object() &&
+        m["extensions"].contains("KHR_materials_emissive_strength")) {
+      info.emissive_strength =
+          number_or(m["extensions"]["KHR_materials_emissive_strength"], "emissiveStrength", 1.0f);
+    }
+    if (m.contains("pbrMetallicRoughness") && m["pbrMetallicRoughness"].is_object()) {
+      const auto& pbr = m["pbrMetallicRoughness"];
+      if (pbr.contains("baseColorTexture"))
+        info.base_color = read_texture_info(pbr["baseColorTexture"]);
+      if (pbr.contains("metallicRoughnessTexture"))
+        info.metal_rough = read_texture_info(pbr["metallicRoughnessTexture"]);
+    }
+    if (m.contains("emissiveTexture")) info.emission = read_texture_info(m["emissiveTexture"]);
+    info.normal_map = m.contains("normalTexture");
+    info.not_opaque = m.contains("alphaMode") && m["alphaMode"].is_string() &&
+                      m["alphaMode"].get<std::string>() != "OPAQUE";
+    info.name = m.contains("name") && m["name"].is_string() ? m["name"].get<std::string>() : "";
+    out.materials.push_back(std::move(info));
   }
   return out;
+}
+
+// glTF 3.12: a required extension the loader does not implement means the
+// asset cannot be rendered correctly, so it is refused; one that is only
+// used is named in one warning, so nothing is dropped silently.
+void check_extensions(const std::filesystem::path& path, const GltfInfo& info) {
+  std::string required, used;
+  for (const std::string& e : info.extensions_required)
+    if (!implemented_extensions().count(e)) required += (required.empty() ? "" : ", ") + e;
+  if (!required.empty())
+    fail(path, "extensionsRequired lists " + required +
+                   ", which dofarm does not implement (it implements " +
+                   "KHR_lights_punctual, KHR_materials_emissive_strength, KHR_materials_ior, " +
+                   "KHR_texture_transform)");
+  for (const std::string& e : info.extensions_used)
+    if (!implemented_extensions().count(e)) used += (used.empty() ? "" : ", ") + e;
+  if (!used.empty())
+    spdlog::warn("{}: dofarm ignores the glTF extensions {} (the scene renders without them)",
+                 path.string(), used);
+  // Core features dofarm does not render, named once each.
+  std::string normal_maps, transparent;
+  for (const GltfMaterialInfo& m : info.materials) {
+    if (m.normal_map) normal_maps += (normal_maps.empty() ? "\"" : ", \"") + m.name + "\"";
+    if (m.not_opaque) transparent += (transparent.empty() ? "\"" : ", \"") + m.name + "\"";
+  }
+  if (!normal_maps.empty())
+    spdlog::warn("{}: normal maps ignored (vertex normals are used) in materials {}", path.string(),
+                 normal_maps);
+  if (!transparent.empty())
+    spdlog::warn("{}: alphaMode ignored (rendered opaque) in materials {}", path.string(),
+                 transparent);
 }
 
 Vec3 to_vec3(const aiVector3D& v) { return {v.x, v.y, v.z}; }
@@ -147,12 +278,11 @@ Vec3 to_vec3(const aiColor4D& c) { return {c.r, c.g, c.b}; }
 
 class Loader {
  public:
-  Loader(const std::filesystem::path& path, const aiScene* scene, SceneData* out)
-      : path_(path), scene_(scene), out_(out) {}
+  Loader(const std::filesystem::path& path, const aiScene* scene, const GltfInfo& gltf,
+         SceneData* out)
+      : path_(path), scene_(scene), gltf_(gltf), out_(out) {}
 
   void materials() {
-    GltfEmissive gltf;
-    if (is_gltf(path_)) gltf = read_gltf_emissive_strength(path_);
     for (unsigned i = 0; i < scene_->mNumMaterials; ++i) {
       const aiMaterial* am = scene_->mMaterials[i];
       Material m;
@@ -176,8 +306,8 @@ class Loader {
         float strength = 1.0f;
         if (am->Get(AI_MATKEY_EMISSIVE_INTENSITY, value) == AI_SUCCESS) {
           strength = value;  // a newer assimp imports the extension itself
-        } else if (i < gltf.strength.size() && gltf.name[i] == m.name) {
-          strength = gltf.strength[i];
+        } else if (const GltfMaterialInfo* g = gltf_material(i, m.name)) {
+          strength = g->emissive_strength;
         }
         m.emission = to_vec3(color) * strength;
       }
@@ -192,7 +322,23 @@ class Loader {
       // (AI_MATKEY_GLTF_PBRMETALLICROUGHNESS_METALLICROUGHNESS_TEXTURE).
       m.metal_rough_tex = texture(am, {aiTextureType_UNKNOWN}, false);
       m.emission_tex = texture(am, {aiTextureType_EMISSIVE}, true);
-      check_finite(m, i);
+      if (const GltfMaterialInfo* g = gltf_material(i, m.name)) {
+        m.base_color_uv = g->base_color.transform;
+        m.metal_rough_uv = g->metal_rough.transform;
+        m.emission_uv = g->emission.transform;
+        const std::pair<const char*, const GltfTextureInfo*> slots[] = {
+            {"baseColorTexture", &g->base_color},
+            {"metallicRoughnessTexture", &g->metal_rough},
+            {"emissiveTexture", &g->emission}};
+        for (const auto& [slot, tex] : slots) {
+          if (tex->tex_coord != 0)
+            spdlog::warn(
+                "{}: material {} (\"{}\"): {} reads TEXCOORD_{}; dofarm reads TEXCOORD_0 "
+                "only and uses that",
+                path_.string(), i, m.name, slot, tex->tex_coord);
+        }
+      }
+      check_material(m, i);
       out_->materials.push_back(std::move(m));
     }
   }
@@ -206,20 +352,37 @@ class Loader {
   }
 
   void camera_track();
+  void lights();
 
  private:
   int texture(const aiMaterial* am, std::initializer_list<aiTextureType> types, bool srgb);
+  static RgbImage decode_embedded(const aiTexture* t, const std::string& name, bool srgb);
   void mesh(const aiMesh* m, const aiMatrix4x4& world, const char* node_name);
-  void check_finite(const Material& m, unsigned index) const {
+  void check_material(const Material& m, unsigned index) const {
+    const std::string which = "material " + std::to_string(index) + " (\"" + m.name + "\")";
     bool ok = is_finite(m.base_color) && is_finite(m.emission) && std::isfinite(m.metallic) &&
               std::isfinite(m.roughness);
-    if (!ok)
-      fail(path_,
-           "material " + std::to_string(index) + " (\"" + m.name + "\") has a non-finite value");
+    if (!ok) fail(path_, which + " has a non-finite value");
+    // An emission texture multiplies the factor: its brightest texel counts
+    // (an 8-bit one is at most 1; an HDR one loaded for an OBJ may be more).
+    float peak = max_component(m.emission);
+    if (m.emission_tex >= 0 && peak > 0) {
+      float texel = 0;
+      for (float v : out_->textures[m.emission_tex].rgb) texel = std::max(texel, v);
+      peak *= texel;
+    }
+    if (!(peak <= kMaxRadiance))
+      fail(path_, which + " emits radiance " + fmt::format("{:g}", peak) +
+                      ", above the bound kMaxRadiance = 1e12");
+  }
+  const GltfMaterialInfo* gltf_material(unsigned i, const std::string& name) const {
+    if (i < gltf_.materials.size() && gltf_.materials[i].name == name) return &gltf_.materials[i];
+    return nullptr;
   }
 
   const std::filesystem::path& path_;
   const aiScene* scene_;
+  const GltfInfo& gltf_;
   SceneData* out_;
   std::map<std::pair<std::string, bool>, int> texture_index_;  // shared textures load once
 };
@@ -230,17 +393,16 @@ int Loader::texture(const aiMaterial* am, std::initializer_list<aiTextureType> t
     if (am->GetTexture(type, 0, &file) != AI_SUCCESS) continue;
     std::string name = file.C_Str();
     if (name.empty()) continue;
-    if (name[0] == '*' || scene_->GetEmbeddedTexture(file.C_Str()) != nullptr) {
-      fail(path_, "texture \"" + name.substr(0, 40) +
-                      "\" is embedded in the file; dofarm reads textures from image files next to "
-                      "the scene (export with separate textures)");
-    }
+    // Embedded (a .glb buffer view or a data: URI): assimp names it "*<index>".
+    // Its bytes are part of the scene file, which the job snapshot hashes.
+    const aiTexture* embedded = scene_->GetEmbeddedTexture(file.C_Str());
+    if (!embedded && name[0] == '*') fail(path_, "texture \"" + name + "\" is not in the file");
     std::filesystem::path tex_path = path_.parent_path() / name;
-    auto key = std::make_pair(tex_path.lexically_normal().string(), srgb);
+    auto key = std::make_pair(embedded ? name : tex_path.lexically_normal().string(), srgb);
     if (auto it = texture_index_.find(key); it != texture_index_.end()) return it->second;
     RgbImage image;
     try {
-      image = load_rgb_image(tex_path, srgb);
+      image = embedded ? decode_embedded(embedded, name, srgb) : load_rgb_image(tex_path, srgb);
     } catch (const std::exception& e) {
       fail(path_, std::string("texture: ") + e.what());
     }
@@ -255,6 +417,24 @@ int Loader::texture(const aiMaterial* am, std::initializer_list<aiTextureType> t
     return index;
   }
   return -1;
+}
+
+RgbImage Loader::decode_embedded(const aiTexture* t, const std::string& name, bool srgb) {
+  const std::string label =
+      name + (t->mFilename.length ? " (" + std::string(t->mFilename.C_Str()) + ")" : "");
+  if (t->mHeight == 0)  // compressed: mWidth bytes of a PNG, JPEG, ... file
+    return decode_rgb_image(t->pcData, t->mWidth, label, srgb);
+  // Raw 8-bit texels (formats other than glTF), converted like a file's.
+  RgbImage img;
+  img.width = static_cast<int>(t->mWidth);
+  img.height = static_cast<int>(t->mHeight);
+  img.rgb.resize(size_t(t->mWidth) * t->mHeight * 3);
+  for (size_t i = 0; i < size_t(t->mWidth) * t->mHeight; ++i) {
+    const uint8_t c[3] = {t->pcData[i].r, t->pcData[i].g, t->pcData[i].b};
+    for (int k = 0; k < 3; ++k)
+      img.rgb[i * 3 + k] = srgb ? srgb_to_linear(c[k] / 255.0f) : c[k] / 255.0f;
+  }
+  return img;
 }
 
 void Loader::mesh(const aiMesh* m, const aiMatrix4x4& world, const char* node_name) {
@@ -409,6 +589,88 @@ void Loader::camera_track() {
   }
 }
 
+// --- lights --------------------------------------------------------------------
+
+// A node's world transform at time 0 of the first animation that moves it or
+// one of its parents (its static transform when none does).
+aiMatrix4x4 world_at_start(const aiScene* scene, const aiNode* node) {
+  std::vector<const aiNode*> chain;  // root ... node
+  for (const aiNode* n = node; n; n = n->mParent) chain.insert(chain.begin(), n);
+  std::vector<const aiNodeAnim*> channels(chain.size(), nullptr);
+  bool found = false;
+  for (unsigned a = 0; a < scene->mNumAnimations && !found; ++a) {
+    const aiAnimation* anim = scene->mAnimations[a];
+    for (unsigned c = 0; c < anim->mNumChannels; ++c)
+      for (size_t k = 0; k < chain.size(); ++k)
+        if (anim->mChannels[c]->mNodeName == chain[k]->mName) {
+          channels[k] = anim->mChannels[c];
+          found = true;
+        }
+  }
+  aiMatrix4x4 world;
+  for (size_t k = 0; k < chain.size(); ++k)
+    world = world * local_transform(chain[k], channels[k], 0.0);
+  return world;
+}
+
+void Loader::lights() {
+  if (scene_->mNumLights == 0) return;
+  if (!is_gltf(path_)) {
+    // Other formats' light units are the exporter's guess; only glTF's are defined.
+    spdlog::warn("{}: {} light(s) ignored: dofarm reads lights from glTF files only",
+                 path_.string(), scene_->mNumLights);
+    return;
+  }
+  for (unsigned i = 0; i < scene_->mNumLights; ++i) {
+    const aiLight* al = scene_->mLights[i];
+    const std::string name = al->mName.C_Str();
+    // assimp names a glTF light after the node that holds it.
+    const aiNode* node = scene_->mRootNode->FindNode(al->mName);
+    if (!node) {
+      spdlog::warn("{}: light \"{}\" is on no node; ignored", path_.string(), name);
+      continue;
+    }
+    const aiMatrix4x4 world = world_at_start(scene_, node);
+    PunctualLight light;
+    light.name = name;
+    light.position = to_vec3(world * al->mPosition);
+    // glTF: spot and directional lights shine down their node's -z (assimp's
+    // mDirection); the direction ignores the node's scale.
+    light.direction = normalize(to_vec3(aiMatrix3x3(world) * al->mDirection), Vec3(0, 0, -1));
+    // assimp hands out colour x intensity, in candela (point, spot) or lux
+    // (directional); see kLumensPerWatt for the conversion.
+    light.intensity =
+        Vec3(al->mColorDiffuse.r, al->mColorDiffuse.g, al->mColorDiffuse.b) / kLumensPerWatt;
+    switch (al->mType) {
+      case aiLightSource_POINT:
+        light.type = PunctualLight::Type::kPoint;
+        break;
+      case aiLightSource_SPOT:
+        light.type = PunctualLight::Type::kSpot;
+        light.cos_inner = std::cos(al->mAngleInnerCone);
+        light.cos_outer = std::cos(al->mAngleOuterCone);
+        break;
+      case aiLightSource_DIRECTIONAL:
+        light.type = PunctualLight::Type::kDirectional;
+        break;
+      default:
+        spdlog::warn("{}: light \"{}\" of assimp type {} ignored", path_.string(), name,
+                     int(al->mType));
+        continue;
+    }
+    const std::string which = "light " + std::to_string(i) + " (\"" + name + "\")";
+    if (!is_finite(light.position) || !is_finite(light.intensity) ||
+        !std::isfinite(light.cos_inner) || !std::isfinite(light.cos_outer))
+      fail(path_, which + " has a non-finite value");
+    if (light.intensity.x < 0 || light.intensity.y < 0 || light.intensity.z < 0)
+      fail(path_, which + " has a negative intensity");
+    if (max_component(light.intensity) > kMaxRadiance)
+      fail(path_, which + " has intensity " + fmt::format("{:g}", max_component(light.intensity)) +
+                      " (after dividing by 683 lm/W), above the bound kMaxRadiance = 1e12");
+    out_->lights.push_back(std::move(light));
+  }
+}
+
 // assimp's file access, with every file it opens noted (InputFileLog): the
 // glTF's buffers, an OBJ's material library, whatever the format pulls in.
 class RecordingIOSystem : public Assimp::DefaultIOSystem {
@@ -425,6 +687,11 @@ class RecordingIOSystem : public Assimp::DefaultIOSystem {
 SceneData load_scene_data(const std::filesystem::path& path) {
   std::error_code ec;
   if (!std::filesystem::is_regular_file(path, ec)) fail(path, "no such file");
+  GltfInfo gltf;
+  if (is_gltf(path)) {
+    gltf = read_gltf_info(path);
+    check_extensions(path, gltf);
+  }
   Assimp::Importer importer;
   importer.SetIOHandler(new RecordingIOSystem);  // the importer owns it
   // Smooth normals only where the file has none, and not across edges sharper
@@ -437,16 +704,28 @@ SceneData load_scene_data(const std::filesystem::path& path) {
   const aiScene* scene =
       importer.ReadFile(path.string(), aiProcess_Triangulate | aiProcess_JoinIdenticalVertices |
                                            aiProcess_GenSmoothNormals | aiProcess_FlipUVs);
-  if (!scene || !scene->mRootNode || (scene->mFlags & AI_SCENE_FLAGS_INCOMPLETE)) {
-    fail(path, std::string("cannot read: ") + importer.GetErrorString());
+  if (!scene || !scene->mRootNode) {
+    std::string why = importer.GetErrorString();
+    fail(path, "cannot read: " + (why.empty() ? std::string("assimp gives no reason") : why));
+  }
+  // assimp flags a file without meshes (an empty glTF, one with only a
+  // camera) as incomplete, without an error message.
+  if (scene->mNumMeshes == 0) fail(path, "the scene has no triangles (0 meshes)");
+  if (scene->mFlags & AI_SCENE_FLAGS_INCOMPLETE) {
+    std::string why = importer.GetErrorString();
+    fail(path, "cannot read: " +
+                   (why.empty() ? std::string("assimp reports the scene incomplete") : why));
   }
   SceneData out;
   out.source = path;
-  Loader loader(path, scene, &out);
+  Loader loader(path, scene, gltf, &out);
   loader.materials();
   loader.node(scene->mRootNode, aiMatrix4x4());
-  if (out.triangle_count() == 0) fail(path, "the scene has no triangles");
+  if (out.triangle_count() == 0)
+    fail(path, "the scene has no triangles (" + std::to_string(scene->mNumMeshes) +
+                   " meshes, only points or lines)");
   loader.camera_track();
+  loader.lights();
   return out;
 }
 

@@ -14,6 +14,20 @@
 
 namespace dofarm::render {
 
+// The largest radiance (emission of a material, in the renderer's radiance
+// units) and radiant intensity or irradiance (punctual lights) a scene may
+// hold. Larger or non-finite values are load errors: 1e12 is far beyond any
+// physical source at scene scale (the sun's disc is ~2e7 W/(m^2 sr)), and
+// keeping values this far below float's 3.4e38 leaves the room that path
+// throughput, pixel sums and variances need to stay finite.
+inline constexpr float kMaxRadiance = 1e12f;
+
+// Watts per lumen at 555 nm: glTF gives light intensities in candela and lux;
+// Blender's glTF exporter (io_scene_gltf2, PBR_WATTS_TO_LUMENS) multiplies
+// its watts by 683 to write them, so dividing gives back Blender's radiometric
+// units, which are the renderer's.
+inline constexpr float kLumensPerWatt = 683.0f;
+
 // Linear RGB texture; 8-bit colour data is converted from sRGB on load.
 struct Texture {
   int width = 0, height = 0;
@@ -21,6 +35,20 @@ struct Texture {
   std::string name;
   // Bilinear, repeat wrapping; uv in glTF convention.
   Vec3 lookup(Vec2 uv) const;
+};
+
+// KHR_texture_transform as a 2x3 affine map of glTF texture coordinates:
+// uv' = offset + R(rotation) * (scale * uv), with R as the extension defines
+// it (u' = cos u + sin v, v' = -sin u + cos v before the offset).
+struct UvTransform {
+  float m[6] = {1, 0, 0, 0, 1, 0};  // u' = m0 u + m1 v + m2, v' = m3 u + m4 v + m5
+  static UvTransform from_gltf(Vec2 offset, float rotation, Vec2 scale);
+  Vec2 apply(Vec2 uv) const {
+    return {m[0] * uv.x + m[1] * uv.y + m[2], m[3] * uv.x + m[4] * uv.y + m[5]};
+  }
+  bool is_identity() const {
+    return m[0] == 1 && m[1] == 0 && m[2] == 0 && m[3] == 0 && m[4] == 1 && m[5] == 0;
+  }
 };
 
 // glTF metallic-roughness material (what a glTF material maps onto exactly).
@@ -34,6 +62,8 @@ struct Material {
   int base_color_tex = -1;   // index into SceneData::textures; multiplies base_color
   int metal_rough_tex = -1;  // glTF: G = roughness, B = metallic; multiplies the factors
   int emission_tex = -1;     // multiplies emission
+  // Each texture's KHR_texture_transform (identity when the file has none).
+  UvTransform base_color_uv, metal_rough_uv, emission_uv;
   bool is_emissive() const { return emission.x > 0 || emission.y > 0 || emission.z > 0; }
   bool has_textures() const {
     return base_color_tex >= 0 || metal_rough_tex >= 0 || emission_tex >= 0;
@@ -51,6 +81,26 @@ struct CameraTrackKey {
   float aspect = 0;
 };
 
+// A KHR_lights_punctual light, in world space and the renderer's units.
+// Delta lights: only next-event estimation reaches them.
+struct PunctualLight {
+  enum class Type { kPoint, kSpot, kDirectional };
+  Type type = Type::kPoint;
+  std::string name;
+  Vec3 position{0.0f};       // point, spot
+  Vec3 direction{0, 0, -1};  // spot, directional: where the light travels (unit)
+  // Point, spot: radiant intensity (radiance units x m^2 per sr), so the
+  // irradiance at distance d facing the light is intensity / d^2.
+  // Directional: the irradiance on a surface facing it.
+  Vec3 intensity{0.0f};
+  float cos_inner = 1.0f, cos_outer = -1.0f;  // spot cone: full inside inner, 0 outside outer
+};
+
+// KHR_lights_punctual's spot falloff, the smooth one the extension's
+// specification recommends: (clamp((cos - cos_outer) / (cos_inner - cos_outer)))^2,
+// the denominator kept above 1e-3.
+float spot_falloff(float cos_angle, float cos_inner, float cos_outer);
+
 struct SceneData {
   std::filesystem::path source;  // file it came from (empty if built in code)
   std::vector<Vec3> positions;
@@ -64,6 +114,7 @@ struct SceneData {
   std::vector<Material> materials;
   std::vector<Texture> textures;
   std::vector<CameraTrackKey> camera_track;  // empty = no camera in the file
+  std::vector<PunctualLight> lights;         // glTF KHR_lights_punctual
 
   size_t triangle_count() const { return tri_material.size(); }
   // Appends a mesh with its own material; returns the material index. `n` and
@@ -75,11 +126,17 @@ struct SceneData {
 
 // Loads a glTF 2.0 (.gltf/.glb), OBJ or FBX file, flattening the node
 // hierarchy into world space. Throws SpecError (file name, reason) when the
-// file is missing, unreadable, has no triangles, has a non-finite vertex or
-// a texture that cannot be loaded. Points and lines are ignored; degenerate
-// triangles are kept. HDR emission in glTF comes from
-// KHR_materials_emissive_strength, read from the file's JSON because assimp
-// 5.2 does not import it.
+// file is missing, unreadable, has no triangles, has a non-finite vertex, a
+// material whose emission is non-finite or above kMaxRadiance, a texture that
+// cannot be loaded, or (glTF) lists in extensionsRequired an extension dofarm
+// does not implement. Extensions in extensionsUsed that dofarm does not
+// implement are named in one warning. Points and lines are ignored;
+// degenerate triangles are kept. Textures embedded in the file (.glb buffer
+// views, data: URIs) are decoded from memory. glTF coverage and units:
+// docs/renderer.md, "glTF coverage". KHR_materials_emissive_strength and
+// KHR_texture_transform are read from the file's JSON (assimp 5.2 drops the
+// first and converts the second into its own convention); lights come
+// through assimp's aiLight, placed by their node at time 0.
 SceneData load_scene_data(const std::filesystem::path& path);
 
 }  // namespace dofarm::render

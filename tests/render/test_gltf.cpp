@@ -1,0 +1,524 @@
+// glTF coverage (docs/renderer.md, "glTF coverage"): textures embedded in a
+// .glb or a data: URI, KHR_texture_transform, KHR_lights_punctual in
+// Blender's units, the extension warning and refusal, and the load errors of
+// empty scenes and out-of-bound emission. The files are written by the tests,
+// except one .glb exported by Blender (tests/data/blender/).
+#include <gtest/gtest.h>
+#include <spdlog/sinks/ringbuffer_sink.h>
+#include <spdlog/spdlog.h>
+
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <string>
+
+#include "common/error.h"
+#include "common/exr_io.h"
+#include "worker/render/scene_data.h"
+
+// Static, so this test's stb_image_write cannot clash with another file's.
+#define STB_IMAGE_WRITE_STATIC
+#define STB_IMAGE_WRITE_IMPLEMENTATION
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wmissing-field-initializers"
+#pragma GCC diagnostic ignored "-Wunused-function"
+#include <stb_image_write.h>
+#pragma GCC diagnostic pop
+
+namespace dofarm::render {
+namespace {
+
+void expect_near3(Vec3 a, Vec3 b, float tol) {
+  EXPECT_NEAR(a.x, b.x, tol);
+  EXPECT_NEAR(a.y, b.y, tol);
+  EXPECT_NEAR(a.z, b.z, tol);
+}
+
+using Json = nlohmann::json;
+
+// A scratch folder per test, removed at the end.
+struct TempDir {
+  std::filesystem::path path;
+  explicit TempDir(const std::string& name)
+      : path(std::filesystem::temp_directory_path() / ("dofarm_test_gltf_" + name)) {
+    std::filesystem::remove_all(path);
+    std::filesystem::create_directories(path);
+  }
+  ~TempDir() { std::filesystem::remove_all(path); }
+};
+
+void write_bytes(const std::filesystem::path& p, const std::string& bytes) {
+  std::ofstream out(p, std::ios::binary);
+  out.write(bytes.data(), std::streamsize(bytes.size()));
+}
+
+std::string base64(const std::string& in) {
+  static const char* table = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+  std::string out;
+  size_t i = 0;
+  for (; i + 2 < in.size(); i += 3) {
+    uint32_t v = (uint8_t(in[i]) << 16) | (uint8_t(in[i + 1]) << 8) | uint8_t(in[i + 2]);
+    for (int k = 3; k >= 0; --k) out += table[(v >> (6 * k)) & 63];
+  }
+  if (i + 1 == in.size()) {
+    uint32_t v = uint8_t(in[i]) << 16;
+    out += std::string{table[v >> 18], table[(v >> 12) & 63], '=', '='};
+  } else if (i + 2 == in.size()) {
+    uint32_t v = (uint8_t(in[i]) << 16) | (uint8_t(in[i + 1]) << 8);
+    out += std::string{table[v >> 18], table[(v >> 12) & 63], table[(v >> 6) & 63], '='};
+  }
+  return out;
+}
+
+// A 3x2 RGB PNG with distinct texels, encoded in memory.
+std::string test_png() {
+  const unsigned char px[] = {255, 0,   0,   0,  255, 0, 0,   0,   255,
+                              10,  128, 250, 77, 33,  1, 200, 200, 9};
+  std::string out;
+  stbi_write_png_to_func(
+      [](void* ctx, void* data, int size) {
+        static_cast<std::string*>(ctx)->append(static_cast<const char*>(data), size_t(size));
+      },
+      &out, 3, 2, 3, px, 3 * 3);
+  return out;
+}
+
+std::string floats_bytes(std::initializer_list<float> v) {
+  std::string out(v.size() * 4, '\0');
+  std::memcpy(out.data(), std::data(v), out.size());
+  return out;
+}
+
+// A unit quad in the xz plane (facing +y) with uvs, as a glTF document and
+// its binary buffer (positions, uvs, uint16 indices), material 0.
+struct GltfQuad {
+  Json doc;
+  std::string bin;
+};
+GltfQuad gltf_quad() {
+  GltfQuad q;
+  q.bin = floats_bytes({0, 0, 0, 0, 0, 1, 1, 0, 1, 1, 0, 0});  // 48 bytes
+  q.bin += floats_bytes({0, 0, 0, 1, 1, 1, 1, 0});             // 32 bytes
+  const uint16_t idx[6] = {0, 1, 2, 0, 2, 3};
+  q.bin.append(reinterpret_cast<const char*>(idx), sizeof idx);  // 12 bytes
+  q.doc = Json::parse(R"({
+    "asset": {"version": "2.0"},
+    "scene": 0, "scenes": [{"nodes": [0]}],
+    "nodes": [{"mesh": 0, "name": "quad"}],
+    "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1},
+                                "indices": 2, "material": 0}]}],
+    "materials": [{"name": "mat", "pbrMetallicRoughness": {"metallicFactor": 0}}],
+    "accessors": [
+      {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3",
+       "min": [0, 0, 0], "max": [1, 0, 1]},
+      {"bufferView": 1, "componentType": 5126, "count": 4, "type": "VEC2"},
+      {"bufferView": 2, "componentType": 5123, "count": 6, "type": "SCALAR"}],
+    "bufferViews": [
+      {"buffer": 0, "byteOffset": 0, "byteLength": 48},
+      {"buffer": 0, "byteOffset": 48, "byteLength": 32},
+      {"buffer": 0, "byteOffset": 80, "byteLength": 12}],
+    "buffers": [{"byteLength": 92}]
+  })");
+  return q;
+}
+
+// Writes `q` as a .gltf whose buffer is a data: URI.
+void write_gltf(const std::filesystem::path& p, GltfQuad q) {
+  q.doc["buffers"][0]["byteLength"] = q.bin.size();
+  q.doc["buffers"][0]["uri"] = "data:application/octet-stream;base64," + base64(q.bin);
+  write_bytes(p, q.doc.dump());
+}
+
+// Writes `q` as a .glb: header, JSON chunk, BIN chunk (glTF 2.0, 4.4).
+void write_glb(const std::filesystem::path& p, GltfQuad q) {
+  while (q.bin.size() % 4) q.bin += '\0';
+  q.doc["buffers"][0]["byteLength"] = q.bin.size();
+  std::string json = q.doc.dump();
+  while (json.size() % 4) json += ' ';
+  auto u32 = [](uint32_t v) { return std::string(reinterpret_cast<const char*>(&v), 4); };
+  std::string out = "glTF" + u32(2) + u32(uint32_t(12 + 8 + json.size() + 8 + q.bin.size()));
+  out += u32(uint32_t(json.size())) + "JSON" + json;
+  out += u32(uint32_t(q.bin.size())) + "BIN" + std::string(1, '\0') + q.bin;
+  write_bytes(p, out);
+}
+
+void use_base_color_image(GltfQuad* q, const Json& image) {
+  q->doc["images"] = Json::array({image});
+  q->doc["textures"] = Json::parse(R"([{"source": 0}])");
+  q->doc["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"] = {{"index", 0}};
+}
+
+void expect_same_texture(const Texture& a, const Texture& b) {
+  EXPECT_EQ(a.width, b.width);
+  EXPECT_EQ(a.height, b.height);
+  EXPECT_EQ(a.rgb, b.rgb);  // bit for bit
+}
+
+TEST(GltfEmbeddedTextures, GlbAndDataUriLoadLikeTheImageBesideTheScene) {
+  TempDir dir("embedded");
+  const std::string png = test_png();
+  ASSERT_FALSE(png.empty());
+  write_bytes(dir.path / "tex.png", png);
+
+  GltfQuad beside = gltf_quad();
+  use_base_color_image(&beside, {{"uri", "tex.png"}});
+  write_gltf(dir.path / "beside.gltf", beside);
+
+  GltfQuad data_uri = gltf_quad();
+  use_base_color_image(&data_uri, {{"uri", "data:image/png;base64," + base64(png)}});
+  write_gltf(dir.path / "data_uri.gltf", data_uri);
+
+  GltfQuad glb = gltf_quad();
+  glb.doc["bufferViews"].push_back({{"buffer", 0}, {"byteOffset", 92}, {"byteLength", png.size()}});
+  glb.bin += png;
+  use_base_color_image(&glb, {{"bufferView", 3}, {"mimeType", "image/png"}});
+  write_glb(dir.path / "scene.glb", glb);
+
+  SceneData ref = load_scene_data(dir.path / "beside.gltf");
+  ASSERT_EQ(ref.textures.size(), 1u);
+  const Texture& t = ref.textures[0];
+  ASSERT_EQ(t.width, 3);
+  ASSERT_EQ(t.height, 2);
+  // Texel (0, 1) (second row) is (10, 128, 250) in sRGB.
+  EXPECT_NEAR(t.rgb[9 + 2], srgb_to_linear(250 / 255.0f), 1e-6f);
+  for (const char* name : {"data_uri.gltf", "scene.glb"}) {
+    SCOPED_TRACE(name);
+    SceneData s = load_scene_data(dir.path / name);
+    ASSERT_EQ(s.textures.size(), 1u);
+    ASSERT_EQ(s.triangle_count(), 2u);
+    EXPECT_EQ(s.materials[s.tri_material[0]].base_color_tex, 0);
+    expect_same_texture(s.textures[0], t);
+    EXPECT_EQ(s.triangle_count(), 2u);
+  }
+}
+
+TEST(GltfEmbeddedTextures, CorruptEmbeddedImageNamesTheFile) {
+  TempDir dir("embedded_bad");
+  GltfQuad q = gltf_quad();
+  use_base_color_image(&q, {{"uri", "data:image/png;base64," + base64("not a png at all")}});
+  write_gltf(dir.path / "bad.gltf", q);
+  try {
+    load_scene_data(dir.path / "bad.gltf");
+    FAIL() << "expected SpecError";
+  } catch (const SpecError& e) {
+    std::string what = e.what();
+    EXPECT_NE(what.find("bad.gltf"), std::string::npos) << what;
+    EXPECT_NE(what.find("texture"), std::string::npos) << what;
+  }
+}
+
+// Blender's mapping node (Point type) maps its uv b to T + R_ccw(r) S b in
+// Blender's uv convention (v up); glTF's v points down (v_gltf = 1 - v). This
+// is an implementation of that, independent of KHR_texture_transform's
+// matrix: the exporter's numbers must reproduce it.
+Vec2 blender_mapping(Vec2 uv_gltf, Vec2 location, float rotation, Vec2 scale) {
+  Vec2 b(uv_gltf.x * scale.x, (1 - uv_gltf.y) * scale.y);
+  const float c = std::cos(rotation), s = std::sin(rotation);
+  Vec2 r(c * b.x - s * b.y + location.x, s * b.x + c * b.y + location.y);
+  return {r.x, 1 - r.y};
+}
+
+TEST(GltfTextureTransform, BlenderExportedTransformReproducesBlendersMapping) {
+  // Blender 3.4 exports a Mapping node (location (0.25, 0.5), rotation 0.3,
+  // scale (2, 3)) in front of an image texture as these numbers.
+  TempDir dir("uv_transform");
+  write_bytes(dir.path / "tex.png", test_png());
+  GltfQuad q = gltf_quad();
+  use_base_color_image(&q, {{"uri", "tex.png"}});
+  q.doc["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"]["extensions"] = Json::parse(R"(
+    {"KHR_texture_transform": {"offset": [-0.6365606541495139, -2.3660094568081917],
+                               "rotation": 0.30000001192092896, "scale": [2, 3]}})");
+  q.doc["extensionsUsed"] = {"KHR_texture_transform"};
+  q.doc["extensionsRequired"] = {"KHR_texture_transform"};
+  write_gltf(dir.path / "transform.gltf", q);
+  SceneData s = load_scene_data(dir.path / "transform.gltf");
+  ASSERT_EQ(s.triangle_count(), 2u);
+  const Material& m = s.materials[s.tri_material[0]];
+  ASSERT_EQ(m.base_color_tex, 0);
+  const UvTransform& t = m.base_color_uv;
+  EXPECT_FALSE(t.is_identity());
+  EXPECT_TRUE(m.metal_rough_uv.is_identity());
+  for (Vec2 uv : {Vec2(0, 0), Vec2(1, 0), Vec2(0, 1), Vec2(0.3f, 0.7f), Vec2(-2, 5)}) {
+    Vec2 want = blender_mapping(uv, Vec2(0.25f, 0.5f), 0.3f, Vec2(2, 3));
+    Vec2 got = t.apply(uv);
+    EXPECT_NEAR(got.x, want.x, 1e-5f) << uv.x << ", " << uv.y;
+    EXPECT_NEAR(got.y, want.y, 1e-5f) << uv.x << ", " << uv.y;
+  }
+}
+
+TEST(GltfTextureTransform, OffsetOnlyShiftsTheLookup) {
+  // The extension's own example: offset (0.5, 0) moves the texture by half.
+  UvTransform t = UvTransform::from_gltf(Vec2(0.5f, 0), 0, Vec2(1, 1));
+  Vec2 uv = t.apply(Vec2(0.25f, 0.75f));
+  EXPECT_FLOAT_EQ(uv.x, 0.75f);
+  EXPECT_FLOAT_EQ(uv.y, 0.75f);
+  // Rotation by pi/2: (1, 0) -> (cos, -sin) = (0, -1) in the extension's matrix.
+  Vec2 r = UvTransform::from_gltf(Vec2(0, 0), float(M_PI / 2), Vec2(1, 1)).apply(Vec2(1, 0));
+  EXPECT_NEAR(r.x, 0.0f, 1e-6f);
+  EXPECT_NEAR(r.y, -1.0f, 1e-6f);
+}
+
+// Blender 3.4's exporter ("Punctual Lights" ticked, lighting mode Standard)
+// writes a 1000 W point lamp as 1000 / (4 pi) * 683 cd, a spot lamp as a
+// point lamp of its power with outerConeAngle = spot_size / 2 and
+// innerConeAngle = outer (1 - spot_blend), a 3 W/m^2 sun as 3 * 683 lux, each
+// on a node turned -90 degrees about x (Blender's z-up to glTF's y-up).
+const char* kBlenderLights = R"({
+  "extensionsUsed": ["KHR_lights_punctual"],
+  "extensionsRequired": ["KHR_lights_punctual"],
+  "extensions": {"KHR_lights_punctual": {"lights": [
+    {"color": [1, 1, 1], "intensity": 54351.41306588226, "type": "point", "name": "P"},
+    {"color": [1, 0.5, 0.25], "intensity": 27175.70653294113,
+     "spot": {"innerConeAngle": 0.39269909262657166, "outerConeAngle": 0.5235987901687622},
+     "type": "spot", "name": "S"},
+    {"color": [1, 1, 1], "intensity": 2049, "type": "directional", "name": "U"}]}},
+  "nodes_extra": [
+    {"extensions": {"KHR_lights_punctual": {"light": 0}}, "name": "Point",
+     "rotation": [-0.7071068286895752, 0, 0, 0.7071068286895752], "translation": [0, 2, 0]},
+    {"extensions": {"KHR_lights_punctual": {"light": 1}}, "name": "Spot",
+     "rotation": [-0.7071068286895752, 0, 0, 0.7071068286895752], "translation": [1, 3, 0]},
+    {"extensions": {"KHR_lights_punctual": {"light": 2}}, "name": "Sun",
+     "rotation": [-0.510183572769165, 0, 0, 0.8600655794143677]}]
+})";
+
+SceneData load_with_lights(const TempDir& dir, const char* lights_json) {
+  GltfQuad q = gltf_quad();
+  Json extra = Json::parse(lights_json);
+  for (auto& [key, value] : extra.items())
+    if (key != "nodes_extra") q.doc[key] = value;
+  for (const auto& node : extra["nodes_extra"]) {
+    q.doc["scenes"][0]["nodes"].push_back(q.doc["nodes"].size());
+    q.doc["nodes"].push_back(node);
+  }
+  write_gltf(dir.path / "lights.gltf", q);
+  return load_scene_data(dir.path / "lights.gltf");
+}
+
+TEST(GltfLights, BlenderUnitsGiveCyclesIntensityAndIrradiance) {
+  TempDir dir("lights");
+  SceneData s = load_with_lights(dir, kBlenderLights);
+  ASSERT_EQ(s.lights.size(), 3u);
+  const PunctualLight& p = s.lights[0];
+  EXPECT_EQ(p.type, PunctualLight::Type::kPoint);
+  EXPECT_EQ(p.name, "Point");
+  // Cycles: a P watt point lamp has radiant intensity P / (4 pi) W/sr.
+  expect_near3(p.intensity, Vec3(1000.0f / (4.0f * float(M_PI))), 1e-3f);
+  expect_near3(p.position, Vec3(0, 2, 0), 1e-6f);
+
+  const PunctualLight& spot = s.lights[1];
+  EXPECT_EQ(spot.type, PunctualLight::Type::kSpot);
+  // 500 W, colour (1, 0.5, 0.25).
+  expect_near3(spot.intensity, Vec3(1, 0.5f, 0.25f) * (500.0f / (4.0f * float(M_PI))), 1e-3f);
+  expect_near3(spot.position, Vec3(1, 3, 0), 1e-6f);
+  // Blender's spot shines down its -z, which is glTF's -y after the export.
+  expect_near3(spot.direction, Vec3(0, -1, 0), 1e-6f);
+  // spot_size 60 degrees, blend 0.25: outer 30 degrees, inner 22.5 degrees.
+  EXPECT_NEAR(spot.cos_outer, std::cos(float(M_PI) / 6), 1e-6f);
+  EXPECT_NEAR(spot.cos_inner, std::cos(float(M_PI) / 8), 1e-6f);
+
+  const PunctualLight& sun = s.lights[2];
+  EXPECT_EQ(sun.type, PunctualLight::Type::kDirectional);
+  expect_near3(sun.intensity, Vec3(3.0f), 1e-5f);  // Cycles: strength S gives irradiance S
+  // Blender sun rotated 0.5 rad about its x: its -z turns towards -y... in
+  // glTF axes, rotation -(pi/2 - 0.5) about x applied to (0, 0, -1).
+  const float a = -(float(M_PI) / 2 - 0.5f);
+  expect_near3(sun.direction, Vec3(0, std::sin(a), -std::cos(a)), 1e-5f);
+}
+
+TEST(GltfLights, AnAnimatedLightIsPlacedAtTimeZero) {
+  // The light hangs 0.5 below a parent whose static translation (0, 1, 0) is
+  // animated: (0, 5, 0) at t = 0, (0, 9, 0) at t = 1. The light takes t = 0.
+  TempDir dir("animated_light");
+  GltfQuad q = gltf_quad();
+  q.bin += floats_bytes({0, 1, 0, 5, 0, 0, 9, 0});  // times at 92, translations at 100
+  q.doc["bufferViews"].push_back({{"buffer", 0}, {"byteOffset", 92}, {"byteLength", 8}});
+  q.doc["bufferViews"].push_back({{"buffer", 0}, {"byteOffset", 100}, {"byteLength", 24}});
+  q.doc["accessors"].push_back(Json::parse(
+      R"({"bufferView": 3, "componentType": 5126, "count": 2, "type": "SCALAR",
+          "min": [0], "max": [1]})"));
+  q.doc["accessors"].push_back(
+      Json::parse(R"({"bufferView": 4, "componentType": 5126, "count": 2, "type": "VEC3"})"));
+  q.doc["nodes"].push_back(
+      Json::parse(R"({"name": "rig", "translation": [0, 1, 0], "children": [2]})"));
+  q.doc["nodes"].push_back(Json::parse(
+      R"({"name": "lamp", "translation": [0, -0.5, 0],
+          "extensions": {"KHR_lights_punctual": {"light": 0}}})"));
+  q.doc["scenes"][0]["nodes"].push_back(1);
+  q.doc["animations"] = Json::parse(R"([{"channels": [{"sampler": 0,
+      "target": {"node": 1, "path": "translation"}}],
+      "samplers": [{"input": 3, "output": 4, "interpolation": "LINEAR"}]}])");
+  q.doc["extensions"]["KHR_lights_punctual"]["lights"] =
+      Json::parse(R"([{"type": "point", "intensity": 683}])");
+  q.doc["extensionsUsed"] = {"KHR_lights_punctual"};
+  write_gltf(dir.path / "animated.gltf", q);
+  SceneData s = load_scene_data(dir.path / "animated.gltf");
+  ASSERT_EQ(s.lights.size(), 1u);
+  expect_near3(s.lights[0].position, Vec3(0, 4.5f, 0), 1e-5f);
+  expect_near3(s.lights[0].intensity, Vec3(1.0f), 1e-6f);  // 683 cd: 1 W/sr
+}
+
+TEST(GltfLights, SpotFalloffFollowsTheExtension) {
+  const float ci = std::cos(0.3f), co = std::cos(0.5f);
+  EXPECT_EQ(spot_falloff(1.0f, ci, co), 1.0f);
+  EXPECT_EQ(spot_falloff(ci, ci, co), 1.0f);
+  EXPECT_EQ(spot_falloff(co, ci, co), 0.0f);
+  EXPECT_EQ(spot_falloff(std::cos(0.6f), ci, co), 0.0f);
+  EXPECT_NEAR(spot_falloff(0.5f * (ci + co), ci, co), 0.25f, 1e-5f);  // halfway in cosine, squared
+  // Inner = outer (a hard edge, Blender's blend 0): full inside, 0 outside.
+  EXPECT_EQ(spot_falloff(std::cos(0.49f), co, co), 1.0f);
+  EXPECT_EQ(spot_falloff(std::cos(0.51f), co, co), 0.0f);
+}
+
+TEST(GltfBlenderExport, LampsEmbeddedTextureAndMappingAsBlenderMeantThem) {
+  // A .glb from Blender 3.4 (tests/data/blender/make_lamps_and_texture.py).
+  const auto dir = std::filesystem::path(DOFARM_TEST_DATA) / "blender";
+  SceneData s = load_scene_data(dir / "lamps_and_texture.glb");
+  ASSERT_EQ(s.triangle_count(), 2u);
+  const Material& m = s.materials[s.tri_material[0]];
+  ASSERT_EQ(m.base_color_tex, 0);
+  // The PNG inside the .glb decodes exactly like the file it was made from.
+  RgbImage beside = load_rgb_image(dir / "tex.png", /*srgb=*/true);
+  EXPECT_EQ(s.textures[0].width, beside.width);
+  EXPECT_EQ(s.textures[0].height, beside.height);
+  EXPECT_EQ(s.textures[0].rgb, beside.rgb);
+  for (Vec2 uv : {Vec2(0, 0), Vec2(1, 1), Vec2(0.2f, 0.9f)}) {
+    Vec2 want = blender_mapping(uv, Vec2(0.25f, 0.5f), 0.3f, Vec2(2, 3));
+    EXPECT_NEAR(m.base_color_uv.apply(uv).x, want.x, 1e-5f);
+    EXPECT_NEAR(m.base_color_uv.apply(uv).y, want.y, 1e-5f);
+  }
+  ASSERT_EQ(s.lights.size(), 3u);
+  const float four_pi = 4.0f * float(M_PI);
+  EXPECT_EQ(s.lights[0].type, PunctualLight::Type::kPoint);
+  expect_near3(s.lights[0].intensity, Vec3(1000.0f / four_pi), 1e-3f);
+  expect_near3(s.lights[0].position, Vec3(0, 2, 0), 1e-6f);  // Blender z up -> glTF y up
+  EXPECT_EQ(s.lights[1].type, PunctualLight::Type::kSpot);
+  expect_near3(s.lights[1].intensity, Vec3(500.0f / four_pi), 1e-3f);
+  expect_near3(s.lights[1].position, Vec3(1, 3, 0), 1e-6f);
+  expect_near3(s.lights[1].direction, Vec3(0, -1, 0), 1e-6f);
+  EXPECT_NEAR(s.lights[1].cos_outer, std::cos(float(M_PI) / 6), 1e-6f);
+  EXPECT_NEAR(s.lights[1].cos_inner, std::cos(0.75f * float(M_PI) / 6), 1e-6f);
+  EXPECT_EQ(s.lights[2].type, PunctualLight::Type::kDirectional);
+  expect_near3(s.lights[2].intensity, Vec3(3.0f), 1e-5f);
+}
+
+// --- glTF extensions and load errors -----------------------------------------
+
+std::string load_error(const std::filesystem::path& p) {
+  try {
+    load_scene_data(p);
+  } catch (const SpecError& e) {
+    EXPECT_EQ(e.loc().file, p.string());
+    return e.what();
+  }
+  ADD_FAILURE() << p << " loaded";
+  return "";
+}
+
+TEST(GltfExtensions, RequiredButUnimplementedIsAnErrorNamingIt) {
+  TempDir dir("required");
+  GltfQuad q = gltf_quad();
+  q.doc["extensionsUsed"] = {"KHR_materials_transmission", "KHR_texture_transform"};
+  q.doc["extensionsRequired"] = {"KHR_materials_transmission"};
+  write_gltf(dir.path / "required.gltf", q);
+  std::string what = load_error(dir.path / "required.gltf");
+  EXPECT_NE(what.find("KHR_materials_transmission"), std::string::npos) << what;
+  EXPECT_NE(what.find("extensionsRequired"), std::string::npos) << what;
+  EXPECT_EQ(what.find("KHR_texture_transform,"), std::string::npos) << what;
+}
+
+TEST(GltfExtensions, UsedButUnimplementedAreNamedInOneWarning) {
+  TempDir dir("used");
+  GltfQuad q = gltf_quad();
+  q.doc["extensionsUsed"] = {"KHR_materials_sheen", "KHR_lights_punctual",
+                             "KHR_materials_clearcoat"};
+  write_gltf(dir.path / "used.gltf", q);
+  auto sink = std::make_shared<spdlog::sinks::ringbuffer_sink_mt>(16);
+  auto logger = std::make_shared<spdlog::logger>("capture", sink);
+  auto previous = spdlog::default_logger();
+  spdlog::set_default_logger(logger);
+  SceneData s = load_scene_data(dir.path / "used.gltf");
+  spdlog::set_default_logger(previous);
+  EXPECT_EQ(s.triangle_count(), 2u);
+  std::vector<std::string> lines = sink->last_formatted();
+  ASSERT_EQ(lines.size(), 1u);
+  EXPECT_NE(lines[0].find("used.gltf"), std::string::npos) << lines[0];
+  EXPECT_NE(lines[0].find("KHR_materials_sheen, KHR_materials_clearcoat"), std::string::npos)
+      << lines[0];
+  EXPECT_EQ(lines[0].find("KHR_lights_punctual"), std::string::npos) << lines[0];
+}
+
+TEST(GltfExtensions, NormalMapsAndTransparencyAreWarnedNamingTheMaterials) {
+  TempDir dir("core_warnings");
+  write_bytes(dir.path / "tex.png", test_png());
+  GltfQuad q = gltf_quad();
+  use_base_color_image(&q, {{"uri", "tex.png"}});
+  q.doc["materials"][0]["name"] = "bumpy glass";
+  q.doc["materials"][0]["normalTexture"] = {{"index", 0}};
+  q.doc["materials"][0]["alphaMode"] = "BLEND";
+  write_gltf(dir.path / "core.gltf", q);
+  auto sink = std::make_shared<spdlog::sinks::ringbuffer_sink_mt>(16);
+  auto previous = spdlog::default_logger();
+  spdlog::set_default_logger(std::make_shared<spdlog::logger>("capture", sink));
+  SceneData s = load_scene_data(dir.path / "core.gltf");
+  spdlog::set_default_logger(previous);
+  EXPECT_EQ(s.triangle_count(), 2u);
+  std::vector<std::string> lines = sink->last_formatted();
+  ASSERT_EQ(lines.size(), 2u);
+  EXPECT_NE(lines[0].find("normal maps ignored"), std::string::npos) << lines[0];
+  EXPECT_NE(lines[0].find("\"bumpy glass\""), std::string::npos) << lines[0];
+  EXPECT_NE(lines[1].find("alphaMode ignored"), std::string::npos) << lines[1];
+  EXPECT_NE(lines[1].find("core.gltf"), std::string::npos) << lines[1];
+}
+
+TEST(LoadSceneData, EmptyOrCameraOnlyGltfSaysWhy) {
+  TempDir dir("empty");
+  // What Blender 3.4 exports for an empty scene.
+  write_bytes(dir.path / "empty.gltf",
+              R"({"asset": {"generator": "Khronos glTF Blender I/O v3.4.50",
+    "version": "2.0"}, "scene": 0, "scenes": [{"name": "Scene"}]})");
+  write_bytes(dir.path / "camera.gltf", R"({"asset": {"version": "2.0"},
+    "scene": 0, "scenes": [{"nodes": [0]}],
+    "nodes": [{"camera": 0, "translation": [0, 1, 5]}],
+    "cameras": [{"type": "perspective", "perspective": {"yfov": 0.7, "znear": 0.1}}]})");
+  for (const char* name : {"empty.gltf", "camera.gltf"}) {
+    std::string what = load_error(dir.path / name);
+    EXPECT_NE(what.find(name), std::string::npos) << what;
+    EXPECT_NE(what.find("has no triangles (0 meshes)"), std::string::npos) << what;
+  }
+  // Without even a scene: assimp's reason is passed on, never an empty one.
+  write_bytes(dir.path / "bare.gltf", R"({"asset": {"version": "2.0"}})");
+  std::string what = load_error(dir.path / "bare.gltf");
+  EXPECT_NE(what.find("No scene"), std::string::npos) << what;
+}
+
+TEST(LoadSceneData, EmissionAboveTheBoundOrInfiniteIsAnErrorNamingTheMaterial) {
+  TempDir dir("emission");
+  GltfQuad q = gltf_quad();
+  q.doc["materials"][0]["name"] = "hot";
+  q.doc["materials"][0]["emissiveFactor"] = {1, 1, 1};
+  q.doc["materials"][0]["extensions"]["KHR_materials_emissive_strength"]["emissiveStrength"] = 1e37;
+  write_gltf(dir.path / "hot.gltf", q);
+  std::string what = load_error(dir.path / "hot.gltf");
+  EXPECT_NE(what.find("\"hot\""), std::string::npos) << what;
+  EXPECT_NE(what.find("kMaxRadiance"), std::string::npos) << what;
+
+  q.doc["materials"][0]["extensions"]["KHR_materials_emissive_strength"]["emissiveStrength"] = 1e38;
+  q.doc["materials"][0]["emissiveFactor"] = {10, 1, 1};  // 1e39 overflows float
+  write_gltf(dir.path / "inf.gltf", q);
+  what = load_error(dir.path / "inf.gltf");
+  EXPECT_NE(what.find("\"hot\""), std::string::npos) << what;
+  EXPECT_NE(what.find("non-finite"), std::string::npos) << what;
+
+  // At the bound it loads.
+  q.doc["materials"][0]["emissiveFactor"] = {1, 1, 1};
+  q.doc["materials"][0]["extensions"]["KHR_materials_emissive_strength"]["emissiveStrength"] =
+      kMaxRadiance;
+  write_gltf(dir.path / "bright.gltf", q);
+  SceneData bright = load_scene_data(dir.path / "bright.gltf");
+  EXPECT_EQ(bright.materials[bright.tri_material[0]].emission.x, kMaxRadiance);
+}
+
+}  // namespace
+}  // namespace dofarm::render
