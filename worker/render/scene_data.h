@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "common/jobspec.h"
 #include "common/math.h"
 
 namespace dofarm::render {
@@ -20,7 +21,9 @@ namespace dofarm::render {
 // physical source at scene scale (the sun's disc is ~2e7 W/(m^2 sr)), and
 // keeping values this far below float's 3.4e38 leaves the room that path
 // throughput, pixel sums and variances need to stay finite.
-inline constexpr float kMaxRadiance = 1e12f;
+// The one definition lives beside the job spec, which bounds environment
+// colours with it too.
+using dofarm::kMaxRadiance;
 
 // Watts per lumen at 555 nm: glTF gives light intensities in candela and lux;
 // Blender's glTF exporter (io_scene_gltf2, PBR_WATTS_TO_LUMENS) multiplies
