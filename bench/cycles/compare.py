@@ -10,8 +10,12 @@
 # dofarm_ref<REF>.pfm, cycles_times.txt and dofarm_times.txt.
 #
 # Error of an image x against its own renderer's reference r (same renderer,
-# same settings, independent random numbers, REF spp):
-#   relative RMSE = sqrt(mean over pixels and channels of (x - r)^2) / mean(r).
+# same settings, independent random numbers, REF spp), two measures:
+#   relative RMSE = sqrt(mean over pixels and channels of (x - r)^2) / mean(r)
+#     (dominated by the bright parts of the image and by fireflies);
+#   per-pixel relative RMSE = sqrt(mean of (x - r)^2 / (r^2 + 0.01))
+#     (each pixel relative to its own value: dark, indirectly lit parts count
+#     as much as bright ones).
 # The reference's own noise adds to the measured MSE: with per-sample
 # variance the same in both, E[(x - r)^2] = Var(x) (1 + N / REF), so the
 # printed error is the measured one divided by sqrt(1 + N / REF).
@@ -48,6 +52,14 @@ def relative_rmse(image, ref):
     return math.sqrt(mse) / (sum(b) / len(b))
 
 
+def per_pixel_relative_rmse(image, ref):
+    (_, a), (_, b) = image, ref
+    return math.sqrt(sum((x - y) * (x - y) / (y * y + 0.01) for x, y in zip(a, b)) / len(a))
+
+
+METRICS = (("relative RMSE", relative_rmse), ("per-pixel relative RMSE", per_pixel_relative_rmse))
+
+
 def read_times(path):
     times = {}
     with open(path) as f:
@@ -79,26 +91,33 @@ def main():
     if len(sys.argv) != 4:
         raise SystemExit("usage: compare.py DIR SPP_LIST REF_SPP")
     folder, spps, ref_spp = sys.argv[1], [int(s) for s in sys.argv[2].split(",")], int(sys.argv[3])
+    for metric, error in METRICS:
+        print("### %s\n" % metric)
+        report(folder, spps, ref_spp, metric, error)
+        print()
+
+
+def report(folder, spps, ref_spp, metric, error):
     rows = {}
     for name in ("cycles", "dofarm"):
         ref = read_pfm(os.path.join(folder, "%s_ref%d.pfm" % (name, ref_spp)))
         times = read_times(os.path.join(folder, "%s_times.txt" % name))
         rows[name] = []
         for n in spps:
-            e = relative_rmse(read_pfm(os.path.join(folder, "%s_%d.pfm" % (name, n))), ref)
+            e = error(read_pfm(os.path.join(folder, "%s_%d.pfm" % (name, n))), ref)
             e /= math.sqrt(1.0 + n / ref_spp)
             cpu, wall = times[n]
             rows[name].append((n, e, cpu, wall))
 
-    print("| renderer | spp | relative RMSE | CPU s | wall s | error x sqrt(CPU s) |")
+    print("| renderer | spp | %s | CPU s | wall s | error x sqrt(CPU s) |" % metric)
     print("| --- | --- | --- | --- | --- | --- |")
     for name in ("cycles", "dofarm"):
         for n, e, cpu, wall in rows[name]:
             print("| %s | %d | %.4f | %.2f | %.2f | %.4f |" % (name, n, e, cpu, wall,
                                                            e * math.sqrt(cpu)))
     print()
-    print("| error level (Cycles at spp) | relative RMSE | Cycles CPU s | dofarm CPU s "
-          "| **ratio CPU** | ratio wall |")
+    print("| error level (Cycles at spp) | %s | Cycles CPU s | dofarm CPU s "
+          "| **ratio CPU** | ratio wall |" % metric)
     print("| --- | --- | --- | --- | --- | --- |")
     d_cpu = [(e, cpu) for _, e, cpu, _ in rows["dofarm"]]
     d_wall = [(e, wall) for _, e, _, wall in rows["dofarm"]]
@@ -107,6 +126,5 @@ def main():
         t_wall = time_at_error(d_wall, e)
         print("| %d | %.4f | %.2f | %.2f | **%.2f** | %.2f |" % (n, e, cpu, t_cpu, t_cpu / cpu,
                                                                  t_wall / wall))
-
 
 main()
