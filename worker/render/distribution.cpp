@@ -50,13 +50,9 @@ size_t Distribution1D::find_cell(float u) const {
   return i;
 }
 
-size_t Distribution1D::prefetch(float u) const {
-  if (guide_.empty()) return 0;
+void Distribution1D::prefetch(float u) const {
   const double x = double(u) * double(guide_.size());
-  const size_t i = guide_[x > 0 ? std::min(guide_.size() - 1, size_t(x)) : 0];
-  __builtin_prefetch(&cdf_[i]);
-  __builtin_prefetch(&cdf_[i + 1]);  // may be the next line
-  return i;
+  __builtin_prefetch(&guide_[x > 0 ? std::min(guide_.size() - 1, size_t(x)) : 0]);
 }
 
 float Distribution1D::pmf(size_t i) const { return float(cdf_[i + 1] - cdf_[i]); }
@@ -109,10 +105,10 @@ Vec2 Distribution2D::sample(Vec2 u, float* pdf_out, size_t* cell) const {
   return {x, y};
 }
 
-size_t Distribution2D::prefetch(Vec2 u) const {
+void Distribution2D::prefetch(Vec2 u) const {
   size_t row;
   marginal_.sample_continuous(u.y, nullptr, &row);  // small, so in the cache
-  return row * size_t(nu_) + conditional_[row].prefetch(u.x);
+  conditional_[row].prefetch(u.x);
 }
 
 float Distribution2D::pdf(Vec2 p) const {

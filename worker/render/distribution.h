@@ -31,13 +31,8 @@ class Distribution1D {
   // Continuous over [0,1): density pdf (relative to the uniform density).
   float sample_continuous(float u, float* pdf, size_t* cell = nullptr) const;
   float pdf(float x) const;
-  // A hint: starts loading what sample_*(u) will read first, and returns the
-  // cell the search will start from (the guide entry; the cell found is at
-  // most a few cells further, usually in the same cache line). It reads the
-  // guide entry, so call it well before sampling (a ray traversal before):
-  // that one miss then overlaps other work, and sampling finds the CDF in
-  // the cache instead of waiting on two dependent misses.
-  size_t prefetch(float u) const;
+  // A hint: starts loading what sample_*(u) will read first.
+  void prefetch(float u) const;
 
  private:
   size_t find_cell(float u) const;
@@ -60,10 +55,8 @@ class Distribution2D {
   // (a caller's lookup by cell can start while they are computed).
   Vec2 sample(Vec2 u, float* pdf, size_t* cell = nullptr) const;
   float pdf(Vec2 p) const;
-  // A hint: starts loading the row's tables that sample(u) will read, and
-  // returns the cell (row * nu + column) the column search starts from, so
-  // a caller can prefetch its own per-cell data.
-  size_t prefetch(Vec2 u) const;
+  // A hint: starts loading the row's table that sample(u) will read.
+  void prefetch(Vec2 u) const;
 
  private:
   std::vector<Distribution1D> conditional_;

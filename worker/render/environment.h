@@ -33,15 +33,11 @@ class Environment {
 
   Vec3 eval(Vec3 dir) const;
   EnvSample sample(Vec2 u) const;
-  // Hints: start loading what sample(u), and eval(dir) for a ray that
-  // escapes, will read (the map's tables are larger than the caches). A
-  // caller that calls them before tracing a ray hides the misses behind the
-  // traversal.
+  // A hint: starts loading what sample(u) will read first (the map's tables
+  // are larger than the caches; a caller with other work to do before it
+  // samples can hide that wait).
   void prefetch_sample(Vec2 u) const {
-    if (!texels_.empty()) __builtin_prefetch(&texels_[distribution_.prefetch(u)]);
-  }
-  void prefetch_eval(Vec3 dir) const {
-    if (!texels_.empty()) __builtin_prefetch(&texel(dir_to_uv(dir)));
+    if (!texels_.empty()) distribution_.prefetch(u);
   }
   float pdf(Vec3 dir) const;
   // eval() and pdf() at once, from one direction-to-texel mapping and one

@@ -34,22 +34,6 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
   Vec3 prev_p;
   const Environment* env = scene.environment();
 
-  // The light sample of the next vertex is drawn before its ray is traced
-  // (the same sampler slots, in the same order, as drawing it after), so
-  // the tables it reads in an environment map can load while the ray
-  // traverses the BVH; so can the texel an escaping ray will read.
-  float u_select = 0;
-  Vec2 u_light;
-  // Camera rays are coherent: the texels their neighbours read are cached.
-  auto before_trace = [&](int next_depth) {
-    if (env && next_depth > 0) env->prefetch_eval(ray.d);
-    if (next_depth >= settings.max_depth) return;  // no NEE there
-    u_select = sampler.get1d();
-    u_light = sampler.get2d();
-    if (use_nee) scene.prefetch_light_sample(u_select, u_light);
-  };
-  before_trace(0);
-
   for (int depth = 0;; ++depth) {
     SurfaceHit hit;
     bool found = scene.intersect(ray, &hit);
@@ -80,6 +64,11 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
 
     // A fixed number of dimensions per bounce keeps the sample streams of
     // different paths aligned (better stratification with Sobol').
+    const float u_select = sampler.get1d();
+    const Vec2 u_light = sampler.get2d();
+    // Sampling an environment map waits on memory; the work up to
+    // sample_light() below hides part of that wait.
+    if (use_nee) scene.prefetch_light_sample(u_select, u_light);
     const float u_lobe = sampler.get1d();
     const Vec2 u_bsdf = sampler.get2d();
     const bool roulette = depth + 1 >= settings.rr_start_depth;
@@ -128,7 +117,6 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
       beta = beta / survive;
     }
     ray = {scene.offset_origin(hit, bs.wi), bs.wi};
-    before_trace(depth + 1);
   }
   if (!is_finite(L) || L.x < 0 || L.y < 0 || L.z < 0) return Vec3(0);
   return L;
