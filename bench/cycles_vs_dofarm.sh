@@ -5,8 +5,9 @@
 #
 # usage: bench/cycles_vs_dofarm.sh [BUILD_DIR] [OUT_DIR]
 #   env: SPP (16,32,64,128,256), REF_SPP (4096), THREADS (2), REPEATS (1),
+#        CYCLES_CLAMP=1 for Blender's default clamp and filter glossy (biased),
 #        KEEP_REF=1 to reuse a Cycles reference already in OUT_DIR (dofarm's is
-#        always rendered again: it is what changes)
+#        rendered again: it is what changes), KEEP_REF=2 to reuse both
 #
 # Each renderer renders the spp list (REPEATS times, alternating Cycles and
 # dofarm; the fastest time of each is kept) and a reference at REF_SPP with
@@ -28,6 +29,7 @@ mkdir -p "$out"
 # The camera of cornell_dof.toml, for Blender.
 camera=(--position 0.15 1.02 3.75 --look-at 0 1 0 --fov 38 --focus 4.9 --aperture 0.0261379
         --max-bounces 15 --size 256)
+[[ "${CYCLES_CLAMP:-0}" == 1 ]] && camera+=(--blender-clamp)
 
 cycles() {  # cycles SEED PREFIX SPP_LIST
   blender -b --factory-startup --python "$root/bench/cycles/render_cornell.py" -- \
@@ -38,12 +40,15 @@ dofarm() {  # dofarm SEED PREFIX SPP_LIST
   "$build/bench/render_spp" --job "$job" --threads "$threads" --seed "$1" --out "$2" --spp "$3"
 }
 
-if [[ "${KEEP_REF:-0}" != 1 || ! -f "$out/cycles_ref$ref.pfm" ]]; then
+keep=${KEEP_REF:-0}
+if [[ "$keep" == 0 || ! -f "$out/cycles_ref$ref.pfm" ]]; then
   echo "Cycles reference, $ref spp" >&2
   cycles 1001 "$out/cycles_ref" "$ref" >/dev/null
 fi
-echo "dofarm reference, $ref spp" >&2
-dofarm 1001 "$out/dofarm_ref" "$ref" >/dev/null
+if [[ "$keep" != 2 || ! -f "$out/dofarm_ref$ref.pfm" ]]; then
+  echo "dofarm reference, $ref spp" >&2
+  dofarm 1001 "$out/dofarm_ref" "$ref" >/dev/null
+fi
 : >"$out/cycles_times.txt"
 : >"$out/dofarm_times.txt"
 for ((r = 0; r < repeats; ++r)); do
