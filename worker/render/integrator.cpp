@@ -107,7 +107,12 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
     prev_p = hit.p;
 
     if (roulette) {
-      float survive = std::min(1.0f, max_component(beta));
+      // A weight window's lower bound (Vorba and Krivanek 2016, sec. 4, with
+      // a constant window and no splitting): a path whose throughput is at
+      // least rr_threshold always continues; below it, it survives with
+      // probability max(beta) / rr_threshold and is then weighted up to the
+      // threshold, so the expectation is unchanged (E[beta'] = q beta / q).
+      const float survive = std::min(1.0f, max_component(beta) / settings.rr_threshold);
       if (u_rr >= survive) break;
       beta = beta / survive;
     }

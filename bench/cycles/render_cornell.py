@@ -1,0 +1,186 @@
+# Renders dofarm's Cornell box with Blender Cycles at several sample counts,
+# for bench/cycles_vs_dofarm.sh. Blender is a benchmark tool here, never a
+# dependency of dofarm.
+#
+#   blender -b --factory-startup --python bench/cycles/render_cornell.py -- \
+#       --gltf jobs/scenes/cornell.gltf --out PREFIX --spp 16,32,64 [--seed 0] \
+#       [--threads 2] [--size 256] [--position 0.15 1.02 3.75] \
+#       [--look-at 0 1 0] [--fov 38] [--focus 4.9] [--aperture 0.0261379] \
+#       [--max-bounces 15]
+#
+# Camera values are in glTF coordinates (+y up) and dofarm's units, as in
+# bench/cycles/cornell_dof.toml: --fov is the vertical field of view in
+# degrees, --aperture the lens radius, --focus the distance of the focal
+# plane along the viewing axis (dofarm's focal_distance; Blender's focus
+# distance is measured the same way).
+#
+# Settings chosen to match dofarm's renderer: no denoising, no adaptive
+# sampling, box pixel filter 1 pixel wide, no clamping, no glossy blur (with
+# --blender-clamp: Blender's defaults, indirect clamp 10 and filter glossy 1),
+# caustics on, one tile for the whole image, a fixed number of threads.
+# dofarm's max_depth counts surface interactions after the camera; its last
+# one only adds emission, so max_depth D traces the light paths of
+# Cycles' max_bounces D - 1 (direct light is bounce 0 in Cycles).
+#
+# Writes PREFIX<N>.pfm (linear RGB, rows bottom-up) and prints one line per
+# render: "spp N cpu_s C wall_s W". The times are of bpy.ops.render.render(),
+# after a warm-up render at 1 spp (untimed); scene import is not counted, the
+# scene sync and BVH build of each render are (about 0.01 s here, under 1% of
+# the 16 spp render).
+import argparse
+import math
+import os
+import struct
+import sys
+import time
+
+import bpy
+from mathutils import Vector
+
+
+def parse_args():
+    argv = sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else []
+    p = argparse.ArgumentParser(prog="render_cornell.py")
+    p.add_argument("--gltf", required=True)
+    p.add_argument("--out", required=True)
+    p.add_argument("--spp", required=True)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--size", type=int, default=256)
+    p.add_argument("--position", type=float, nargs=3, default=[0.15, 1.02, 3.75])
+    p.add_argument("--look-at", type=float, nargs=3, default=[0.0, 1.0, 0.0])
+    p.add_argument("--fov", type=float, default=38.0)
+    p.add_argument("--focus", type=float, default=4.9)
+    p.add_argument("--aperture", type=float, default=0.0261379)
+    p.add_argument("--max-bounces", type=int, default=15)
+    # Blender's defaults for clamping (indirect 10) and filter glossy (1.0):
+    # less noise, but biased; what a Blender user renders with.
+    p.add_argument("--blender-clamp", action="store_true")
+    return p.parse_args(argv)
+
+
+def gltf_to_blender(v):
+    # The glTF importer turns +y up into Blender's +z up: (x, y, z) -> (x, -z, y).
+    return Vector((v[0], -v[2], v[1]))
+
+
+def setup(args):
+    # Blender 3.4's glTF importer uses np.bool, which numpy >= 1.24 (Debian
+    # 12's python3-numpy, which the importer needs) no longer has.
+    import numpy
+    if not hasattr(numpy, "bool") or numpy.bool is not bool:
+        try:
+            numpy.bool = bool
+        except AttributeError:
+            pass
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.import_scene.gltf(filepath=os.path.abspath(args.gltf))
+    scene = bpy.context.scene
+
+    # Camera: vertical fit on a 36 mm sensor, so lens = 18 mm / tan(fov / 2)
+    # and Cycles' aperture radius lens / (2 N) equals --aperture.
+    cam_data = bpy.data.cameras.new("bench_camera")
+    cam_data.sensor_fit = "VERTICAL"
+    cam_data.sensor_height = 36.0
+    cam_data.lens = 18.0 / math.tan(math.radians(args.fov) / 2)
+    cam_data.clip_start = 1e-3
+    cam_data.clip_end = 1e4
+    cam_data.dof.use_dof = args.aperture > 0
+    cam_data.dof.focus_distance = args.focus
+    if args.aperture > 0:
+        cam_data.dof.aperture_fstop = cam_data.lens * 1e-3 / (2.0 * args.aperture)
+    cam_data.dof.aperture_blades = 0  # a disk, as dofarm's concentric mapping
+    cam_data.dof.aperture_ratio = 1.0
+    cam = bpy.data.objects.new("bench_camera", cam_data)
+    scene.collection.objects.link(cam)
+    pos = gltf_to_blender(args.position)
+    target = gltf_to_blender(args.look_at)
+    cam.location = pos
+    # Blender cameras look down local -z with local +y up; world up is +z.
+    cam.rotation_mode = "QUATERNION"
+    cam.rotation_quaternion = (target - pos).to_track_quat("-Z", "Y")
+    scene.camera = cam
+
+    r = scene.render
+    r.engine = "CYCLES"
+    r.resolution_x = args.size
+    r.resolution_y = args.size
+    r.resolution_percentage = 100
+    r.threads_mode = "FIXED"
+    r.threads = args.threads
+    # Not persistent data: with it, Blender 3.4 re-renders nothing when only
+    # the sample count changes, and returns the previous image in a fraction
+    # of the time (found by comparing images). Without it each render syncs the
+    # scene again, which on this scene costs about 0.01 s of a 0.2 s sample.
+    r.use_persistent_data = False
+    r.film_transparent = False
+    r.image_settings.file_format = "OPEN_EXR"
+    r.image_settings.color_depth = "32"
+    r.image_settings.exr_codec = "NONE"
+    scene.view_settings.view_transform = "Standard"
+    scene.view_settings.look = "None"
+    scene.view_settings.exposure = 0.0
+    scene.view_settings.gamma = 1.0
+
+    c = scene.cycles
+    c.device = "CPU"
+    c.use_denoising = False
+    c.use_adaptive_sampling = False
+    c.use_auto_tile = False  # one tile: the whole 256x256 image
+    c.max_bounces = args.max_bounces
+    c.diffuse_bounces = args.max_bounces
+    c.glossy_bounces = args.max_bounces
+    c.transmission_bounces = args.max_bounces
+    c.volume_bounces = 0
+    c.transparent_max_bounces = args.max_bounces
+    c.sample_clamp_direct = 0.0
+    c.sample_clamp_indirect = 10.0 if args.blender_clamp else 0.0
+    c.blur_glossy = 1.0 if args.blender_clamp else 0.0
+    c.caustics_reflective = True
+    c.caustics_refractive = True
+    c.pixel_filter_type = "BOX"
+    c.filter_width = 1.0
+    c.film_exposure = 1.0
+    # No world light: dofarm renders the Cornell box without an environment.
+    if scene.world is None:
+        scene.world = bpy.data.worlds.new("black")
+    scene.world.use_nodes = False
+    scene.world.color = (0.0, 0.0, 0.0)
+    return scene
+
+
+def write_pfm(path, exr_path, size):
+    img = bpy.data.images.load(exr_path)
+    px = list(img.pixels)  # RGBA floats, rows from the bottom up, as PFM
+    bpy.data.images.remove(img)
+    rgb = [0.0] * (size * size * 3)
+    rgb[0::3] = px[0::4]
+    rgb[1::3] = px[1::4]
+    rgb[2::3] = px[2::4]
+    with open(path, "wb") as f:
+        f.write(b"PF\n%d %d\n-1.0\n" % (size, size))
+        f.write(struct.pack("<%df" % len(rgb), *rgb))
+
+
+def render(scene, spp, seed):
+    scene.cycles.samples = spp
+    scene.cycles.seed = seed
+    c0, w0 = time.process_time(), time.perf_counter()
+    bpy.ops.render.render(write_still=False)
+    return time.process_time() - c0, time.perf_counter() - w0
+
+
+def main():
+    args = parse_args()
+    scene = setup(args)
+    render(scene, 1, args.seed)  # warm-up: kernels, caches
+    for spp in [int(s) for s in args.spp.split(",")]:
+        cpu, wall = render(scene, spp, args.seed)
+        exr = os.path.abspath(args.out + "%d.exr" % spp)
+        bpy.data.images["Render Result"].save_render(exr)
+        write_pfm(args.out + "%d.pfm" % spp, exr, args.size)
+        os.remove(exr)
+        print("spp %d cpu_s %.3f wall_s %.3f" % (spp, cpu, wall), flush=True)
+
+
+main()
