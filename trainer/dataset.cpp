@@ -140,7 +140,10 @@ SequenceStream::SequenceStream(fs::path data_dir, fs::path run_dir, DataConfig d
       known_splits_[sp.key] = sp;
     }
   }
+  const bool fresh_split = known_splits_.empty() && legacy_splits_.empty();
   rescan();
+  if (fresh_split && data_.val_fraction > 0 && data_.split == SplitMode::kFrames)
+    ensure_one_validation_sequence();
   {
     // What the split came to: whole sequences on each side.
     int train_seq = 0, val_seq = 0;
@@ -250,6 +253,34 @@ void SequenceStream::rescan() {
               [](const auto& a, const auto& b) { return a->split.file < b->split.file; });
   }
   spdlog::info("data: {} new shard(s), {} in total", added.size(), shards_.size());
+  save_splits();
+}
+
+void SequenceStream::ensure_one_validation_sequence() {
+  // A new run whose draws gave no validation sequence at all (a few short
+  // shards) takes one from the shard with the lowest draw that keeps a
+  // training sequence, so that validation and eval have something to score.
+  std::shared_ptr<const Shard> pick;
+  double best = 2;
+  {
+    std::lock_guard lock(mu_);
+    for (const auto& sh : shards_) {
+      if (sh->split.val_end > sh->split.val_begin) return;  // there is one already
+      if (sh->split.frames / data_.sequence < 2) continue;
+      const double u = double(hash_name(sh->split.key) >> 11) / double(uint64_t(1) << 53);
+      if (u < best) best = u, pick = sh;
+    }
+    if (!pick) return;
+    auto changed = std::make_shared<Shard>(*pick);
+    changed->split.train_end = changed->split.frames - data_.sequence;
+    changed->split.val_begin = changed->split.train_end;
+    changed->split.val_end = changed->split.frames;
+    known_splits_[changed->split.key] = changed->split;
+    for (auto& sh : shards_)
+      if (sh == pick) sh = changed;
+  }
+  spdlog::info("split: no shard drew a validation sequence; {} gives its last {} frames",
+               pick->split.file, data_.sequence);
   save_splits();
 }
 

@@ -111,6 +111,7 @@ class SequenceStream {
   // make_sample(), dropping (and logging) a shard that fails while read.
   Sample make_sample_dropping_bad_shards(uint64_t index, bool validation);
   void save_splits() const;
+  void ensure_one_validation_sequence();
 
   std::filesystem::path data_dir_, run_dir_;
   DataConfig data_;

@@ -100,6 +100,28 @@ TEST(SequenceStream, SplitIsKeyedByShardContent) {
   EXPECT_EQ(load_split_file(run).size(), 2u);
 }
 
+// A new run on a few short shards still gets one validation sequence.
+TEST(SequenceStream, ANewRunHasAtLeastOneValidationSequence) {
+  fs::path data = fresh_dir("ds_one_val_data"), run = fresh_dir("ds_one_val_run");
+  for (int i = 0; i < 2; ++i)
+    testing::write_synthetic_shard(data / ("shard-0000" + std::to_string(i) + ".h5"), 8, 48, 48, 2,
+                                   40 + i);
+  DataConfig d = small_data();  // sequence 4: two sequences per shard
+  d.val_fraction = 0.001f;
+  std::vector<ShardSplit> first;
+  {
+    SequenceStream s(data, run, d, true, 1);
+    first = s.splits();
+  }
+  int val = 0;
+  for (const ShardSplit& sp : first) val += (sp.val_end - sp.val_begin) / d.sequence;
+  EXPECT_EQ(val, 1);
+  EXPECT_FALSE(SequenceStream(data, run, d, true, 1).validation(1).empty());
+  // Resumed, the split is the recorded one.
+  SequenceStream again(data, run, d, true, 1);
+  EXPECT_EQ(again.splits(), first);
+}
+
 TEST(SequenceStream, HoldsAtMostQueueSamplesWhateverTheData) {
   fs::path data = fresh_dir("ds_bound_data"), run = fresh_dir("ds_bound_run");
   for (int i = 0; i < 3; ++i)
