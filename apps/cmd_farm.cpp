@@ -86,9 +86,19 @@ void add_curve_client_option(CLI::App* cmd, std::string& file) {
       ->type_name("FILE");
 }
 
+// A ZeroMQ endpoint needs its transport: "127.0.0.1:5555" alone would reach
+// ZeroMQ and come back as "Invalid argument".
+const CLI::Validator kEndpoint(
+    [](std::string& s) -> std::string {
+      if (s.find("://") != std::string::npos) return "";
+      return "expected an endpoint with its transport, e.g. tcp://" + s + " (got " + s + ")";
+    },
+    "ENDPOINT");
+
 void add_coordinator_option(CLI::App* cmd, CoordinatorArgs& c) {
   cmd->add_option("--coordinator", c.endpoint, "the coordinator's endpoint")
       ->type_name("tcp://HOST:PORT")
+      ->check(kEndpoint)
       ->required();
   cmd->add_option("--curve-public", c.curve_public,
                   "the coordinator's CURVE public key file, when it has one")
@@ -168,7 +178,8 @@ Command add_run_impl(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--threads", a->threads,
                   "render threads per worker; 0 = cores / workers (at least 1)")
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check(CLI::Range(0, 4096));
   cmd->add_option("--lease", a->lease_seconds, "task lease in seconds")->capture_default_str();
   add_set_option(cmd, *sets);
   return {cmd, [a, sets, job, out, &app]() {
@@ -209,7 +220,9 @@ Command add_coordinator(CLI::App& app) {
   };
   auto a = std::make_shared<Args>();
   CLI::App* cmd = app.add_subcommand("coordinator", "Run the farm's coordinator");
-  cmd->add_option("--listen", a->listen, "ZeroMQ endpoint to bind")->capture_default_str();
+  cmd->add_option("--listen", a->listen, "ZeroMQ endpoint to bind")
+      ->capture_default_str()
+      ->check(kEndpoint);
   cmd->add_option("--state", a->state, "folder of the job store (resumes what is there)")
       ->type_name("DIR")
       ->required();
@@ -250,9 +263,12 @@ Command add_worker(CLI::App& app) {
   auto key_pair = std::make_shared<std::string>();
   CLI::App* cmd = app.add_subcommand("worker", "Run a render worker");
   cmd->add_option("--connect", o->endpoint, "the coordinator's endpoint")
+      ->check(kEndpoint)
       ->type_name("tcp://HOST:PORT")
       ->required();
-  cmd->add_option("--threads", o->threads, "render threads; 0 = all cores")->capture_default_str();
+  cmd->add_option("--threads", o->threads, "render threads; 0 = all cores")
+      ->capture_default_str()
+      ->check(CLI::Range(0, 4096));
   cmd->add_option("--curve-public", *curve, "the coordinator's CURVE public key file")
       ->type_name("FILE");
   add_curve_client_option(cmd, *key_pair);
@@ -339,6 +355,10 @@ Command add_status(CLI::App& app) {
                 checked(call_coordinator(a->coordinator.client(), protocol::encode("status", req)));
             r.body.erase("v");
             r.body.erase("type");
+            // One batch asked for and none came back: it does not exist.
+            if (!a->batch.empty() && r.body.value("batches", Json::array()).empty() &&
+                r.body.value("batches_omitted", 0) == 0)
+              throw SpecError(FileLoc{}, "batch", "no batch " + a->batch + " on this coordinator");
             if (a->json)
               std::cout << r.body.dump(2) << std::endl;
             else
@@ -361,8 +381,12 @@ Command add_batch_op(CLI::App& app, const char* name, const char* help) {
   return {cmd, [a, type]() {
             auto r = checked(call_coordinator(a->coordinator.client(),
                                               protocol::encode(type, {{"batch", a->batch}})));
+            // A refusal (no such batch, nothing to resume) is an error on
+            // stderr like every other, not a line on stdout.
+            if (!r.body.value("ok", false))
+              throw SpecError(FileLoc{}, "batch", r.body.value("message", std::string("refused")));
             std::cout << r.body.value("message", std::string()) << std::endl;
-            return r.body.value("ok", false) ? kExitOk : kExitBadInput;
+            return kExitOk;
           }};
 }
 }  // namespace

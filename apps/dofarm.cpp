@@ -98,7 +98,7 @@ Command add_render(CLI::App& app) {
       ->required();
   cmd->add_option("--threads", args->threads, "render threads; 0 = all hardware threads")
       ->type_name("N")
-      ->check(CLI::NonNegativeNumber)
+      ->check(CLI::Range(0, 4096))
       ->capture_default_str();
   add_set_option(cmd, args->sets);
 

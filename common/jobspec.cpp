@@ -131,6 +131,9 @@ struct IntRange {
   }
 };
 
+// The largest lens radius (`aperture`) a spec may give, in scene units.
+constexpr double kMaxLensRadius = 1e6;
+
 struct Interval {
   double lo, hi;
   bool lo_open, hi_open;
@@ -147,6 +150,9 @@ struct Interval {
   }
   static Interval non_negative() {
     return {0, std::numeric_limits<double>::infinity(), false, true, "a non-negative number"};
+  }
+  static Interval closed(double lo, double hi, std::string what) {
+    return {lo, hi, false, false, std::move(what)};
   }
   static Interval open(double lo, double hi) {
     return {lo, hi, true, true, fmt::format("a number in ({}, {})", lo, hi)};
@@ -392,7 +398,11 @@ void read_frames(const Section& s, JobSpec& spec) {
 // The lens and focus keys of one camera key (jobs/README.md, "Lens and focus").
 void read_lens(const Section& s, CameraKey& key) {
   s.exclusive("aperture", "fstop");
-  if (auto v = s.number("aperture", Interval::non_negative())) key.aperture = float(*v);
+  // At most 1e6 scene units (1000 km in metres): a radius near float's limit
+  // would push lens-ray origins to Inf.
+  if (auto v = s.number("aperture", Interval::closed(0, kMaxLensRadius,
+                                                     "a lens radius in [0, 1e6] scene units")))
+    key.aperture = float(*v);
   if (auto v = s.number("fstop", Interval::positive())) key.fstop = float(*v);
   for (std::string_view k : {"focal_length", "sensor_width"}) {
     if (s.find(k) && !s.find("fstop")) {

@@ -2,6 +2,8 @@
 // and bad job specs refused before anything is written or submitted.
 #include <gtest/gtest.h>
 
+#include <fstream>
+
 #include "tests/farm/farm_fixtures.h"
 
 namespace dofarm::farm_testing {
@@ -101,6 +103,38 @@ TEST(FarmRun, StopsWhenEveryWorkerIsBlocklisted) {
   EXPECT_EQ(r.status, 1) << r.out << r.err;
   EXPECT_NE(r.err.find("blocklisted"), std::string::npos) << r.err;
   EXPECT_FALSE(fs::exists(tmp / "out" / "manifest.json"));
+}
+
+// A batch that does not exist: status, cancel and resume exit 2 with one
+// "dofarm: error:" line on stderr and nothing on stdout.
+TEST(FarmCli, UnknownBatchIsAnErrorOnStderr) {
+  TempDir tmp;
+  CoordinatorProcess coord(tmp.path(), "coordinator", tmp / "state", 5);
+  for (const std::string op : {"status", "cancel", "resume"}) {
+    CliResult r = run_cli(tmp.path(), op, {op, "b-nope", "--coordinator", coord.endpoint()});
+    EXPECT_EQ(r.status, 2) << op << ": " << r.out << r.err;
+    EXPECT_EQ(r.out, "") << op;
+    EXPECT_NE(r.err.find("dofarm: error:"), std::string::npos) << op << ": " << r.err;
+    EXPECT_NE(r.err.find("b-nope"), std::string::npos) << op << ": " << r.err;
+  }
+}
+
+// Small CLI manners: an endpoint without its transport and a negative
+// thread count are bad input with a short message that says what to write.
+TEST(FarmCli, EndpointWithoutTransportAndNegativeThreadsSayWhatToWrite) {
+  TempDir tmp;
+  CliResult r = run_cli(tmp.path(), "status", {"status", "--coordinator", "127.0.0.1:15555"});
+  EXPECT_EQ(r.status, 2) << r.err;
+  EXPECT_NE(r.err.find("tcp://127.0.0.1:15555"), std::string::npos) << r.err;
+  r = run_cli(tmp.path(), "worker", {"worker", "--connect", "127.0.0.1:15555"});
+  EXPECT_EQ(r.status, 2) << r.err;
+  std::ofstream(tmp / "spec.toml") << "scene = \"nothing.gltf\"\n";
+  r = run_cli(tmp.path(), "render",
+              {"render", (tmp / "spec.toml").string(), "--frame", "0", "--out",
+               (tmp / "x.exr").string(), "--threads", "-2"});
+  EXPECT_EQ(r.status, 2) << r.err;
+  EXPECT_LT(r.err.size(), 200u) << r.err;
+  EXPECT_NE(r.err.find("--threads"), std::string::npos) << r.err;
 }
 
 }  // namespace
