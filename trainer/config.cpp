@@ -371,17 +371,10 @@ std::string incompatible_reason(const TrainConfig& saved_in, const TrainConfig& 
   std::string reason;
   for (size_t i = 0; i < a.size(); ++i) {
     if (!a[i].affects_model) continue;
-    toml::table ta, tb;
-    a[i].write(ta, "v");
-    b[i].write(tb, "v");
-    std::ostringstream sa, sb;
-    sa << ta;
-    sb << tb;
-    if (sa.str() != sb.str()) {
-      std::string va = sa.str().substr(4), vb = sb.str().substr(4);
+    const std::string va = value_text(a[i]), vb = value_text(b[i]);
+    if (va != vb)
       reason +=
           (reason.empty() ? "" : "; ") + a[i].key + " is " + va + " in the run but " + vb + " now";
-    }
   }
   return reason;
 }

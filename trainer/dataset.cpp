@@ -33,6 +33,12 @@ uint64_t hash_name(const std::string& s) {  // FNV-1a, stable across platforms
   return mix(h);
 }
 
+// A uniform number in [0, 1) drawn from a shard's content key, the same on
+// every machine: what decides its split.
+double content_draw(const std::string& key) {
+  return double(hash_name(key) >> 11) / double(uint64_t(1) << 53);
+}
+
 // A shard failed while being read (damaged chunk, vanished file): the shard
 // is dropped and the sample drawn again from the others.
 struct ShardReadFailure : RuntimeError {
@@ -53,8 +59,7 @@ ShardSplit assign_split(const std::string& file, const std::string& key, int fra
   s.frames = frames;
   s.train_end = frames;
   if (data.val_fraction <= 0) return s;
-  // A uniform number in [0, 1) from the content, the same on every machine.
-  const double u = double(hash_name(key) >> 11) / double(uint64_t(1) << 53);
+  const double u = content_draw(key);
   if (data.split == SplitMode::kShard) {
     if (u < data.val_fraction) {
       s.train_end = 0;
@@ -267,7 +272,7 @@ void SequenceStream::ensure_one_validation_sequence() {
     for (const auto& sh : shards_) {
       if (sh->split.val_end > sh->split.val_begin) return;  // there is one already
       if (sh->split.frames / data_.sequence < 2) continue;
-      const double u = double(hash_name(sh->split.key) >> 11) / double(uint64_t(1) << 53);
+      const double u = content_draw(sh->split.key);
       if (u < best) best = u, pick = sh;
     }
     if (!pick) return;

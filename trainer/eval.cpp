@@ -223,9 +223,14 @@ EvalSummary evaluate(const EvalOptions& o) {
       if (images < o.max_images) {
         char name[64];
         std::snprintf(name, sizeof name, "frame-%03d.png", images);
-        write_comparison_png(o.out_dir / name, noisy, out, fb.reference, w, h);
-        strips.push_back({file, reader.info().frame_start + f, w, h,
-                          comparison_png_bytes(noisy, out, fb.reference, w, h)});
+        // Encoded once: the same bytes go to the file and into report.html.
+        std::string png = comparison_png_bytes(noisy, out, fb.reference, w, h);
+        {
+          std::ofstream f(o.out_dir / name, std::ios::binary);
+          f << png;
+          if (!f) throw RuntimeError((o.out_dir / name).string() + ": cannot write PNG");
+        }
+        strips.push_back({file, reader.info().frame_start + f, w, h, std::move(png)});
         ++images;
       }
       ++done;
@@ -301,17 +306,24 @@ EvalSummary evaluate(const EvalOptions& o) {
      << "| scene | input | SSIM all | SSIM in focus | SSIM out of focus | PSNR all (dB) | "
         "PSNR in | PSNR out | relMSE all | relMSE in | relMSE out | ms/frame |\n"
      << "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n";
-  auto table_rows = [&](const std::string& name, const Accumulator& a) {
+  // The table's cells, one row per (scene, input), for report.md and report.html.
+  std::vector<std::vector<std::string>> summary_rows;
+  auto add_rows = [&](const std::string& name, const Accumulator& a) {
     for (int k = 0; k < 2; ++k) {
-      md << "| " << name << " (" << a.frames << " frames) | "
-         << (k == 0 ? "noisy (1 spp)" : "denoised");
+      std::vector<std::string> row = {name + " (" + std::to_string(a.frames) + " frames)",
+                                      k == 0 ? "noisy (1 spp)" : "denoised"};
       for (int m = 0; m < 3; ++m)
-        for (int r = 0; r < 3; ++r) md << " | " << cell(mean_of(a.v[k][r][m]), m == 1 ? 2 : 4);
-      md << " | " << (k == 1 ? cell(mean_of(a.ms), 2) : std::string("–")) << " |\n";
+        for (int r = 0; r < 3; ++r) row.push_back(cell(mean_of(a.v[k][r][m]), m == 1 ? 2 : 4));
+      row.push_back(k == 1 ? cell(mean_of(a.ms), 2) : std::string("–"));
+      summary_rows.push_back(std::move(row));
     }
   };
-  for (const auto& [name, a] : by_scene) table_rows(name.empty() ? "(unnamed)" : name, a);
-  if (by_scene.size() > 1) table_rows("all scenes", all);
+  for (const auto& [name, a] : by_scene) add_rows(name.empty() ? "(unnamed)" : name, a);
+  if (by_scene.size() > 1) add_rows("all scenes", all);
+  for (const auto& row : summary_rows) {
+    for (const std::string& c : row) md << "| " << c << " ";
+    md << "|\n";
+  }
   md << "\nMean denoise time: " << cell(sum.ms, 2) << " ms per frame.\n\n"
      << "![loss per epoch](loss.svg)\n\n![loss per step](steps.svg)\n\n![learning rate](lr.svg)\n\n![validation SSIM and PSNR](quality.svg)\n\n"
      << "Comparison images (`frame-NNN.png`): noisy | denoised | reference | error "
@@ -353,18 +365,11 @@ EvalSummary evaluate(const EvalOptions& o) {
           "<th>SSIM all</th><th>SSIM in focus</th><th>SSIM out of focus</th><th>PSNR all (dB)</th>"
           "<th>PSNR in (dB)</th><th>PSNR out (dB)</th><th>relMSE all</th><th>relMSE in</th>"
           "<th>relMSE out</th><th>ms/frame</th></tr>";
-  auto html_rows = [&](const std::string& name, const Accumulator& a) {
-    for (int k = 0; k < 2; ++k) {
-      html << "<tr><td>" << html_escape(name) << " (" << a.frames << " frames)</td><td>"
-           << (k == 0 ? "noisy (1 spp)" : "denoised") << "</td>";
-      for (int m = 0; m < 3; ++m)
-        for (int r = 0; r < 3; ++r)
-          html << "<td>" << cell(mean_of(a.v[k][r][m]), m == 1 ? 2 : 4) << "</td>";
-      html << "<td>" << (k == 1 ? cell(mean_of(a.ms), 2) : std::string("–")) << "</td></tr>";
-    }
-  };
-  for (const auto& [name, a] : by_scene) html_rows(name.empty() ? "(unnamed)" : name, a);
-  if (by_scene.size() > 1) html_rows("all scenes", all);
+  for (const auto& row : summary_rows) {
+    html << "<tr>";
+    for (const std::string& c : row) html << "<td>" << html_escape(c) << "</td>";
+    html << "</tr>";
+  }
   html << "</table><h2>Training</h2>" << loss_svg << step_svg << lr_svg << quality_svg
        << "<h2>Comparisons</h2>";
   for (const Strip& st : strips) {

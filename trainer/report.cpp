@@ -23,11 +23,6 @@ namespace dofarm::trainer {
 
 namespace {
 
-void write_png(const std::filesystem::path& path, const std::vector<uint8_t>& rgb, int w, int h) {
-  if (!stbi_write_png(path.string().c_str(), w, h, 3, rgb.data(), w * 3))
-    throw RuntimeError(path.string() + ": cannot write PNG");
-}
-
 uint8_t to_byte(float v) { return uint8_t(std::lround(std::clamp(v, 0.0f, 1.0f) * 255.0f)); }
 
 // Black -> red -> yellow -> white, t in [0, 1].
@@ -74,12 +69,6 @@ std::vector<uint8_t> comparison_rgb(const std::vector<float>& noisy,
 }
 
 }  // namespace
-
-void write_comparison_png(const std::filesystem::path& path, const std::vector<float>& noisy,
-                          const std::vector<float>& denoised, const std::vector<float>& reference,
-                          int w, int h) {
-  write_png(path, comparison_rgb(noisy, denoised, reference, w, h), 4 * w, h);
-}
 
 std::string comparison_png_bytes(const std::vector<float>& noisy, const std::vector<float>& denoised,
                                  const std::vector<float>& reference, int w, int h) {

@@ -9,15 +9,11 @@
 
 namespace dofarm::trainer {
 
-// Writes PNG: noisy | denoised | reference | error, each sRGB-encoded and
-// clamped; the error panel is the mean absolute display-space difference
+// A comparison strip as PNG file bytes (written as frame-NNN.png and embedded
+// in report.html): noisy | denoised | reference | error, each sRGB-encoded
+// and clamped; the error panel is the mean absolute display-space difference
 // between denoised and reference, times 4, on a black-red-yellow-white ramp.
 // All images (3, H, W) linear radiance.
-void write_comparison_png(const std::filesystem::path& path, const std::vector<float>& noisy,
-                          const std::vector<float>& denoised, const std::vector<float>& reference,
-                          int width, int height);
-
-// The same strip as PNG file bytes (for embedding in report.html).
 std::string comparison_png_bytes(const std::vector<float>& noisy, const std::vector<float>& denoised,
                                  const std::vector<float>& reference, int width, int height);
 // The error panel's scale: display-space mean absolute error 0 .. 0.25 on the
