@@ -7,11 +7,19 @@ set -euo pipefail
 
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
-scripts/install-deps.sh
+# DOFARM_ROLES picks what this machine is for (scripts/install-deps.sh): e.g.
+# `DOFARM_ROLES=render scripts/build.sh` on a render node installs and builds
+# neither libtorch nor the tests. Default: all.
+read -r -a roles <<< "${DOFARM_ROLES:-all}"
+scripts/install-deps.sh "${roles[@]}"
+opts=()
+has_role() { printf '%s\n' "${roles[@]}" | grep -qxE "$1"; }
+has_role 'trainer|test|all' || opts+=(-DDOFARM_BUILD_TRAINER=OFF)
+has_role 'test|all' || opts+=(-DDOFARM_BUILD_TESTS=OFF)
 
 # Configure only when there is no build yet: Ninja re-runs CMake by itself when
 # a CMakeLists.txt (or a globbed source list) changes.
 if [ ! -f build/build.ninja ]; then
-  cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=Release
+  cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=Release "${opts[@]}"
 fi
 cmake --build build -j "$(nproc)"
