@@ -215,7 +215,7 @@ foreign=${foreign%%;*}
 # The training job gets its own resources (--train-*); `true` stands in for
 # dofarm-train, which this build may lack.
 batch=$("$dofarm_slurm" submit "$T/job.toml" --workers 2 --out "$out" --dofarm "$dofarm" \
-  --cpus-per-task 1 --endpoint-timeout 60 --train --dofarm-train "$(command -v true)" \
+  --cpus-per-task 1 --endpoint-timeout 60 --train --dofarm-train "$(type -P true)" \
   --train-partition debug --train-cpus-per-task 1 --train-sbatch-arg=--comment=dofarm-train-test) ||
   fail "dofarm-slurm submit failed"
 log "submitted batch $batch"
