@@ -344,7 +344,7 @@ std::vector<MessageDef> make_defs() {
                "a batch's newest events, oldest first, at most ~900 KiB",
                "",
                {batch_id(), array_field("events", 100000, event, "oldest first"),
-                count("events_omitted", "newest-first events left out for the size bound"),
+                count("events_omitted", "events left out (the oldest of those asked for) to keep the reply below its bound"),
                 bool_field("older", "the job store holds older events than these")}});
   d.push_back({"error",
                "coordinator",
