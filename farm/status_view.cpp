@@ -1,6 +1,7 @@
 #include "farm/status_view.h"
 
 #include <fmt/format.h>
+#include <spdlog/spdlog.h>
 
 #include <chrono>
 #include <ctime>
@@ -187,8 +188,23 @@ void watch(const std::function<Json()>& fetch, const WatchOptions& o, std::ostre
     while (!stop && std::chrono::steady_clock::now() < end)
       std::this_thread::sleep_for(std::chrono::milliseconds(50));
   };
+  bool shown = false;
   while (!stop) {
-    const Json st = fetch();
+    Json st;
+    try {
+      st = fetch();
+    } catch (const std::exception& e) {
+      // The first refresh fails as the command without --watch would. Later
+      // a coordinator that restarts or is out of reach for a while is waited
+      // for, as a monitor does; the note goes to the log (stderr), so the
+      // blocks (and JSON lines) stay clean.
+      if (!shown || stop) throw;
+      spdlog::warn("no answer from the coordinator ({}); trying again in {:g} s", e.what(),
+                   o.interval_seconds);
+      wait(o.interval_seconds);
+      continue;
+    }
+    shown = true;
     if (o.json) {
       out << st.dump() << "\n";  // JSON lines: one object per refresh
     } else {

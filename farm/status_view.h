@@ -39,8 +39,10 @@ struct WatchOptions {
 
 // Fetches and prints the status every interval until `stop` is set or the
 // watched batch ends; the last block shows the final state. `fetch` throws
-// on failure (which ends the loop with that exception). `sleep` waits (or
-// returns early when stop is set); injected so tests need not wait.
+// on failure: the first failure ends the loop with that exception, a later
+// one (a coordinator restarting) is logged and tried again next interval.
+// `sleep` waits (or returns early when stop is set); injected so tests need
+// not wait.
 void watch(const std::function<Json()>& fetch, const WatchOptions& options, std::ostream& out,
            const std::atomic<bool>& stop, const std::function<void(double seconds)>& sleep = {});
 

@@ -184,6 +184,30 @@ TEST(StatusWatch, RedrawsOnATerminalAndPrintsBlocksElsewhereUntilTheBatchEnds) {
   EXPECT_EQ(out.str(), "{\"now\":1}\n{\"now\":2}\n");
 }
 
+// A coordinator that stops answering for a while (a restart) does not end
+// a watch; one that never answered does, with its error.
+TEST(StatusWatch, OutlivesACoordinatorRestartButNotAnAbsentCoordinator) {
+  int calls = 0;
+  auto fetch = [&]() -> Json {
+    if (++calls == 2) throw std::runtime_error("coordinator: timed out");
+    return Json{{"now", 1.7e9},
+                {"batches", Json::array({batch_entry(calls < 3 ? "running" : "done", nullptr)})},
+                {"workers", Json::array()}};
+  };
+  std::ostringstream out;
+  std::atomic<bool> stop{false};
+  WatchOptions o;
+  o.batch = "b-0000abcd";
+  watch(fetch, o, out, stop, [](double) {});
+  EXPECT_EQ(calls, 3);
+  EXPECT_EQ(count_of(out.str(), "b-0000abcd  "), 2u) << out.str();
+  EXPECT_EQ(out.str().find("timed out"), std::string::npos) << "the note goes to the log";
+  std::ostringstream none;
+  EXPECT_THROW(watch([]() -> Json { throw std::runtime_error("no coordinator"); }, o, none, stop,
+                     [](double) {}),
+               std::runtime_error);
+}
+
 TEST(StatusText, TaskStatesAsOperatorsNameThem) {
   EXPECT_EQ(task_state_from_user("running"), "leased");
   EXPECT_EQ(task_state_from_user("failed"), "failed");
