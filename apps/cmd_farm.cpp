@@ -27,6 +27,7 @@
 #include "common/transport.h"
 #include "coordinator/server.h"
 #include "farm/embedded_run.h"
+#include "farm/status_view.h"
 #include "worker/job_resolve.h"
 #include "worker/worker.h"
 
@@ -104,62 +105,6 @@ void add_coordinator_option(CLI::App* cmd, CoordinatorArgs& c) {
                   "the coordinator's CURVE public key file, when it has one")
       ->type_name("FILE");
   add_curve_client_option(cmd, c.curve_client);
-}
-
-std::string format_eta(const Json& eta) {
-  if (eta.is_null()) return "-";
-  int s = int(eta.get<double>());
-  char buf[32];
-  std::snprintf(buf, sizeof(buf), "%d:%02d:%02d", s / 3600, (s / 60) % 60, s % 60);
-  return buf;
-}
-
-void print_status_table(const Json& st, std::ostream& out) {
-  for (const Json& b : st["batches"]) {
-    out << b["batch"].get<std::string>() << "  " << b["state"].get<std::string>() << "  "
-        << b["spec_path"].get<std::string>() << "\n";
-    char line[256];
-    std::snprintf(line, sizeof(line),
-                  "  frames %d/%d rendered, %d packed | tasks %d done, %d running, %d pending, "
-                  "%d failed | %.1f frames/h | ETA %s\n",
-                  b["frames_rendered"].get<int>(), b["frames_total"].get<int>(),
-                  b["frames_packed"].get<int>(), b["tasks_done"].get<int>(),
-                  b["tasks_leased"].get<int>(), b["tasks_pending"].get<int>(),
-                  b["tasks_failed"].get<int>(), b["frames_per_hour"].get<double>(),
-                  format_eta(b["eta_seconds"]).c_str());
-    out << line;
-    for (const Json& f : b["failed"]) {
-      out << "  FAILED task " << f["task"] << " (" << f["kind"].get<std::string>() << ", frame "
-          << f["frame"] << "): " << f["error"].get<std::string>() << "\n";
-      if (!f["reproduce"].get<std::string>().empty())
-        out << "    reproduce: " << f["reproduce"].get<std::string>() << "\n";
-    }
-    if (b.value("failed_omitted", 0) > 0)
-      out << "  ... and " << b["failed_omitted"] << " more failed tasks\n";
-    if (!b["blocklisted"].empty())
-      out << "  blocklisted workers: " << b["blocklisted"].dump()
-          << (b.value("blocklisted_omitted", 0) > 0
-                  ? " and " + std::to_string(b["blocklisted_omitted"].get<int64_t>()) + " more"
-                  : "")
-          << "\n";
-    if (!b.value("reason", std::string()).empty())
-      out << "  reason: " << b["reason"].get<std::string>() << "\n";
-    if (b.contains("stalled_seconds") && !b["stalled_seconds"].is_null())
-      out << "  stalled: no eligible worker for " << int(b["stalled_seconds"].get<double>())
-          << " s\n";
-  }
-  // A bounded reply (docs/farm.md "Bounded inputs") counts what it leaves out.
-  if (st.value("batches_omitted", 0) > 0)
-    out << "... and " << st["batches_omitted"] << " older batches not shown\n";
-  int live = 0;
-  for (const Json& w : st["workers"]) live += w["live"].get<bool>();
-  out << "workers: " << live << " live";
-  if (st.value("workers_omitted", 0) > 0)
-    out << " (" << st["workers_omitted"] << " more workers not shown)";
-  out << "\n";
-  for (const Json& w : st["workers"])
-    if (w["live"].get<bool>())
-      out << "  " << w["worker"].get<std::string>() << "  tasks " << w["tasks"].dump() << "\n";
 }
 
 Command add_run_impl(CLI::App& app) {
@@ -341,28 +286,115 @@ Command add_status(CLI::App& app) {
   struct Args {
     std::string batch;
     CoordinatorArgs coordinator;
-    bool json = false;
+    bool json = false, tasks = false;
+    std::string state;
+    int limit = 1000;
+    std::string watch;  // seconds; empty with --watch alone
   };
   auto a = std::make_shared<Args>();
-  CLI::App* cmd = app.add_subcommand("status", "Progress, rate, ETA, failures and workers");
+  CLI::App* cmd = app.add_subcommand(
+      "status", "Progress, rate, ETA, failures and workers; with --tasks the task table");
   cmd->add_option("batch", a->batch, "one batch (default: all)");
   add_coordinator_option(cmd, a->coordinator);
-  cmd->add_flag("--json", a->json, "print JSON");
+  cmd->add_flag("--json", a->json, "print JSON (the coordinator's status_reply, docs/protocol.md)");
+  cmd->add_flag("--tasks", a->tasks,
+                "list the batch's tasks: frame, tile, state, worker, attempts, last error, "
+                "reproduce command (needs BATCH)");
+  cmd->add_option("--state", a->state, "with --tasks: only tasks in this state")
+      ->type_name("pending|running|done|failed")
+      ->check(CLI::Validator(
+          [](std::string& s) -> std::string {
+            return farm::task_state_from_user(s) ? "" : "expected pending, running, done or failed";
+          },
+          "STATE"));
+  cmd->add_option("--limit", a->limit, "with --tasks: at most this many tasks, by id")
+      ->check(CLI::Range(1, 10000))
+      ->capture_default_str();
+  cmd->add_option("--watch", a->watch,
+                  "refresh every S seconds (default 2) until Ctrl-C or the batch ends; on a "
+                  "terminal it redraws in place. Put BATCH before --watch")
+      ->type_name("[S]")
+      ->expected(0, 1);
+  return {
+      cmd, [a, cmd]() {
+        const bool watching = cmd->count("--watch") > 0;
+        double interval = 2;
+        if (watching && !a->watch.empty()) {
+          char* end = nullptr;
+          interval = std::strtod(a->watch.c_str(), &end);
+          if (end == a->watch.c_str() || *end != '\0' || !(interval >= 0.1) || interval > 3600)
+            throw SpecError(FileLoc{"--watch " + a->watch}, "",
+                            "expected seconds between refreshes, 0.1 to 3600 (put BATCH "
+                            "before --watch)");
+        }
+        if (a->tasks && a->batch.empty())
+          throw SpecError(FileLoc{"--tasks"}, "", "--tasks lists one batch: give BATCH");
+        if (!a->state.empty() && !a->tasks)
+          throw SpecError(FileLoc{"--state " + a->state}, "", "--state needs --tasks");
+        Json req = Json::object();
+        if (!a->batch.empty()) req["batch"] = a->batch;
+        if (a->tasks) {
+          req["tasks"] = true;
+          req["limit"] = a->limit;
+          if (!a->state.empty()) req["state"] = *farm::task_state_from_user(a->state);
+        }
+        auto fetch = [&]() {
+          auto r =
+              checked(call_coordinator(a->coordinator.client(), protocol::encode("status", req)));
+          r.body.erase("v");
+          r.body.erase("type");
+          // One batch asked for and none came back: it does not exist.
+          if (!a->batch.empty() && r.body.value("batches", Json::array()).empty() &&
+              r.body.value("batches_omitted", 0) == 0)
+            throw SpecError(FileLoc{}, "batch", "no batch " + a->batch + " on this coordinator");
+          return r.body;
+        };
+        if (!watching) {
+          const Json st = fetch();
+          std::cout << (a->json ? st.dump(2) + "\n" : farm::format_status(st)) << std::flush;
+          return kExitOk;
+        }
+        install_stop_signals();
+        farm::WatchOptions wo;
+        wo.interval_seconds = interval;
+        wo.terminal = isatty(STDOUT_FILENO);
+        wo.batch = a->batch;
+        wo.json = a->json;
+        try {
+          farm::watch(fetch, wo, std::cout, stop_requested());
+        } catch (const std::exception&) {
+          if (!stop_requested()) throw;  // Ctrl-C during a call: a normal end
+        }
+        return kExitOk;
+      }};
+}
+
+Command add_events(CLI::App& app) {
+  struct Args {
+    std::string batch;
+    CoordinatorArgs coordinator;
+    bool json = false;
+    int limit = coordinator::kDefaultEvents;
+  };
+  auto a = std::make_shared<Args>();
+  CLI::App* cmd = app.add_subcommand(
+      "events",
+      "A batch's events, oldest first: leases, expiries, retries, failures with their "
+      "text, blocklisting with its reason");
+  cmd->add_option("batch", a->batch, "batch id")->required();
+  add_coordinator_option(cmd, a->coordinator);
+  cmd->add_flag("--json", a->json, "print JSON (the coordinator's events_reply)");
+  cmd->add_option("--limit", a->limit, "the newest N events")
+      ->check(CLI::Range(1, 100000))
+      ->capture_default_str();
   return {cmd, [a]() {
-            Json req = Json::object();
-            if (!a->batch.empty()) req["batch"] = a->batch;
-            auto r =
-                checked(call_coordinator(a->coordinator.client(), protocol::encode("status", req)));
+            auto r = checked(call_coordinator(
+                a->coordinator.client(),
+                protocol::encode("events", {{"batch", a->batch}, {"limit", a->limit}})));
             r.body.erase("v");
             r.body.erase("type");
-            // One batch asked for and none came back: it does not exist.
-            if (!a->batch.empty() && r.body.value("batches", Json::array()).empty() &&
-                r.body.value("batches_omitted", 0) == 0)
-              throw SpecError(FileLoc{}, "batch", "no batch " + a->batch + " on this coordinator");
-            if (a->json)
-              std::cout << r.body.dump(2) << std::endl;
-            else
-              print_status_table(r.body, std::cout);
+            std::cout << (a->json ? r.body.dump(2) + "\n" : farm::format_events(r.body))
+                      << std::flush;
             return kExitOk;
           }};
 }

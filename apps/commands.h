@@ -24,6 +24,7 @@ Command add_coordinator(CLI::App& app);
 Command add_worker(CLI::App& app);
 Command add_submit(CLI::App& app);
 Command add_status(CLI::App& app);
+Command add_events(CLI::App& app);
 Command add_resume(CLI::App& app);
 Command add_cancel(CLI::App& app);
 Command add_inspect(CLI::App& app);

@@ -173,11 +173,24 @@ std::vector<MessageDef> make_defs() {
        "`submitted` {batch, job, existing} or `error` {message, bad_input}",
        {string_field("snapshot", kMaxSnapshotTextBytes, Charset::kText, "job.json, compact JSON"),
         path_field("out_dir", "absolute output folder")}});
-  d.push_back({"status",
+  d.push_back(
+      {"status",
+       "CLI",
+       "the farm's state",
+       "`status_reply`",
+       {batch_id("only this batch").optional(),
+        bool_field("tasks", "list the batches' tasks too (`tasks`, `tasks_omitted`)").optional(),
+        word_field("state",
+                   "with `tasks`: only tasks in this state (pending, leased, done, failed)")
+            .optional(),
+        int_field("limit", 1, 10000, "with `tasks`: at most this many in all, by id (1000)")
+            .optional()}});
+  d.push_back({"events",
                "CLI",
-               "the farm's state",
-               "`status_reply`",
-               {batch_id("only this batch").optional()}});
+               "a batch's newest events, oldest first: leases, expiries, retries and failures "
+               "with their text, blocklisting with its reason, submit, cancel, resume, the end",
+               "`events_reply`",
+               {batch_id(), int_field("limit", 1, 100000, "at most this many (100)").optional()}});
   d.push_back({"resume",
                "CLI",
                "runs a cancelled or failed batch again",
@@ -243,6 +256,21 @@ std::vector<MessageDef> make_defs() {
   auto count = [](std::string name, std::string doc) {
     return int_field(std::move(name), 0, kMaxId64, std::move(doc));
   };
+  Field task = object_field(
+      "",
+      {task_id(), word_field("kind", "task kind"), int_field("frame", -1, kMaxInt32, "frame"),
+       rect_field("tile"), int_field("shard", 0, kMaxInt32, "shard"),
+       word_field("state", "pending, leased, done, failed"),
+       string_field("worker", kMaxIdBytes, Charset::kId,
+                    "the lease holder, else the worker of its last attempt (empty: none)"),
+       count("attempts", "leases handed out so far"), text_field("error", "its last error"),
+       text_field("reproduce", "render_tile: a `dofarm render` command that renders it alone")},
+      "");
+  Field held = object_field("",
+                            {task_id(), batch_id(), word_field("kind", "task kind"),
+                             int_field("frame", -1, kMaxInt32, "frame (-1 for packs)"),
+                             rect_field("tile"), int_field("shard", 0, kMaxInt32, "shard")},
+                            "");
   Field batch = object_field(
       "",
       {batch_id(),
@@ -266,17 +294,29 @@ std::vector<MessageDef> make_defs() {
                    "workers blocklisted for the batch (the first ones)"),
        count("blocklisted_omitted", "blocklisted workers not listed"),
        text_field("reason", "why the batch failed, or why it is stalled").optional(),
-       nullable_number("stalled_seconds", 0, 1e15, "seconds without an eligible worker")
+       nullable_number("stalled_seconds", 0, 1e15, "seconds without an eligible worker").optional(),
+       array_field("tasks", 10000, task, "`status` with `tasks`: the tasks asked for, by id")
+           .optional(),
+       count("tasks_omitted", "tasks that matched but are not listed (limit, size bound)")
            .optional()},
       "");
-  Field worker =
-      object_field("",
-                   {worker_id(), string_field("host", kMaxHostBytes, Charset::kId, "host name"),
-                    int_field("threads", 0, 4096, "render threads"),
-                    number_field("last_seen", 0, 1e12, "seconds since the epoch"),
-                    bool_field("live", "seen within two lease lengths and not gone"),
-                    array_field("tasks", 1000, task_id(), "tasks it holds (the first ones)")},
-                   "");
+  Field worker = object_field(
+      "",
+      {worker_id(), string_field("host", kMaxHostBytes, Charset::kId, "host name"),
+       int_field("threads", 0, 4096, "render threads"),
+       number_field("last_seen", 0, 1e12, "seconds since the epoch"),
+       bool_field("live", "heard from within one lease length and not gone"),
+       array_field("tasks", 1000, task_id(), "tasks it holds (the first ones)"),
+       word_field("state",
+                  "live; lost: silent for more than one lease length; left: said "
+                  "goodbye")
+           .optional(),
+       number_field("heartbeat_age", 0, 1e12, "seconds since the coordinator last heard from it")
+           .optional(),
+       count("tasks_done", "its attempts that ended done").optional(),
+       count("tasks_failed", "its attempts that ended failed").optional(),
+       array_field("current", 16, held, "tasks it holds, with their frame and tile").optional()},
+      "");
   d.push_back(
       {"status_reply",
        "coordinator",
@@ -288,6 +328,24 @@ std::vector<MessageDef> make_defs() {
         count("batches_omitted", "batches not listed (reply size bound)"),
         array_field("workers", 100000, worker, "known workers"),
         count("workers_omitted", "workers not listed (reply size bound)")}});
+  Field event = object_field(
+      "",
+      {number_field("time", 0, 1e12, "seconds since the epoch"),
+       word_field("level", "info, warn, error"),
+       word_field("kind",
+                  "lease, expired, retry, failed, blocklisted, submitted, finished, cancelled, "
+                  "resumed, invalidated, late_result (empty: an event older than kinds)"),
+       int_field("task", 0, kMaxId64, "the task it is about (0: none)"),
+       string_field("worker", kMaxIdBytes, Charset::kId, "the worker it is about (empty: none)"),
+       text_field("text", "what happened, with the error or reason")},
+      "");
+  d.push_back({"events_reply",
+               "coordinator",
+               "a batch's newest events, oldest first, at most ~900 KiB",
+               "",
+               {batch_id(), array_field("events", 100000, event, "oldest first"),
+                count("events_omitted", "events left out (the oldest of those asked for) to keep the reply below its bound"),
+                bool_field("older", "the job store holds older events than these")}});
   d.push_back({"error",
                "coordinator",
                "the message could not be handled",

@@ -10,8 +10,11 @@
 
 namespace dofarm {
 
-Progress::Progress(std::string label, int64_t total, ProgressOptions options)
-    : label_(std::move(label)), total_(std::max<int64_t>(total, 0)), options_(std::move(options)) {
+Progress::Progress(std::string label, int64_t total, std::string unit, ProgressOptions options)
+    : label_(std::move(label)),
+      unit_(std::move(unit)),
+      total_(std::max<int64_t>(total, 0)),
+      options_(std::move(options)) {
   mode_ = options_.mode;
   if (mode_ == ProgressOptions::Mode::kAuto) {
     mode_ = isatty(fileno(stderr)) ? ProgressOptions::Mode::kBar : ProgressOptions::Mode::kLog;
@@ -48,22 +51,38 @@ void Progress::finish() {
   if (mode_ != ProgressOptions::Mode::kOff) report(true);
 }
 
+void Progress::fail(const std::string& why) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (finished_) return;
+  finished_ = true;
+  if (mode_ != ProgressOptions::Mode::kOff) report(true, why.empty() ? "failed" : why);
+}
+
 // Called with mutex_ held.
-void Progress::report(bool final) {
+void Progress::report(bool final, const std::string& failure) {
   double t = now();
   last_report_s_ = t;
   int64_t done = done_.load(std::memory_order_relaxed);
   double elapsed = t - start_s_;
+  const std::string counted =
+      fmt::format("{}/{}{}", done, total_, unit_.empty() ? "" : " " + unit_);
+  // Never "done" for work that failed: a failed batch whose every task has
+  // ended is 3/3 tasks, but not done.
+  const std::string end =
+      failure.empty() ? fmt::format("done in {}", format_duration(elapsed))
+                      : fmt::format("failed after {}: {}", format_duration(elapsed), failure);
   if (mode_ == ProgressOptions::Mode::kBar) {
-    std::string line = format_progress(label_, done, total_, elapsed, options_.bar_width);
-    if (final) line += fmt::format(" done in {}", format_duration(elapsed));
+    std::string line = format_progress(label_, done, total_, elapsed, options_.bar_width, unit_);
+    if (final) line += " " + end;
     // \r and "erase to end of line" redraw in place.
     std::fprintf(options_.bar_out, "\r%s\x1b[K%s", line.c_str(), final ? "\n" : "");
     std::fflush(options_.bar_out);
+  } else if (final && failure.empty()) {
+    spdlog::info("{}: {} {}", label_, counted, end);
   } else if (final) {
-    spdlog::info("{}: {}/{} done in {}", label_, done, total_, format_duration(elapsed));
+    spdlog::warn("{}: {} {}", label_, counted, end);
   } else {
-    spdlog::info("{}", format_progress(label_, done, total_, elapsed, 0));
+    spdlog::info("{}", format_progress(label_, done, total_, elapsed, 0, unit_));
   }
 }
 
@@ -84,7 +103,7 @@ double estimate_eta(int64_t done, int64_t total, double elapsed_s) {
 }
 
 std::string format_progress(const std::string& label, int64_t done, int64_t total, double elapsed_s,
-                            int bar_width) {
+                            int bar_width, const std::string& unit) {
   double frac = total > 0 ? std::clamp(double(done) / double(total), 0.0, 1.0) : 1.0;
   std::string bar;
   if (bar_width > 0) {
@@ -97,8 +116,9 @@ std::string format_progress(const std::string& label, int64_t done, int64_t tota
     }
     bar += "] ";
   }
-  return fmt::format("{} {}{:3}% {}/{} ETA {}", label, bar, static_cast<int>(frac * 100), done,
-                     total, format_duration(estimate_eta(done, total, elapsed_s)));
+  return fmt::format("{} {}{:3}% {}/{}{} ETA {}", label, bar, static_cast<int>(frac * 100), done,
+                     total, unit.empty() ? "" : " " + unit,
+                     format_duration(estimate_eta(done, total, elapsed_s)));
 }
 
 }  // namespace dofarm

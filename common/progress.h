@@ -26,24 +26,32 @@ struct ProgressOptions {
 
 class Progress {
  public:
-  Progress(std::string label, int64_t total, ProgressOptions options = {});
+  // `unit` names what is counted ("tasks", "blocks", "steps"): every line says it.
+  Progress(std::string label, int64_t total, std::string unit, ProgressOptions options = {});
+  Progress(std::string label, int64_t total, ProgressOptions options = {})
+      : Progress(std::move(label), total, "", std::move(options)) {}
   ~Progress();  // finish()
   Progress(const Progress&) = delete;
   Progress& operator=(const Progress&) = delete;
 
   // Records `n` more units done; thread-safe and cheap when nothing is drawn.
   void advance(int64_t n = 1);
-  // Prints the final line once; later calls do nothing.
+  // Prints the final line once ("... done in 6s"); later calls do nothing.
   void finish();
+  // The work ended without succeeding: the final line says "failed after 6s:
+  // <why>" (at warning level in a log) instead of "done".
+  void fail(const std::string& why);
 
   int64_t done() const { return done_.load(std::memory_order_relaxed); }
   int64_t total() const { return total_; }
 
  private:
   double now() const;
-  void report(bool final);
+  // `outcome`: empty while running; "done", or the failure's text, at the end.
+  void report(bool final, const std::string& failure = "");
 
   std::string label_;
+  std::string unit_;
   int64_t total_;
   ProgressOptions options_;
   ProgressOptions::Mode mode_;
@@ -59,9 +67,10 @@ class Progress {
 std::string format_duration(double seconds);
 // Remaining seconds at the mean rate so far; -1 while nothing is done.
 double estimate_eta(int64_t done, int64_t total, double elapsed_s);
-// "label  42% 21/50 ETA 12s", with "[=====>    ] " before the percentage when
-// bar_width > 0.
+// "label  42% 21/50 tiles ETA 12s", with "[=====>    ] " before the
+// percentage when bar_width > 0 (no unit word when `unit` is empty). The ETA
+// is in format_duration's form, as in `dofarm status`.
 std::string format_progress(const std::string& label, int64_t done, int64_t total, double elapsed_s,
-                            int bar_width);
+                            int bar_width, const std::string& unit = "");
 
 }  // namespace dofarm

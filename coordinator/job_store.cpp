@@ -80,8 +80,12 @@ CREATE TABLE events(
   time REAL NOT NULL,
   batch_id TEXT NOT NULL,
   level TEXT NOT NULL,
-  text TEXT NOT NULL);
+  text TEXT NOT NULL,
+  kind TEXT NOT NULL DEFAULT '',
+  task INTEGER NOT NULL DEFAULT 0,
+  worker TEXT NOT NULL DEFAULT '');
 CREATE INDEX events_by_batch ON events(batch_id, id);
+CREATE INDEX attempts_by_start ON attempts(started);
 )sql";
 
 template <typename Enum, size_t N>
@@ -211,6 +215,7 @@ JobStore::JobStore(const std::filesystem::path& path) : path_(path) {
                          " only; use the dofarm that wrote it or start a new state folder");
     }
     add_missing_batch_columns();
+    add_missing_event_columns();
     exec("PRAGMA journal_mode=WAL");
     exec("PRAGMA synchronous=NORMAL");  // see the header
     exec("PRAGMA foreign_keys=ON");
@@ -248,6 +253,25 @@ void JobStore::add_missing_batch_columns() {
   Transaction t(*this);
   exec("ALTER TABLE batches ADD COLUMN job TEXT NOT NULL DEFAULT ''");
   exec("ALTER TABLE batches ADD COLUMN snapshot TEXT NOT NULL DEFAULT ''");
+  t.commit();
+}
+
+// Stores written before `dofarm events` lack the events' kind, task and
+// worker columns and the index that finds a batch's newest leases; they are
+// added in place (old events get an empty kind), so such a store opens as it
+// was and reads the same.
+void JobStore::add_missing_event_columns() {
+  bool has_kind = false;
+  {
+    Statement s(*this, "SELECT count(*) FROM pragma_table_info('events') WHERE name='kind'");
+    if (s.step()) has_kind = s.integer(0) > 0;
+  }
+  if (has_kind) return;
+  Transaction t(*this);
+  exec("ALTER TABLE events ADD COLUMN kind TEXT NOT NULL DEFAULT ''");
+  exec("ALTER TABLE events ADD COLUMN task INTEGER NOT NULL DEFAULT 0");
+  exec("ALTER TABLE events ADD COLUMN worker TEXT NOT NULL DEFAULT ''");
+  exec("CREATE INDEX IF NOT EXISTS attempts_by_start ON attempts(started)");
   t.commit();
 }
 
@@ -715,19 +739,59 @@ void JobStore::clear_blocklist(const std::string& batch_id) {
 
 // --- Events
 
-void JobStore::add_event(double time, const std::string& batch_id, const std::string& level,
-                         const std::string& text) {
-  Statement s(*this, "INSERT INTO events(time, batch_id, level, text) VALUES(?,?,?,?)");
-  s.bind(1, time).bind(2, batch_id).bind(3, level).bind(4, text).run();
+void JobStore::add_event(const EventRow& e) {
+  Statement s(*this,
+              "INSERT INTO events(time, batch_id, level, text, kind, task, worker) "
+              "VALUES(?,?,?,?,?,?,?)");
+  s.bind(1, e.time).bind(2, e.batch_id).bind(3, e.level).bind(4, e.text).bind(5, e.kind);
+  s.bind(6, e.task).bind(7, e.worker).run();
 }
 
 std::vector<EventRow> JobStore::events(const std::string& batch_id, int limit) {
   Statement s(*this,
-              "SELECT id, time, batch_id, level, text FROM events WHERE batch_id=? "
-              "ORDER BY id DESC LIMIT ?");
+              "SELECT id, time, batch_id, level, text, kind, task, worker FROM events "
+              "WHERE batch_id=? ORDER BY id DESC LIMIT ?");
   s.bind(1, batch_id).bind(2, limit);
   std::vector<EventRow> out;
-  while (s.step()) out.push_back({s.int64(0), s.real(1), s.text(2), s.text(3), s.text(4)});
+  while (s.step())
+    out.push_back(
+        {s.int64(0), s.real(1), s.text(2), s.text(3), s.text(4), s.text(5), s.int64(6), s.text(7)});
+  return out;
+}
+
+std::vector<LeaseRow> JobStore::leases(const std::string& batch_id, int limit) {
+  // Newest first by the attempts' start (attempts_by_start): the recent
+  // leases of a running batch are found without reading its whole history.
+  Statement s(*this, R"sql(
+    SELECT a.task_id, a.attempt, a.worker, a.started, t.kind, t.frame, t.x, t.y, t.w, t.h, t.shard
+    FROM attempts a JOIN tasks t ON t.id = a.task_id
+    WHERE t.batch_id = ? ORDER BY a.started DESC, a.task_id DESC, a.attempt DESC LIMIT ?)sql");
+  s.bind(1, batch_id).bind(2, limit);
+  std::vector<LeaseRow> out;
+  while (s.step()) {
+    LeaseRow l;
+    l.task = s.int64(0);
+    l.attempt = s.integer(1);
+    l.worker = s.text(2);
+    l.started = s.real(3);
+    l.kind = parse_enum<TaskKind>(kKinds, s.text(4), "kind");
+    l.frame = s.integer(5);
+    l.rect = {s.integer(6), s.integer(7), s.integer(8), s.integer(9)};
+    l.shard = s.integer(10);
+    out.push_back(std::move(l));
+  }
+  return out;
+}
+
+std::map<std::string, WorkerCounts> JobStore::worker_counts() {
+  Statement s(*this,
+              "SELECT worker, outcome, count(*) FROM attempts WHERE outcome IN ('done','failed') "
+              "GROUP BY worker, outcome");
+  std::map<std::string, WorkerCounts> out;
+  while (s.step()) {
+    WorkerCounts& c = out[s.text(0)];
+    (s.text(1) == "done" ? c.done : c.failed) += s.int64(2);
+  }
   return out;
 }
 

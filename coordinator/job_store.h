@@ -36,6 +36,7 @@
 #include <array>
 #include <cstdint>
 #include <filesystem>
+#include <map>
 #include <optional>
 #include <string>
 #include <unordered_map>
@@ -132,6 +133,31 @@ struct EventRow {
   std::string batch_id;  // empty: farm-wide
   std::string level;     // "info", "warn", "error"
   std::string text;
+  // What happened, one word (`dofarm events`, docs/farm.md): submitted,
+  // retry, failed, blocklisted, expired, finished, cancelled, resumed,
+  // invalidated, late_result. Empty in stores written before it existed.
+  std::string kind;
+  int64_t task = 0;    // the task it is about; 0: none
+  std::string worker;  // the worker it is about; empty: none
+};
+
+// One lease (an attempt) with the place of its task: the lease events of
+// `dofarm events` come from the attempts table, the record of every lease,
+// rather than from one more row per assignment.
+struct LeaseRow {
+  int64_t task = 0;
+  int attempt = 0;
+  std::string worker;
+  double started = 0;
+  TaskKind kind = TaskKind::kRenderTile;
+  int frame = -1;
+  Rect rect;
+  int shard = 0;
+};
+
+// Attempts a worker finished, by outcome.
+struct WorkerCounts {
+  int64_t done = 0, failed = 0;
 };
 
 class JobStore {
@@ -232,9 +258,16 @@ class JobStore {
   void clear_blocklist(const std::string& batch_id);
 
   // Events
+  void add_event(const EventRow& event);  // ignores event.id
   void add_event(double time, const std::string& batch_id, const std::string& level,
-                 const std::string& text);
+                 const std::string& text) {
+    add_event(EventRow{0, time, batch_id, level, text, "", 0, ""});
+  }
   std::vector<EventRow> events(const std::string& batch_id, int limit);  // newest first
+  // The batch's newest `limit` leases, newest first.
+  std::vector<LeaseRow> leases(const std::string& batch_id, int limit);
+  // Done and failed attempts per worker (every batch).
+  std::map<std::string, WorkerCounts> worker_counts();
 
  private:
   friend class Transaction;
@@ -242,6 +275,7 @@ class JobStore {
   void exec(const char* sql);
   void create_schema();
   void add_missing_batch_columns();
+  void add_missing_event_columns();
 
   std::filesystem::path path_;
   sqlite3* db_ = nullptr;

@@ -23,16 +23,7 @@ namespace {
 
 using Transaction = JobStore::Transaction;
 
-std::string describe(const TaskRow& t) {
-  std::string s = "task " + std::to_string(t.id) + " (" + to_string(t.kind);
-  if (t.kind == TaskKind::kRenderTile) {
-    s += " frame " + std::to_string(t.frame) + " tile " + std::to_string(t.rect.x) + "," +
-         std::to_string(t.rect.y) + "," + std::to_string(t.rect.w) + "," + std::to_string(t.rect.h);
-  } else {
-    s += " shard " + std::to_string(t.shard);
-  }
-  return s + ")";
-}
+std::string describe(const TaskRow& t) { return describe_task(t); }
 
 void clear_lease(TaskRow& t) {
   t.lease_worker.clear();
@@ -44,6 +35,17 @@ bool contains(const std::vector<std::string>& v, const std::string& s) {
 }
 
 }  // namespace
+
+std::string describe_task(const TaskRow& t) {
+  std::string s = "task " + std::to_string(t.id) + " (" + to_string(t.kind);
+  if (t.kind == TaskKind::kRenderTile) {
+    s += " frame " + std::to_string(t.frame) + " tile " + std::to_string(t.rect.x) + "," +
+         std::to_string(t.rect.y) + "," + std::to_string(t.rect.w) + "," + std::to_string(t.rect.h);
+  } else {
+    s += " shard " + std::to_string(t.shard);
+  }
+  return s + ")";
+}
 
 const char* to_string(CompleteStatus s) {
   switch (s) {
@@ -113,6 +115,8 @@ void Scheduler::rebuild() {
     if (b.state == BatchState::kRunning) load_batch(b, now);
   }
   for (const WorkerRow& w : store_.workers()) workers_[w.id] = w;
+  counts_ = store_.worker_counts();
+  std::erase_if(counts_, [&](const auto& c) { return !workers_.count(c.first); });
 }
 
 void Scheduler::load_batch(const BatchRow& batch, double now) {
@@ -157,11 +161,12 @@ std::string Scheduler::submit(const std::string& spec_path,
       ids.push_back(store_.insert_task(row));
       for (int dep : p.depends_on) store_.insert_dependency(ids.back(), ids[dep]);
     }
-    store_.add_event(now, batch.id, "info",
-                     "submitted " + spec_path + ": " + std::to_string(spec.frame_count()) +
-                         " frames, " + std::to_string(plan.shards.size()) + " shards, " +
-                         std::to_string(plan.tasks.size()) + " tasks, tile side " +
-                         std::to_string(plan.tile_side));
+    store_.add_event({0, now, batch.id, "info",
+                      "submitted " + spec_path + ": " + std::to_string(spec.frame_count()) +
+                          " frames, " + std::to_string(plan.shards.size()) + " shards, " +
+                          std::to_string(plan.tasks.size()) + " tasks, tile side " +
+                          std::to_string(plan.tile_side),
+                      "submitted", 0, ""});
     load_batch(*store_.batch(batch.id), now);  // read back: the row id orders batches
     tx.commit();
     return batch.id;
@@ -247,6 +252,7 @@ void Scheduler::prune_workers() {
     if (workers_.size() <= keep) break;
     store_.delete_worker(id);
     workers_.erase(id);
+    counts_.erase(id);
     dirty_workers_.erase(id);
   }
 }
@@ -328,7 +334,7 @@ std::optional<Assignment> Scheduler::assign(const std::string& worker) {
 bool Scheduler::another_worker_could_take(const RunQueue::Task& task, const std::string& worker,
                                           double now) const {
   for (const auto& [id, w] : workers_) {
-    if (id == worker || w.left || now - w.last_seen > 2 * options_.lease_seconds) continue;
+    if (id == worker || !live(w, now)) continue;
     if (contains(task.failed_by, id) || task.batch->blocked.count(id)) continue;
     return true;
   }
@@ -396,9 +402,10 @@ CompleteStatus Scheduler::complete(const std::string& worker, int64_t task, int 
         }
       }
       if (status == CompleteStatus::kStale) {
-        store_.add_event(now, row->batch_id, "info",
-                         "ignored a late result of task " + std::to_string(task) + " attempt " +
-                             std::to_string(attempt) + " from " + worker);
+        store_.add_event({0, now, row->batch_id, "info",
+                          "ignored a late result of task " + std::to_string(task) + " attempt " +
+                              std::to_string(attempt) + " from " + worker,
+                          "late_result", task, worker});
       }
       tx.commit();
       return status;
@@ -409,6 +416,7 @@ CompleteStatus Scheduler::complete(const std::string& worker, int64_t task, int 
     row.checksum = checksum;
     apply(row, now);  // its pack may become runnable
     store_.finish_attempt(task, attempt, now, AttemptOutcome::kDone, "");
+    ++counts_[worker].done;  // rebuilt from the store should the transaction fail
     finish_batch_if_complete(row.batch_id, now);
     tx.commit();
     return CompleteStatus::kAccepted;
@@ -430,6 +438,7 @@ FailResult Scheduler::fail(const std::string& worker, int64_t task, int attempt,
     }
     TaskRow t = *store_.task(task);
     store_.finish_attempt(task, attempt, now, AttemptOutcome::kFailed, error);
+    ++counts_[worker].failed;
     m->failed_by.push_back(worker);
     const int failures = store_.failure_count(task, t.retry_base);
     t.last_error = error;
@@ -439,9 +448,12 @@ FailResult Scheduler::fail(const std::string& worker, int64_t task, int attempt,
         store_.tasks_failed_by(t.batch_id, worker) >= options_.blocklist_after) {
       store_.block(t.batch_id, worker, now);
       batch.blocked.insert(worker);
+      // The reason: how many of its tasks failed, and the last error (the
+      // failures themselves are events of their own).
       const std::string text = worker + " blocklisted for the batch after failing " +
-                               std::to_string(options_.blocklist_after) + " of its tasks";
-      store_.add_event(now, t.batch_id, "warn", text);
+                               std::to_string(options_.blocklist_after) +
+                               " of its tasks (last: " + describe(t) + ": " + error + ")";
+      store_.add_event({0, now, t.batch_id, "warn", text, "blocklisted", task, worker});
       spdlog::warn("batch {}: {}", t.batch_id, text);
       result.worker_blocklisted = true;
     }
@@ -460,10 +472,11 @@ FailResult Scheduler::fail(const std::string& worker, int64_t task, int attempt,
           std::min(options_.backoff_max, options_.backoff_base * std::ldexp(1.0, failures - 1));
       t.not_before = now + wait;
       apply(t, now);
-      store_.add_event(now, t.batch_id, "warn",
-                       describe(t) + " failed on " + worker + " (failure " +
-                           std::to_string(failures) + "), retry in " + std::to_string(wait) +
-                           " s: " + error);
+      store_.add_event({0, now, t.batch_id, "warn",
+                        describe(t) + " failed on " + worker + " (failure " +
+                            std::to_string(failures) + "), retry in " + fmt::format("{:g}", wait) +
+                            " s: " + error,
+                        "retry", task, worker});
       result.status = FailStatus::kRetry;
       result.retry_at = t.not_before;
     }
@@ -484,7 +497,26 @@ FailResult Scheduler::fail(const std::string& worker, int64_t task, int attempt,
 }
 
 bool Scheduler::live(const WorkerRow& w, double now) const {
-  return !w.left && now - w.last_seen <= 2 * options_.lease_seconds;
+  return worker_liveness(w, now, options_.lease_seconds) == Liveness::kLive;
+}
+
+Liveness worker_liveness(const WorkerRow& w, double now, double lease_seconds) {
+  if (w.left) return Liveness::kLeft;
+  // A working worker heartbeats well within a lease and an idle one asks for
+  // work every wait_seconds, so one lease of silence means it is gone.
+  return now - w.last_seen <= lease_seconds ? Liveness::kLive : Liveness::kLost;
+}
+
+const char* to_string(Liveness l) {
+  switch (l) {
+    case Liveness::kLive:
+      return "live";
+    case Liveness::kLost:
+      return "lost";
+    case Liveness::kLeft:
+      return "left";
+  }
+  return "?";
 }
 
 int Scheduler::eligible_workers(const RunQueue::Batch& batch,
@@ -514,7 +546,7 @@ void Scheduler::fail_for_good(TaskRow& t, RunQueue::Task& m, const std::string& 
   }
   const std::string text = describe(t) + " failed for good " + why +
                            (by.empty() ? "" : " (" + by + ")") + ": " + t.last_error;
-  store_.add_event(now, t.batch_id, "error", text);
+  store_.add_event({0, now, t.batch_id, "error", text, "failed", t.id, ""});
   spdlog::warn("batch {}: {}", t.batch_id, text);
   fail_dependents(t, now);
 }
@@ -562,8 +594,9 @@ std::vector<int64_t> Scheduler::expire_leases() {
       TaskRow t = *store_.task(id);
       DOFARM_CHECK_EQ(t.attempts, m.attempts);
       store_.finish_attempt(t.id, t.attempts, now, AttemptOutcome::kExpired, "lease expired");
-      store_.add_event(now, t.batch_id, "warn",
-                       "lease of " + m.lease_worker + " on " + describe(t) + " expired; requeued");
+      store_.add_event({0, now, t.batch_id, "warn",
+                        "lease of " + m.lease_worker + " on " + describe(t) + " expired; requeued",
+                        "expired", t.id, m.lease_worker});
       t.state = TaskState::kPending;
       t.not_before = now;  // a dead worker says nothing about the task: no back-off
       apply(t, now);
@@ -624,7 +657,7 @@ void Scheduler::finish_batch_if_complete(const std::string& batch_id, double now
     text = "finished with " + std::to_string(failed) + " failed tasks; " + why;
     spdlog::warn("batch {}: {}", batch_id, text);
   }
-  store_.add_event(now, batch_id, failed > 0 ? "error" : "info", text);
+  store_.add_event({0, now, batch_id, failed > 0 ? "error" : "info", text, "finished", 0, ""});
   stalled_since_.erase(batch_id);
   queue_.drop_batch(batch_id);
 }
@@ -684,7 +717,7 @@ OpResult Scheduler::cancel(const std::string& batch_id) {
       ++revoked;
     }
     store_.set_batch_state(batch_id, BatchState::kCancelled, now);
-    store_.add_event(now, batch_id, "info", "cancelled");
+    store_.add_event({0, now, batch_id, "info", "cancelled", "cancelled", 0, ""});
     queue_.drop_batch(batch_id);
     tx.commit();
     return {true, "cancelled " + batch_id + "; " + std::to_string(revoked) + " leases revoked"};
@@ -709,8 +742,9 @@ OpResult Scheduler::resume(const std::string& batch_id) {
     }
     store_.clear_blocklist(batch_id);
     store_.set_batch_state(batch_id, BatchState::kRunning, std::nullopt);
-    store_.add_event(now, batch_id, "info",
-                     "resumed; " + std::to_string(requeued) + " failed tasks requeued");
+    store_.add_event({0, now, batch_id, "info",
+                      "resumed; " + std::to_string(requeued) + " failed tasks requeued", "resumed",
+                      0, ""});
     load_batch(*store_.batch(batch_id), now);
     finish_batch_if_complete(batch_id, now);  // nothing left to do: done at once
     tx.commit();
@@ -749,7 +783,8 @@ OpResult Scheduler::invalidate(int64_t task) {
       store_.set_batch_state(batch.id, BatchState::kRunning, std::nullopt);
       load_batch(*store_.batch(batch.id), now);  // it runs again
     }
-    store_.add_event(now, t->batch_id, "warn", describe(*t) + " invalidated; requeued");
+    store_.add_event({0, now, t->batch_id, "warn", describe(*t) + " invalidated; requeued",
+                      "invalidated", t->id, ""});
     tx.commit();
     return {true, describe(*t) + " requeued"};
   });

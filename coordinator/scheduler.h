@@ -172,6 +172,20 @@ struct FailedTask {
   std::string reproduce;  // render_tile: a `dofarm render` command line; pack: empty
 };
 
+// One task of a batch, for `dofarm status BATCH --tasks`.
+struct TaskStatus {
+  int64_t task_id = 0;
+  TaskKind kind = TaskKind::kRenderTile;
+  int frame = -1;
+  Rect rect;
+  int shard = 0;
+  TaskState state = TaskState::kPending;
+  std::string worker;     // the lease holder, else the worker of its last attempt
+  int attempts = 0;       // leases handed out so far
+  std::string error;      // its last error, if any
+  std::string reproduce;  // render_tile: a `dofarm render` command line; pack: empty
+};
+
 struct BatchStatus {
   BatchRow batch;
   int tasks_total = 0, tasks_done = 0, tasks_failed = 0, tasks_leased = 0, tasks_pending = 0;
@@ -192,18 +206,52 @@ struct BatchStatus {
   std::string reason;
   // Seconds the running batch has had no eligible worker; empty when it has one.
   std::optional<double> stalled_seconds;
+  // StatusQuery::tasks: the tasks asked for (by id) and how many more matched.
+  std::vector<TaskStatus> tasks;
+  int64_t tasks_omitted = 0;
+};
+
+// A worker as the operator sees it (docs/farm.md "Worker liveness"): live
+// while it said no goodbye and was heard from (any message: a request, a
+// heartbeat, a result) within one lease length; lost after that silence
+// (killed, hung, cut off); left after it said goodbye. Only live workers count
+// as eligible for the failure policy and the stall timeout.
+enum class Liveness { kLive, kLost, kLeft };
+const char* to_string(Liveness l);  // "live", "lost", "left"
+Liveness worker_liveness(const WorkerRow& w, double now, double lease_seconds);
+
+// A task a worker holds now, where in the batch.
+struct HeldTask {
+  int64_t task_id = 0;
+  std::string batch_id;
+  TaskKind kind = TaskKind::kRenderTile;
+  int frame = -1;
+  Rect rect;
+  int shard = 0;
 };
 
 struct WorkerStatus {
   WorkerRow worker;
-  bool live = false;  // seen within two lease lengths and not gone
+  bool live = false;  // state == kLive
+  Liveness state = Liveness::kLost;
   std::vector<int64_t> leased_tasks;
+  std::vector<HeldTask> current;  // the same tasks, with their frame and tile
+  WorkerCounts counts;            // attempts it finished done / failed (job store)
+};
+
+// What a status report holds besides the counts.
+struct StatusQuery {
+  std::string batch;               // empty: every batch
+  bool tasks = false;              // list the batch's tasks (BatchStatus::tasks)
+  std::optional<TaskState> state;  // only the tasks in this state
+  size_t task_limit = 1000;        // at most this many in all, by task id; the rest counted
 };
 
 struct StatusReport {
   double now = 0;
   std::vector<BatchStatus> batches;  // oldest first
   std::vector<WorkerStatus> workers;
+  bool tasks_listed = false;  // the query asked for tasks
 };
 
 class Scheduler {
@@ -268,11 +316,18 @@ class Scheduler {
   // that found a bad staged tile names it by path).
   std::optional<int64_t> input_with_staged_path(int64_t pack, const std::string& staged_path);
 
+  bool has_batch(const std::string& batch_id) { return store_.batch(batch_id).has_value(); }
+
   // Every batch ever written into `out_dir`, oldest first.
   std::vector<BatchRow> batches_in(const std::string& out_dir);
 
   // One batch, or every batch when empty; workers always.
   StatusReport status(const std::string& batch_id = "");
+  StatusReport status(const StatusQuery& query);
+  // `dofarm events`: the batch's newest `limit` events, oldest first: the
+  // events table merged by time with its leases (the attempts table, kind
+  // "lease"), so the journal gains no row per assignment.
+  std::vector<EventRow> events(const std::string& batch_id, int limit);
 
   // Done render tiles of `batch` whose shard is not packed yet: the caller
   // checks each staged file against its checksum (on resume, after a
@@ -348,12 +403,18 @@ class Scheduler {
   SchedulerOptions options_;
   RunQueue queue_;
   std::map<std::string, WorkerRow> workers_;  // every worker the store knows
+  // Done and failed attempts of the known workers: loaded from the store
+  // (rebuild()), then counted as complete() and fail() record them.
+  std::map<std::string, WorkerCounts> counts_;
   std::set<int64_t> dirty_leases_;            // renewed since the last flush
   std::set<std::string> dirty_workers_;       // seen since the last flush
   double last_flush_ = 0;
   std::map<std::string, double> stalled_since_;  // running batch -> first seen without worker
   double last_stall_check_ = 0;
 };
+
+// "task 12 (render_tile frame 3 tile 0,16,16,8)", "task 40 (pack_shard shard 1)".
+std::string describe_task(const TaskRow& t);
 
 // `dofarm render SPEC --frame N --tile X,Y,W,H --out repro.exr --set K=V ...`
 // with shell quoting, for a failed render tile.

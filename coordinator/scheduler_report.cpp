@@ -30,10 +30,19 @@ std::string shell_quote(const std::string& arg) {
 }  // namespace
 
 StatusReport Scheduler::status(const std::string& batch_id) {
+  StatusQuery q;
+  q.batch = batch_id;
+  return status(q);
+}
+
+StatusReport Scheduler::status(const StatusQuery& query) {
+  const std::string& batch_id = query.batch;
   flush();  // last_seen of the workers, as of now
   const double now = clock_.now();
   StatusReport report;
   report.now = now;
+  report.tasks_listed = query.tasks;
+  size_t listed = 0;  // tasks listed so far
   std::vector<BatchRow> batches;
   if (batch_id.empty()) {
     batches = store_.batches();
@@ -52,6 +61,30 @@ StatusReport Scheduler::status(const std::string& batch_id) {
     std::map<int, Frame> frames;
     std::set<int> packed_shards;
     for (const TaskRow& t : store_.tasks(batch.id)) {
+      if (query.tasks && (!query.state || t.state == *query.state)) {
+        if (listed < query.task_limit) {  // the limit holds across batches too
+          ++listed;
+          TaskStatus ts;
+          ts.task_id = t.id;
+          ts.kind = t.kind;
+          ts.frame = t.frame;
+          ts.rect = t.rect;
+          ts.shard = t.shard;
+          ts.state = t.state;
+          ts.worker = t.lease_worker;
+          // Who had it last: one keyed query per listed task (the list is bounded).
+          if (ts.worker.empty() && t.attempts > 0) {
+            const std::vector<AttemptRow> a = store_.attempts(t.id);
+            if (!a.empty()) ts.worker = a.back().worker;
+          }
+          ts.attempts = t.attempts;
+          ts.error = t.last_error;
+          if (t.kind == TaskKind::kRenderTile) ts.reproduce = reproduce_command(batch, t);
+          st.tasks.push_back(std::move(ts));
+        } else {
+          ++st.tasks_omitted;
+        }
+      }
       ++st.tasks_total;
       switch (t.state) {
         case TaskState::kPending:
@@ -110,16 +143,47 @@ StatusReport Scheduler::status(const std::string& batch_id) {
     }
     report.batches.push_back(std::move(st));
   }
-  std::map<std::string, std::vector<int64_t>> leases;
-  for (const TaskRow& t : store_.leased_tasks("")) leases[t.lease_worker].push_back(t.id);
+  std::map<std::string, std::vector<HeldTask>> leases;
+  for (const TaskRow& t : store_.leased_tasks(""))
+    leases[t.lease_worker].push_back({t.id, t.batch_id, t.kind, t.frame, t.rect, t.shard});
   for (const WorkerRow& w : store_.workers()) {
     WorkerStatus ws;
     ws.worker = w;
-    ws.live = !w.left && now - w.last_seen <= 2 * options_.lease_seconds;
-    ws.leased_tasks = leases[w.id];
+    ws.state = worker_liveness(w, now, options_.lease_seconds);
+    ws.live = ws.state == Liveness::kLive;
+    if (auto it = leases.find(w.id); it != leases.end()) ws.current = std::move(it->second);
+    for (const HeldTask& h : ws.current) ws.leased_tasks.push_back(h.task_id);
+    if (auto it = counts_.find(w.id); it != counts_.end()) ws.counts = it->second;
     report.workers.push_back(std::move(ws));
   }
   return report;
+}
+
+std::vector<EventRow> Scheduler::events(const std::string& batch_id, int limit) {
+  if (limit <= 0) return {};
+  std::vector<EventRow> out = store_.events(batch_id, limit);
+  for (const LeaseRow& l : store_.leases(batch_id, limit)) {
+    TaskRow t;
+    t.id = l.task;
+    t.kind = l.kind;
+    t.frame = l.frame;
+    t.rect = l.rect;
+    t.shard = l.shard;
+    out.push_back({0, l.started, batch_id, "info",
+                   describe_task(t) + " leased to " + l.worker + " (attempt " +
+                       std::to_string(l.attempt) + ")",
+                   "lease", l.task, l.worker});
+  }
+  // Newest first; at equal times a lease (id 0) goes after what the same
+  // instant recorded, so read oldest first it comes before it: a lease
+  // precedes its expiry or failure.
+  std::stable_sort(out.begin(), out.end(), [](const EventRow& a, const EventRow& b) {
+    if (a.time != b.time) return a.time > b.time;
+    return a.id > b.id;
+  });
+  if (out.size() > size_t(limit)) out.resize(size_t(limit));
+  std::reverse(out.begin(), out.end());
+  return out;
 }
 
 std::vector<StagedTile> Scheduler::staged_tiles_to_verify(const std::string& batch_id) {

@@ -16,6 +16,7 @@
 #include "common/messages.h"
 #include "common/transport.h"
 #include "coordinator/roles.h"
+#include "coordinator/state_lock.h"
 #include "coordinator/verify.h"
 
 namespace dofarm::coordinator {
@@ -135,6 +136,13 @@ constexpr size_t kStatusWorkerBytes = 256 * 1024;
 constexpr size_t kStatusFailedBytes = 32 * 1024;
 constexpr size_t kStatusBlocklistBytes = 8 * 1024;
 constexpr size_t kStatusListItems = 1000;  // messages.cpp: arrays of a status entry
+// `status --tasks`: the listed tasks of every batch share this (the workers'
+// share and the batches' counts stay within the rest).
+constexpr size_t kStatusTaskBytes = 480 * 1024;
+constexpr size_t kStatusTaskItems = 10000;  // messages.cpp: a batch's `tasks`
+constexpr size_t kWorkerHeldItems = 16;     // messages.cpp: a worker's `current`
+// `events`: at most this much JSON of events per reply, the newest kept.
+constexpr size_t kEventsBytes = 900 * 1024;
 
 // An id as the status_reply definition allows it (stores written before the
 // limits may hold others).
@@ -149,7 +157,29 @@ std::string text(const std::string& s, size_t max = protocol::kMaxTextBytes) {
   return protocol::clip_text(s, max);
 }
 
-Json batch_json(const BatchStatus& b) {
+// An event kind as the `events_reply` definition allows it (a-z and _).
+std::string kind_text(const std::string& s) {
+  std::string out = s.substr(0, 64);
+  for (char& c : out)
+    if (!(c >= 'a' && c <= 'z') && c != '_') c = '_';
+  return out;
+}
+
+Json task_json(const TaskStatus& t) {
+  return {{"task", t.task_id},
+          {"kind", to_string(t.kind)},
+          {"frame", t.frame},
+          {"rect", rect_json(t.rect)},
+          {"shard", t.shard},
+          {"state", to_string(t.state)},
+          {"worker", id_text(t.worker)},
+          {"attempts", std::max(t.attempts, 0)},
+          {"error", text(t.error)},
+          {"reproduce", text(t.reproduce)}};
+}
+
+// `task_bytes`: what is left of kStatusTaskBytes; null when no tasks were asked for.
+Json batch_json(const BatchStatus& b, size_t* task_bytes) {
   Json failed = Json::array();
   size_t bytes = 0, omitted = 0;
   for (const FailedTask& f : b.failed) {
@@ -179,38 +209,72 @@ Json batch_json(const BatchStatus& b) {
     blocked_bytes += id.size() + 3;
     blocked.push_back(id);
   }
-  return {{"batch", id_text(b.batch.id)},
-          {"state", to_string(b.batch.state)},
-          {"spec_path", text(b.batch.spec_path, protocol::kMaxPathBytes)},
-          {"out_dir", text(b.batch.out_dir, protocol::kMaxPathBytes)},
-          {"created", b.batch.created},
-          {"tasks_total", b.tasks_total},
-          {"tasks_done", b.tasks_done},
-          {"tasks_failed", b.tasks_failed},
-          {"tasks_leased", b.tasks_leased},
-          {"tasks_pending", b.tasks_pending},
-          {"frames_total", b.frames_total},
-          {"frames_rendered", b.frames_rendered},
-          {"frames_packed", b.frames_packed},
-          {"frames_per_hour", b.frames_per_hour},
-          {"eta_seconds", b.eta_seconds ? Json(*b.eta_seconds) : Json(nullptr)},
-          {"failed", failed},
-          {"failed_omitted", omitted},
-          {"blocklisted", blocked},
-          {"blocklisted_omitted", blocked_omitted},
-          {"reason", text(b.reason)},
-          {"stalled_seconds", b.stalled_seconds ? Json(*b.stalled_seconds) : Json(nullptr)}};
+  Json tasks = Json::array();
+  int64_t tasks_omitted = b.tasks_omitted;
+  if (task_bytes) {
+    for (const TaskStatus& t : b.tasks) {
+      Json j = task_json(t);
+      const size_t n = j.dump().size() + 1;
+      if (n > *task_bytes || tasks.size() >= kStatusTaskItems) {
+        ++tasks_omitted;
+        continue;
+      }
+      *task_bytes -= n;
+      tasks.push_back(std::move(j));
+    }
+  }
+  Json j = {{"batch", id_text(b.batch.id)},
+            {"state", to_string(b.batch.state)},
+            {"spec_path", text(b.batch.spec_path, protocol::kMaxPathBytes)},
+            {"out_dir", text(b.batch.out_dir, protocol::kMaxPathBytes)},
+            {"created", b.batch.created},
+            {"tasks_total", b.tasks_total},
+            {"tasks_done", b.tasks_done},
+            {"tasks_failed", b.tasks_failed},
+            {"tasks_leased", b.tasks_leased},
+            {"tasks_pending", b.tasks_pending},
+            {"frames_total", b.frames_total},
+            {"frames_rendered", b.frames_rendered},
+            {"frames_packed", b.frames_packed},
+            {"frames_per_hour", b.frames_per_hour},
+            {"eta_seconds", b.eta_seconds ? Json(*b.eta_seconds) : Json(nullptr)},
+            {"failed", failed},
+            {"failed_omitted", omitted},
+            {"blocklisted", blocked},
+            {"blocklisted_omitted", blocked_omitted},
+            {"reason", text(b.reason)},
+            {"stalled_seconds", b.stalled_seconds ? Json(*b.stalled_seconds) : Json(nullptr)}};
+  if (task_bytes) {
+    j["tasks"] = std::move(tasks);
+    j["tasks_omitted"] = tasks_omitted;
+  }
+  return j;
 }
 
-Json worker_json(const WorkerStatus& w) {
+Json worker_json(const WorkerStatus& w, double now) {
   std::vector<int64_t> tasks = w.leased_tasks;
   if (tasks.size() > 100) tasks.resize(100);
+  Json current = Json::array();
+  for (const HeldTask& h : w.current) {
+    if (current.size() >= kWorkerHeldItems) break;
+    current.push_back({{"task", h.task_id},
+                       {"batch", id_text(h.batch_id)},
+                       {"kind", to_string(h.kind)},
+                       {"frame", h.frame},
+                       {"rect", rect_json(h.rect)},
+                       {"shard", h.shard}});
+  }
   return {{"worker", id_text(w.worker.id)},
           {"host", id_text(w.worker.host).substr(0, protocol::kMaxHostBytes)},
           {"threads", std::clamp(w.worker.threads, 0, 4096)},
           {"last_seen", w.worker.last_seen},
           {"live", w.live},
-          {"tasks", tasks}};
+          {"tasks", tasks},
+          {"state", to_string(w.state)},
+          {"heartbeat_age", std::clamp(now - w.worker.last_seen, 0.0, 1e12)},
+          {"tasks_done", std::max<int64_t>(w.counts.done, 0)},
+          {"tasks_failed", std::max<int64_t>(w.counts.failed, 0)},
+          {"current", current}};
 }
 
 // Indices of `n` entries in the order they get into a bounded reply.
@@ -224,6 +288,51 @@ std::vector<size_t> priority_order(size_t n, Before before) {
 
 }  // namespace
 
+StatusQuery status_query(const protocol::Message& m) {
+  StatusQuery q;
+  if (m.has("batch")) q.batch = m.str("batch");
+  q.tasks = m.body.value("tasks", false);
+  if (m.has("state")) {
+    const std::string& state = m.str("state");
+    for (TaskState st :
+         {TaskState::kPending, TaskState::kLeased, TaskState::kDone, TaskState::kFailed})
+      if (state == to_string(st)) q.state = st;
+    if (!q.state)
+      throw protocol::ProtocolError("\"status\".state: \"" + state +
+                                    "\" is not a task state (pending, leased, done, failed)");
+  }
+  if (m.has("limit")) q.task_limit = size_t(m.integer("limit"));
+  return q;
+}
+
+Json events_to_json(const std::string& batch, const std::vector<EventRow>& events, bool older) {
+  // Newest kept first when the reply would grow past its bound.
+  std::vector<Json> entries;
+  size_t bytes = 0;
+  int64_t omitted = 0;
+  for (auto it = events.rbegin(); it != events.rend(); ++it) {
+    const EventRow& e = *it;
+    Json j = {{"time", std::clamp(e.time, 0.0, 1e12)},
+              {"level", e.level == "warn" || e.level == "error" ? e.level : "info"},
+              {"kind", kind_text(e.kind)},
+              {"task", std::max<int64_t>(e.task, 0)},
+              {"worker", id_text(e.worker)},
+              {"text", text(e.text)}};
+    const size_t n = j.dump().size() + 1;
+    if (bytes + n > kEventsBytes) {
+      ++omitted;
+      continue;
+    }
+    bytes += n;
+    entries.push_back(std::move(j));
+  }
+  std::reverse(entries.begin(), entries.end());
+  return {{"batch", id_text(batch)},
+          {"events", entries},
+          {"events_omitted", omitted},
+          {"older", older}};
+}
+
 Json status_to_json(const StatusReport& r) {
   // Workers: live first, then the most recently seen.
   std::vector<Json> worker_entries(r.workers.size());
@@ -233,7 +342,7 @@ Json status_to_json(const StatusReport& r) {
          if (x.live != y.live) return x.live;
          return x.worker.last_seen > y.worker.last_seen;
        })) {
-    Json j = worker_json(r.workers[i]);
+    Json j = worker_json(r.workers[i], r.now);
     const size_t n = j.dump().size() + 1;
     if (worker_bytes + n > kStatusWorkerBytes) {
       ++workers_omitted;
@@ -245,13 +354,14 @@ Json status_to_json(const StatusReport& r) {
   // Batches: running first, then the newest.
   std::vector<Json> batch_entries(r.batches.size());
   size_t batch_bytes = 0, batches_omitted = 0;
+  size_t task_bytes = kStatusTaskBytes;
   for (size_t i : priority_order(r.batches.size(), [&](size_t a, size_t b) {
          const BatchRow &x = r.batches[a].batch, &y = r.batches[b].batch;
          const bool xr = x.state == BatchState::kRunning, yr = y.state == BatchState::kRunning;
          if (xr != yr) return xr;
          return x.created > y.created;
        })) {
-    Json j = batch_json(r.batches[i]);
+    Json j = batch_json(r.batches[i], r.tasks_listed ? &task_bytes : nullptr);
     const size_t n = j.dump().size() + 1;
     if (worker_bytes + batch_bytes + n > kStatusBytes) {
       ++batches_omitted;
@@ -275,6 +385,8 @@ Json status_to_json(const StatusReport& r) {
 Server::Server(ServerOptions options, const Clock& clock)
     : options_(std::move(options)), clock_(clock) {
   fs::create_directories(options_.state_dir);
+  // Before anything of the state is read or written: one coordinator per folder.
+  lock_ = std::make_unique<StateLock>(options_.state_dir);
   tokens_ = std::make_unique<LeaseTokens>(options_.state_dir);
   store_ = std::make_unique<JobStore>(options_.state_dir / "dofarm.sqlite");
   scheduler_ = std::make_unique<Scheduler>(*store_, clock_, options_.scheduler);
@@ -312,7 +424,15 @@ Server::Server(ServerOptions options, const Clock& clock)
     socket_->set(zmq::sockopt::curve_secretkey, secret);
     socket_->set(zmq::sockopt::zap_domain, "dofarm");
   }
-  socket_->bind(options_.listen);
+  try {
+    socket_->bind(options_.listen);
+  } catch (const zmq::error_t& e) {
+    // ZeroMQ says only "Address already in use": name the endpoint.
+    throw RuntimeError("cannot listen on " + options_.listen + ": " + e.what() +
+                       (e.num() == EADDRINUSE ? " (another coordinator, or another program, "
+                                                "listens there; choose another --listen port)"
+                                              : ""));
+  }
   endpoint_ = socket_->get(zmq::sockopt::last_endpoint);
   // A restarted coordinator checks what the workers staged before it died.
   for (const std::string& b : scheduler_->running_batch_ids()) verify_staged_tiles(b);
@@ -533,9 +653,19 @@ std::string Server::handle(const protocol::Message& m) {
     return protocol::encode("ack", {{"ok", scheduler_->release(m.str("worker"), m.integer("task"),
                                                                int(m.integer("attempt")))}});
   if (t == "submit") return handle_submit(m);
-  if (t == "status") {
-    std::string batch = m.has("batch") && m.body["batch"].is_string() ? m.str("batch") : "";
-    return protocol::encode("status_reply", status_to_json(scheduler_->status(batch)));
+  if (t == "status")
+    return protocol::encode("status_reply", status_to_json(scheduler_->status(status_query(m))));
+  if (t == "events") {
+    if (!scheduler_->has_batch(m.str("batch")))
+      return protocol::encode("error",
+                              {{"message", "no batch " + m.str("batch") + " on this coordinator"},
+                               {"bad_input", true}});
+    const int limit = m.has("limit") ? int(m.integer("limit")) : kDefaultEvents;
+    // Asked for one more than listed: the reply says whether older ones exist.
+    std::vector<EventRow> events = scheduler_->events(m.str("batch"), limit + 1);
+    const bool older = int(events.size()) > limit;
+    if (older) events.erase(events.begin());
+    return protocol::encode("events_reply", events_to_json(m.str("batch"), events, older));
   }
   if (t == "resume") {
     int bad = verify_staged_tiles(m.str("batch"));

@@ -134,6 +134,7 @@ class Server {
 
   ServerOptions options_;
   const Clock& clock_;
+  std::unique_ptr<class StateLock> lock_;  // released after the store is closed
   std::unique_ptr<JobStore> store_;
   std::unique_ptr<Scheduler> scheduler_;
   std::unique_ptr<zmq::context_t> context_;
@@ -164,5 +165,14 @@ class Server {
 // (`batches_omitted`, `workers_omitted`, per batch `failed_omitted` and
 // `blocklisted_omitted`), running batches and live workers listed first.
 protocol::Json status_to_json(const StatusReport& report);
+// What a `status` message asks for (its optional batch, tasks, state, limit).
+StatusQuery status_query(const protocol::Message& m);
+// The `events_reply` of `batch`: `events` oldest first (Scheduler::events),
+// the newest that fit below the message limit (the others counted in
+// `events_omitted`); `older`: the store holds older ones than those given.
+protocol::Json events_to_json(const std::string& batch, const std::vector<EventRow>& events,
+                              bool older);
+// Events listed when an `events` message names no limit.
+inline constexpr int kDefaultEvents = 100;
 
 }  // namespace dofarm::coordinator

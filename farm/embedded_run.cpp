@@ -131,7 +131,8 @@ EmbeddedRunResult run_embedded(const EmbeddedRunOptions& o, const std::atomic<bo
   int64_t done = finished(&total);
   ProgressOptions po;
   if (!o.progress) po.mode = ProgressOptions::Mode::kOff;
-  Progress progress("batch " + result.batch + " tasks", total, po);
+  // It counts tasks (render tiles and shard packs), and says so.
+  Progress progress("batch " + result.batch, total, "tasks", po);
   progress.advance(done);
   auto last = std::chrono::steady_clock::now();
   size_t alive = children.size();
@@ -157,8 +158,18 @@ EmbeddedRunResult run_embedded(const EmbeddedRunOptions& o, const std::atomic<bo
   // Let the last results in before reading the final state.
   for (int i = 0; i < 5; ++i) server.poll_once(10);
   progress.advance(finished(&total) - done);
-  progress.finish();
   result.status = server.scheduler().status(result.batch).batches.at(0);
+  // "done" only for a batch that is done; a failed or interrupted one says
+  // how it ended (its tasks may all have ended, so the count alone is full).
+  const coordinator::BatchStatus& b = result.status;
+  if (b.batch.state == coordinator::BatchState::kDone)
+    progress.finish();
+  else if (result.stranded)
+    progress.fail("every worker is blocklisted");
+  else if (b.tasks_failed > 0)
+    progress.fail(std::to_string(b.tasks_failed) + " of them failed");
+  else
+    progress.fail(stop ? "stopped" : std::string("batch ") + coordinator::to_string(b.batch.state));
   return result;
 }
 

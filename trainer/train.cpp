@@ -210,7 +210,7 @@ TrainResult train_in(const TrainOptions& opt_in) {
 
   int bad_in_a_row = 0;
   const int64_t total_steps = int64_t(cfg.train.epochs) * cfg.train.steps_per_epoch;
-  Progress progress("train", std::max<int64_t>(0, total_steps - st.step));
+  Progress progress("train", std::max<int64_t>(0, total_steps - st.step), "steps");
   BatchPrefetcher batches(stream, cfg.train.batch, device, format);
   const int threads = at::get_num_threads();
   StepRunner runner(model, step_replicas(cfg.train.cpu_replicas, device, threads, cfg.train.batch));

@@ -124,7 +124,7 @@ TEST_F(FailurePolicyTest, StallClockStopsWhileAnEligibleWorkerIsLiveOrALeaseIsHe
   // w1 goes quiet, but its lease keeps the batch from stalling until it expires.
   clock_.advance(25);
   EXPECT_TRUE(sched_->heartbeat("w1", a.task_id, a.attempt));
-  clock_.advance(50);  // w1 last seen 50 s ago: live, within two leases
+  clock_.advance(50);  // w1 last seen 50 s ago: lost (one lease), but it holds a lease
   EXPECT_TRUE(sched_->fail_stalled_batches().empty());
   clock_.advance(20);  // lease expired; w1 not live (70 s)
   EXPECT_FALSE(sched_->expire_leases().empty());

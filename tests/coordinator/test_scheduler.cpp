@@ -288,7 +288,7 @@ TEST_F(SchedulerTest, StatusCountsFramesRateAndEta) {
   st = status(batch);
   EXPECT_EQ(st.frames_per_hour, 0);
   EXPECT_FALSE(st.eta_seconds.has_value());
-  EXPECT_FALSE(sched_.status().workers[0].live);  // w1 unseen for 601 s > 2 leases
+  EXPECT_FALSE(sched_.status().workers[0].live);  // w1 unseen for 601 s > one lease
 }
 
 TEST_F(SchedulerTest, InvalidatedStagedTileIsRenderedAgainBeforeThePack) {

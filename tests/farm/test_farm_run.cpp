@@ -103,6 +103,9 @@ TEST(FarmRun, StopsWhenEveryWorkerIsBlocklisted) {
   EXPECT_EQ(r.status, 1) << r.out << r.err;
   EXPECT_NE(r.err.find("blocklisted"), std::string::npos) << r.err;
   EXPECT_FALSE(fs::exists(tmp / "out" / "manifest.json"));
+  // The progress says what it counts and how the run ended: never "done".
+  EXPECT_EQ(r.err.find(" done in "), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find(" tasks failed after "), std::string::npos) << r.err;
 }
 
 // A batch that does not exist: status, cancel and resume exit 2 with one

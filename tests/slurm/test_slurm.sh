@@ -204,17 +204,38 @@ export DOFARM_SLURM_POLL=1 DOFARM_SLURM_LINGER=5
 getent hosts "$(hostname)" >/dev/null || export DOFARM_SLURM_HOST=127.0.0.1
 out=$T/farm
 start=$SECONDS
+# Training options without training are bad input, before anything is submitted.
+rc=0
+"$dofarm_slurm" submit "$T/job.toml" --workers 1 --out "$T/notrain" --dofarm "$dofarm" \
+  --train-gres gpu:1 2>"$T/notrain.err" || rc=$?
+[ "$rc" -eq 2 ] || fail "--train-gres without --train: exit $rc, expected 2 ($(cat "$T/notrain.err"))"
+# Somebody else's job in the queue (held, so it never runs): status must not list it.
+foreign=$(sbatch --parsable --hold --job-name=not-ours --output=/dev/null --wrap "sleep 600")
+foreign=${foreign%%;*}
+# The training job gets its own resources (--train-*); `true` stands in for
+# dofarm-train, which this build may lack.
 batch=$("$dofarm_slurm" submit "$T/job.toml" --workers 2 --out "$out" --dofarm "$dofarm" \
-  --cpus-per-task 1 --endpoint-timeout 60) || fail "dofarm-slurm submit failed"
+  --cpus-per-task 1 --endpoint-timeout 60 --train --dofarm-train "$(type -P true)" \
+  --train-partition debug --train-cpus-per-task 1 --train-sbatch-arg=--comment=dofarm-train-test) ||
+  fail "dofarm-slurm submit failed"
 log "submitted batch $batch"
 state_json=$out/.dofarm-slurm/state.json
 [ -f "$state_json" ] || fail "no $state_json"
 coord_job=$(python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["coordinator_job"])' "$state_json")
 array_job=$(python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["arrays"][0]["job_id"])' "$state_json")
-{ [ -n "$coord_job" ] && [ -n "$array_job" ]; } || fail "state.json lacks job ids: $(cat "$state_json")"
+train_job=$(python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["train_job"])' "$state_json")
+{ [ -n "$coord_job" ] && [ -n "$array_job" ] && [ -n "$train_job" ]; } ||
+  fail "state.json lacks job ids: $(cat "$state_json")"
+train_info=$(scontrol show job "$train_job")
+grep -q "Comment=dofarm-train-test" <<<"$train_info" || fail "training job lacks its own sbatch args: $train_info"
+grep -q "NumCPUs=1 " <<<"$train_info" || fail "training job lacks --cpus-per-task 1: $train_info"
 
 status_json() { "$dofarm_slurm" status "$out" --json; }
 jq_py() { python3 -c "import json,sys; d=json.load(sys.stdin); $1"; }
+listed=$(status_json | jq_py 'print(" ".join(sorted(set(j["array_job_id"] or j["job_id"] for j in d["slurm"]["jobs"]))), d["slurm"]["source"].split()[1])')
+[[ " $listed " != *" $foreign "* ]] || fail "status lists job $foreign, which is not this submission's: $listed"
+[[ $listed == *"--me" ]] || fail "status did not ask squeue for this user's jobs only: $listed"
+scancel "$foreign"
 
 # ------------------------------------------------------------- cancel a worker mid-task
 # A worker logs "task N: frame F tile ..." when it starts rendering; the

@@ -198,7 +198,8 @@ FrameBuffers render_frame(const Scene& scene, const JobSpec& spec, int frame,
   std::atomic<int> next{0};
   std::atomic<uint64_t> rays{0};
   std::optional<Progress> progress;
-  if (options.progress) progress.emplace("frame " + std::to_string(frame), int64_t(blocks));
+  if (options.progress)
+    progress.emplace("frame " + std::to_string(frame), int64_t(blocks), "blocks");
   const auto t0 = std::chrono::steady_clock::now();
   std::exception_ptr error;
   std::mutex error_mutex;
