@@ -174,9 +174,11 @@ function drawDetail(b, st) {
     ? 'stalled: no eligible worker for ' + Math.floor(b.stalled_seconds) + ' s' : '';
   drawFrames(b);
   const failed = b.failed || [];
+  // A pack task has no frame or tile: its shard instead.
   const rows = failed.map(f => el('tr', { 'data-task': f.task },
-    cell('task', f.task, true), cell('kind', f.kind), cell('frame', f.frame, true),
-    cell('rect', f.rect), cell('error', f.error),
+    cell('task', f.task, true), cell('kind', f.kind),
+    cell('frame', f.kind === 'pack_shard' ? '-' : f.frame, true),
+    cell('rect', f.kind === 'pack_shard' ? 'shard ' + f.shard : f.rect), cell('error', f.error),
     el('td', { 'data-field': 'reproduce' }, el('code', {}, f.reproduce || ''))));
   $('failed-rows').replaceChildren(...rows);
   $('failed-none').textContent = failed.length ? '' : 'no failed tasks';
@@ -255,7 +257,7 @@ constexpr const char* kBody = R"HTML(
 <p id="detail-reason" class="state-failed"></p><p id="detail-stalled" class="state-failed"></p>
 <h3>Frames</h3><div id="frames"></div><p id="frames-note" class="muted"></p>
 <h3>Failed tasks</h3>
-<table><thead><tr><th>task</th><th>kind</th><th>frame</th><th>tile (x, y, w, h)</th><th>error</th>
+<table><thead><tr><th>task</th><th>kind</th><th>frame</th><th>tile (x, y, w, h) or shard</th><th>error</th>
 <th>reproduce</th></tr></thead><tbody id="failed-rows"></tbody></table>
 <p id="failed-none" class="muted"></p><p id="failed-omitted" class="muted"></p>
 <p id="blocklisted"></p>
