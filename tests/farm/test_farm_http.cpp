@@ -209,10 +209,13 @@ TEST(FarmHttp, ApiStatusIsTheDataOfStatusJsonAndMetricsCountTheSame) {
     return batch_of(status_of(batch), batch).at("tasks_done").get<int>() >= 2;
   })) << coord.child().describe();
   w.signal(SIGSTOP);
+  // Still from the moment the coordinator also noticed that the batch has
+  // no eligible worker (it looks once a second).
   ASSERT_TRUE(poll_until("the stopped worker to lose its lease and count as gone", [&] {
     Json st = status_of("");
-    return !st.at("workers").at(0).at("live").get<bool>() &&
-           batch_of(st, batch).at("tasks_leased").get<int>() == 0;
+    const Json b = batch_of(st, batch);
+    return !st.at("workers").at(0).at("live").get<bool>() && b.at("tasks_leased").get<int>() == 0 &&
+           !b.at("stalled_seconds").is_null();
   }));
 
   // Halfway: the batch runs, some tasks done, none leased.
