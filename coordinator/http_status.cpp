@@ -3,11 +3,11 @@
 #include <arpa/inet.h>
 #include <httplib.h>
 #include <poll.h>
-#include <sys/socket.h>
-#include <unistd.h>
 #include <sodium.h>
 #include <spdlog/spdlog.h>
+#include <sys/socket.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <atomic>
@@ -33,16 +33,16 @@ using protocol::Json;
 
 namespace {
 
-constexpr size_t kMaxBodyBytes = 1024;        // GET needs none; more is 413
+constexpr size_t kMaxBodyBytes = 1024;          // GET needs none; more is 413
 constexpr size_t kMaxRequestBytes = 64 * 1024;  // request line and headers of one request
 constexpr double kRequestSeconds = 15;          // to read one request and write its answer
 constexpr double kConnectionSeconds = 60;       // one connection, however many requests
 constexpr size_t kRequestsPerConnection = 20;   // keep-alive requests on one connection
 constexpr size_t kMaxTokenFileBytes = 4096;
-constexpr size_t kMaxWantedBatches = 16;      // batches snapshotted for ?batch=
-constexpr double kWatchSeconds = 30;          // snapshots are built this long after a request
-constexpr double kWaitSeconds = 3;            // a request waits at most this for a fresh one
-constexpr double kCostShare = 20;             // snapshots take at most ~1/20 of the loop
+constexpr size_t kMaxWantedBatches = 16;  // batches snapshotted for ?batch=
+constexpr double kWatchSeconds = 30;      // snapshots are built this long after a request
+constexpr double kWaitSeconds = 3;        // a request waits at most this for a fresh one
+constexpr double kCostShare = 20;         // snapshots take at most ~1/20 of the loop
 
 double steady_seconds() {
   return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
@@ -112,7 +112,9 @@ class BoundedPool : public httplib::TaskQueue {
 class BoundedStream : public httplib::Stream {
  public:
   BoundedStream(int fd, double io_timeout, const std::atomic<bool>& stopping)
-      : fd_(fd), io_ms_(int(io_timeout * 1000)), stopping_(stopping),
+      : fd_(fd),
+        io_ms_(int(io_timeout * 1000)),
+        stopping_(stopping),
         connection_deadline_(steady_seconds() + kConnectionSeconds) {}
   // Starts the next request's budget and deadline.
   void begin_request() {
@@ -226,7 +228,7 @@ class BoundedServer : public httplib::Server {
 
 // What HTTP threads serve, built on the coordinator's loop.
 struct Snapshot {
-  double built = 0;  // steady seconds
+  double built = 0;    // steady seconds
   std::string status;  // status_to_json() of the whole farm, as text
   std::string metrics;
   // Per asked batch: status_to_json() of status(batch) as text; empty when
@@ -348,9 +350,8 @@ struct HttpStatus::Impl {
     if (batch) {
       wanted[*batch] = now;
       while (wanted.size() > kMaxWantedBatches) {
-        auto oldest = std::min_element(wanted.begin(), wanted.end(), [](auto& x, auto& y) {
-          return x.second < y.second;
-        });
+        auto oldest = std::min_element(wanted.begin(), wanted.end(),
+                                       [](auto& x, auto& y) { return x.second < y.second; });
         wanted.erase(oldest);
       }
     }
@@ -432,9 +433,9 @@ struct HttpStatus::Impl {
         const std::string& text = s->batches.at(batch);
         if (text.empty()) {
           res.status = 404;
-          res.set_content(Json{{"error", "no batch " + batch + " on this coordinator"}}.dump() +
-                              "\n",
-                          "application/json");
+          res.set_content(
+              Json{{"error", "no batch " + batch + " on this coordinator"}}.dump() + "\n",
+              "application/json");
           return;
         }
         res.set_content(text, "application/json");
@@ -452,8 +453,8 @@ struct HttpStatus::Impl {
       }
       res.set_content(s->metrics, "text/plain; version=0.0.4; charset=utf-8");
     });
-    server.set_error_handler(httplib::Server::HandlerWithResponse(
-        [](const httplib::Request&, httplib::Response& res) {
+    server.set_error_handler(
+        httplib::Server::HandlerWithResponse([](const httplib::Request&, httplib::Response& res) {
           if (!res.body.empty()) return httplib::Server::HandlerResponse::Unhandled;
           res.set_content("HTTP " + std::to_string(res.status) + "\n", "text/plain");
           return httplib::Server::HandlerResponse::Handled;

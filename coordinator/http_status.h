@@ -40,9 +40,9 @@ struct HttpOptions {
   // The access token, first line of this file. Required when HOST is not a
   // loopback address; when given, every request needs it.
   std::optional<std::filesystem::path> token_file;
-  int threads = 4;               // HTTP threads
-  int queue = 16;                // accepted connections waiting for a thread
-  double io_timeout_seconds = 2;  // each read and write of a connection
+  int threads = 4;                    // HTTP threads
+  int queue = 16;                     // accepted connections waiting for a thread
+  double io_timeout_seconds = 2;      // each read and write of a connection
   double min_interval_seconds = 0.5;  // between two snapshots
 };
 

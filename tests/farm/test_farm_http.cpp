@@ -59,7 +59,8 @@ HttpResult http_get(int port, const std::string& path, const httplib::Headers& h
 
 Json api_json(int port, const std::string& path) {
   HttpResult r = http_get(port, path);
-  if (r.status != 200) throw RuntimeError(path + ": HTTP " + std::to_string(r.status) + " " + r.body);
+  if (r.status != 200)
+    throw RuntimeError(path + ": HTTP " + std::to_string(r.status) + " " + r.body);
   return Json::parse(r.body);
 }
 
@@ -103,7 +104,9 @@ Json cli_status(const TempDir& tmp, const std::string& endpoint, const std::stri
     j->erase("now");
   }
   if (a == b) return ::testing::AssertionSuccess();
-  return ::testing::AssertionFailure() << "API:\n" << a.dump(1) << "\nstatus --json:\n" << b.dump(1);
+  return ::testing::AssertionFailure() << "API:\n"
+                                       << a.dump(1) << "\nstatus --json:\n"
+                                       << b.dump(1);
 }
 
 // Prometheus text format 0.0.4: every line a comment (# HELP / # TYPE) or
@@ -114,7 +117,8 @@ std::map<std::string, double> parse_metrics(const std::string& text) {
   const std::string label = R"([a-zA-Z_][a-zA-Z0-9_]*="(?:[^"\\\n]|\\.)*")";
   const std::regex sample("([a-zA-Z_:][a-zA-Z0-9_:]*)(\\{" + label + "(?:," + label +
                           ")*\\})? ([-+0-9.eE]+|NaN|[+-]Inf)");
-  const std::regex type("# TYPE ([a-zA-Z_:][a-zA-Z0-9_:]*) (counter|gauge|histogram|summary|untyped)");
+  const std::regex type(
+      "# TYPE ([a-zA-Z_:][a-zA-Z0-9_:]*) (counter|gauge|histogram|summary|untyped)");
   const std::regex help("# HELP ([a-zA-Z_:][a-zA-Z0-9_:]*) .+");
   std::map<std::string, double> out;
   std::map<std::string, std::string> types;
@@ -157,15 +161,19 @@ double metric(const std::map<std::string, double>& m, const std::string& key) {
 void expect_metrics_match(const std::map<std::string, double>& m, const Json& status) {
   for (const Json& b : status.at("batches")) {
     const std::string id = "batch=\"" + b.at("batch").get<std::string>() + "\"";
-    for (const auto& [state, key] : {std::pair{"pending", "tasks_pending"}, {"running", "tasks_leased"},
-                                     {"done", "tasks_done"}, {"failed", "tasks_failed"}})
-      EXPECT_EQ(metric(m, "dofarm_tasks{" + id + ",state=\"" + state + "\"}"), b.at(key).get<double>())
+    for (const auto& [state, key] : {std::pair{"pending", "tasks_pending"},
+                                     {"running", "tasks_leased"},
+                                     {"done", "tasks_done"},
+                                     {"failed", "tasks_failed"}})
+      EXPECT_EQ(metric(m, "dofarm_tasks{" + id + ",state=\"" + state + "\"}"),
+                b.at(key).get<double>())
           << id << " " << state;
     EXPECT_EQ(metric(m, "dofarm_batch_frames{" + id + "}"), b.at("frames_total").get<double>());
-    EXPECT_EQ(metric(m, "dofarm_frames_rendered{" + id + "}"), b.at("frames_rendered").get<double>());
+    EXPECT_EQ(metric(m, "dofarm_frames_rendered{" + id + "}"),
+              b.at("frames_rendered").get<double>());
     EXPECT_EQ(metric(m, "dofarm_frames_packed{" + id + "}"), b.at("frames_packed").get<double>());
-    EXPECT_EQ(metric(m, "dofarm_batch_state{" + id + ",state=\"" + b.at("state").get<std::string>() +
-                            "\"}"),
+    EXPECT_EQ(metric(m, "dofarm_batch_state{" + id + ",state=\"" +
+                            b.at("state").get<std::string>() + "\"}"),
               1.0);
   }
   int live = 0;
@@ -199,8 +207,9 @@ TEST(FarmHttp, ApiStatusIsTheDataOfStatusJsonAndMetricsCountTheSame) {
     return farm_status(ep, batch);
   };
 
-  CliResult sub = run_cli(tmp.path(), "submit",
-                          {"submit", spec.string(), "--coordinator", ep, "--out", (tmp / "out").string()});
+  CliResult sub =
+      run_cli(tmp.path(), "submit",
+              {"submit", spec.string(), "--coordinator", ep, "--out", (tmp / "out").string()});
   ASSERT_EQ(sub.status, 0) << sub.err;
   const std::string batch = sub.out.substr(0, sub.out.find('\n'));
 
@@ -224,7 +233,8 @@ TEST(FarmHttp, ApiStatusIsTheDataOfStatusJsonAndMetricsCountTheSame) {
   Json api = api_status_since(port, "/api/status?batch=" + batch, cli.at("now").get<double>());
   ASSERT_EQ(api.at("batches").size(), 1u);
   EXPECT_EQ(api["batches"][0].at("state"), "running");
-  EXPECT_LT(api["batches"][0].at("tasks_done").get<int>(), api["batches"][0].at("tasks_total").get<int>());
+  EXPECT_LT(api["batches"][0].at("tasks_done").get<int>(),
+            api["batches"][0].at("tasks_total").get<int>());
   EXPECT_TRUE(same_status(api, cli));
   Json cli_all = cli_status(tmp, ep);
   ++status_calls;
@@ -276,6 +286,11 @@ TEST(FarmHttp, ApiStatusIsTheDataOfStatusJsonAndMetricsCountTheSame) {
   EXPECT_EQ(http_get(port, "/nothing-here").status, 404);
 }
 
+std::string find_browser();
+std::string dump_dom(const std::string& browser, const TempDir& tmp, const std::string& url,
+                     const std::string& name);
+int refreshes(const std::string& dom);
+
 TEST(FarmHttp, NonLoopbackBindNeedsItsTokenAndEveryRequestMustCarryIt) {
   TempDir tmp;
   // No token: refused before anything is written.
@@ -312,6 +327,11 @@ TEST(FarmHttp, NonLoopbackBindNeedsItsTokenAndEveryRequestMustCarryIt) {
   HttpResult page = http_get(port, "/", bearer(token));
   EXPECT_NE(page.body.find("<title>dofarm</title>"), std::string::npos);
   EXPECT_EQ(page.content_type, "text/html; charset=utf-8");
+  // The page opened with ?token= sends it with each of its own requests.
+  if (const std::string browser = find_browser(); !browser.empty()) {
+    const std::string url = "http://127.0.0.1:" + std::to_string(port) + "/?token=" + token;
+    EXPECT_GE(refreshes(dump_dom(browser, tmp, url, "token")), 2);
+  }
 }
 
 // Sends `request` on a fresh connection to 127.0.0.1:port and returns the
@@ -350,9 +370,11 @@ TEST(FarmHttp, OversizedRequestsAreRefusedAndTheFarmGoesOn) {
   const std::string host = "Host: 127.0.0.1\r\n";
   // A 100 KB request line; one 100 KB header; 200,000 small headers (2.6 MB).
   auto refused = [](int code) { return code == 0 || code == 400 || code == 414 || code == 431; };
-  int code = raw_request(port, "GET /" + std::string(100000, 'a') + " HTTP/1.1\r\n" + host + "\r\n");
+  int code =
+      raw_request(port, "GET /" + std::string(100000, 'a') + " HTTP/1.1\r\n" + host + "\r\n");
   EXPECT_TRUE(refused(code)) << code;
-  code = raw_request(port, "GET / HTTP/1.1\r\n" + host + "X-Big: " + std::string(100000, 'b') + "\r\n\r\n");
+  code = raw_request(
+      port, "GET / HTTP/1.1\r\n" + host + "X-Big: " + std::string(100000, 'b') + "\r\n\r\n");
   EXPECT_TRUE(refused(code)) << code;
   std::string many = "GET / HTTP/1.1\r\n" + host;
   for (int i = 0; i < 200000; ++i) many += "X-" + std::to_string(i) + ": 1\r\n";
@@ -362,11 +384,12 @@ TEST(FarmHttp, OversizedRequestsAreRefusedAndTheFarmGoesOn) {
   EXPECT_EQ(raw_request(port, "GET /api/status HTTP/1.1\r\n" + host +
                                   "Content-Length: 100000000\r\n\r\n" + std::string(4096, 'c')),
             413);
-  EXPECT_EQ(raw_request(port, "GET /api/status HTTP/1.1\r\n" + host +
-                                  "Transfer-Encoding: chunked\r\n\r\n"),
+  EXPECT_EQ(raw_request(
+                port, "GET /api/status HTTP/1.1\r\n" + host + "Transfer-Encoding: chunked\r\n\r\n"),
             413);
-  EXPECT_EQ(raw_request(port, "POST /api/status HTTP/1.1\r\n" + host + "Content-Length: 2\r\n\r\n{}"),
-            405);
+  EXPECT_EQ(
+      raw_request(port, "POST /api/status HTTP/1.1\r\n" + host + "Content-Length: 2\r\n\r\n{}"),
+      405);
   EXPECT_EQ(raw_request(port, "DELETE /api/status HTTP/1.1\r\n" + host + "\r\n"), 405);
 
   // More connections that send nothing than there are HTTP threads and
@@ -379,12 +402,15 @@ TEST(FarmHttp, OversizedRequestsAreRefusedAndTheFarmGoesOn) {
     a.sin_family = AF_INET;
     a.sin_port = htons(uint16_t(port));
     a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-    if (::connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0) idle.push_back(fd);
-    else ::close(fd);
+    if (::connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0)
+      idle.push_back(fd);
+    else
+      ::close(fd);
   }
   EXPECT_NO_THROW(farm_status(coord.endpoint()));
   for (int fd : idle) ::close(fd);
-  EXPECT_TRUE(poll_until("HTTP to answer again", [&] { return http_get(port, "/api/status").status == 200; }));
+  EXPECT_TRUE(poll_until("HTTP to answer again",
+                         [&] { return http_get(port, "/api/status").status == 200; }));
   EXPECT_TRUE(coord.child().running());
 }
 
@@ -396,15 +422,16 @@ std::string find_browser() {
   return "";
 }
 
-// The DOM after the page ran for `budget_ms` of the browser's virtual time
-// (it refreshes every 1.5 s, so several times).
+// The DOM after the page ran for 3.5 s of the browser's virtual time (it
+// refreshes every 1.5 s: three times).
 std::string dump_dom(const std::string& browser, const TempDir& tmp, const std::string& url,
                      const std::string& name) {
   const fs::path dom = tmp / (name + ".html");
   const std::string cmd = browser +
                           " --headless --no-sandbox --disable-gpu --disable-dev-shm-usage "
-                          "--no-first-run --user-data-dir=" + (tmp / ("profile-" + name)).string() +
-                          " --virtual-time-budget=5000 --dump-dom '" + url + "' > " + dom.string() +
+                          "--no-first-run --user-data-dir=" +
+                          (tmp / ("profile-" + name)).string() +
+                          " --virtual-time-budget=3500 --dump-dom '" + url + "' > " + dom.string() +
                           " 2>" + (tmp / (name + ".err")).string();
   EXPECT_EQ(std::system(cmd.c_str()), 0) << cmd;
   return read_text(dom);
@@ -414,10 +441,14 @@ std::string dump_dom(const std::string& browser, const TempDir& tmp, const std::
 std::string html_text(const std::string& s) {
   std::string out;
   for (char c : s) {
-    if (c == '&') out += "&amp;";
-    else if (c == '<') out += "&lt;";
-    else if (c == '>') out += "&gt;";
-    else out += c;
+    if (c == '&')
+      out += "&amp;";
+    else if (c == '<')
+      out += "&lt;";
+    else if (c == '>')
+      out += "&gt;";
+    else
+      out += c;
   }
   return out;
 }
@@ -452,11 +483,13 @@ void expect_page_shows(const std::string& dom, const Json& status) {
   int live = 0;
   for (const Json& w : status.at("workers")) {
     live += w.at("live").get<bool>();
-    const std::string row = element(dom, "<tr data-worker=\"" + w.at("worker").get<std::string>() + "\"", "tr");
+    const std::string row =
+        element(dom, "<tr data-worker=\"" + w.at("worker").get<std::string>() + "\"", "tr");
     ASSERT_FALSE(row.empty()) << w.at("worker") << " not on the page";
     EXPECT_EQ(field(row, "live"), w.at("live").get<bool>() ? "true" : "false");
   }
-  EXPECT_NE(dom.find("<span id=\"workers-live\">" + std::to_string(live) + "</span>"), std::string::npos);
+  EXPECT_NE(dom.find("<span id=\"workers-live\">" + std::to_string(live) + "</span>"),
+            std::string::npos);
 }
 
 // Polls until two status reports 0.3 s apart are the same data (a stopped
@@ -500,8 +533,9 @@ TEST(FarmHttp, PageInABrowserShowsTheNumbersOfStatusJsonAndFollowsARunningBatch)
   const int port = web_port(coord.child());
   auto submit = [&](const TinyJob& j, const std::string& name) {
     const fs::path spec = write_job(tmp.path(), name + ".toml", j);
-    CliResult r = run_cli(tmp.path(), "submit_" + name,
-                          {"submit", spec.string(), "--coordinator", ep, "--out", (tmp / name).string()});
+    CliResult r =
+        run_cli(tmp.path(), "submit_" + name,
+                {"submit", spec.string(), "--coordinator", ep, "--out", (tmp / name).string()});
     EXPECT_EQ(r.status, 0) << r.err;
     return r.out.substr(0, r.out.find('\n'));
   };
@@ -511,8 +545,9 @@ TEST(FarmHttp, PageInABrowserShowsTheNumbersOfStatusJsonAndFollowsARunningBatch)
   Child w1 = start_worker(tmp.path(), ep, "w1");
   Child w2 = start_worker(tmp.path(), ep, "w2");
   Child w3 = start_worker(tmp.path(), ep, "w3");
-  ASSERT_TRUE(poll_until("the doomed batch to fail", [&] { return batch_state(ep, bad) == "failed"; }))
-      << coord.child().describe();
+  ASSERT_TRUE(poll_until("the doomed batch to fail", [&] {
+    return batch_state(ep, bad) == "failed";
+  })) << coord.child().describe();
   // w2 and w3 go (they still count as live for two leases); w1 stands still
   // while the healthy batch is submitted: the farm holds still.
   w2.kill9();
