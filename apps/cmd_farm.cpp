@@ -107,11 +107,36 @@ void add_coordinator_option(CLI::App* cmd, CoordinatorArgs& c) {
   add_curve_client_option(cmd, c.curve_client);
 }
 
+// --http and --http-token-file of `coordinator` and `run`.
+struct HttpArgs {
+  std::string address, token_file;
+  std::optional<coordinator::HttpOptions> options() const {
+    if (address.empty()) return std::nullopt;
+    coordinator::HttpOptions o;
+    o.address = address;
+    if (!token_file.empty()) o.token_file = token_file;
+    return o;
+  }
+};
+
+void add_http_options(CLI::App* cmd, HttpArgs& h) {
+  cmd->add_option("--http", h.address,
+                  "serve a live web page, /api/status (JSON) and /metrics (Prometheus) on this "
+                  "address, e.g. 127.0.0.1:8080 (port 0: any free port); a non-loopback address "
+                  "needs --http-token-file")
+      ->type_name("HOST:PORT");
+  cmd->add_option("--http-token-file", h.token_file,
+                  "access token for --http (first line, 16+ characters, file mode 600); requests "
+                  "need \"Authorization: Bearer TOKEN\" or ?token=TOKEN")
+      ->type_name("FILE");
+}
+
 Command add_run_impl(CLI::App& app) {
   auto a = std::make_shared<farm::EmbeddedRunOptions>();
   auto sets = std::make_shared<std::vector<std::string>>();
   auto job = std::make_shared<std::string>();
   auto out = std::make_shared<std::string>();
+  auto http = std::make_shared<HttpArgs>();
   CLI::App* cmd = app.add_subcommand(
       "run", "Render a job on this machine: an embedded coordinator and N local workers");
   cmd->add_option("job", *job, "job spec")->type_name("JOB.toml")->required();
@@ -127,7 +152,9 @@ Command add_run_impl(CLI::App& app) {
       ->check(CLI::Range(0, 4096));
   cmd->add_option("--lease", a->lease_seconds, "task lease in seconds")->capture_default_str();
   add_set_option(cmd, *sets);
-  return {cmd, [a, sets, job, out, &app]() {
+  add_http_options(cmd, *http);
+  return {cmd, [a, sets, job, out, http, &app]() {
+            a->http = http->options();
             a->spec = *job;
             a->out = *out;
             a->overrides = *sets;
@@ -162,6 +189,7 @@ Command add_coordinator(CLI::App& app) {
     std::string listen = "tcp://*:5555", state, curve, clients;
     double lease = 30;
     double stall_timeout = coordinator::SchedulerOptions{}.stall_timeout;
+    HttpArgs http;
   };
   auto a = std::make_shared<Args>();
   CLI::App* cmd = app.add_subcommand("coordinator", "Run the farm's coordinator");
@@ -183,6 +211,7 @@ Command add_coordinator(CLI::App& app) {
                   "this many seconds; 0 = never")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
+  add_http_options(cmd, a->http);
   return {cmd, [a]() {
             install_stop_signals();
             coordinator::SystemClock clock;
@@ -193,9 +222,12 @@ Command add_coordinator(CLI::App& app) {
             so.scheduler.stall_timeout = a->stall_timeout;
             if (!a->curve.empty()) so.curve_secret = a->curve;
             if (!a->clients.empty()) so.curve_clients = a->clients;
+            so.http = a->http.options();
             coordinator::Server server(so, clock);
-            // Tests and scripts read the bound endpoint from here.
+            // Tests and scripts read the bound endpoint from here (and the
+            // web page's address from the next line).
             std::cout << "listening " << server.endpoint() << std::endl;
+            if (!server.http_url().empty()) std::cout << "web " << server.http_url() << std::endl;
             server.run(stop_requested());
             spdlog::info("coordinator stopping");
             return kExitOk;

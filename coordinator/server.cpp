@@ -384,6 +384,7 @@ Json status_to_json(const StatusReport& r) {
 
 Server::Server(ServerOptions options, const Clock& clock)
     : options_(std::move(options)), clock_(clock) {
+  if (options_.http) http_ = std::make_unique<HttpStatus>(*options_.http);
   fs::create_directories(options_.state_dir);
   // Before anything of the state is read or written: one coordinator per folder.
   lock_ = std::make_unique<StateLock>(options_.state_dir);
@@ -534,6 +535,9 @@ std::string Server::handle_failed(const protocol::Message& m) {
     }
   }
   FailResult r = scheduler_->fail(worker, task, attempt, m.str("error"));
+  if (r.status == FailStatus::kRetry || r.status == FailStatus::kFailedForGood)
+    ++counters_.task_failures;
+  counters_.blocklistings += r.worker_blocklisted;
   spdlog::warn("task {} attempt {} failed on {}: {} ({})", task, attempt, worker, m.str("error"),
                to_string(r.status));
   return protocol::encode("ack", {{"status", to_string(r.status)}});
@@ -786,6 +790,7 @@ void Server::poll_once(int timeout_ms) {
         throw protocol::ProtocolError("expected one payload frame, got " +
                                       std::to_string(payload.size()));
       const protocol::Message m = protocol::parse(payload[0].data(), payload[0].size());
+      ++counters_.messages[m.type];
       // Roles under CURVE (coordinator/roles.h): the ZAP User-Id is the role.
       if (auto refused = refusal_for(zmq_msg_gets(payload[0].handle(), "User-Id"), m.type))
         throw protocol::ProtocolError(*refused);
@@ -809,6 +814,7 @@ void Server::poll_once(int timeout_ms) {
         reply = handle(m);
       }
     } catch (const protocol::ProtocolError& e) {
+      ++counters_.messages_refused;
       reply = protocol::error_reply(e.what());
     } catch (const std::exception& e) {
       spdlog::error("request failed: {}", e.what());
@@ -823,8 +829,10 @@ void Server::poll_once(int timeout_ms) {
   }
   round_claim_bytes_ = 0;
   try {
-    for (int64_t id : scheduler_->expire_leases())
+    for (int64_t id : scheduler_->expire_leases()) {
       spdlog::warn("task {}: lease expired, requeued", id);
+      ++counters_.lease_expiries;
+    }
     for (const std::string& b : scheduler_->fail_stalled_batches())
       spdlog::error("batch {} failed: no eligible worker for its stall timeout", b);
     scheduler_->flush_if_due();
@@ -846,6 +854,7 @@ void Server::poll_once(int timeout_ms) {
       reply = protocol::error_reply(std::string("coordinator error: ") + e.what());
   }
   send_outbox();
+  if (http_) http_->tick(*scheduler_, counters_);  // after the replies: never delays one
 }
 
 void Server::run(const std::atomic<bool>& stop) {

@@ -25,6 +25,7 @@
 #include "common/protocol.h"
 #include "coordinator/claims.h"
 #include "coordinator/clock.h"
+#include "coordinator/http_status.h"
 #include "coordinator/job_store.h"
 #include "coordinator/lease_tokens.h"
 #include "common/job_snapshot.h"
@@ -52,6 +53,9 @@ struct ServerOptions {
   SchedulerOptions scheduler;
   double wait_seconds = 0.5;        // longest a request is parked before it gets `wait`
   bool shutdown_when_idle = false;  // embedded run: tell workers to exit when nothing runs
+  // The web page, /api/status and /metrics (coordinator/http_status.h); off
+  // when empty.
+  std::optional<HttpOptions> http;
 };
 
 class Server {
@@ -71,6 +75,10 @@ class Server {
   size_t parked() const { return parked_.size(); }
 
   Scheduler& scheduler() { return *scheduler_; }
+  // What the loop counted since it started (the counters of /metrics).
+  const ServerCounters& counters() const { return counters_; }
+  // The web page's address (http://HOST:PORT/); empty without --http.
+  std::string http_url() const { return http_ ? http_->url() : ""; }
   // True when no batch is running (every batch done, failed or cancelled).
   bool idle();
   // The check of a resume (on start for running batches, the `resume`
@@ -141,6 +149,8 @@ class Server {
   std::unique_ptr<zmq::socket_t> socket_;
   std::unique_ptr<class ZapHandler> zap_;
   std::string endpoint_;
+  ServerCounters counters_;
+  std::unique_ptr<HttpStatus> http_;  // serves snapshots that poll_once() publishes
   std::vector<Parked> parked_;                               // oldest first
   std::vector<std::pair<std::string, std::string>> outbox_;  // (identity, reply)
   uint64_t parked_generation_ = 0;                           // scheduler generation they last tried

@@ -55,6 +55,7 @@ std::string foreign_content(const fs::path& out) {
 
 EmbeddedRunResult run_embedded(const EmbeddedRunOptions& o, const std::atomic<bool>& stop) {
   // 1-2: resolve and check; bad input leaves no trace.
+  if (o.http) coordinator::check_http_options(*o.http);
   worker::ResolvedJob job = worker::resolve_job(o.spec, o.overrides);
   const fs::path out = fs::absolute(o.out).lexically_normal();
   std::error_code ec;
@@ -89,6 +90,7 @@ EmbeddedRunResult run_embedded(const EmbeddedRunOptions& o, const std::atomic<bo
   so.listen = "tcp://127.0.0.1:*";
   so.state_dir = state;
   so.shutdown_when_idle = true;
+  so.http = o.http;
   so.scheduler.lease_seconds = o.lease_seconds;
   coordinator::Server server(so, clock);
   coordinator::Server::JobSubmission sub = server.submit_job(out, job.snapshot, o.overrides);

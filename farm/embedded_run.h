@@ -17,10 +17,12 @@
 
 #include <atomic>
 #include <filesystem>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "common/error.h"
+#include "coordinator/http_status.h"
 #include "coordinator/scheduler.h"
 
 namespace dofarm::farm {
@@ -35,6 +37,7 @@ struct EmbeddedRunOptions {
   std::filesystem::path exe;         // the dofarm executable the workers run
   std::string worker_log_level = "warn";
   bool progress = true;              // draw a progress bar on stderr
+  std::optional<coordinator::HttpOptions> http;  // the coordinator's web page (--http)
 };
 
 // The folder belongs to another job (bad input: exit 2, nothing changed).
