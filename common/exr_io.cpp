@@ -120,7 +120,8 @@ std::vector<ChannelPlane> channel_planes(int versions, int schema, bool with_ref
     for (int v = 0; v < layers; ++v) {
       const std::string layer = b.per_version ? name + "." + std::to_string(v) : name;
       for (int c = 0; c < b.channels; ++c)
-        out.push_back({layer + "." + channel_suffix(b, c, schema), b.name, size_t(v) * b.channels + c});
+        out.push_back(
+            {layer + "." + channel_suffix(b, c, schema), b.name, size_t(v) * b.channels + c});
     }
   }
   return out;
@@ -168,8 +169,7 @@ class MemIStream : public Imf::IStream {
 
   bool isMemoryMapped() const override { return true; }
   char* readMemoryMapped(int n) override {
-    if (n < 0 || pos_ + size_t(n) > bytes_.size())
-      throw Iex::InputExc("unexpected end of file");
+    if (n < 0 || pos_ + size_t(n) > bytes_.size()) throw Iex::InputExc("unexpected end of file");
     char* p = const_cast<char*>(bytes_.data()) + pos_;
     pos_ += size_t(n);
     return p;
@@ -194,7 +194,8 @@ std::vector<char> read_whole_file(const std::filesystem::path& path) {
   std::vector<char> bytes;
   try {
     struct stat st {};
-    if (::fstat(fd, &st) != 0) throw RuntimeError("cannot stat " + quoted(path) + ": " + errno_text(errno));
+    if (::fstat(fd, &st) != 0)
+      throw RuntimeError("cannot stat " + quoted(path) + ": " + errno_text(errno));
     bytes.resize(size_t(st.st_size));
     size_t done = 0;
     while (done < bytes.size()) {
@@ -495,8 +496,9 @@ uint64_t write_frame_exr(const std::filesystem::path& path, const FrameBuffers& 
   for (const BufferInfo& b : buffer_infos()) {
     const std::string name = b.name;
     const bool absent = !with_reference && (name == "reference" || name == "reference_var");
-    DOFARM_CHECK_EQ(buffer_data(fb, b.name).size(),
-                    absent ? 0 : size_t(b.channels) * fb.plane() * (b.per_version ? fb.versions : 1));
+    DOFARM_CHECK_EQ(
+        buffer_data(fb, b.name).size(),
+        absent ? 0 : size_t(b.channels) * fb.plane() * (b.per_version ? fb.versions : 1));
   }
   // The root R, G, B need something to show.
   DOFARM_CHECK(with_reference || fb.versions > 0);
@@ -546,8 +548,8 @@ uint64_t write_frame_exr(const std::filesystem::path& path, const FrameBuffers& 
   auto insert = [&](const std::string& name, const float* base) {
     header.channels().insert(name, Imf::Channel(Imf::FLOAT));
     // OpenEXR only reads through the slice pointer when writing.
-    frame_buffer.insert(name, Imf::Slice::Make(Imf::FLOAT, const_cast<float*>(base), data,
-                                               sizeof(float), row));
+    frame_buffer.insert(
+        name, Imf::Slice::Make(Imf::FLOAT, const_cast<float*>(base), data, sizeof(float), row));
   };
   for (const ChannelPlane& ch : channel_planes(fb.versions, 2, with_reference))
     insert(ch.name, buffer_data(fb, ch.buffer).data() + ch.plane * plane);
@@ -583,8 +585,7 @@ ExrFrame read_frame_exr(const std::filesystem::path& path, uint64_t* file_checks
         required_attribute<Imf::StringAttribute>(header, kSchemaAttr, path).value();
     if (schema_name != kFrameSchema && schema_name != kFrameSchemaV1)
       throw RuntimeError(quoted(path) + ": unknown schema '" + schema_name +
-                         "', this build reads '" + kFrameSchema + "' and '" + kFrameSchemaV1 +
-                         "'");
+                         "', this build reads '" + kFrameSchema + "' and '" + kFrameSchemaV1 + "'");
     const int schema = schema_name == kFrameSchema ? 2 : 1;
     // A truncated file still has an intact header; refuse it before reading
     // rather than returning zero-filled pixels.
@@ -748,10 +749,11 @@ void write_rgb_exr_like(const std::filesystem::path& path, const RgbImage& img,
   // Attributes that describe the layout of `like`, not the picture: they
   // would be false of this file (its schema, its channel groups).
   static const char* const kLayout[] = {
-      "channels",    "compression", "dataWindow", "displayWindow", "lineOrder",
-      "type",        "name",        "version",    "chunkCount",    "tiles",
-      "view",        "multiView",   kSchemaAttr,  kRgbAttr,        kVersionsAttr,
-      kRectAttr,     "BlenderMultiChannel"};
+      "channels",           "compression", "dataWindow",  "displayWindow",
+      "lineOrder",          "type",        "name",        "version",
+      "chunkCount",         "tiles",       "view",        "multiView",
+      kSchemaAttr,          kRgbAttr,      kVersionsAttr, kRectAttr,
+      "BlenderMultiChannel"};
   for (auto it = source.begin(); it != source.end(); ++it) {
     const std::string name = it.name();
     if (std::find(std::begin(kLayout), std::end(kLayout), name) != std::end(kLayout)) continue;
@@ -769,8 +771,9 @@ void write_rgb_exr_like(const std::filesystem::path& path, const RgbImage& img,
   const size_t row = sizeof(float) * size_t(img.width);
   for (int c = 0; c < 3; ++c) {
     header.channels().insert(names[c], Imf::Channel(Imf::FLOAT));
-    frame_buffer.insert(names[c], Imf::Slice::Make(Imf::FLOAT, const_cast<float*>(img.rgb.data()) + c,
-                                                   data, 3 * sizeof(float), 3 * row));
+    frame_buffer.insert(names[c],
+                        Imf::Slice::Make(Imf::FLOAT, const_cast<float*>(img.rgb.data()) + c, data,
+                                         3 * sizeof(float), 3 * row));
   }
   if (!alpha.empty()) {
     header.channels().insert("A", Imf::Channel(Imf::FLOAT));

@@ -85,9 +85,9 @@ void write_rgb_exr(const std::filesystem::path& path, const RgbImage& img);
 // decides). Throws RuntimeError naming the file when it cannot be read, is
 // incomplete, deep, or has subsampled channels.
 struct ExrImage {
-  int width = 0, height = 0;     // of the data window
-  Rect data_window;              // in pixel space (the display window's coordinates)
-  FrameExtent display;           // display window size (its origin is assumed 0,0)
+  int width = 0, height = 0;  // of the data window
+  Rect data_window;           // in pixel space (the display window's coordinates)
+  FrameExtent display;        // display window size (its origin is assumed 0,0)
   std::map<std::string, std::vector<float>> channels;
   std::map<std::string, std::string> strings;  // string attributes
   std::map<std::string, double> numbers;       // int, float and double attributes

@@ -133,7 +133,8 @@ struct ShardWriter::Impl {
     auto attach = [&](const std::string& dataset, unsigned dim, const char* label,
                       const std::string& scale) {
       hid_t ds = datasets.at(dataset).get();
-      if (H5DSset_label(ds, dim, label) < 0 || H5DSattach_scale(ds, scales.at(scale).get(), dim) < 0)
+      if (H5DSset_label(ds, dim, label) < 0 ||
+          H5DSattach_scale(ds, scales.at(scale).get(), dim) < 0)
         h5_fail(p, "attaching dimension scale '" + scale + "' to '" + dataset + "'");
     };
     for (const BufferInfo& b : buffer_infos()) {
@@ -142,7 +143,8 @@ struct ShardWriter::Impl {
       std::string scale = "channel_";
       for (char c : channels)
         if (c != ',') scale += char(std::tolower(static_cast<unsigned char>(c)));
-      if (!scales.count(scale)) scales.emplace(scale, create_scale(scale.c_str(), {}, split(channels)));
+      if (!scales.count(scale))
+        scales.emplace(scale, create_scale(scale.c_str(), {}, split(channels)));
       unsigned d = 0;
       attach(b.name, d++, "frame", "frame");
       if (b.per_version) attach(b.name, d++, "version", "version");

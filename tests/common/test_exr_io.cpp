@@ -10,6 +10,7 @@
 #include <ImfStringAttribute.h>
 #include <ImfVecAttribute.h>
 #include <gtest/gtest.h>
+#include <stb_image.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -23,11 +24,9 @@
 #include <random>
 #include <set>
 
-#include "common/error.h"
 #include "common/checksum.h"
+#include "common/error.h"
 #include "common/exr_io.h"
-
-#include <stb_image.h>
 
 // Static, so this test's stb_image_write cannot clash with another file's.
 #define STB_IMAGE_WRITE_STATIC
@@ -231,7 +230,8 @@ TEST_F(ExrIo, RootRgbIsTheReferenceAndZTheDepth) {
   std::vector<float> r(n), g(n), b(n), a(n), z(n), nz(n);
   Imf::FrameBuffer slices;
   auto add = [&](const char* name, std::vector<float>& v) {
-    slices.insert(name, Imf::Slice::Make(Imf::FLOAT, v.data(), dw, sizeof(float), 6 * sizeof(float)));
+    slices.insert(name,
+                  Imf::Slice::Make(Imf::FLOAT, v.data(), dw, sizeof(float), 6 * sizeof(float)));
   };
   add("R", r), add("G", g), add("B", b), add("A", a), add("Z", z), add("normal.B", nz);
   file.setFrameBuffer(slices);
@@ -311,8 +311,8 @@ TEST_F(ExrIo, ReadsVersion1Files) {
   header.insert("dofarm.camera.position",
                 Imf::V3fAttribute(Imath::V3f(fb.camera.position[0], fb.camera.position[1],
                                              fb.camera.position[2])));
-  header.insert("dofarm.camera.rotation",
-                Imf::FloatVectorAttribute(std::vector<float>(fb.camera.rotation, fb.camera.rotation + 4)));
+  header.insert("dofarm.camera.rotation", Imf::FloatVectorAttribute(std::vector<float>(
+                                              fb.camera.rotation, fb.camera.rotation + 4)));
   header.insert("dofarm.camera.fov", Imf::FloatAttribute(fb.camera.fov_deg));
   header.insert("dofarm.camera.focal_distance", Imf::FloatAttribute(fb.camera.focal_distance));
   header.insert("dofarm.camera.aperture", Imf::FloatAttribute(fb.camera.aperture));
@@ -324,7 +324,7 @@ TEST_F(ExrIo, ReadsVersion1Files) {
       for (int c = 0; c < b.channels; ++c) {
         const std::string layer =
             b.per_version ? std::string(b.name) + "." + std::to_string(v) : std::string(b.name);
-        const char* suffix = b.channels == 1 ? "Y"
+        const char* suffix = b.channels == 1                   ? "Y"
                              : std::string(b.name) == "normal" ? "XYZ" + c
                                                                : "RGB" + c;
         const std::string name = layer + "." + std::string(1, suffix[0]);
@@ -374,7 +374,8 @@ TEST_F(ExrIo, OpenImageIoShowsTheReference) {
   const auto [info, info_rc] = run_tool("iinfo -v '" + exr.string() + "'");
   ASSERT_EQ(info_rc, 0) << info;
   EXPECT_NE(info.find("channel list: R, G, B, A, Z, "), std::string::npos) << info;
-  const auto [conv, conv_rc] = run_tool("oiiotool '" + exr.string() + "' -o '" + png.string() + "'");
+  const auto [conv, conv_rc] =
+      run_tool("oiiotool '" + exr.string() + "' -o '" + png.string() + "'");
   ASSERT_EQ(conv_rc, 0) << conv;
   int w = 0, h = 0, c = 0;
   unsigned char* px = stbi_load(png.c_str(), &w, &h, &c, 4);
@@ -419,13 +420,32 @@ TEST_F(ExrIo, ChannelNamesFollowTheSchema) {
     names.insert(it.name());
     EXPECT_EQ(it.channel().type, Imf::FLOAT) << it.name();
   }
-  const std::set<std::string> expected = {
-      "R",          "G",          "B",            "A",            "Z",
-      "noisy.0.R",  "noisy.0.G",  "noisy.0.B",    "noisy.1.R",    "noisy.1.G",
-      "noisy.1.B",  "albedo.0.R", "albedo.0.G",   "albedo.0.B",   "albedo.1.R",
-      "albedo.1.G", "albedo.1.B", "albedo_ref.R", "albedo_ref.G", "albedo_ref.B",
-      "reference_var.Y", "normal.R", "normal.G",  "normal.B",     "roughness.Y",
-      "coc.Y"};
+  const std::set<std::string> expected = {"R",
+                                          "G",
+                                          "B",
+                                          "A",
+                                          "Z",
+                                          "noisy.0.R",
+                                          "noisy.0.G",
+                                          "noisy.0.B",
+                                          "noisy.1.R",
+                                          "noisy.1.G",
+                                          "noisy.1.B",
+                                          "albedo.0.R",
+                                          "albedo.0.G",
+                                          "albedo.0.B",
+                                          "albedo.1.R",
+                                          "albedo.1.G",
+                                          "albedo.1.B",
+                                          "albedo_ref.R",
+                                          "albedo_ref.G",
+                                          "albedo_ref.B",
+                                          "reference_var.Y",
+                                          "normal.R",
+                                          "normal.G",
+                                          "normal.B",
+                                          "roughness.Y",
+                                          "coc.Y"};
   EXPECT_EQ(names, expected);
   EXPECT_EQ(file.header().compression(), Imf::ZIP_COMPRESSION);
 }

@@ -467,13 +467,16 @@ TEST(Shard, H5dumpShowsDimensionLabels) {
   TempDir dir;
   const fs::path shard = dir.path() / "s.h5", dump = dir.path() / "dump.txt";
   write_shard(shard, make_info(), make_frames());
-  ASSERT_EQ(std::system(("h5dump -A -d noisy '" + shard.string() + "' > '" + dump.string() + "'").c_str()), 0);
+  ASSERT_EQ(std::system(
+                ("h5dump -A -d noisy '" + shard.string() + "' > '" + dump.string() + "'").c_str()),
+            0);
   std::ifstream in(dump);
   std::stringstream text;
   text << in.rdbuf();
   const std::string out = text.str();
   EXPECT_NE(out.find("DIMENSION_LABELS"), std::string::npos) << out;
-  EXPECT_NE(out.find("\"frame\", \"version\", \"channel\", \"y\", \"x\""), std::string::npos) << out;
+  EXPECT_NE(out.find("\"frame\", \"version\", \"channel\", \"y\", \"x\""), std::string::npos)
+      << out;
   EXPECT_NE(out.find("DIMENSION_LIST"), std::string::npos) << out;
 }
 
