@@ -7,7 +7,6 @@
 #include <cstring>
 #include <fstream>
 #include <map>
-#include <set>
 
 #include "common/error.h"
 #include "common/exr_io.h"
@@ -64,6 +63,11 @@ Planes read_pfm(const fs::path& path) {
                         std::to_string(scale) + " out of range");
   const int c = magic == "PF" ? 3 : 1;
   const size_t n = size_t(w) * size_t(h) * c;
+  // The size the header claims must be there before anything is allocated.
+  std::error_code ec;
+  const uintmax_t file_size = fs::file_size(path, ec);
+  if (ec || file_size < uintmax_t(in.tellg()) + n * sizeof(float))
+    throw SpecError(FileLoc{path.string()}, "", "PFM data is truncated");
   std::vector<float> data(n);
   in.read(reinterpret_cast<char*>(data.data()), std::streamsize(n * sizeof(float)));
   if (size_t(in.gcount()) != n * sizeof(float))

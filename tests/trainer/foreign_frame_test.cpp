@@ -215,6 +215,12 @@ TEST(ForeignFrame, SeparateFilesAsOidnTakesThem) {
   for (size_t i : {size_t(0), size_t(w * h / 2), size_t(w * h - 1)})
     EXPECT_NEAR(f.coc[i], a * std::fabs(f.depth[i] - 2.0) / f.depth[i] * h / (2.0 * tan_v), 1e-4);
 
+  // A PFM shorter than its header says is refused before anything is read.
+  { std::ofstream(dir / "short.pfm", std::ios::binary) << "PF\n60000 60000\n-1.0\n1234"; }
+  in.albedo = dir / "short.pfm";
+  EXPECT_NE(spec_error_of([&] { load_denoise_input(in, true); }).find("truncated"),
+            std::string::npos);
+
   // A file of another size is named.
   write_pfm(dir / "small.pfm", 3, 3, src.albedo.data(), 3);
   in.albedo = dir / "small.pfm";
