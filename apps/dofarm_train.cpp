@@ -3,7 +3,9 @@
 //   dofarm-train train --data DIR --run RUNDIR [--config TRAIN.toml] [--set K=V]...
 //                      [--save-every STEPS]
 //   dofarm-train eval --run RUNDIR --data DIR --out REPORTDIR [--checkpoint best|last|PATH]
-//   dofarm-train denoise --run RUNDIR IN.exr OUT.exr [--checkpoint ...] [--repair-nonfinite]
+//   dofarm-train denoise --run RUNDIR IN OUT.exr [--checkpoint ...] [--repair-nonfinite]
+//                        [--albedo F --normal F --depth F] [--fstop N --focal-length MM
+//                        --sensor-width MM --focus-distance D] (other renderers' frames)
 //   dofarm-train export --run RUNDIR --out MODEL.pt [--checkpoint ...]
 //
 // Exit status: 0 success, 2 bad input (SpecError, CLI11 parse errors), 1 any
@@ -11,9 +13,8 @@
 // stderr; 3 (kExitStopped) when `train` stopped on SIGINT/SIGTERM after
 // finishing its step and writing last.pt (run the same command to resume).
 // A second signal ends the process at once, as the signal's default does.
-#include <spdlog/spdlog.h>
-
 #include <signal.h>
+#include <spdlog/spdlog.h>
 
 #include <CLI/CLI.hpp>
 #include <atomic>
@@ -21,6 +22,8 @@
 #include <cstdio>
 #include <filesystem>
 #include <functional>
+#include <map>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -31,6 +34,7 @@
 #include "trainer/config.h"
 #include "trainer/eval.h"
 #include "trainer/export_contract.h"
+#include "trainer/foreign_frame.h"
 #include "trainer/run_folder.h"
 #include "trainer/train.h"
 
@@ -148,70 +152,133 @@ Command add_eval(CLI::App& app) {
 }
 
 Command add_denoise(CLI::App& app) {
-  auto* cmd = app.add_subcommand("denoise", "denoise one frame EXR (as `dofarm render` writes)");
+  auto* cmd = app.add_subcommand(
+      "denoise",
+      "denoise one frame: a dofarm frame EXR, a Blender/Cycles multilayer EXR, or a colour "
+      "image with --albedo/--normal/--depth files (docs/trainer.md)");
   struct Opts {
-    std::string run, in, out, checkpoint = "best";
+    std::string run, in, out, checkpoint = "best", albedo, normal, depth, view_layer;
+    std::string normal_space = "view";
     int version = 0;
     bool repair = false;
+    std::optional<double> fstop, focal_length, sensor_width, focus_distance, clip_start;
+    float roughness = 0.5f;
   };
   auto o = std::make_shared<Opts>();
   cmd->add_option("--run", o->run, "run folder")->required()->check(CLI::ExistingDirectory);
-  cmd->add_option("IN", o->in, "frame EXR with all buffers")->required()->check(CLI::ExistingFile);
-  cmd->add_option("OUT", o->out, "denoised RGB EXR")->required();
-  cmd->add_option("--noisy-version", o->version, "noisy version to denoise")
+  cmd->add_option("IN", o->in, "frame to denoise (.exr; .pfm with --albedo/--normal/--depth)")
+      ->required()
+      ->check(CLI::ExistingFile);
+  cmd->add_option("OUT", o->out, "denoised RGB(A) EXR, with IN's header attributes")->required();
+  cmd->add_option("--noisy-version", o->version, "noisy version to denoise (dofarm frames)")
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
   add_checkpoint_option(cmd, &o->checkpoint);
   cmd->add_flag("--repair-nonfinite", o->repair,
                 "set NaN/Inf input values to 0 (counted in the log) instead of refusing the frame");
-  return {cmd, [o] {
-            // Never over the input: same path, or another name of the same file.
-            std::error_code ec;
-            if (fs::weakly_canonical(o->in, ec) == fs::weakly_canonical(o->out, ec) ||
-                fs::equivalent(o->in, o->out, ec))
-              throw SpecError(FileLoc{o->out}, "OUT",
-                              "is the input frame; denoise writes a new file and never "
-                              "replaces its input");
-            FrameDenoiser den(o->run, pick_device("auto"), o->checkpoint);
-            ExrFrame frame;
-            try {
-              frame = read_frame_exr(o->in);
-            } catch (const RuntimeError& e) {
-              // A file that is not a dofarm frame EXR is bad input, not a failure.
-              throw SpecError(FileLoc{o->in}, "", e.what());
-            }
-            FrameBuffers& fb = frame.buffers;
-            if (o->version >= fb.versions)
-              throw SpecError(FileLoc{"--noisy-version"}, "",
-                              "the frame has " + std::to_string(fb.versions) + " noisy versions");
-            if (den.config().model.dof && fb.coc.empty())
-              throw SpecError(FileLoc{o->in}, "coc", "the model needs a coc layer");
-            const auto bad = non_finite_inputs(fb, o->version, den.config(), o->repair);
-            if (!bad.empty()) {
-              std::string list;
-              for (const auto& [layer, count] : bad)
-                list += (list.empty() ? "" : ", ") + layer + ": " + std::to_string(count);
-              if (!o->repair)
-                throw SpecError(FileLoc{o->in}, "",
-                                "non-finite input values (" + list +
-                                    "); the frame is damaged (or pass --repair-nonfinite to "
-                                    "set them to 0)");
-              spdlog::warn("{}: set non-finite input values to 0 ({})", o->in, list);
-            }
-            double sec = 0;
-            std::vector<float> out = den.denoise(fb, o->version, &sec);
-            RgbImage img;
-            img.width = fb.width;
-            img.height = fb.height;
-            img.rgb.resize(out.size());
-            const size_t n = fb.plane();
-            for (size_t p = 0; p < n; ++p)
-              for (int c = 0; c < 3; ++c) img.rgb[p * 3 + c] = out[c * n + p];
-            write_rgb_exr(o->out, img);
-            spdlog::info("denoised {}x{} in {:.1f} ms -> {}", fb.width, fb.height, sec * 1e3,
-                         o->out);
-            return kExitOk;
-          }};
+  auto* files = cmd->add_option_group("separate passes",
+                                      "a colour image's passes as files, as "
+                                      "Open Image Denoise's tools take them");
+  files->add_option("--albedo", o->albedo, "albedo image (.exr R,G,B or .pfm)")
+      ->check(CLI::ExistingFile);
+  files->add_option("--normal", o->normal, "normal image (.exr R,G,B or X,Y,Z, or .pfm)")
+      ->check(CLI::ExistingFile);
+  files->add_option("--depth", o->depth, "view-space depth (.exr Z, Y or R, or .pfm); 0 = no hit")
+      ->check(CLI::ExistingFile);
+  files
+      ->add_option("--normal-space", o->normal_space,
+                   "the normal file's axes: view (x right, y up, z towards the viewer) or "
+                   "cycles (z away from the viewer)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"view", "cycles"}));
+  cmd->add_option("--view-layer", o->view_layer,
+                  "the view layer of a multilayer EXR with several (default: the only one)");
+  auto* lens = cmd->add_option_group(
+      "lens",
+      "the camera of a frame from another renderer (Blender's settings; unset: from the "
+      "header, else the defaults)");
+  lens->add_option("--fstop", o->fstop, "f-number (0 = pinhole); needed by a DOF model")
+      ->check(CLI::NonNegativeNumber);
+  lens->add_option("--focal-length", o->focal_length,
+                   "focal length in mm (default: the header's 'Lens' stamp)")
+      ->check(CLI::PositiveNumber);
+  lens->add_option("--sensor-width", o->sensor_width,
+                   "sensor width in mm across the longer image side (default 36)")
+      ->check(CLI::PositiveNumber);
+  lens->add_option("--focus-distance", o->focus_distance, "focus distance in scene units (m)")
+      ->check(CLI::PositiveNumber);
+  lens->add_option("--clip-start", o->clip_start,
+                   "camera clip start (m), the origin of Cycles' Denoising Depth (default 0.1)")
+      ->check(CLI::NonNegativeNumber);
+  cmd->add_option("--roughness", o->roughness,
+                  "roughness given to every pixel of a frame without a roughness pass")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0f, 1.0f));
+  return {
+      cmd, [o] {
+        // Never over an input: same path, or another name of the same file.
+        for (const std::string& input : {o->in, o->albedo, o->normal, o->depth}) {
+          if (input.empty()) continue;
+          std::error_code ec;
+          if (fs::weakly_canonical(input, ec) == fs::weakly_canonical(o->out, ec) ||
+              fs::equivalent(input, o->out, ec))
+            throw SpecError(FileLoc{o->out}, "OUT",
+                            "is an input (" + input +
+                                "); denoise writes a new file and never replaces its input");
+        }
+        FrameDenoiser den(o->run, pick_device("auto"), o->checkpoint);
+        ForeignInputs fi;
+        fi.input = o->in;
+        fi.albedo = o->albedo;
+        fi.normal = o->normal;
+        fi.depth = o->depth;
+        fi.view_layer = o->view_layer;
+        fi.normal_space = o->normal_space == "cycles" ? NormalSpace::kCycles : NormalSpace::kView;
+        fi.lens = {o->fstop, o->focal_length, o->sensor_width, o->focus_distance, o->clip_start};
+        fi.roughness = o->roughness;
+        DenoiseInput input = load_denoise_input(fi, den.config().model.dof);
+        for (const std::string& note : input.notes) spdlog::info("{}: {}", o->in, note);
+        FrameBuffers& fb = input.frame;
+        if (o->version >= fb.versions)
+          throw SpecError(FileLoc{"--noisy-version"}, "",
+                          "the frame has " + std::to_string(fb.versions) + " noisy versions");
+        const auto bad = non_finite_inputs(fb, o->version, den.config(), o->repair);
+        if (!bad.empty()) {
+          std::string list;
+          for (const auto& [layer, count] : bad)
+            list += (list.empty() ? "" : ", ") + layer + ": " + std::to_string(count);
+          if (!o->repair)
+            throw SpecError(FileLoc{o->in}, "",
+                            "non-finite input values (" + list +
+                                "); the frame is damaged (or pass --repair-nonfinite to "
+                                "set them to 0)");
+          spdlog::warn("{}: set non-finite input values to 0 ({})", o->in, list);
+        }
+        double sec = 0;
+        std::vector<float> out = den.denoise(fb, o->version, &sec);
+        RgbImage img;
+        img.width = fb.width;
+        img.height = fb.height;
+        img.rgb.resize(out.size());
+        const size_t n = fb.plane();
+        for (size_t p = 0; p < n; ++p)
+          for (int c = 0; c < 3; ++c) img.rgb[p * 3 + c] = out[c * n + p];
+        // The input's header, and what made this file from it.
+        const LoadedRun& run = den.run();
+        const std::map<std::string, std::string> made_by = {
+            {"Software", std::string("dofarm-train denoise ") + DOFARM_VERSION},
+            {"dofarm.denoise.input", fs::path(o->in).filename().string()},
+            {"dofarm.denoise.source", input.source},
+            {"dofarm.denoise.noisy_version", std::to_string(o->version)},
+            {"dofarm.denoise.run", fs::absolute(o->run).lexically_normal().string()},
+            {"dofarm.denoise.checkpoint", run.checkpoint.string()},
+            {"dofarm.denoise.step", std::to_string(run.state.step)},
+        };
+        write_rgb_exr_like(o->out, img, input.alpha, o->in, made_by);
+        spdlog::info("denoised {}x{} ({} frame) in {:.1f} ms -> {}", fb.width, fb.height,
+                     input.source, sec * 1e3, o->out);
+        return kExitOk;
+      }};
 }
 
 Command add_export(CLI::App& app) {

@@ -1,34 +1,23 @@
 // EXR and image-file IO.
 //
-// Frames: write_frame_exr() stores every buffer of a FrameBuffers as named
-// layers of one multi-layer, 32-bit float, ZIP-compressed EXR:
-//   noisy.<v>.R/G/B, albedo.<v>.R/G/B, albedo_ref.R/G/B, reference.R/G/B,
-//   reference_var.Y, normal.X/Y/Z, depth.Y, roughness.Y, coc.Y
-// and the frame's camera (CameraState) plus free-form string attributes
-// ("dofarm.*") in the header. Written to a temporary name, fsynced and
-// renamed: a reader never sees half a file. read_frame_exr() reads it back
-// exactly (bit for bit).
-//
-// The image is the buffers' own width x height (a tile is stored as a small
-// image, data window at 0,0); the header records
-//   dofarm.schema                 string  "dofarm.frame/1" (the reader refuses others)
-//   dofarm.rect                   box2i   where it sits in the frame: min (x, y),
-//                                         max (x + w - 1, y + h - 1)
-//   dofarm.versions               int     V
-//   dofarm.camera.frame           int
-//   dofarm.camera.time            float   seconds
-//   dofarm.camera.position        v3f
-//   dofarm.camera.rotation        floatvector  quaternion w, x, y, z
-//   dofarm.camera.fov             float   degrees
-//   dofarm.camera.focal_distance  float
-//   dofarm.camera.aperture        float
-// and one string attribute per entry of `attributes`, named by its key.
+// Frames: write_frame_exr() stores every buffer of a FrameBuffers in one
+// multi-layer, 32-bit float, ZIP-compressed EXR laid out as
+// docs/exr_format.md describes (schema "dofarm.frame/2"): the reference as
+// the default layer R, G, B (A = 1), the depth as Z, the other buffers as
+// named layers (noisy.<v>.R/G/B, albedo.<v>.R/G/B, albedo_ref.R/G/B,
+// reference_var.Y, normal.R/G/B, roughness.Y, coc.Y), the camera and
+// "dofarm.*" attributes in the header. A tile's data window is its place
+// inside the frame's display window. Written to a temporary name, fsynced
+// and renamed: a reader never sees half a file. read_frame_exr() reads it
+// back exactly (bit for bit), and reads version 1 files too.
 //
 // Images: load_rgb_image() reads .exr (RGB or RGBA, any pixel type) and, via
 // stb_image, .hdr (linear) and .png/.jpg/.tga/.bmp (8-bit; sRGB-decoded when
 // `srgb` is true). Throws RuntimeError naming the file on failure.
 // NaN, Inf and negative values are replaced by 0 (the renderer must never see
 // them) and counted in RgbImage::sanitized_values so the caller can warn.
+// read_exr_image() reads any EXR's channels as they are (another renderer's
+// frame), write_rgb_exr_like() writes an image with another file's header.
 #pragma once
 
 #include <cstddef>
@@ -63,12 +52,22 @@ RgbImage decode_rgb_image(const void* data, size_t size, const std::string& name
 // Throws RuntimeError, leaving no file behind, when a buffer holds NaN/Inf
 // (naming the buffers and counts), an attribute key collides with a header
 // attribute, or the write fails. Creates parent directories.
+// `frame` is the size of the whole frame (the display window) a tile
+// belongs to; 0 = the smallest frame that holds fb.rect. An empty fb.rect
+// means the whole image at 0,0. A frame whose `reference` (and
+// `reference_var`) are empty is written without them: the root R, G, B then
+// show the mean of the noisy versions and dofarm.rgb says "noisy_mean".
+struct FrameExtent {
+  int width = 0, height = 0;
+};
 uint64_t write_frame_exr(const std::filesystem::path& path, const FrameBuffers& fb,
-                     const std::map<std::string, std::string>& attributes = {});
+                         const std::map<std::string, std::string>& attributes = {},
+                         FrameExtent frame = {});
 
 struct ExrFrame {
-  FrameBuffers buffers;
-  std::map<std::string, std::string> attributes;
+  FrameBuffers buffers;  // rect from the data window; reference empty if the file has none
+  FrameExtent frame;     // the display window
+  std::map<std::string, std::string> attributes;  // string attributes but the schema's own
 };
 // Throws RuntimeError naming the file when it is missing, not a dofarm frame,
 // truncated or corrupt, or lacks a channel. The file is read once; when
@@ -79,6 +78,33 @@ ExrFrame read_frame_exr(const std::filesystem::path& path, uint64_t* file_checks
 // Writes an RGB image as a plain float EXR (debugging, reports), atomically
 // like write_frame_exr(). Non-finite values are kept, to be seen.
 void write_rgb_exr(const std::filesystem::path& path, const RgbImage& img);
+
+// Any single-part flat EXR (scanline or tiled), every channel converted to
+// float: another renderer's frame. Channels are H x W planes of the data
+// window, row 0 at its top; values as stored (NaN/Inf kept: the caller
+// decides). Throws RuntimeError naming the file when it cannot be read, is
+// incomplete, deep, or has subsampled channels.
+struct ExrImage {
+  int width = 0, height = 0;  // of the data window
+  Rect data_window;           // in pixel space (the display window's coordinates)
+  FrameExtent display;        // display window size (its origin is assumed 0,0)
+  std::map<std::string, std::vector<float>> channels;
+  std::map<std::string, std::string> strings;  // string attributes
+  std::map<std::string, double> numbers;       // int, float and double attributes
+  bool has(const std::string& channel) const { return channels.count(channel) != 0; }
+};
+ExrImage read_exr_image(const std::filesystem::path& path);
+
+// Writes `img` (R, G, B; and A when `alpha` is not empty, one value a pixel)
+// as a float EXR, atomically, keeping the header attributes of the EXR
+// `like` that describe the picture (camera, lens, renderer metadata; its
+// data and display windows when the sizes agree) and dropping those of its
+// layout (channels, the dofarm.* schema attributes, BlenderMultiChannel),
+// then adding `attributes` as strings (replacing same-named ones). Refuses
+// NaN/Inf values. Throws RuntimeError naming the file.
+void write_rgb_exr_like(const std::filesystem::path& path, const RgbImage& img,
+                        const std::vector<float>& alpha, const std::filesystem::path& like,
+                        const std::map<std::string, std::string>& attributes);
 
 // sRGB transfer curve (IEC 61966-2-1), per value.
 float srgb_to_linear(float v);

@@ -1,5 +1,8 @@
 // ShardWriter: streams frames into a new shard, verifies it and publishes
 // it atomically (see common/shard.h).
+#include <hdf5_hl.h>
+
+#include <cctype>
 #include <cmath>
 #include <map>
 
@@ -65,6 +68,92 @@ struct ShardWriter::Impl {
                             temp_path, "memory space");
     if (H5Dwrite(ds.get(), H5T_NATIVE_FLOAT, mspace.get(), fspace.get(), H5P_DEFAULT, data) < 0)
       h5_fail(temp_path, "writing '" + name + "' of frame index " + std::to_string(next_frame));
+  }
+
+  // A 1-D dataset of `values` (int64) or `names` (UTF-8 strings) made an
+  // HDF5 dimension scale (H5DS, the HDF5 Dimension Scale Specification) of
+  // its own name: what netCDF-4, h5netcdf/xarray and h5py take for a
+  // dimension's name and coordinates.
+  Handle create_scale(const char* name, const std::vector<int64_t>& values,
+                      const std::vector<std::string>& names = {}) {
+    const fs::path& p = temp_path;
+    const hsize_t n = names.empty() ? values.size() : names.size();
+    Handle space = checked(H5Screate_simple(1, &n, nullptr), H5Sclose, p,
+                           std::string("creating dataspace for scale '") + name + "'");
+    Handle ds;
+    if (names.empty()) {
+      ds = checked(H5Dcreate2(file.get(), name, H5T_STD_I64LE, space.get(), H5P_DEFAULT,
+                              H5P_DEFAULT, H5P_DEFAULT),
+                   H5Dclose, p, std::string("creating scale '") + name + "'");
+      if (H5Dwrite(ds.get(), H5T_NATIVE_INT64, H5S_ALL, H5S_ALL, H5P_DEFAULT, values.data()) < 0)
+        h5_fail(p, std::string("writing scale '") + name + "'");
+    } else {
+      Handle type = checked(H5Tcopy(H5T_C_S1), H5Tclose, p, "creating string type");
+      H5Tset_size(type.get(), H5T_VARIABLE);
+      H5Tset_cset(type.get(), H5T_CSET_UTF8);
+      ds = checked(H5Dcreate2(file.get(), name, type.get(), space.get(), H5P_DEFAULT, H5P_DEFAULT,
+                              H5P_DEFAULT),
+                   H5Dclose, p, std::string("creating scale '") + name + "'");
+      std::vector<const char*> ptrs;
+      for (const std::string& s : names) ptrs.push_back(s.c_str());
+      if (H5Dwrite(ds.get(), type.get(), H5S_ALL, H5S_ALL, H5P_DEFAULT, ptrs.data()) < 0)
+        h5_fail(p, std::string("writing scale '") + name + "'");
+    }
+    if (H5DSset_scale(ds.get(), name) < 0)
+      h5_fail(p, std::string("making '") + name + "' a dimension scale");
+    return ds;
+  }
+
+  // Every dimension of every dataset gets a label (its part of `dims`) and
+  // a dimension scale: frame numbers, version and pixel indices, channel
+  // and camera column names (docs/shard_format.md, "Dimensions").
+  void attach_dimension_scales() {
+    const fs::path& p = temp_path;
+    const ShardInfo& i = info;
+    auto range = [](int64_t first, int64_t count) {
+      std::vector<int64_t> v(static_cast<size_t>(count));
+      for (int64_t k = 0; k < count; ++k) v[size_t(k)] = first + k;
+      return v;
+    };
+    auto split = [](const std::string& csv) {
+      std::vector<std::string> out;
+      size_t start = 0;
+      for (size_t comma; (comma = csv.find(',', start)) != std::string::npos; start = comma + 1)
+        out.push_back(csv.substr(start, comma - start));
+      out.push_back(csv.substr(start));
+      return out;
+    };
+    std::map<std::string, Handle> scales;
+    scales.emplace("frame", create_scale("frame", range(i.frame_start, i.frame_count())));
+    scales.emplace("version", create_scale("version", range(0, i.versions)));
+    scales.emplace("y", create_scale("y", range(0, i.height)));
+    scales.emplace("x", create_scale("x", range(0, i.width)));
+    std::vector<std::string> columns(camera_columns().begin(), camera_columns().end());
+    scales.emplace("column", create_scale("column", {}, columns));
+    auto attach = [&](const std::string& dataset, unsigned dim, const char* label,
+                      const std::string& scale) {
+      hid_t ds = datasets.at(dataset).get();
+      if (H5DSset_label(ds, dim, label) < 0 ||
+          H5DSattach_scale(ds, scales.at(scale).get(), dim) < 0)
+        h5_fail(p, "attaching dimension scale '" + scale + "' to '" + dataset + "'");
+    };
+    for (const BufferInfo& b : buffer_infos()) {
+      // One channel scale per channel set: its length must be the dimension's.
+      const std::string channels = buffer_channel_names(b.name);
+      std::string scale = "channel_";
+      for (char c : channels)
+        if (c != ',') scale += char(std::tolower(static_cast<unsigned char>(c)));
+      if (!scales.count(scale))
+        scales.emplace(scale, create_scale(scale.c_str(), {}, split(channels)));
+      unsigned d = 0;
+      attach(b.name, d++, "frame", "frame");
+      if (b.per_version) attach(b.name, d++, "version", "version");
+      attach(b.name, d++, "channel", scale);
+      attach(b.name, d++, "y", "y");
+      attach(b.name, d++, "x", "x");
+    }
+    attach("camera", 0, "frame", "frame");
+    attach("camera", 1, "column", "column");
   }
 
   void write_root_attributes() {
@@ -147,6 +236,7 @@ ShardWriter::ShardWriter(fs::path final_path, ShardInfo info) : impl_(std::make_
                        m.create_dataset("camera", {hsize_t(i.frame_count()), kCameraColumns},
                                         {hsize_t(i.frame_count()), kCameraColumns}, "frame,column",
                                         "columns", columns.c_str()));
+    m.attach_dimension_scales();
   } catch (...) {
     m.remove_temp();
     throw;

@@ -18,7 +18,7 @@ fs::path staged_tile_path(const fs::path& out_dir, const std::string& batch, int
 }
 
 uint64_t staged_tile_max_bytes(Rect r, int versions) {
-  uint64_t floats = 0;
+  uint64_t floats = 1;  // the root A (docs/exr_format.md)
   for (const BufferInfo& b : buffer_infos())
     floats += uint64_t(b.channels) * uint64_t(b.per_version ? versions : 1);
   const uint64_t raw = uint64_t(std::max(r.w, 0)) * uint64_t(std::max(r.h, 0)) * floats * 4;

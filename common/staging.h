@@ -18,8 +18,8 @@ std::filesystem::path staged_tile_path(const std::filesystem::path& out_dir,
                                        const std::string& batch, int frame, Rect rect);
 
 // The largest a staged tile of `rect` can honestly be: every buffer's float
-// channels at the most versions a job may have (64), ZIP's worst-case growth,
-// and room for the header. The coordinator reads no more than this for one
+// channels and the constant A at the most versions a job may have (64),
+// ZIP's worst-case growth, and room for the header. The coordinator reads no more than this for one
 // `done` claim.
 uint64_t staged_tile_max_bytes(Rect rect, int versions = 64);
 

@@ -24,9 +24,10 @@ std::string denoiser_contract(const LoadedRun& run) {
         std::string("log1p(max(noisy.") + c + " / (" + albedo + "." + c + " + demod_eps), 0))");
   for (const char* c : {"R", "G", "B"})
     add(std::string("albedo.") + c, albedo + "." + c, "as stored");
-  for (const char* c : {"X", "Y", "Z"})
-    add(std::string("normal.") + c, std::string("normal.") + c, "as stored (camera space: x right, y up, z towards the viewer; unit)");
-  add("depth", "depth.Y, header dofarm.camera.focal_distance",
+  // Frame EXR layers as docs/exr_format.md names them (normal x, y, z in R, G, B).
+  for (int c = 0; c < 3; ++c)
+    add(std::string("normal.") + "XYZ"[c], std::string("normal.") + "RGB"[c], "as stored (camera space: x right, y up, z towards the viewer; unit)");
+  add("depth", "Z, header dofarm.camera.focal_distance",
       "z / (z + focal_distance) where z > 0 and finite, else 1 (0.5 on the focal plane)");
   add("roughness", "roughness.Y", "as stored");
   if (cfg.model.dof) add("coc", "coc.Y", "log1p(max(coc, 0)) / coc_log_scale (coc in pixels)");

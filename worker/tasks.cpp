@@ -52,7 +52,8 @@ StagedTile render_tile(const JobSpec& spec, const render::Scene& scene, const st
   t.path = staged_tile_path(out_dir, batch, frame, rect);
   t.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   t.checksum = write_frame_exr(
-      t.path, fb, {{"dofarm.batch", batch}, {"dofarm.render_seconds", std::to_string(t.seconds)}});
+      t.path, fb, {{"dofarm.batch", batch}, {"dofarm.render_seconds", std::to_string(t.seconds)}},
+      FrameExtent{spec.width, spec.height});
   return t;
 }
 

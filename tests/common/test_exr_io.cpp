@@ -1,9 +1,17 @@
+#include <ImfBoxAttribute.h>
 #include <ImfChannelList.h>
+#include <ImfFloatAttribute.h>
+#include <ImfFloatVectorAttribute.h>
 #include <ImfFrameBuffer.h>
 #include <ImfHeader.h>
 #include <ImfInputFile.h>
+#include <ImfIntAttribute.h>
 #include <ImfOutputFile.h>
+#include <ImfStringAttribute.h>
+#include <ImfVecAttribute.h>
 #include <gtest/gtest.h>
+#include <stb_image.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -16,8 +24,8 @@
 #include <random>
 #include <set>
 
-#include "common/error.h"
 #include "common/checksum.h"
+#include "common/error.h"
 #include "common/exr_io.h"
 
 // Static, so this test's stb_image_write cannot clash with another file's.
@@ -75,6 +83,7 @@ float finite_from_bits(uint32_t b) {
 FrameBuffers make_frame(int w, int h, int versions, uint32_t seed) {
   FrameBuffers fb;
   fb.allocate(w, h, versions);
+  fb.rect = {0, 0, w, h};
   std::mt19937 rng(seed);
   for (const BufferInfo& b : buffer_infos())
     for (float& v : buffer_data(fb, b.name)) v = finite_from_bits(rng());
@@ -175,20 +184,25 @@ TEST_F(ExrIo, ChecksumsAreThoseOfTheFileBytes) {
   EXPECT_EQ(read, checksum_file(path));
 }
 
-TEST_F(ExrIo, TileIsStoredAtItsOwnSizeWithItsRect) {
+// A tile's data window is its place in the frame's display window, as
+// OpenEXR defines the two; no private attribute is needed to find it.
+TEST_F(ExrIo, TileDataWindowIsItsPlaceInTheFrame) {
   FrameBuffers tile = make_frame(5, 3, 2, 99);
   tile.rect = {64, 32, 5, 3};
   const fs::path path = dir_ / "tiles" / "f0042" / "tile-64-32.exr";  // parents made on demand
-  write_frame_exr(path, tile);
+  write_frame_exr(path, tile, {}, FrameExtent{80, 40});
 
   Imf::InputFile file(path.c_str());
   const Imath::Box2i dw = file.header().dataWindow();
-  EXPECT_EQ(dw.min, Imath::V2i(0, 0));
-  EXPECT_EQ(dw.max, Imath::V2i(4, 2));
-  EXPECT_EQ(file.header().displayWindow(), dw);
+  EXPECT_EQ(dw.min, Imath::V2i(64, 32));
+  EXPECT_EQ(dw.max, Imath::V2i(68, 34));
+  EXPECT_EQ(file.header().displayWindow(), Imath::Box2i(Imath::V2i(0, 0), Imath::V2i(79, 39)));
+  EXPECT_EQ(file.header().findTypedAttribute<Imf::Box2iAttribute>("dofarm.rect"), nullptr);
 
   const ExrFrame back = read_frame_exr(path);
   expect_frames_identical(tile, back.buffers);
+  EXPECT_EQ(back.frame.width, 80);
+  EXPECT_EQ(back.frame.height, 40);
   EXPECT_TRUE(back.attributes.empty());
 
   // The rect read back puts the tile where it belongs in the frame.
@@ -196,6 +210,205 @@ TEST_F(ExrIo, TileIsStoredAtItsOwnSizeWithItsRect) {
   frame.allocate(80, 40, 2);
   frame.paste(back.buffers);
   EXPECT_EQ(bits(frame.coc[(size_t(32 + 2) * 80) + 64 + 4]), bits(tile.coc[size_t(2) * 5 + 4]));
+
+  // Without the frame's size the display window is the least that holds it.
+  write_frame_exr(path, tile);
+  EXPECT_EQ(Imf::InputFile(path.c_str()).header().displayWindow(),
+            Imath::Box2i(Imath::V2i(0, 0), Imath::V2i(68, 34)));
+}
+
+// The default layer is the reference and Z is the depth: what any EXR tool
+// shows and takes for depth. Read with OpenEXR alone, channel by channel.
+TEST_F(ExrIo, RootRgbIsTheReferenceAndZTheDepth) {
+  FrameBuffers fb = make_frame(6, 4, 2, 21);
+  fb.rect = {2, 1, 6, 4};
+  const fs::path path = dir_ / "frame.exr";
+  write_frame_exr(path, fb, {}, FrameExtent{10, 7});
+  Imf::InputFile file(path.c_str());
+  const Imath::Box2i dw = file.header().dataWindow();
+  const size_t n = fb.plane();
+  std::vector<float> r(n), g(n), b(n), a(n), z(n), nz(n);
+  Imf::FrameBuffer slices;
+  auto add = [&](const char* name, std::vector<float>& v) {
+    slices.insert(name,
+                  Imf::Slice::Make(Imf::FLOAT, v.data(), dw, sizeof(float), 6 * sizeof(float)));
+  };
+  add("R", r), add("G", g), add("B", b), add("A", a), add("Z", z), add("normal.B", nz);
+  file.setFrameBuffer(slices);
+  file.readPixels(dw.min.y, dw.max.y);
+  for (size_t i = 0; i < n; ++i) {
+    EXPECT_EQ(bits(r[i]), bits(fb.reference[i])) << i;
+    EXPECT_EQ(bits(g[i]), bits(fb.reference[n + i])) << i;
+    EXPECT_EQ(bits(b[i]), bits(fb.reference[2 * n + i])) << i;
+    EXPECT_EQ(a[i], 1.0f) << i;
+    EXPECT_EQ(bits(z[i]), bits(fb.depth[i])) << i;
+    EXPECT_EQ(bits(nz[i]), bits(fb.normal[2 * n + i])) << i;
+  }
+  const auto* rgb = file.header().findTypedAttribute<Imf::StringAttribute>("dofarm.rgb");
+  ASSERT_NE(rgb, nullptr);
+  EXPECT_EQ(rgb->value(), "reference");
+  EXPECT_EQ(file.header().findTypedAttribute<Imf::StringAttribute>("dofarm.schema")->value(),
+            "dofarm.frame/2");
+}
+
+// Only the root Z may end in ".Z" or be called Depth (OpenImageIO takes the
+// first such channel for depth), and only the root A in ".A"/"Alpha".
+TEST_F(ExrIo, NoLayerLooksLikeDepthOrAlpha) {
+  const fs::path path = dir_ / "frame.exr";
+  write_frame_exr(path, make_frame(4, 4, 3, 7));
+  Imf::InputFile file(path.c_str());
+  for (auto it = file.header().channels().begin(); it != file.header().channels().end(); ++it) {
+    std::string name = it.name();
+    if (name == "Z" || name == "A") continue;
+    const std::string last = name.substr(name.rfind('.') + 1);
+    std::string lower = last;
+    std::transform(lower.begin(), lower.end(), lower.begin(), ::tolower);
+    EXPECT_NE(lower, "z") << name;
+    EXPECT_NE(lower, "depth") << name;
+    EXPECT_NE(lower, "a") << name;
+    EXPECT_NE(lower, "alpha") << name;
+  }
+}
+
+// A frame without a reference shows the mean of its noisy versions, says so,
+// and reads back without a reference.
+TEST_F(ExrIo, FrameWithoutReferenceShowsTheNoisyMean) {
+  FrameBuffers fb = make_frame(3, 2, 2, 5);
+  for (float& v : fb.noisy) v = std::fmod(std::fabs(v), 10.0f);  // a mean that cannot overflow
+  fb.reference.clear();
+  fb.reference_var.clear();
+  const fs::path path = dir_ / "frame.exr";
+  write_frame_exr(path, fb);
+  Imf::InputFile file(path.c_str());
+  EXPECT_EQ(file.header().findTypedAttribute<Imf::StringAttribute>("dofarm.rgb")->value(),
+            "noisy_mean");
+  EXPECT_EQ(file.header().channels().findChannel("reference_var.Y"), nullptr);
+  std::vector<float> g(6);
+  Imf::FrameBuffer slices;
+  slices.insert("G", Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(g.data()), sizeof(float),
+                                3 * sizeof(float)));
+  file.setFrameBuffer(slices);
+  file.readPixels(0, 1);
+  for (size_t i = 0; i < 6; ++i)
+    EXPECT_FLOAT_EQ(g[i], (fb.noisy[6 + i] + fb.noisy[18 + 6 + i]) / 2) << i;
+  const ExrFrame back = read_frame_exr(path);
+  expect_frames_identical(fb, back.buffers);
+}
+
+// Version 1 files (staged before an upgrade) still read: tile at 0,0 with
+// dofarm.rect, every buffer a named layer, normal X/Y/Z.
+TEST_F(ExrIo, ReadsVersion1Files) {
+  FrameBuffers fb = make_frame(4, 3, 2, 31);
+  fb.rect = {16, 8, 4, 3};
+  Imf::Header header(4, 3);
+  header.compression() = Imf::ZIP_COMPRESSION;
+  header.insert("dofarm.schema", Imf::StringAttribute("dofarm.frame/1"));
+  header.insert("dofarm.rect",
+                Imf::Box2iAttribute(Imath::Box2i(Imath::V2i(16, 8), Imath::V2i(19, 10))));
+  header.insert("dofarm.versions", Imf::IntAttribute(2));
+  header.insert("dofarm.camera.frame", Imf::IntAttribute(fb.camera.frame));
+  header.insert("dofarm.camera.time", Imf::FloatAttribute(fb.camera.time));
+  header.insert("dofarm.camera.position",
+                Imf::V3fAttribute(Imath::V3f(fb.camera.position[0], fb.camera.position[1],
+                                             fb.camera.position[2])));
+  header.insert("dofarm.camera.rotation", Imf::FloatVectorAttribute(std::vector<float>(
+                                              fb.camera.rotation, fb.camera.rotation + 4)));
+  header.insert("dofarm.camera.fov", Imf::FloatAttribute(fb.camera.fov_deg));
+  header.insert("dofarm.camera.focal_distance", Imf::FloatAttribute(fb.camera.focal_distance));
+  header.insert("dofarm.camera.aperture", Imf::FloatAttribute(fb.camera.aperture));
+  Imf::FrameBuffer slices;
+  const size_t n = fb.plane();
+  for (const BufferInfo& b : buffer_infos()) {
+    const int layers = b.per_version ? 2 : 1;
+    for (int v = 0; v < layers; ++v)
+      for (int c = 0; c < b.channels; ++c) {
+        const std::string layer =
+            b.per_version ? std::string(b.name) + "." + std::to_string(v) : std::string(b.name);
+        const char* suffix = b.channels == 1                   ? "Y"
+                             : std::string(b.name) == "normal" ? "XYZ" + c
+                                                               : "RGB" + c;
+        const std::string name = layer + "." + std::string(1, suffix[0]);
+        header.channels().insert(name, Imf::Channel(Imf::FLOAT));
+        float* base = buffer_data(fb, b.name).data() + (size_t(v) * b.channels + c) * n;
+        slices.insert(name, Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(base), sizeof(float),
+                                       4 * sizeof(float)));
+      }
+  }
+  const fs::path path = dir_ / "v1.exr";
+  {
+    Imf::OutputFile out(path.c_str(), header);
+    out.setFrameBuffer(slices);
+    out.writePixels(3);
+  }
+  const ExrFrame back = read_frame_exr(path);
+  expect_frames_identical(fb, back.buffers);
+  EXPECT_EQ(back.frame.width, 20);
+  EXPECT_EQ(back.frame.height, 11);
+}
+
+// The command's standard output ("" when it cannot be run) and exit status.
+std::pair<std::string, int> run_tool(const std::string& command) {
+  std::string out;
+  FILE* pipe = ::popen((command + " 2>&1").c_str(), "r");
+  if (!pipe) return {"", -1};
+  char buf[4096];
+  size_t k;
+  while ((k = std::fread(buf, 1, sizeof buf, pipe)) > 0) out.append(buf, k);
+  const int status = ::pclose(pipe);
+  return {out, WIFEXITED(status) ? WEXITSTATUS(status) : -1};
+}
+
+bool have_tool(const char* name) {
+  return run_tool(std::string("command -v ") + name + " >/dev/null").second == 0;
+}
+
+// What users do with a frame (issue 14): OpenImageIO lists R, G, B, A, Z
+// first and `oiiotool f.exr -o f.png` saves the reference, opaque. Runs only
+// where Debian's openimageio-tools is installed.
+TEST_F(ExrIo, OpenImageIoShowsTheReference) {
+  if (!have_tool("oiiotool") || !have_tool("iinfo")) GTEST_SKIP() << "oiiotool/iinfo not installed";
+  FrameBuffers fb = make_frame(8, 5, 2, 3);
+  for (size_t i = 0; i < fb.reference.size(); ++i) fb.reference[i] = float(i % 17) / 16.0f;
+  const fs::path exr = dir_ / "frame.exr", png = dir_ / "frame.png";
+  write_frame_exr(exr, fb);
+  const auto [info, info_rc] = run_tool("iinfo -v '" + exr.string() + "'");
+  ASSERT_EQ(info_rc, 0) << info;
+  EXPECT_NE(info.find("channel list: R, G, B, A, Z, "), std::string::npos) << info;
+  const auto [conv, conv_rc] =
+      run_tool("oiiotool '" + exr.string() + "' -o '" + png.string() + "'");
+  ASSERT_EQ(conv_rc, 0) << conv;
+  int w = 0, h = 0, c = 0;
+  unsigned char* px = stbi_load(png.c_str(), &w, &h, &c, 4);
+  ASSERT_NE(px, nullptr);
+  EXPECT_EQ(w, 8);
+  EXPECT_EQ(h, 5);
+  EXPECT_EQ(c, 4);
+  const size_t n = fb.plane();
+  int worst = 0;
+  for (size_t i = 0; i < n; ++i) {
+    for (int k = 0; k < 3; ++k) {
+      // oiiotool writes the linear values as 8-bit codes, rounded.
+      const int want = int(std::lround(std::clamp(fb.reference[k * n + i], 0.0f, 1.0f) * 255));
+      worst = std::max(worst, std::abs(int(px[4 * i + k]) - want));
+    }
+    EXPECT_EQ(px[4 * i + 3], 255) << i;
+  }
+  stbi_image_free(px);
+  EXPECT_LE(worst, 1);
+}
+
+// exrheader (Debian's openexr) shows the schema and a tile's data window.
+TEST_F(ExrIo, ExrheaderShowsTheTilePlace) {
+  if (!have_tool("exrheader")) GTEST_SKIP() << "exrheader not installed";
+  FrameBuffers tile = make_frame(5, 3, 1, 4);
+  tile.rect = {64, 32, 5, 3};
+  const fs::path path = dir_ / "tile.exr";
+  write_frame_exr(path, tile, {}, FrameExtent{80, 40});
+  const auto [out, rc] = run_tool("exrheader '" + path.string() + "'");
+  ASSERT_EQ(rc, 0) << out;
+  EXPECT_NE(out.find("dataWindow (type box2i): (64 32) - (68 34)"), std::string::npos) << out;
+  EXPECT_NE(out.find("displayWindow (type box2i): (0 0) - (79 39)"), std::string::npos) << out;
+  EXPECT_NE(out.find("dofarm.schema (type string): \"dofarm.frame/2\""), std::string::npos) << out;
 }
 
 TEST_F(ExrIo, ChannelNamesFollowTheSchema) {
@@ -207,12 +420,32 @@ TEST_F(ExrIo, ChannelNamesFollowTheSchema) {
     names.insert(it.name());
     EXPECT_EQ(it.channel().type, Imf::FLOAT) << it.name();
   }
-  const std::set<std::string> expected = {
-      "noisy.0.R",   "noisy.0.G",   "noisy.0.B",    "noisy.1.R",       "noisy.1.G",
-      "noisy.1.B",   "albedo.0.R",  "albedo.0.G",   "albedo.0.B",      "albedo.1.R",
-      "albedo.1.G",  "albedo.1.B",  "albedo_ref.R", "albedo_ref.G",    "albedo_ref.B",
-      "reference.R", "reference.G", "reference.B",  "reference_var.Y", "normal.X",
-      "normal.Y",    "normal.Z",    "depth.Y",      "roughness.Y",     "coc.Y"};
+  const std::set<std::string> expected = {"R",
+                                          "G",
+                                          "B",
+                                          "A",
+                                          "Z",
+                                          "noisy.0.R",
+                                          "noisy.0.G",
+                                          "noisy.0.B",
+                                          "noisy.1.R",
+                                          "noisy.1.G",
+                                          "noisy.1.B",
+                                          "albedo.0.R",
+                                          "albedo.0.G",
+                                          "albedo.0.B",
+                                          "albedo.1.R",
+                                          "albedo.1.G",
+                                          "albedo.1.B",
+                                          "albedo_ref.R",
+                                          "albedo_ref.G",
+                                          "albedo_ref.B",
+                                          "reference_var.Y",
+                                          "normal.R",
+                                          "normal.G",
+                                          "normal.B",
+                                          "roughness.Y",
+                                          "coc.Y"};
   EXPECT_EQ(names, expected);
   EXPECT_EQ(file.header().compression(), Imf::ZIP_COMPRESSION);
 }
@@ -233,11 +466,11 @@ TEST_F(ExrIo, ChannelsHoldTheirPlanes) {
   Imf::FrameBuffer slices;
   slices.insert("noisy.1.G", Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(noisy_1_g),
                                         sizeof(float), 3 * sizeof(float)));
-  slices.insert("normal.Z", Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(normal_z), sizeof(float),
+  slices.insert("normal.B", Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(normal_z), sizeof(float),
                                        3 * sizeof(float)));
   file.setFrameBuffer(slices);
   file.readPixels(0, 1);
-  // noisy.1.G is plane v*3 + c = 4 of noisy; normal.Z is plane 2 of normal.
+  // noisy.1.G is plane v*3 + c = 4 of noisy; normal.B (z) is plane 2 of normal.
   for (int i = 0; i < 6; ++i) {
     EXPECT_EQ(noisy_1_g[i], float(4 * 6 + i));
     EXPECT_EQ(normal_z[i], float(2 * 6 + i));

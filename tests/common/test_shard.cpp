@@ -1,6 +1,7 @@
 // The dofarm.shard/2 format (and reading /1): writer, reader, checksums, manifest and inspect.
 #include <gtest/gtest.h>
 #include <hdf5.h>
+#include <hdf5_hl.h>
 #include <unistd.h>
 
 #include <atomic>
@@ -372,6 +373,111 @@ TEST(Shard, DatasetsCarryChannelAndColumnNames) {
   EXPECT_EQ(attr("camera", "columns"),
             "frame,time,position_x,position_y,position_z,rotation_w,rotation_x,rotation_y,"
             "rotation_z,fov_deg,focal_distance,aperture");
+}
+
+// Every dimension of every dataset has a label and one attached dimension
+// scale (H5DS) holding its coordinates, so h5py shows ds.dims[i].label and
+// netCDF-4/h5netcdf (xarray) name the axes. Read back with the HDF5 API.
+TEST(Shard, EveryDimensionHasALabelAndAScale) {
+  TempDir dir;
+  write_shard(dir.path() / "s.h5", make_info(), make_frames());
+  RawFile f(dir.path() / "s.h5");
+  ASSERT_GE(f.id, 0);
+  auto scale_name = [&](hid_t ds, unsigned dim) {
+    std::string name;
+    H5DSiterate_scales(
+        ds, dim, nullptr,
+        [](hid_t, unsigned, hid_t scale, void* out) -> herr_t {
+          char buf[64] = {0};
+          H5DSget_scale_name(scale, buf, sizeof buf);
+          *static_cast<std::string*>(out) = buf;
+          return 1;  // the first scale is enough
+        },
+        &name);
+    return name;
+  };
+  auto check = [&](const char* dataset, const std::vector<std::string>& labels,
+                   const std::vector<std::string>& scales) {
+    hid_t ds = H5Dopen2(f.id, dataset, H5P_DEFAULT);
+    ASSERT_GE(ds, 0) << dataset;
+    for (unsigned d = 0; d < labels.size(); ++d) {
+      char label[64] = {0};
+      ASSERT_GT(H5DSget_label(ds, d, label, sizeof label), 0) << dataset << " dim " << d;
+      EXPECT_EQ(label, labels[d]) << dataset << " dim " << d;
+      EXPECT_EQ(H5DSget_num_scales(ds, d), 1) << dataset << " dim " << d;
+      EXPECT_EQ(scale_name(ds, d), scales[d]) << dataset << " dim " << d;
+    }
+    H5Dclose(ds);
+  };
+  check("noisy", {"frame", "version", "channel", "y", "x"},
+        {"frame", "version", "channel_rgb", "y", "x"});
+  check("albedo", {"frame", "version", "channel", "y", "x"},
+        {"frame", "version", "channel_rgb", "y", "x"});
+  check("reference", {"frame", "channel", "y", "x"}, {"frame", "channel_rgb", "y", "x"});
+  check("normal", {"frame", "channel", "y", "x"}, {"frame", "channel_xyz", "y", "x"});
+  check("depth", {"frame", "channel", "y", "x"}, {"frame", "channel_y", "y", "x"});
+  check("coc", {"frame", "channel", "y", "x"}, {"frame", "channel_y", "y", "x"});
+  check("camera", {"frame", "column"}, {"frame", "column"});
+
+  // The scales hold the coordinates: absolute frame numbers, indices, names.
+  auto ints = [&](const char* name) {
+    hid_t ds = H5Dopen2(f.id, name, H5P_DEFAULT);
+    EXPECT_GT(H5DSis_scale(ds), 0) << name;
+    hid_t space = H5Dget_space(ds);
+    std::vector<int64_t> v(size_t(H5Sget_simple_extent_npoints(space)));
+    H5Dread(ds, H5T_NATIVE_INT64, H5S_ALL, H5S_ALL, H5P_DEFAULT, v.data());
+    H5Sclose(space);
+    H5Dclose(ds);
+    return v;
+  };
+  auto strings = [&](const char* name) {
+    hid_t ds = H5Dopen2(f.id, name, H5P_DEFAULT);
+    EXPECT_GT(H5DSis_scale(ds), 0) << name;
+    hid_t space = H5Dget_space(ds);
+    std::vector<char*> p(size_t(H5Sget_simple_extent_npoints(space)));
+    hid_t t = H5Dget_type(ds);
+    H5Dread(ds, t, H5S_ALL, H5S_ALL, H5P_DEFAULT, p.data());
+    std::vector<std::string> out(p.begin(), p.end());
+    H5Dvlen_reclaim(t, space, H5P_DEFAULT, p.data());
+    H5Tclose(t);
+    H5Sclose(space);
+    H5Dclose(ds);
+    return out;
+  };
+  EXPECT_EQ(ints("frame"), (std::vector<int64_t>{kFirstFrame, kFirstFrame + 1, kFirstFrame + 2}));
+  EXPECT_EQ(ints("version"), (std::vector<int64_t>{0, 1}));
+  const std::vector<int64_t> ys = ints("y"), xs = ints("x");
+  ASSERT_EQ(ys.size(), size_t(kH));
+  ASSERT_EQ(xs.size(), size_t(kW));
+  EXPECT_EQ(ys.back(), kH - 1);
+  EXPECT_EQ(xs.back(), kW - 1);
+  EXPECT_EQ(strings("channel_rgb"), (std::vector<std::string>{"R", "G", "B"}));
+  EXPECT_EQ(strings("channel_xyz"), (std::vector<std::string>{"X", "Y", "Z"}));
+  EXPECT_EQ(strings("channel_y"), (std::vector<std::string>{"Y"}));
+  const std::vector<std::string> columns = strings("column");
+  ASSERT_EQ(columns.size(), size_t(kCameraColumns));
+  EXPECT_EQ(columns.front(), "frame");
+  EXPECT_EQ(columns.back(), "aperture");
+}
+
+// h5dump (Debian's hdf5-tools) shows the labels and the scales; only run
+// where it is installed.
+TEST(Shard, H5dumpShowsDimensionLabels) {
+  if (std::system("command -v h5dump >/dev/null 2>&1") != 0) GTEST_SKIP() << "h5dump not installed";
+  TempDir dir;
+  const fs::path shard = dir.path() / "s.h5", dump = dir.path() / "dump.txt";
+  write_shard(shard, make_info(), make_frames());
+  ASSERT_EQ(std::system(
+                ("h5dump -A -d noisy '" + shard.string() + "' > '" + dump.string() + "'").c_str()),
+            0);
+  std::ifstream in(dump);
+  std::stringstream text;
+  text << in.rdbuf();
+  const std::string out = text.str();
+  EXPECT_NE(out.find("DIMENSION_LABELS"), std::string::npos) << out;
+  EXPECT_NE(out.find("\"frame\", \"version\", \"channel\", \"y\", \"x\""), std::string::npos)
+      << out;
+  EXPECT_NE(out.find("DIMENSION_LIST"), std::string::npos) << out;
 }
 
 // Replaces the shard's schema attribute (and drops job_hash when asked), as

@@ -7,6 +7,7 @@
 #include <cmath>
 
 #include "common/error.h"
+#include "common/thin_lens.h"
 
 namespace dofarm::render {
 
@@ -56,13 +57,7 @@ Ray Camera::generate_ray(Vec2 film, Vec2 lens) const {
 }
 
 float Camera::coc_pixels(float z) const {
-  if (state_.aperture <= 0) return 0;
-  // In double, clamped to float's range: an extreme but valid lens or focus
-  // distance (S = 1e-38) gives a huge circle, never Inf or NaN.
-  const double a = state_.aperture, s = state_.focal_distance;
-  const double ratio = z > 0 ? std::fabs(double(z) - s) / z : 1.0;  // |1 - S/z|, -> 1 as z -> inf
-  const double c = a * ratio * double(height_) / (s * double(tan_half_fov_));
-  return std::isfinite(c) ? float(std::min(c, double(FLT_MAX))) : FLT_MAX;
+  return coc_diameter_pixels(state_.aperture, state_.focal_distance, tan_half_fov_, height_, z);
 }
 
 float Camera::view_depth(Vec3 p) const { return -to_view(p - position_).z; }
@@ -194,9 +189,7 @@ float lens_radius(const CameraKey& key, float vertical_fov_deg, int width, int h
     const double t_longer = tv * std::max(1.0, double(width) / height);
     focal_mm = key.sensor_width_mm / (2.0 * t_longer);
   }
-  // Cycles' thin lens: aperture radius = focal length / (2 N), mm -> m.
-  const double r = focal_mm / (2.0 * key.fstop) * 1e-3;
-  return float(std::min(r, double(FLT_MAX)));
+  return fstop_lens_radius(focal_mm, key.fstop);
 }
 
 namespace {

@@ -32,11 +32,8 @@ class Camera {
   Ray generate_ray(Vec2 film, Vec2 lens) const;
   // The pinhole ray through `film`, whatever the aperture (aux buffers).
   Ray pinhole_ray(Vec2 film) const;
-  // Circle-of-confusion diameter in pixels of a point at view-space depth z:
-  //   c = 2A |z - S| / z  on the focal plane (similar triangles through the
-  //   lens disk of radius A focused at S), times H / (2 S tan(fov/2)) pixels
-  //   per scene unit there. z <= 0 (a ray that escapes) gives the limit
-  //   z -> infinity. 0 at aperture 0.
+  // Circle-of-confusion diameter in pixels of a point at view-space depth z
+  // (common/thin_lens.h, coc_diameter_pixels). 0 at aperture 0.
   float coc_pixels(float z) const;
   float view_depth(Vec3 p) const;      // along the viewing axis
   Vec3 to_view(Vec3 world_dir) const;  // rotate into camera space

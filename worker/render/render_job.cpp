@@ -262,7 +262,7 @@ void render_frame_to_exr(const JobSpec& spec, int frame, std::optional<Rect> til
       {"dofarm.spp.albedo_ref", std::to_string(spec.albedo_ref_spp)},
       {"dofarm.render_seconds", std::to_string(seconds)},
   };
-  write_frame_exr(out, fb, attrs);
+  write_frame_exr(out, fb, attrs, FrameExtent{spec.width, spec.height});
 }
 
 }  // namespace dofarm::render
