@@ -529,7 +529,12 @@ void HttpStatus::tick(Scheduler& scheduler, const ServerCounters& counters) {
     const Json status = status_to_json(scheduler.status(""));
     s->status = status.dump(2) + "\n";
     for (const std::string& id : batches) {
-      const StatusReport r = scheduler.status(id);
+      // A batch's page draws its frames from the task list: the data of
+      // `status BATCH --tasks --json`.
+      StatusQuery q;
+      q.batch = id;
+      q.tasks = true;
+      const StatusReport r = scheduler.status(q);
       s->batches[id] = r.batches.empty() ? "" : status_to_json(r).dump(2) + "\n";
     }
     const double cost = steady_seconds() - t0;

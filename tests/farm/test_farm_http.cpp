@@ -12,6 +12,8 @@
 #include <sys/socket.h>
 #include <sys/stat.h>
 
+#include <algorithm>
+#include <cmath>
 #include <regex>
 
 #include "common/job_snapshot.h"
@@ -75,10 +77,11 @@ Json api_status_since(int port, const std::string& path, double at) {
   return j;
 }
 
-// `dofarm status [BATCH] --json`, run as a user runs it.
+// `dofarm status --json` or `dofarm status BATCH --tasks --json` (what
+// /api/status?batch=BATCH serves), run as a user runs it.
 Json cli_status(const TempDir& tmp, const std::string& endpoint, const std::string& batch = "") {
   std::vector<std::string> args = {"status"};
-  if (!batch.empty()) args.push_back(batch);
+  if (!batch.empty()) args.insert(args.end(), {batch, "--tasks"});
   args.insert(args.end(), {"--coordinator", endpoint, "--json"});
   CliResult r = run_cli(tmp.path(), "status_json", args);
   EXPECT_EQ(r.status, 0) << r.err;
@@ -100,6 +103,12 @@ Json cli_status(const TempDir& tmp, const std::string& endpoint, const std::stri
       for (const char* k : {"eta_seconds", "stalled_seconds"})
         batch[k] = batch.at(k).is_null() ? "absent" : "present";
       batch.erase("frames_per_hour");
+    }
+    // A worker's heartbeat age is `now` minus its last_seen.
+    for (Json& w : j->at("workers")) {
+      const double age = w.at("heartbeat_age").get<double>();
+      const double expected = std::max(0.0, now - w.at("last_seen").get<double>());
+      w["heartbeat_age"] = std::abs(age - expected) < 1e-6 ? "now - last_seen" : "inconsistent";
     }
     j->erase("now");
   }
