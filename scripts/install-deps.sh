@@ -39,6 +39,7 @@ CLUSTER=(slurm-wlm munge)  # the cluster engine of deploy/slurm
 TEST=(
   libgtest-dev libgmock-dev
   chromium                 # report and status pages opened in a headless browser
+  openimageio-tools openexr hdf5-tools  # frame EXRs and shards read by other tools
 )
 
 list=0

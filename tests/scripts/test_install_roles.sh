@@ -8,11 +8,11 @@ root="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
 deps="$root/scripts/install-deps.sh"
 fail=0
 check() { if ! eval "$2"; then echo "FAIL: $1"; fail=1; fi; }
-has() { "$deps" --list $1 | grep -qx "$2"; }
+has() { "$deps" --list $1 | grep -x "$2" >/dev/null; }  # no -q: the lister must not get SIGPIPE
 
 check "render has embree" "has render libembree-dev"
 check "render has the status page's http library" "has render libcpp-httplib-dev"
-for p in libtorch-dev slurm-wlm munge chromium libgtest-dev; do
+for p in libtorch-dev slurm-wlm munge chromium libgtest-dev openimageio-tools; do
   check "render must not install $p" "! has render $p"
 done
 check "trainer has libtorch" "has trainer libtorch-dev"
