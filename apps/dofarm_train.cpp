@@ -1,8 +1,9 @@
 // dofarm-train: trains and applies the denoiser (DESIGN.md, "Command line").
 //
-//   dofarm-train train --data DIR --run RUNDIR [--config TRAIN.toml] [--set K=V]...
-//                      [--save-every STEPS]
+//   dofarm-train train --data DIR --run RUNDIR [--preset NAME] [--config TRAIN.toml]
+//                      [--set K=V]... [--save-every STEPS]
 //   dofarm-train eval --run RUNDIR --data DIR --out REPORTDIR [--checkpoint best|last|PATH]
+//                     [--validation-only]
 //   dofarm-train denoise --run RUNDIR IN.exr OUT.exr [--checkpoint ...] [--repair-nonfinite]
 //   dofarm-train export --run RUNDIR --out MODEL.pt [--checkpoint ...]
 //
@@ -31,6 +32,7 @@
 #include "trainer/config.h"
 #include "trainer/eval.h"
 #include "trainer/export_contract.h"
+#include "trainer/inputs.h"
 #include "trainer/run_folder.h"
 #include "trainer/train.h"
 
@@ -70,7 +72,7 @@ void add_checkpoint_option(CLI::App* cmd, std::string* which) {
 Command add_train(CLI::App& app) {
   auto* cmd = app.add_subcommand("train", "train a denoiser; resumes when RUNDIR holds a run");
   struct Opts {
-    std::string data, run, config;
+    std::string data, run, config, preset;
     std::vector<std::string> sets;
     int64_t save_every = 0;
   };
@@ -79,6 +81,9 @@ Command add_train(CLI::App& app) {
       ->required()
       ->check(CLI::ExistingDirectory);
   cmd->add_option("--run", o->run, "run folder: config, checkpoints, logs")->required();
+  cmd->add_option("--preset", o->preset,
+                  "start from a built-in config: default, or thesis (every value the thesis "
+                  "states; docs/trainer.md); --config and --set apply over it");
   cmd->add_option("--config", o->config, "training config (TOML; docs/trainer.md)")
       ->check(CLI::ExistingFile);
   cmd->add_option("--set", o->sets,
@@ -100,11 +105,13 @@ Command add_train(CLI::App& app) {
               // A resumed run keeps its settings: --config and --set change
               // only the keys they name, and each change is logged.
               const TrainConfig saved = parse_train_config(read_text_file(stored), stored);
-              t.config = load_train_config(o->config, o->sets, &saved);
+              const TrainConfig base = o->preset.empty() ? saved : apply_preset(o->preset, saved);
+              t.config = load_train_config(o->config, o->sets, &base);
               for (const std::string& c : config_changes(saved, t.config))
                 spdlog::info("resume with a changed setting: {}", c);
             } else {
-              t.config = load_train_config(o->config, o->sets);
+              const TrainConfig base = o->preset.empty() ? TrainConfig{} : apply_preset(o->preset);
+              t.config = load_train_config(o->config, o->sets, &base);
             }
             t.save_every = o->save_every;
             t.stop = &g_stop;
@@ -121,6 +128,7 @@ Command add_eval(CLI::App& app) {
   struct Opts {
     std::string run, data, out, checkpoint = "best";
     int frames = 0, images = 8, version = 0;
+    bool validation_only = false;
   };
   auto o = std::make_shared<Opts>();
   cmd->add_option("--run", o->run, "run folder")->required()->check(CLI::ExistingDirectory);
@@ -138,11 +146,18 @@ Command add_eval(CLI::App& app) {
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
   add_checkpoint_option(cmd, &o->checkpoint);
+  cmd->add_flag("--validation-only", o->validation_only,
+                "score only the validation frames (by default the report also has a table over "
+                "all frames, as thesis table 5.1)");
   return {cmd, [o] {
             EvalOptions e{o->run, o->data, o->out, o->frames, o->images, o->version, o->checkpoint};
+            e.all_frames = !o->validation_only;
             EvalSummary s = evaluate(e);
             std::printf("%d frames: SSIM %.4f  PSNR %.2f dB  relMSE %.4f  %.2f ms/frame\n",
                         s.frames, s.ssim, s.psnr, s.rel_mse, s.ms);
+            if (e.all_frames)
+              std::printf("all %d frames (training + validation, thesis table 5.1): SSIM %.4f\n",
+                          s.frames_all, s.ssim_all);
             return kExitOk;
           }};
 }
@@ -184,8 +199,10 @@ Command add_denoise(CLI::App& app) {
             if (o->version >= fb.versions)
               throw SpecError(FileLoc{"--noisy-version"}, "",
                               "the frame has " + std::to_string(fb.versions) + " noisy versions");
-            if (den.config().model.dof && fb.coc.empty())
-              throw SpecError(FileLoc{o->in}, "coc", "the model needs a coc layer");
+            for (const ResolvedInput& in : resolve_inputs(den.config().model, den.config().data))
+              if (buffer_data(fb, in.buffer).empty())
+                throw SpecError(FileLoc{o->in}, in.buffer,
+                                "the model needs a " + in.buffer + " layer");
             const auto bad = non_finite_inputs(fb, o->version, den.config(), o->repair);
             if (!bad.empty()) {
               std::string list;
