@@ -414,5 +414,28 @@ TEST(Cli, ExitCodesSayWhatWentWrong) {
   EXPECT_TRUE(fs::exists(run / "model.pt"));
 }
 
+// The preset by its one name, as a user runs it: the run's config.toml holds
+// the thesis's values (so a resume needs no --preset), --set applies over it,
+// and an unknown name is bad input.
+TEST(Cli, ThesisPresetByName) {
+  if (!fs::exists(fs::path(DOFARM_BINARY_DIR) / "dofarm-train")) GTEST_SKIP() << "no binary";
+  fs::path run = fresh_dir("cli_thesis") / "run";
+  const std::string common = " --data " + shared_data().string() + " --run " + run.string() +
+                             " --set 'model.channels=[8, 8, 8, 8, 8]' --set data.crop=32"
+                             " --set data.sequence=3 --set data.readers=1 --set train.epochs=1"
+                             " --set train.val_sequences=1 --set train.device=cpu";
+  EXPECT_EQ(run_cli("train --preset thesys" + common), 2);
+  ASSERT_EQ(run_cli("train --preset thesis" + common + " --set model.dof=false"), 0);
+  const TrainConfig saved = load_train_config(run / "config.toml");
+  TrainConfig want = apply_preset("thesis");
+  std::erase(want.model.inputs, std::string("coc:thesis"));
+  EXPECT_EQ(saved.model.inputs, want.model.inputs);
+  EXPECT_EQ(saved.model.decoder, DecoderForm::kThesis);
+  EXPECT_EQ(saved.loss.log_form, GradientLoss::kThesis);
+  EXPECT_EQ(saved.train.schedule, Schedule::kThesis);
+  EXPECT_EQ(saved.model.channels, (std::vector<int>{8, 8, 8, 8, 8}));
+  EXPECT_TRUE(fs::exists(run / "passes.json"));
+}
+
 }  // namespace
 }  // namespace dofarm::trainer
