@@ -15,8 +15,8 @@ const float* FrameView::at(const std::string& buffer) const {
   return it->second;
 }
 
-void make_input(const FrameView& f, const DataConfig& data, const std::vector<ResolvedInput>& inputs,
-                float* out) {
+void make_input(const FrameView& f, const DataConfig& data,
+                const std::vector<ResolvedInput>& inputs, float* out) {
   EncodeArgs args;
   args.albedo = f.albedo;
   args.pixels = f.pixels;
@@ -154,7 +154,8 @@ Sample build_sample(const RawCrop& raw, const SequencePlan& plan, const DataConf
     for (const auto& [name, data_planes] : raw.buffers) {
       const BufferInfo& b = buffer_info(name);
       const size_t planes = size_t(b.channels) * n;
-      const size_t at = b.per_version ? (size_t(f) * raw.versions + v) * planes : size_t(f) * planes;
+      const size_t at =
+          b.per_version ? (size_t(f) * raw.versions + v) * planes : size_t(f) * planes;
       DOFARM_CHECK_LE(at + planes, data_planes.size());
       view.buffers[name] = &data_planes[at];
     }

@@ -12,8 +12,8 @@
 
 #include <cstdint>
 #include <map>
-#include <string>
 #include <random>
+#include <string>
 #include <vector>
 
 #include "trainer/config.h"

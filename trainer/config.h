@@ -38,7 +38,7 @@ enum class DecoderForm {
 struct ModelConfig {
   // Input channels in order, "name:encoding" (trainer/inputs.h has the
   // table); the old `model.dof = false` removes the coc entry.
-  std::vector<std::string> inputs = {"radiance:log1p", "albedo:as_stored", "normal:as_stored",
+  std::vector<std::string> inputs = {"radiance:log1p", "albedo:as_stored",    "normal:as_stored",
                                      "depth:focal",    "roughness:as_stored", "coc:log"};
   std::vector<int> channels;  // encoder widths; empty = thesis defaults
   int bottleneck = 0;         // 0 = same as the last encoder width

@@ -77,8 +77,8 @@ void encode_coc_thesis(const EncodeArgs& a, float* out) {
 
 const std::vector<InputEncoding>& input_encodings() {
   static const std::vector<InputEncoding> rows = {
-      {"radiance", "log1p", "noisy",
-       "log1p(max(noisy.c / (albedo.c + demod_eps), 0))", encode_radiance<RadianceSpace::kLog1p>},
+      {"radiance", "log1p", "noisy", "log1p(max(noisy.c / (albedo.c + demod_eps), 0))",
+       encode_radiance<RadianceSpace::kLog1p>},
       {"radiance", "linear", "noisy", "noisy.c / (albedo.c + demod_eps)",
        encode_radiance<RadianceSpace::kLinear>},
       {"albedo", "as_stored", "albedo_ref", "as stored", encode_as_stored3},
@@ -114,13 +114,11 @@ std::string normalise_input(const std::string& entry, std::string* error) {
     if (enc.empty() || enc == r.encoding) return name + ":" + r.encoding;
     encodings += (encodings.empty() ? "" : ", ") + std::string(r.encoding);
   }
-  if (encodings.empty())
-  {
+  if (encodings.empty()) {
     std::string list;
     for (const std::string& i : inputs) list += (list.empty() ? "" : ", ") + i;
     *error = "unknown input '" + name + "'; inputs are " + list;
-  }
-  else
+  } else
     *error = "unknown encoding '" + enc + "' of input '" + name + "'; it takes " + encodings;
   return "";
 }
@@ -143,7 +141,8 @@ std::vector<ResolvedInput> resolve_inputs(const ModelConfig& model, const DataCo
   for (const std::string& e : model.inputs) {
     ResolvedInput r;
     r.row = &row_of(e);
-    r.buffer = r.row->buffer == std::string("albedo_ref") ? demodulation_buffer(data) : r.row->buffer;
+    r.buffer =
+        r.row->buffer == std::string("albedo_ref") ? demodulation_buffer(data) : r.row->buffer;
     r.channels = buffer_info(r.buffer).channels;
     r.offset = offset;
     offset += r.channels;

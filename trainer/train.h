@@ -11,9 +11,9 @@
 //   events.log           new run, resumes, stops, skipped non-finite steps, rollbacks
 // Batches: batches.h; the step itself: step_runner.h.
 //
-// Adam(0.9, 0.99); learning rate by learning_rate(); a non-finite loss or gradient skips the step, and
-// max_bad_steps in a row roll the model and optimizer back to the last
-// checkpoint with the learning rate scaled by rollback_lr_factor.
+// Adam(0.9, 0.99); learning rate by learning_rate(); a non-finite loss or gradient skips the step,
+// and max_bad_steps in a row roll the model and optimizer back to the last checkpoint with the
+// learning rate scaled by rollback_lr_factor.
 #pragma once
 
 #include <torch/torch.h>

@@ -204,14 +204,14 @@ TEST(Augment, ThesisEncodingsMatchSection424ByHand) {
   EXPECT_FLOAT_EQ(out[0], 0.3f / (0.5f + eps));
   EXPECT_FLOAT_EQ(out[1], 2.0f / (0.25f + eps));
   EXPECT_FLOAT_EQ(out[2], 0.0f);
-  EXPECT_FLOAT_EQ(out[3], 0.5f);                          // albedo as stored
-  EXPECT_FLOAT_EQ(out[6], 0.8f);                          // (0.6 + 1) / 2
-  EXPECT_FLOAT_EQ(out[7], 0.1f);                          // (-0.8 + 1) / 2
-  EXPECT_FLOAT_EQ(out[8], 0.5f);                          // (1 - 0) / 2
-  EXPECT_FLOAT_EQ(out[9], 2.5f / data.depth_scale);       // depth / scene depth
-  EXPECT_FLOAT_EQ(out[10], 0.3f);                         // roughness
-  EXPECT_FLOAT_EQ(out[11], 1.0f);                         // 0.8 px: acceptably sharp
-  coc = 8.0f;                                             // (32 - 8) / 32
+  EXPECT_FLOAT_EQ(out[3], 0.5f);                     // albedo as stored
+  EXPECT_FLOAT_EQ(out[6], 0.8f);                     // (0.6 + 1) / 2
+  EXPECT_FLOAT_EQ(out[7], 0.1f);                     // (-0.8 + 1) / 2
+  EXPECT_FLOAT_EQ(out[8], 0.5f);                     // (1 - 0) / 2
+  EXPECT_FLOAT_EQ(out[9], 2.5f / data.depth_scale);  // depth / scene depth
+  EXPECT_FLOAT_EQ(out[10], 0.3f);                    // roughness
+  EXPECT_FLOAT_EQ(out[11], 1.0f);                    // 0.8 px: acceptably sharp
+  coc = 8.0f;                                        // (32 - 8) / 32
   make_input(v, data, resolve_inputs(cfg.model, data), out);
   EXPECT_FLOAT_EQ(out[11], 0.75f);
   EXPECT_FLOAT_EQ(coc_thesis(1.0f, 1.0f, 32.0f), 1.0f);   // the limit itself is sharp

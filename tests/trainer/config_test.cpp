@@ -161,9 +161,9 @@ TEST(TrainConfig, UnknownInputIsAnErrorNamingTheKey) {
   }
   // What is denoised must be there, once; an input is listed at most once.
   EXPECT_THROW(parse_train_config("[model]\ninputs = [\"albedo\"]\n", "t.toml"), SpecError);
-  EXPECT_THROW(parse_train_config("[model]\ninputs = [\"radiance\", \"coc\", \"coc:thesis\"]\n",
-                                  "t.toml"),
-               SpecError);
+  EXPECT_THROW(
+      parse_train_config("[model]\ninputs = [\"radiance\", \"coc\", \"coc:thesis\"]\n", "t.toml"),
+      SpecError);
 }
 
 // A run folder's config.toml from before model.inputs (written with

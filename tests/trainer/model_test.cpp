@@ -90,19 +90,19 @@ TEST(LogLoss, ThesisEq44EqualsDirectSums) {
           l1 += std::abs(pa[0][f][c][y][x] - ta[0][f][c][y][x]) / (frames * 3 * h * w);
   }
   LossConfig cfg = apply_preset("thesis").loss;
-  LossTerms got = denoiser_loss(p.to(torch::kFloat32), t.to(torch::kFloat32), cfg,
-                                log_kernel(sigma));
+  LossTerms got =
+      denoiser_loss(p.to(torch::kFloat32), t.to(torch::kFloat32), cfg, log_kernel(sigma));
   EXPECT_NEAR(got.log.item<double>(), lg, 1e-5 * lg);
   EXPECT_NEAR(got.l1.item<double>(), l1, 1e-6);
   EXPECT_NEAR(got.total.item<double>(), 0.8 * l1 + 0.2 * lg, 1e-5 * (0.8 * l1 + 0.2 * lg));
   // The project's form is another number on the same data (|.| mean of a
   // unit-L1 kernel's responses), so the switch does something.
   cfg.log_form = GradientLoss::kL1;
-  EXPECT_GT(std::abs(denoiser_loss(p.to(torch::kFloat32), t.to(torch::kFloat32), cfg,
-                                   log_kernel(sigma))
-                         .log.item<double>() -
-                     lg),
-            0.1 * lg);
+  EXPECT_GT(
+      std::abs(denoiser_loss(p.to(torch::kFloat32), t.to(torch::kFloat32), cfg, log_kernel(sigma))
+                   .log.item<double>() -
+               lg),
+      0.1 * lg);
   // A flat target (no LoG response at all) stays finite, and identical
   // images give exactly 0.
   cfg.log_form = GradientLoss::kThesis;
