@@ -12,9 +12,8 @@
 // stderr; 3 (kExitStopped) when `train` stopped on SIGINT/SIGTERM after
 // finishing its step and writing last.pt (run the same command to resume).
 // A second signal ends the process at once, as the signal's default does.
-#include <spdlog/spdlog.h>
-
 #include <signal.h>
+#include <spdlog/spdlog.h>
 
 #include <CLI/CLI.hpp>
 #include <atomic>

@@ -1,14 +1,14 @@
 #include "trainer/config.h"
 
+#include <fmt/format.h>
 #include <toml++/toml.h>
 
+#include <algorithm>
 #include <cmath>
 #include <fstream>
 #include <functional>
 #include <limits>
 #include <sstream>
-
-#include <fmt/format.h>
 
 #include "common/error.h"
 #include "trainer/inputs.h"
@@ -287,13 +287,17 @@ void apply(std::vector<Field>& fs, const std::string& key, const toml::node& nod
   if (key == kLegacyDofKey) {
     // Runs from before model.inputs stored `dof = true/false`: the coc input
     // on or off, the other inputs as they are.
-    if (!node.is_boolean()) throw SpecError(loc, key, "expected true or false, got " + describe(node));
+    if (!node.is_boolean())
+      throw SpecError(loc, key, "expected true or false, got " + describe(node));
     std::vector<std::string>* inputs = nullptr;
     for (Field& f : fs)
       if (f.key == "model.inputs") inputs = f.target_inputs;
     DOFARM_CHECK(inputs != nullptr);
-    std::erase_if(*inputs, [](const std::string& e) { return e.rfind("coc:", 0) == 0; });
-    if (node.as_boolean()->get()) inputs->push_back("coc:log");
+    auto is_coc = [](const std::string& e) { return e.rfind("coc:", 0) == 0; };
+    if (!node.as_boolean()->get())
+      std::erase_if(*inputs, is_coc);
+    else if (std::none_of(inputs->begin(), inputs->end(), is_coc))
+      inputs->push_back("coc:log");
     return;
   }
   for (Field& f : fs) {

@@ -126,8 +126,8 @@ std::vector<std::string> list_shards(const fs::path& dir) {
   return out;
 }
 
-SequenceStream::SequenceStream(fs::path data_dir, fs::path run_dir, DataConfig data, ModelConfig model,
-                               uint64_t seed, uint64_t first_index,
+SequenceStream::SequenceStream(fs::path data_dir, fs::path run_dir, DataConfig data,
+                               ModelConfig model, uint64_t seed, uint64_t first_index,
                                ShardReaderOptions reader_options)
     : data_dir_(std::move(data_dir)),
       run_dir_(std::move(run_dir)),

@@ -70,7 +70,8 @@ std::vector<float> FrameDenoiser::denoise(const FrameBuffers& f, int version, do
   view.focal_distance = f.camera.focal_distance;
   for (const BufferInfo& b : buffer_infos()) {
     const std::vector<float>& data = buffer_data(f, b.name);
-    const size_t count = size_t(b.channels) * n, begin = b.per_version ? size_t(version) * count : 0;
+    const size_t count = size_t(b.channels) * n,
+                 begin = b.per_version ? size_t(version) * count : 0;
     if (data.size() >= begin + count) view.buffers[b.name] = data.data() + begin;
   }
   const float* albedo = view.at(demodulation_buffer(cfg.data));
@@ -305,24 +306,24 @@ EvalSummary evaluate(const EvalOptions& o) {
   json scenes_every = json::object();
   if (o.all_frames)
     for (const auto& [name, a] : by_scene_every) scenes_every[name] = a.summary();
-  json report = {{"run", o.run_dir.string()},
-                 {"data", o.data_dir.string()},
-                 {"device", device.str()},
-                 {"noisy_version", o.version},
-                 {"checkpoint",
-                  {{"file", used.checkpoint.string()},
-                   {"epoch", used.state.epoch},
-                   {"step", used.state.step},
-                   {"best_loss", std::isfinite(used.state.best) ? json(used.state.best) : json()}}},
-                 {"metrics_note",
-                  "SSIM and PSNR on sRGB-encoded images clamped to [0,1]; relative MSE on "
-                  "linear HDR, (d-r)^2/(r^2+0.01); in focus = CoC < 1 px"},
-                 {"summary", summary},
-                 {"scenes", scenes},
-                 {"all_frames",
-                  o.all_frames ? json{{"summary", every.summary()}, {"scenes", scenes_every}}
-                               : json()},
-                 {"frames", frames}};
+  json report = {
+      {"run", o.run_dir.string()},
+      {"data", o.data_dir.string()},
+      {"device", device.str()},
+      {"noisy_version", o.version},
+      {"checkpoint",
+       {{"file", used.checkpoint.string()},
+        {"epoch", used.state.epoch},
+        {"step", used.state.step},
+        {"best_loss", std::isfinite(used.state.best) ? json(used.state.best) : json()}}},
+      {"metrics_note",
+       "SSIM and PSNR on sRGB-encoded images clamped to [0,1]; relative MSE on "
+       "linear HDR, (d-r)^2/(r^2+0.01); in focus = CoC < 1 px"},
+      {"summary", summary},
+      {"scenes", scenes},
+      {"all_frames",
+       o.all_frames ? json{{"summary", every.summary()}, {"scenes", scenes_every}} : json()},
+      {"frames", frames}};
   std::ofstream(o.out_dir / "report.json") << report.dump(1) << "\n";
 
   std::ofstream md(o.out_dir / "report.md");

@@ -48,10 +48,12 @@ std::string denoiser_contract(const LoadedRun& run) {
       {"input_channels", cfg.model.input_channels()},
       {"inputs", inputs},
       {"layout", "NCHW float32, one frame [B, C, H, W], channel order as in inputs"},
-      {"size", {{"any", true},
-                {"multiple", kSizeMultiple},
-                {"rule", "H and W are padded by edge replication to the next multiple inside "
-                         "forward() and the output is cropped back"}}},
+      {"size",
+       {{"any", true},
+        {"multiple", kSizeMultiple},
+        {"rule",
+         "H and W are padded by edge replication to the next multiple inside "
+         "forward() and the output is cropped back"}}},
       {"constants",
        {{"demod_eps", d.demod_eps},
         {"coc_log_scale", d.coc_log_scale},

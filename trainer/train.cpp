@@ -10,10 +10,9 @@
 #include <exception>
 #include <fstream>
 #include <mutex>
+#include <nlohmann/json.hpp>
 #include <sstream>
 #include <thread>
-
-#include <nlohmann/json.hpp>
 
 #include "common/error.h"
 #include "common/progress.h"
@@ -107,7 +106,7 @@ int64_t steps_per_pass_of(const fs::path& run, const SequenceStream& stream, int
   const int64_t steps = (n + batch - 1) / batch;
   if (used)
     log(spdlog::level::info, "one pass over the training data: {} sequences, {} steps of {}", n,
-      steps, batch);
+        steps, batch);
   return steps;
 }
 

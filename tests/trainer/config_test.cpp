@@ -135,6 +135,12 @@ TEST(TrainConfig, NoCocInputListGivesElevenChannels) {
   // The same by the old key over the defaults.
   TrainConfig d = parse_train_config("", "t.toml", {"model.dof=false"});
   EXPECT_EQ(d.model.inputs, c.model.inputs);
+  // And back: true adds the default coc input, and keeps one already there.
+  EXPECT_EQ(parse_train_config("", "t.toml", {"model.dof=true"}, &d).model.inputs,
+            TrainConfig{}.model.inputs);
+  const TrainConfig thesis = apply_preset("thesis");
+  EXPECT_EQ(parse_train_config("", "t.toml", {"model.dof=true"}, &thesis).model.inputs,
+            thesis.model.inputs);
 }
 
 TEST(TrainConfig, UnknownInputIsAnErrorNamingTheKey) {

@@ -274,9 +274,9 @@ TEST(Export, ContractListsTheInputTableChannels) {
   const nlohmann::json c = nlohmann::json::parse(denoiser_contract(r));
   ASSERT_EQ(c["inputs"].size(), 12u);
   EXPECT_EQ(c["input_channels"], 12);
-  const char* names[] = {"radiance.R", "radiance.G", "radiance.B", "albedo.R", "albedo.G",
-                         "albedo.B",   "normal.X",   "normal.Y",   "normal.Z", "depth",
-                         "roughness",  "coc"};
+  const char* names[] = {"radiance.R", "radiance.G", "radiance.B", "albedo.R",
+                         "albedo.G",   "albedo.B",   "normal.X",   "normal.Y",
+                         "normal.Z",   "depth",      "roughness",  "coc"};
   const char* encodings[] = {"linear",  "linear",  "linear",  "as_stored", "as_stored", "as_stored",
                              "remap01", "remap01", "remap01", "scene",     "as_stored", "thesis"};
   for (int i = 0; i < 12; ++i) {

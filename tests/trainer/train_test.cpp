@@ -353,9 +353,10 @@ TEST(Train, ThesisPresetPassesEq45BestByTrainingLossAndAllFrameEval) {
   o.run_dir = dir / "run";
   const TrainConfig thesis = apply_preset("thesis");
   o.config = load_train_config(
-      "", {"model.channels=[8, 8, 8, 8, 8]", "data.crop=32", "data.sequence=3", "data.queue=4",
-           "data.readers=1", "data.val_fraction=0.25", "train.epochs=3", "train.batch=2",
-           "train.val_sequences=2", "train.device=cpu"},
+      "",
+      {"model.channels=[8, 8, 8, 8, 8]", "data.crop=32", "data.sequence=3", "data.queue=4",
+       "data.readers=1", "data.val_fraction=0.25", "train.epochs=3", "train.batch=2",
+       "train.val_sequences=2", "train.device=cpu"},
       &thesis);
   TrainResult r = train(o);
   // 12 frames of 3-frame sequences, one of them validation: 3 training
