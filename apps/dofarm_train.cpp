@@ -1,8 +1,9 @@
 // dofarm-train: trains and applies the denoiser (DESIGN.md, "Command line").
 //
-//   dofarm-train train --data DIR --run RUNDIR [--config TRAIN.toml] [--set K=V]...
-//                      [--save-every STEPS]
+//   dofarm-train train --data DIR --run RUNDIR [--preset NAME] [--config TRAIN.toml]
+//                      [--set K=V]... [--save-every STEPS]
 //   dofarm-train eval --run RUNDIR --data DIR --out REPORTDIR [--checkpoint best|last|PATH]
+//                     [--validation-only]
 //   dofarm-train denoise --run RUNDIR IN OUT.exr [--checkpoint ...] [--repair-nonfinite]
 //                        [--albedo F --normal F --depth F] [--fstop N --focal-length MM
 //                        --sensor-width MM --focus-distance D] (other renderers' frames)
@@ -35,6 +36,7 @@
 #include "trainer/eval.h"
 #include "trainer/export_contract.h"
 #include "trainer/foreign_frame.h"
+#include "trainer/inputs.h"
 #include "trainer/run_folder.h"
 #include "trainer/train.h"
 
@@ -74,7 +76,7 @@ void add_checkpoint_option(CLI::App* cmd, std::string* which) {
 Command add_train(CLI::App& app) {
   auto* cmd = app.add_subcommand("train", "train a denoiser; resumes when RUNDIR holds a run");
   struct Opts {
-    std::string data, run, config;
+    std::string data, run, config, preset;
     std::vector<std::string> sets;
     int64_t save_every = 0;
   };
@@ -83,6 +85,9 @@ Command add_train(CLI::App& app) {
       ->required()
       ->check(CLI::ExistingDirectory);
   cmd->add_option("--run", o->run, "run folder: config, checkpoints, logs")->required();
+  cmd->add_option("--preset", o->preset,
+                  "start from a built-in config: default, or thesis (every value the thesis "
+                  "states; docs/trainer.md); --config and --set apply over it");
   cmd->add_option("--config", o->config, "training config (TOML; docs/trainer.md)")
       ->check(CLI::ExistingFile);
   cmd->add_option("--set", o->sets,
@@ -104,11 +109,13 @@ Command add_train(CLI::App& app) {
               // A resumed run keeps its settings: --config and --set change
               // only the keys they name, and each change is logged.
               const TrainConfig saved = parse_train_config(read_text_file(stored), stored);
-              t.config = load_train_config(o->config, o->sets, &saved);
+              const TrainConfig base = o->preset.empty() ? saved : apply_preset(o->preset, saved);
+              t.config = load_train_config(o->config, o->sets, &base);
               for (const std::string& c : config_changes(saved, t.config))
                 spdlog::info("resume with a changed setting: {}", c);
             } else {
-              t.config = load_train_config(o->config, o->sets);
+              const TrainConfig base = o->preset.empty() ? TrainConfig{} : apply_preset(o->preset);
+              t.config = load_train_config(o->config, o->sets, &base);
             }
             t.save_every = o->save_every;
             t.stop = &g_stop;
@@ -125,6 +132,7 @@ Command add_eval(CLI::App& app) {
   struct Opts {
     std::string run, data, out, checkpoint = "best";
     int frames = 0, images = 8, version = 0;
+    bool validation_only = false;
   };
   auto o = std::make_shared<Opts>();
   cmd->add_option("--run", o->run, "run folder")->required()->check(CLI::ExistingDirectory);
@@ -142,11 +150,18 @@ Command add_eval(CLI::App& app) {
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
   add_checkpoint_option(cmd, &o->checkpoint);
+  cmd->add_flag("--validation-only", o->validation_only,
+                "score only the validation frames (by default the report also has a table over "
+                "all frames, as thesis table 5.1)");
   return {cmd, [o] {
             EvalOptions e{o->run, o->data, o->out, o->frames, o->images, o->version, o->checkpoint};
+            e.all_frames = !o->validation_only;
             EvalSummary s = evaluate(e);
             std::printf("%d frames: SSIM %.4f  PSNR %.2f dB  relMSE %.4f  %.2f ms/frame\n",
                         s.frames, s.ssim, s.psnr, s.rel_mse, s.ms);
+            if (e.all_frames)
+              std::printf("all %d frames (training + validation, thesis table 5.1): SSIM %.4f\n",
+                          s.frames_all, s.ssim_all);
             return kExitOk;
           }};
 }
@@ -236,9 +251,12 @@ Command add_denoise(CLI::App& app) {
         fi.normal_space = o->normal_space == "cycles" ? NormalSpace::kCycles : NormalSpace::kView;
         fi.lens = {o->fstop, o->focal_length, o->sensor_width, o->focus_distance, o->clip_start};
         fi.roughness = o->roughness;
-        DenoiseInput input = load_denoise_input(fi, den.config().model.dof);
+        DenoiseInput input = load_denoise_input(fi, den.config().model.has_coc());
         for (const std::string& note : input.notes) spdlog::info("{}: {}", o->in, note);
         FrameBuffers& fb = input.frame;
+        for (const ResolvedInput& in : resolve_inputs(den.config().model, den.config().data))
+          if (buffer_data(fb, in.buffer).empty())
+            throw SpecError(FileLoc{o->in}, in.buffer, "the model needs a " + in.buffer + " layer");
         if (o->version >= fb.versions)
           throw SpecError(FileLoc{"--noisy-version"}, "",
                           "the frame has " + std::to_string(fb.versions) + " noisy versions");

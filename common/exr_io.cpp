@@ -127,6 +127,20 @@ std::vector<ChannelPlane> channel_planes(int versions, int schema, bool with_ref
   return out;
 }
 
+}  // namespace
+
+std::string frame_exr_channel(const std::string& buffer, int c, const std::string& version) {
+  for (const ChannelPlane& p : channel_planes(1, 2)) {
+    const BufferInfo& b = buffer_info(buffer);
+    if (p.buffer != buffer || p.plane != size_t(c)) continue;
+    if (!b.per_version) return p.name;
+    return buffer + "." + version + p.name.substr(buffer.size() + 2);  // past "NAME.0"
+  }
+  throw RuntimeError("frame EXRs have no channel " + std::to_string(c) + " of '" + buffer + "'");
+}
+
+namespace {
+
 // --- Atomic file writing ----------------------------------------------------
 
 // An Imf::OStream into memory. A frame is encoded whole before any byte

@@ -79,6 +79,12 @@ ExrFrame read_frame_exr(const std::filesystem::path& path, uint64_t* file_checks
 // like write_frame_exr(). Non-finite values are kept, to be seen.
 void write_rgb_exr(const std::filesystem::path& path, const RgbImage& img);
 
+// The name of channel `c` of buffer `buffer` in a frame EXR as written now
+// (docs/exr_format.md): "R" for the reference's red, "Z" for the depth,
+// "normal.R" for the normal's x. A per-version buffer's layer carries
+// `version` ("0", or a placeholder such as "<v>").
+std::string frame_exr_channel(const std::string& buffer, int c, const std::string& version = "0");
+
 // Any single-part flat EXR (scanline or tiled), every channel converted to
 // float: another renderer's frame. Channels are H x W planes of the data
 // window, row 0 at its top; values as stored (NaN/Inf kept: the caller

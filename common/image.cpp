@@ -9,24 +9,35 @@ namespace dofarm {
 
 const std::vector<BufferInfo>& buffer_infos() {
   static const std::vector<BufferInfo> infos = {
-      {"noisy", 3, true},      {"albedo", 3, true},         {"albedo_ref", 3, false},
-      {"reference", 3, false}, {"reference_var", 1, false}, {"normal", 3, false},
-      {"depth", 1, false},     {"roughness", 1, false},     {"coc", 1, false},
+      {"noisy", 3, true, "R,G,B", &FrameBuffers::noisy},
+      {"albedo", 3, true, "R,G,B", &FrameBuffers::albedo},
+      {"albedo_ref", 3, false, "R,G,B", &FrameBuffers::albedo_ref},
+      {"reference", 3, false, "R,G,B", &FrameBuffers::reference},
+      {"reference_var", 1, false, "Y", &FrameBuffers::reference_var},
+      {"normal", 3, false, "X,Y,Z", &FrameBuffers::normal},
+      {"depth", 1, false, "Y", &FrameBuffers::depth},
+      {"roughness", 1, false, "Y", &FrameBuffers::roughness},
+      {"coc", 1, false, "Y", &FrameBuffers::coc},
   };
   return infos;
 }
 
-std::vector<float>& buffer_data(FrameBuffers& fb, const std::string& name) {
-  if (name == "noisy") return fb.noisy;
-  if (name == "albedo") return fb.albedo;
-  if (name == "albedo_ref") return fb.albedo_ref;
-  if (name == "reference") return fb.reference;
-  if (name == "reference_var") return fb.reference_var;
-  if (name == "normal") return fb.normal;
-  if (name == "depth") return fb.depth;
-  if (name == "roughness") return fb.roughness;
-  if (name == "coc") return fb.coc;
+const BufferInfo& buffer_info(const std::string& name) {
+  for (const BufferInfo& b : buffer_infos())
+    if (name == b.name) return b;
   throw RuntimeError("unknown buffer name '" + name + "'");
+}
+
+std::string channel_name(const BufferInfo& b, int c) {
+  DOFARM_CHECK_LT(c, b.channels);
+  const std::string names = b.channel_names;
+  size_t begin = 0;
+  for (int i = 0; i < c; ++i) begin = names.find(',', begin) + 1;
+  return names.substr(begin, names.find(',', begin) - begin);
+}
+
+std::vector<float>& buffer_data(FrameBuffers& fb, const std::string& name) {
+  return fb.*(buffer_info(name).data);
 }
 
 const std::vector<float>& buffer_data(const FrameBuffers& fb, const std::string& name) {

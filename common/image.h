@@ -47,13 +47,22 @@ struct FrameBuffers {
   size_t count_non_finite() const;
 };
 
-// Names and channel counts of the buffers, in schema order.
+// The buffer table (one row per buffer, in schema order): it drives the shard
+// datasets, the EXR layers, `inspect` and the trainer's input table
+// (trainer/inputs.h). A new auxiliary buffer is one row here, one member of
+// FrameBuffers, and its renderer code.
 struct BufferInfo {
   const char* name;
   int channels;
   bool per_version;
+  const char* channel_names;               // "R,G,B", "X,Y,Z" or "Y" (EXR suffixes)
+  std::vector<float> FrameBuffers::*data;  // where a frame keeps it
 };
 const std::vector<BufferInfo>& buffer_infos();
+// The row named `name`; throws RuntimeError for an unknown name.
+const BufferInfo& buffer_info(const std::string& name);
+// Channel suffix `c` of a buffer ("R", "X", "Y", ...).
+std::string channel_name(const BufferInfo& b, int c);
 std::vector<float>& buffer_data(FrameBuffers& fb, const std::string& name);
 const std::vector<float>& buffer_data(const FrameBuffers& fb, const std::string& name);
 

@@ -4,50 +4,34 @@
 #include <cmath>
 
 #include "common/error.h"
+#include "common/image.h"
 
 namespace dofarm::trainer {
 
-// log1p compresses the HDR range (fireflies of 1-spp radiance reach 1e3 and
-// more) so that L1 is not dominated by a few pixels; it is exact to invert.
-float radiance_forward(float demodulated) { return std::log1p(std::max(demodulated, 0.0f)); }
-float radiance_inverse(float transformed) { return std::expm1(std::max(transformed, 0.0f)); }
+const float* FrameView::at(const std::string& buffer) const {
+  auto it = buffers.find(buffer);
+  if (it == buffers.end() || it->second == nullptr)
+    throw RuntimeError("the frame has no '" + buffer + "' buffer, which the model's inputs need");
+  return it->second;
+}
 
-void make_input(const FrameView& f, const DataConfig& data, bool dof, float* out) {
-  const size_t n = f.pixels;
-  const float eps = data.demod_eps;
-  for (int c = 0; c < 3; ++c) {
-    const float* l = f.noisy + c * n;
-    const float* a = f.albedo + c * n;
-    float* o = out + c * n;
-    for (size_t p = 0; p < n; ++p) o[p] = radiance_forward(demodulate(l[p], a[p], eps));
-  }
-  std::copy(f.albedo, f.albedo + 3 * n, out + 3 * n);
-  std::copy(f.normal, f.normal + 3 * n, out + 6 * n);
-  // Depth relative to the focal plane of this frame: scale-free (no per-scene
-  // constants, identical for a 64x64 crop and the full frame), 0.5 on the focal
-  // plane, -> 1 far away. Escaped rays (stored as 0) are infinitely far.
-  const float focal = std::max(f.focal_distance, 1e-6f);
-  float* od = out + 9 * n;
-  for (size_t p = 0; p < n; ++p) {
-    float z = f.depth[p];
-    od[p] = z > 0.0f && std::isfinite(z) ? z / (z + focal) : 1.0f;
-  }
-  std::copy(f.roughness, f.roughness + n, out + 10 * n);
-  if (dof) {
-    // Thesis 4.2 feeds the CoC scaled by hand-tuned per-scene limits; ours is
-    // physical (pixels), so a fixed log scale covers every scene: 0 px -> 0,
-    // 1 px (the sharpness limit) -> 0.2, 32 px -> 1, no clamp needed.
-    DOFARM_CHECK(f.coc != nullptr);
-    float* oc = out + 11 * n;
-    for (size_t p = 0; p < n; ++p)
-      oc[p] = std::log1p(std::max(f.coc[p], 0.0f)) / data.coc_log_scale;
+void make_input(const FrameView& f, const DataConfig& data,
+                const std::vector<ResolvedInput>& inputs, float* out) {
+  EncodeArgs args;
+  args.albedo = f.albedo;
+  args.pixels = f.pixels;
+  args.focal_distance = f.focal_distance;
+  args.data = &data;
+  for (const ResolvedInput& in : inputs) {
+    args.src = f.at(in.buffer);
+    in.row->encode(args, out + size_t(in.offset) * f.pixels);
   }
 }
 
 void make_target(const float* reference, const float* albedo, size_t pixels, const DataConfig& data,
-                 float* out) {
+                 RadianceSpace space, float* out) {
   for (size_t i = 0; i < 3 * pixels; ++i)
-    out[i] = radiance_forward(demodulate(reference[i], albedo[i], data.demod_eps));
+    out[i] = radiance_forward(demodulate(reference[i], albedo[i], data.demod_eps), space);
 }
 
 SequencePlan draw_plan(std::mt19937_64& rng, const DataConfig& data, int frame_begin, int frame_end,
@@ -122,62 +106,78 @@ void rotate_planes(float* data, int planes, int size, int quarter_turns) {
   }
 }
 
+namespace {
+
+// Camera-space directions (buffers whose channels are X,Y,Z: the normal)
+// turn with the image: a quarter turn counter-clockwise maps (x, y) to
+// (-y, x) (x right, y up), so shading cues stay consistent with the rotated
+// picture. Per pixel, so it commutes with the spatial rotation; done before
+// encoding because an encoding (normal:remap01) is not linear in the sign.
+void rotate_directions(float* xyz, size_t n, int quarter_turns) {
+  float* nx = xyz;
+  float* ny = xyz + n;
+  for (size_t p = 0; p < n; ++p) {
+    float x = nx[p], y = ny[p];
+    for (int k = 0; k < quarter_turns; ++k) {
+      const float tx = -y;
+      y = x;
+      x = tx;
+    }
+    nx[p] = x;
+    ny[p] = y;
+  }
+}
+
+}  // namespace
+
 Sample build_sample(const RawCrop& raw, const SequencePlan& plan, const DataConfig& data,
-                    bool dof) {
+                    const ModelConfig& model) {
   const int t = int(plan.offset.size());
   const int s = raw.size;
   const size_t n = size_t(s) * s;
   DOFARM_CHECK_GE(raw.frames, plan.span);
+  const std::vector<ResolvedInput> inputs = resolve_inputs(model, data);
+  const RadianceSpace space = radiance_space(model);
+  const std::string albedo_name = demodulation_buffer(data);
   Sample out;
   out.frames = t;
-  out.channels = dof ? 12 : 11;
+  out.channels = model.input_channels();
   out.size = s;
   out.input.resize(size_t(t) * out.channels * n);
   out.target.resize(size_t(t) * 3 * n);
   out.albedo.resize(size_t(t) * 3 * n);
-  out.coc.resize(size_t(t) * n);
+  std::vector<float> turned;  // a direction buffer's planes, turned per pixel
   for (int i = 0; i < t; ++i) {
     const int f = plan.offset[i], v = plan.version[i];
     DOFARM_CHECK_LT(v, raw.versions);
-    const size_t fv = (size_t(f) * raw.versions + v) * 3 * n;  // per-version buffers
-    const size_t f3 = size_t(f) * 3 * n, f1 = size_t(f) * n;
-    const float* albedo =
-        data.albedo == AlbedoSource::kVersion ? &raw.albedo[fv] : &raw.albedo_ref[f3];
     FrameView view;
-    view.noisy = &raw.noisy[fv];
+    for (const auto& [name, data_planes] : raw.buffers) {
+      const BufferInfo& b = buffer_info(name);
+      const size_t planes = size_t(b.channels) * n;
+      const size_t at =
+          b.per_version ? (size_t(f) * raw.versions + v) * planes : size_t(f) * planes;
+      DOFARM_CHECK_LE(at + planes, data_planes.size());
+      view.buffers[name] = &data_planes[at];
+    }
+    const float* albedo = view.at(albedo_name);
     view.albedo = albedo;
-    view.normal = &raw.normal[f3];
-    view.depth = &raw.depth[f1];
-    view.roughness = &raw.roughness[f1];
-    view.coc = raw.coc.empty() ? nullptr : &raw.coc[f1];
     view.focal_distance = raw.focal_distance[f];
     view.pixels = n;
+    if (plan.quarter_turns)
+      for (const ResolvedInput& in : inputs)
+        if (std::string(buffer_info(in.buffer).channel_names) == "X,Y,Z") {
+          turned.assign(view.at(in.buffer), view.at(in.buffer) + 3 * n);
+          rotate_directions(turned.data(), n, plan.quarter_turns);
+          view.buffers[in.buffer] = turned.data();
+        }
     float* in = &out.input[size_t(i) * out.channels * n];
-    make_input(view, data, dof, in);
-    make_target(&raw.reference[f3], albedo, n, data, &out.target[size_t(i) * 3 * n]);
+    make_input(view, data, inputs, in);
+    make_target(view.at("reference"), albedo, n, data, space, &out.target[size_t(i) * 3 * n]);
     std::copy(albedo, albedo + 3 * n, &out.albedo[size_t(i) * 3 * n]);
-    if (!raw.coc.empty()) std::copy(&raw.coc[f1], &raw.coc[f1] + n, &out.coc[size_t(i) * n]);
-
     if (plan.quarter_turns) {
       rotate_planes(in, out.channels, s, plan.quarter_turns);
       rotate_planes(&out.target[size_t(i) * 3 * n], 3, s, plan.quarter_turns);
       rotate_planes(&out.albedo[size_t(i) * 3 * n], 3, s, plan.quarter_turns);
-      rotate_planes(&out.coc[size_t(i) * n], 1, s, plan.quarter_turns);
-      // View-space normals turn with the image: a quarter turn counter-clockwise
-      // maps (nx, ny) to (-ny, nx) (x right, y up), so shading cues stay
-      // consistent with the rotated picture.
-      float* nx = in + kNormalChannel * n;
-      float* ny = nx + n;
-      for (size_t p = 0; p < n; ++p) {
-        float x = nx[p], y = ny[p];
-        for (int k = 0; k < plan.quarter_turns; ++k) {
-          float tx = -y;
-          y = x;
-          x = tx;
-        }
-        nx[p] = x;
-        ny[p] = y;
-      }
     }
   }
   return out;

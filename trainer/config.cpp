@@ -1,23 +1,32 @@
 #include "trainer/config.h"
 
+#include <fmt/format.h>
 #include <toml++/toml.h>
 
+#include <algorithm>
 #include <cmath>
 #include <fstream>
 #include <functional>
 #include <limits>
 #include <sstream>
 
-#include <fmt/format.h>
-
 #include "common/error.h"
+#include "trainer/inputs.h"
 
 namespace dofarm::trainer {
 
+bool ModelConfig::has_coc() const {
+  for (const std::string& e : inputs)
+    if (e.rfind("coc:", 0) == 0) return true;
+  return false;
+}
+
+int ModelConfig::input_channels() const { return input_width(inputs); }
+
 std::vector<int> ModelConfig::effective_channels() const {
   if (!channels.empty()) return channels;
-  // Thesis 4.2: the CoC model is widened so that the extra input has capacity.
-  if (dof) return {36, 48, 64, 85, 113};
+  // Thesis 4.3.1: the CoC model is widened so that the extra input has capacity.
+  if (has_coc()) return {36, 48, 64, 85, 113};
   return {32, 43, 57, 76, 101};
 }
 
@@ -35,7 +44,11 @@ struct Field {
   // Reads `node` into the config; returns an error message or "".
   std::function<std::string(const toml::node&)> read;
   std::function<void(toml::table&, const std::string&)> write;
+  std::vector<std::string>* target_inputs = nullptr;  // model.inputs only (legacy model.dof)
 };
+
+// The key model.inputs replaced; still read, never written.
+constexpr const char* kLegacyDofKey = "model.dof";
 
 std::string describe(const toml::node& n) {
   std::ostringstream os;
@@ -150,6 +163,38 @@ Field int_list_field(std::string key, std::vector<int>* p, bool affects_model) {
   return f;
 }
 
+// model.inputs: entries checked against the input table and stored as
+// "name:encoding", so "coc" and "coc:log" are the same config.
+Field inputs_field(std::string key, std::vector<std::string>* p) {
+  Field f;
+  f.key = std::move(key);
+  f.affects_model = true;
+  f.target_inputs = p;
+  f.read = [p](const toml::node& n) -> std::string {
+    const toml::array* a = n.as_array();
+    if (!a) return "expected an array of input names, got " + describe(n);
+    std::vector<std::string> out;
+    for (const toml::node& e : *a) {
+      if (!e.is_string()) return "expected an array of input names, got element " + describe(e);
+      std::string error;
+      std::string norm = normalise_input(e.as_string()->get(), &error);
+      if (norm.empty()) return error;
+      const std::string name = norm.substr(0, norm.find(':'));
+      for (const std::string& o : out)
+        if (o.substr(0, o.find(':')) == name) return "input '" + name + "' is listed twice";
+      out.push_back(norm);
+    }
+    *p = std::move(out);
+    return "";
+  };
+  f.write = [p](toml::table& t, const std::string& name) {
+    toml::array a;
+    for (const std::string& v : *p) a.push_back(v);
+    t.insert_or_assign(name, std::move(a));
+  };
+  return f;
+}
+
 Field device_field(std::string key, std::string* p) {
   Field f;
   f.key = std::move(key);
@@ -170,9 +215,13 @@ std::vector<Field> fields(TrainConfig& c) {
   constexpr double kBig = 1e9;
   std::vector<Field> f;
   auto& m = c.model;
-  f.push_back(bool_field("model.dof", &m.dof, true));
+  f.push_back(inputs_field("model.inputs", &m.inputs));
   f.push_back(int_list_field("model.channels", &m.channels, true));
   f.push_back(number_field("model.bottleneck", &m.bottleneck, 0, 4096, true));
+  f.push_back(number_field("model.bottleneck_convs", &m.bottleneck_convs, 1, 16, true));
+  f.push_back(enum_field("model.decoder", &m.decoder,
+                         {{"project", DecoderForm::kProject}, {"thesis", DecoderForm::kThesis}},
+                         true));
   f.push_back(bool_field("model.recurrent", &m.recurrent, true));
   f.push_back(number_field("model.leaky_slope", &m.leaky_slope, 0.0, 1.0, true));
   auto& d = c.data;
@@ -186,6 +235,9 @@ std::vector<Field> fields(TrainConfig& c) {
       {{"reference", AlbedoSource::kReference}, {"version", AlbedoSource::kVersion}}, true));
   f.push_back(number_field("data.demod_eps", &d.demod_eps, 1e-6, 1.0, true));
   f.push_back(number_field("data.coc_log_scale", &d.coc_log_scale, 1e-3, 100.0, true));
+  f.push_back(number_field("data.coc_sharp_px", &d.coc_sharp_px, 0.0, 1e4, true));
+  f.push_back(number_field("data.coc_max_px", &d.coc_max_px, 1e-3, 1e5, true));
+  f.push_back(number_field("data.depth_scale", &d.depth_scale, 1e-6, 1e9, true));
   f.push_back(enum_field("data.split", &d.split,
                          {{"frames", SplitMode::kFrames}, {"shard", SplitMode::kShard}}, true));
   f.push_back(number_field("data.val_fraction", &d.val_fraction, 0.0, 0.9, true));
@@ -195,11 +247,19 @@ std::vector<Field> fields(TrainConfig& c) {
   auto& l = c.loss;
   f.push_back(number_field("loss.l1", &l.l1, 0.0, 1e3, false));
   f.push_back(number_field("loss.log", &l.log, 0.0, 1e3, false));
+  f.push_back(enum_field("loss.log_form", &l.log_form,
+                         {{"l1", GradientLoss::kL1}, {"thesis", GradientLoss::kThesis}}, false));
   f.push_back(number_field("loss.log_sigma", &l.log_sigma, 0.3, 8.0, false));
   f.push_back(number_field("loss.temporal", &l.temporal, 0.0, 1e3, false));
   auto& o = c.train;
   f.push_back(number_field("train.epochs", &o.epochs, 1, kBig, false));
-  f.push_back(number_field("train.steps_per_epoch", &o.steps_per_epoch, 1, kBig, false));
+  f.push_back(number_field("train.steps_per_epoch", &o.steps_per_epoch, 0, kBig, false));
+  f.push_back(enum_field("train.schedule", &o.schedule,
+                         {{"warmup_decay", Schedule::kWarmupDecay}, {"thesis", Schedule::kThesis}},
+                         false));
+  f.push_back(enum_field("train.best_by", &o.best_by,
+                         {{"validation", BestBy::kValidation}, {"training", BestBy::kTraining}},
+                         false));
   f.push_back(number_field("train.batch", &o.batch, 1, 4096, false));
   f.push_back(number_field("train.lr", &o.lr, 1e-9, 1.0, false));
   f.push_back(number_field("train.beta1", &o.beta1, 0.0, 0.99999, false));
@@ -224,6 +284,22 @@ FileLoc loc_of(const toml::node& n, const std::filesystem::path& file) {
 // Applies `node` to the key `key` or throws a located SpecError.
 void apply(std::vector<Field>& fs, const std::string& key, const toml::node& node,
            const FileLoc& loc) {
+  if (key == kLegacyDofKey) {
+    // Runs from before model.inputs stored `dof = true/false`: the coc input
+    // on or off, the other inputs as they are.
+    if (!node.is_boolean())
+      throw SpecError(loc, key, "expected true or false, got " + describe(node));
+    std::vector<std::string>* inputs = nullptr;
+    for (Field& f : fs)
+      if (f.key == "model.inputs") inputs = f.target_inputs;
+    DOFARM_CHECK(inputs != nullptr);
+    auto is_coc = [](const std::string& e) { return e.rfind("coc:", 0) == 0; };
+    if (!node.as_boolean()->get())
+      std::erase_if(*inputs, is_coc);
+    else if (std::none_of(inputs->begin(), inputs->end(), is_coc))
+      inputs->push_back("coc:log");
+    return;
+  }
   for (Field& f : fs) {
     if (f.key != key) continue;
     std::string err = f.read(node);
@@ -250,6 +326,9 @@ void apply_table(std::vector<Field>& fs, const toml::table& root,
       throw SpecError(loc_of(node, file), s,
                       "unknown key (settings live in [model], [data], [loss] or [train])");
     }
+    if (s == "model" && t->contains("dof") && t->contains("inputs"))
+      throw SpecError(loc_of(*t->get("dof"), file), kLegacyDofKey,
+                      "is the old form of model.inputs; give one of the two");
     for (const auto& [name, value] : *t)
       apply(fs, s + "." + std::string(name.str()), value, loc_of(value, file));
   }
@@ -264,6 +343,11 @@ void check_consistency(const TrainConfig& c, const FileLoc& loc) {
     throw SpecError(loc, "model.channels",
                     "expected 5 encoder widths, got " + std::to_string(c.model.channels.size()));
   if (c.train.lr_min > c.train.lr) throw SpecError(loc, "train.lr_min", "must not exceed train.lr");
+  int radiance = 0;
+  for (const std::string& e : c.model.inputs) radiance += e.rfind("radiance:", 0) == 0;
+  if (radiance != 1)
+    throw SpecError(loc, "model.inputs",
+                    "must list the noisy radiance (\"radiance\") once: it is what is denoised");
 }
 
 TrainConfig parse_impl(const toml::table* root, const std::filesystem::path& file,
@@ -305,6 +389,57 @@ TrainConfig parse_train_config(const std::string& toml_text,
                     std::string(e.description()));
   }
   return parse_impl(&root, virtual_path, overrides, base);
+}
+
+std::vector<std::string> preset_names() { return {"default", "thesis"}; }
+
+const std::string& preset_toml(const std::string& name) {
+  // Every value the thesis (Petersson 2019) states for its DOF network; what
+  // it does not state keeps the project's default (docs/trainer.md,
+  // "Thesis preset", lists both).
+  static const std::string kThesis = R"(# thesis: Petersson 2019, sections 4.2.4, 4.3 and 5.1
+[model]
+# 4.3.2 inputs; 4.2.4 encodings: normal listing 1, depth / scene depth,
+# CoC listing 2 with the physical CoC in pixels.
+inputs = ["radiance:linear", "albedo", "normal:remap01", "depth:scene", "roughness", "coc:thesis"]
+bottleneck_convs = 3  # 4.3.1: like the encoder blocks
+decoder = "thesis"    # 4.3.1: last block without activation, no output convolution
+leaky_slope = 0.1
+
+[data]
+sequence = 7
+crop = 64
+stop_probability = 0.25
+reverse_probability = 0.5
+albedo = "reference"  # 24-spp albedo (table 5.1's networks)
+coc_sharp_px = 1.0
+coc_max_px = 32.0
+depth_scale = 5.0  # the bundled Cornell box: the back wall is 4.9 units away
+
+[loss]
+l1 = 0.8  # eq. 4.2
+log = 0.2
+log_form = "thesis"  # eq. 4.4
+
+[train]
+batch = 4
+beta1 = 0.9
+beta2 = 0.99
+schedule = "thesis"  # eq. 4.5
+steps_per_epoch = 0  # an epoch is a pass over the training sequences
+best_by = "training"  # 5.1
+)";
+  static const std::string kDefault = "# default: the project's own configuration\n";
+  if (name == "thesis") return kThesis;
+  if (name == "default") return kDefault;
+  std::string names;
+  for (const std::string& n : preset_names()) names += (names.empty() ? "" : ", ") + n;
+  throw SpecError(FileLoc{"--preset"}, "", "unknown preset '" + name + "'; presets are " + names);
+}
+
+TrainConfig apply_preset(const std::string& name, const TrainConfig& base) {
+  if (name == "default") return TrainConfig{};
+  return parse_train_config(preset_toml(name), "preset:" + name, {}, &base);
 }
 
 TrainConfig load_train_config(const std::filesystem::path& path,

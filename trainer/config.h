@@ -25,17 +25,33 @@ enum class SplitMode {
   kShard,   // whole shards are validation, chosen by a hash of the file name
 };
 
+enum class DecoderForm {
+  // Each block: concat skip -> 2 x (conv to the level's width + LeakyReLU);
+  // then a linear 3x3 output convolution to 3 channels.
+  kProject,
+  // Thesis 4.3.1: each block: concat skip -> conv to the level's width ->
+  // conv to the next level's width; the last block ends in 3 channels and
+  // has no activation; no output convolution.
+  kThesis,
+};
+
 struct ModelConfig {
-  bool dof = true;            // CoC input channel (thesis ch. 4.2)
+  // Input channels in order, "name:encoding" (trainer/inputs.h has the
+  // table); the old `model.dof = false` removes the coc entry.
+  std::vector<std::string> inputs = {"radiance:log1p", "albedo:as_stored",    "normal:as_stored",
+                                     "depth:focal",    "roughness:as_stored", "coc:log"};
   std::vector<int> channels;  // encoder widths; empty = thesis defaults
   int bottleneck = 0;         // 0 = same as the last encoder width
-  bool recurrent = false;     // Chaitanya 2017 recurrent encoder blocks
-  float leaky_slope = 0.1f;   // LeakyReLU negative slope (thesis 4.2)
+  int bottleneck_convs = 2;   // thesis 4.3.1: 3, like the encoder blocks
+  DecoderForm decoder = DecoderForm::kProject;
+  bool recurrent = false;    // Chaitanya 2017 recurrent encoder blocks
+  float leaky_slope = 0.1f;  // LeakyReLU negative slope (thesis 4.2)
 
+  bool has_coc() const;  // an input made from the coc buffer
   // Thesis defaults: 32,43,57,76,101 (RAE widths); 36,48,64,85,113 with CoC.
   std::vector<int> effective_channels() const;
   int effective_bottleneck() const;
-  int input_channels() const { return dof ? 12 : 11; }
+  int input_channels() const;  // sum of the inputs' buffer channel counts
 };
 
 struct DataConfig {
@@ -46,7 +62,10 @@ struct DataConfig {
   bool rotate = true;                // one of 0/90/180/270 degrees per sequence
   AlbedoSource albedo = AlbedoSource::kReference;
   float demod_eps = 1e-3f;        // radiance / (albedo + eps)
-  float coc_log_scale = 3.4965f;  // ln(1 + 32): a 32-pixel CoC maps to 1
+  float coc_log_scale = 3.4965f;  // ln(1 + 32): a 32-pixel CoC maps to 1 (coc:log)
+  float coc_sharp_px = 1.0f;      // coc:thesis "acceptable" CoC (thesis 4.2.4)
+  float coc_max_px = 32.0f;       // coc:thesis scene maximum CoC (thesis 4.2.4)
+  float depth_scale = 5.0f;       // depth:scene, scene units (thesis 4.2.4)
   SplitMode split = SplitMode::kFrames;
   float val_fraction = 0.1f;     // of frames (kFrames) or of shards (kShard)
   int queue = 32;                // sequences held ready (bounds memory)
@@ -54,18 +73,37 @@ struct DataConfig {
   float rescan_seconds = 10.0f;  // look for new shards this often
 };
 
+enum class GradientLoss {
+  kL1,      // mean |LoG(P) - LoG(T)| (unit-L1 kernel)
+  kThesis,  // thesis eq. 4.4: sum (LoG(P) - LoG(T))^2 / sum LoG(T)^2, per frame
+};
+
 struct LossConfig {
-  float l1 = 0.8f;   // thesis eq. 4.2
-  float log = 0.2f;  // Laplacian-of-Gaussian gradient term, eq. 4.3-4.4
+  float l1 = 0.8f;   // thesis eq. 4.2, 4.3
+  float log = 0.2f;  // Laplacian-of-Gaussian gradient term (form: log_form)
+  GradientLoss log_form = GradientLoss::kL1;
   // LoG scale in pixels: the usual sigma of HFEN (Ravishankar and Bresler 2011),
   // the LoG error the RAE's gradient loss is built on.
   float log_sigma = 1.5f;
   float temporal = 0.0f;  // L1 of frame differences (Chaitanya 2017; for the recurrent model)
 };
 
+enum class Schedule {
+  kWarmupDecay,  // linear warm-up over warmup_steps, then lr_decay^epoch
+  kThesis,       // eq. 4.5 with E = passes over the training sequences
+};
+
+enum class BestBy { kValidation, kTraining };
+
 struct OptimConfig {
   int epochs = 100;
+  // 0 = one pass over the training sequences (their count when the run
+  // started, recorded in RUN/passes.json).
   int steps_per_epoch = 250;
+  Schedule schedule = Schedule::kWarmupDecay;
+  // Which loss picks best.pt; training loss is the thesis's (5.1). Without
+  // validation sequences it is always the training loss.
+  BestBy best_by = BestBy::kValidation;
   int batch = 4;       // sequences per batch (thesis 4.3)
   float lr = 1e-3f;    // peak learning rate
   float beta1 = 0.9f;  // Adam (thesis 4.3)
@@ -97,6 +135,13 @@ struct TrainConfig {
 TrainConfig load_train_config(const std::filesystem::path& path,
                               const std::vector<std::string>& overrides = {},
                               const TrainConfig* base = nullptr);
+// The built-in presets: "default" (TrainConfig{}) and "thesis" (every value
+// the thesis states; docs/trainer.md lists the differences). Applied over
+// `base` like a config file; an unknown name is a SpecError naming it.
+std::vector<std::string> preset_names();
+const std::string& preset_toml(const std::string& name);
+TrainConfig apply_preset(const std::string& name, const TrainConfig& base = {});
+
 // Parses TOML text as if it were the file `virtual_path`.
 TrainConfig parse_train_config(const std::string& toml_text,
                                const std::filesystem::path& virtual_path,

@@ -126,14 +126,14 @@ std::vector<std::string> list_shards(const fs::path& dir) {
   return out;
 }
 
-SequenceStream::SequenceStream(fs::path data_dir, fs::path run_dir, DataConfig data, bool dof,
-                               uint64_t seed, uint64_t first_index,
+SequenceStream::SequenceStream(fs::path data_dir, fs::path run_dir, DataConfig data,
+                               ModelConfig model, uint64_t seed, uint64_t first_index,
                                ShardReaderOptions reader_options)
     : data_dir_(std::move(data_dir)),
       run_dir_(std::move(run_dir)),
       data_(data),
       reader_options_(reader_options),
-      dof_(dof),
+      model_(std::move(model)),
       seed_(seed),
       next_(first_index),
       claimed_(first_index) {
@@ -327,28 +327,26 @@ RawCrop SequenceStream::read_raw(const std::string& file, const SequencePlan& pl
   raw.frames = n;
   raw.versions = r.info().versions;
   raw.size = data_.crop;
-  // Only the (frame, version) pairs the plan shows: at most `sequence` of the
-  // span x V noisy crops, a V-fold saving in IO and decompression.
-  const size_t plane3 = size_t(3) * raw.size * raw.size;
-  raw.noisy.assign(size_t(n) * raw.versions * plane3, 0.0f);
-  const bool version_albedo = data_.albedo == AlbedoSource::kVersion;
-  if (version_albedo) raw.albedo.assign(raw.noisy.size(), 0.0f);
+  // Per-version buffers: only the (frame, version) pairs the plan shows, at
+  // most `sequence` of the span x V crops, a V-fold saving in IO and
+  // decompression. The others: the span's frames in one read.
   std::vector<std::pair<int, int>> needed;
   for (size_t i = 0; i < plan.offset.size(); ++i)
     needed.emplace_back(plan.offset[i], plan.version[i]);
   std::sort(needed.begin(), needed.end());
   needed.erase(std::unique(needed.begin(), needed.end()), needed.end());
-  for (const auto& [f, v] : needed) {
-    const size_t at = (size_t(f) * raw.versions + v) * plane3;
-    r.read_crop_into("noisy", f0 + f, 1, v, crop, &raw.noisy[at]);
-    if (version_albedo) r.read_crop_into("albedo", f0 + f, 1, v, crop, &raw.albedo[at]);
+  for (const std::string& name : sample_buffers(model_, data_)) {
+    const BufferInfo& b = buffer_info(name);
+    if (!b.per_version) {
+      raw.buffers[name] = r.read_crop(name, f0, n, 0, crop);
+      continue;
+    }
+    const size_t planes = size_t(b.channels) * raw.size * raw.size;
+    std::vector<float>& dst = raw.buffers[name];
+    dst.assign(size_t(n) * raw.versions * planes, 0.0f);
+    for (const auto& [f, v] : needed)
+      r.read_crop_into(name, f0 + f, 1, v, crop, &dst[(size_t(f) * raw.versions + v) * planes]);
   }
-  if (!version_albedo) raw.albedo_ref = r.read_crop("albedo_ref", f0, n, 0, crop);
-  raw.reference = r.read_crop("reference", f0, n, 0, crop);
-  raw.normal = r.read_crop("normal", f0, n, 0, crop);
-  raw.depth = r.read_crop("depth", f0, n, 0, crop);
-  raw.roughness = r.read_crop("roughness", f0, n, 0, crop);
-  if (dof_) raw.coc = r.read_crop("coc", f0, n, 0, crop);
   raw.focal_distance.assign(shard->focal.begin() + f0, shard->focal.begin() + f0 + n);
   return raw;
 }
@@ -385,7 +383,7 @@ Sample SequenceStream::make_sample(uint64_t index, bool validation) const {
     if (what.find(s.split.file) == std::string::npos) what = s.split.file + ": " + what;
     throw ShardReadFailure(s.split.file, what);
   }
-  return build_sample(raw, plan, data_, dof_);
+  return build_sample(raw, plan, data_, model_);
 }
 
 Sample SequenceStream::make_sample_dropping_bad_shards(uint64_t index, bool validation) {
@@ -457,6 +455,12 @@ std::vector<Sample> SequenceStream::validation(int count) {
   if (!any) return out;
   for (int i = 0; i < count; ++i) out.push_back(make_sample_dropping_bad_shards(uint64_t(i), true));
   return out;
+}
+
+int64_t SequenceStream::training_sequences() const {
+  int64_t n = 0;
+  for (const ShardSplit& s : splits()) n += (s.train_end - s.train_begin) / data_.sequence;
+  return n;
 }
 
 std::vector<ShardSplit> SequenceStream::splits() const {

@@ -73,7 +73,7 @@ class SequenceStream {
   // RuntimeError naming the folder when no shard holds a training sequence,
   // with each unusable shard and why.
   SequenceStream(std::filesystem::path data_dir, std::filesystem::path run_dir, DataConfig data,
-                 bool dof, uint64_t seed, uint64_t first_index = 0,
+                 ModelConfig model, uint64_t seed, uint64_t first_index = 0,
                  ShardReaderOptions reader_options = {});
   ~SequenceStream();
   SequenceStream(const SequenceStream&) = delete;
@@ -93,6 +93,10 @@ class SequenceStream {
 
   // Current split (for eval and for the run folder).
   std::vector<ShardSplit> splits() const;
+  // Whole training sequences (data.sequence consecutive frames) of the
+  // current split: the size of one pass over the training data (thesis 4.3.3
+  // chunks the frames into sequences).
+  int64_t training_sequences() const;
   // Shards skipped because they could not be read, with the reason.
   std::vector<std::string> problems() const;
 
@@ -116,7 +120,7 @@ class SequenceStream {
   std::filesystem::path data_dir_, run_dir_;
   DataConfig data_;
   ShardReaderOptions reader_options_;
-  bool dof_;
+  ModelConfig model_;  // its inputs decide which buffers are read
   uint64_t seed_;
 
   mutable std::mutex mu_;

@@ -2,6 +2,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <fstream>
@@ -13,6 +14,8 @@
 #include "common/shard.h"
 #include "trainer/augment.h"
 #include "trainer/dataset.h"
+#include "trainer/inputs.h"
+#include "trainer/losses.h"
 #include "trainer/metrics.h"
 #include "trainer/model.h"
 #include "trainer/report.h"
@@ -31,8 +34,19 @@ std::vector<std::pair<std::string, size_t>> non_finite_inputs(FrameBuffers& f, i
                                                               bool repair) {
   const size_t n = f.plane();
   std::vector<std::pair<std::string, size_t>> out;
-  auto scan = [&](const std::string& name, std::vector<float>& data, size_t begin, size_t count) {
-    if (data.size() < begin + count) return;
+  // The buffers the inputs and the demodulation read, in input order.
+  std::vector<std::string> names;
+  for (const ResolvedInput& in : resolve_inputs(cfg.model, cfg.data))
+    if (std::find(names.begin(), names.end(), in.buffer) == names.end()) names.push_back(in.buffer);
+  const std::string albedo = demodulation_buffer(cfg.data);
+  if (std::find(names.begin(), names.end(), albedo) == names.end())
+    names.insert(names.begin() + std::min<size_t>(1, names.size()), albedo);
+  for (const std::string& name : names) {
+    const BufferInfo& b = buffer_info(name);
+    std::vector<float>& data = buffer_data(f, name);
+    const size_t count = size_t(b.channels) * n;
+    const size_t begin = b.per_version ? size_t(version) * count : 0;
+    if (data.size() < begin + count) continue;
     size_t bad = 0;
     for (size_t i = begin; i < begin + count; ++i)
       if (!std::isfinite(data[i])) {
@@ -40,17 +54,7 @@ std::vector<std::pair<std::string, size_t>> non_finite_inputs(FrameBuffers& f, i
         if (repair) data[i] = 0.0f;
       }
     if (bad) out.emplace_back(name, bad);
-  };
-  const size_t vo = size_t(version) * 3 * n;
-  scan("noisy", f.noisy, vo, 3 * n);
-  if (cfg.data.albedo == AlbedoSource::kVersion)
-    scan("albedo", f.albedo, vo, 3 * n);
-  else
-    scan("albedo_ref", f.albedo_ref, 0, 3 * n);
-  scan("normal", f.normal, 0, 3 * n);
-  scan("depth", f.depth, 0, n);
-  scan("roughness", f.roughness, 0, n);
-  if (cfg.model.dof) scan("coc", f.coc, 0, n);
+  }
   return out;
 }
 
@@ -60,20 +64,21 @@ std::vector<float> FrameDenoiser::denoise(const FrameBuffers& f, int version, do
     throw SpecError(FileLoc{}, "version",
                     "the frame has " + std::to_string(f.versions) + " noisy versions");
   const size_t n = f.plane();
-  const size_t vo = size_t(version) * 3 * n;
-  const float* albedo =
-      cfg.data.albedo == AlbedoSource::kVersion ? &f.albedo[vo] : f.albedo_ref.data();
-  FrameView view{&f.noisy[vo],
-                 albedo,
-                 f.normal.data(),
-                 f.depth.data(),
-                 f.roughness.data(),
-                 f.coc.empty() ? nullptr : f.coc.data(),
-                 f.camera.focal_distance,
-                 n};
+  // Each buffer the inputs read, at the version being denoised.
+  FrameView view;
+  view.pixels = n;
+  view.focal_distance = f.camera.focal_distance;
+  for (const BufferInfo& b : buffer_infos()) {
+    const std::vector<float>& data = buffer_data(f, b.name);
+    const size_t count = size_t(b.channels) * n,
+                 begin = b.per_version ? size_t(version) * count : 0;
+    if (data.size() >= begin + count) view.buffers[b.name] = data.data() + begin;
+  }
+  const float* albedo = view.at(demodulation_buffer(cfg.data));
+  view.albedo = albedo;
   const int c = cfg.model.input_channels();
   std::vector<float> input(size_t(c) * n);
-  make_input(view, cfg.data, cfg.model.dof, input.data());
+  make_input(view, cfg.data, resolve_inputs(cfg.model, cfg.data), input.data());
 
   // Inference only: no autograd bookkeeping, no version counters.
   c10::InferenceMode inference;
@@ -84,7 +89,7 @@ std::vector<float> FrameDenoiser::denoise(const FrameBuffers& f, int version, do
   // Remodulation (inverse of make_target) on the device, as a renderer would.
   torch::Tensor a =
       torch::from_blob(const_cast<float*>(albedo), {1, 3, f.height, f.width}).to(device_);
-  torch::Tensor out = torch::expm1(y.clamp_min(0)) * (a + cfg.data.demod_eps);
+  torch::Tensor out = radiance_inverse(y, radiance_space(cfg.model)) * (a + cfg.data.demod_eps);
   out = out.to(torch::kCPU).contiguous();
   if (device_.is_cuda()) torch::cuda::synchronize();
   if (seconds)
@@ -172,20 +177,34 @@ EvalSummary evaluate(const EvalOptions& o) {
     std::string png;
   };
   std::vector<Strip> strips;
-  Accumulator all;
-  std::map<std::string, Accumulator> by_scene;  // thesis table 5.1 has a row per scene
+  Accumulator all, every;  // validation frames; all frames (thesis 5.1, table 5.1)
+  std::map<std::string, Accumulator> by_scene, by_scene_every;  // table 5.1 has a row per scene
   json frames = json::array();
-  int done = 0, images = 0;
+  int done = 0, done_every = 0, images = 0;
   for (const std::string& file : list_shards(o.data_dir)) {
     ShardReader reader(o.data_dir / file);
     Accumulator& scene = by_scene[reader.info().scene_id];
+    Accumulator& scene_every = by_scene_every[reader.info().scene_id];
     const std::string key = shard_content_key(reader.info());
     ShardSplit sp = splits.count(key)    ? splits[key]
                     : legacy.count(file) ? legacy[file]
                                          : assign_split(file, key, reader.frame_count(), cfg.data);
     den.reset_sequence();
-    for (int f = sp.val_begin; f < sp.val_end; ++f) {
-      if (o.max_frames > 0 && done >= o.max_frames) break;
+    // With all_frames every frame is scored once, in order; the validation
+    // frames also count for the validation table, and the recurrent state
+    // restarts at the first of them, so that table does not depend on
+    // whether the training frames were scored too.
+    const int first = o.all_frames ? 0 : sp.val_begin;
+    const int end = o.all_frames ? reader.frame_count() : sp.val_end;
+    for (int f = first; f < end; ++f) {
+      const bool validation = f >= sp.val_begin && f < sp.val_end;
+      const bool want_val = validation && !(o.max_frames > 0 && done >= o.max_frames);
+      const bool want_every = o.all_frames && !(o.max_frames > 0 && done_every >= o.max_frames);
+      if (!want_val && !want_every) {
+        if (f < sp.val_begin) continue;
+        break;
+      }
+      if (f == sp.val_begin) den.reset_sequence();
       FrameBuffers fb = reader.read_frame(f);
       const int w = fb.width, h = fb.height;
       const size_t n = fb.plane();
@@ -199,6 +218,9 @@ EvalSummary evaluate(const EvalOptions& o) {
         in_focus[p] = fb.coc[p] < 1.0f;
         out_focus[p] = !in_focus[p];
       }
+      std::vector<Accumulator*> to;
+      if (want_val) to.insert(to.end(), {&all, &scene});
+      if (want_every) to.insert(to.end(), {&every, &scene_every});
       json row = {{"shard", file},
                   {"scene", reader.info().scene_id},
                   {"frame", reader.info().frame_start + f},
@@ -208,17 +230,19 @@ EvalSummary evaluate(const EvalOptions& o) {
       for (int k = 0; k < 2; ++k)
         for (int r = 0; r < 3; ++r) {
           Scores s = score(k == 0 ? noisy : out, fb.reference, w, h, masks[r]);
-          for (Accumulator* a : {&all, &scene}) {
+          for (Accumulator* a : to) {
             a->v[k][r][0].push_back(s.ssim);
             a->v[k][r][1].push_back(s.psnr);
             a->v[k][r][2].push_back(s.rel_mse);
           }
           row[k == 0 ? "noisy" : "denoised"][region[r]] = to_json(s);
         }
-      for (Accumulator* a : {&all, &scene}) {
+      for (Accumulator* a : to) {
         a->ms.push_back(sec * 1e3);
         ++a->frames;
       }
+      done_every += want_every;
+      if (!want_val) continue;
       frames.push_back(row);
       if (images < o.max_images) {
         char name[64];
@@ -246,6 +270,8 @@ EvalSummary evaluate(const EvalOptions& o) {
   sum.psnr = mean_of(all.v[1][0][1]);
   sum.rel_mse = mean_of(all.v[1][0][2]);
   sum.ms = mean_of(all.ms);
+  sum.frames_all = every.frames;
+  sum.ssim_all = mean_of(every.v[1][0][0]);
 
   // Plots (SVG, with text): loss per epoch and per step, learning rate.
   const LossCurve epochs = read_loss_csv(o.run_dir / "loss.csv");
@@ -277,21 +303,27 @@ EvalSummary evaluate(const EvalOptions& o) {
   json summary = all.summary();
   json scenes = json::object();
   for (const auto& [name, a] : by_scene) scenes[name] = a.summary();
-  json report = {{"run", o.run_dir.string()},
-                 {"data", o.data_dir.string()},
-                 {"device", device.str()},
-                 {"noisy_version", o.version},
-                 {"checkpoint",
-                  {{"file", used.checkpoint.string()},
-                   {"epoch", used.state.epoch},
-                   {"step", used.state.step},
-                   {"best_loss", std::isfinite(used.state.best) ? json(used.state.best) : json()}}},
-                 {"metrics_note",
-                  "SSIM and PSNR on sRGB-encoded images clamped to [0,1]; relative MSE on "
-                  "linear HDR, (d-r)^2/(r^2+0.01); in focus = CoC < 1 px"},
-                 {"summary", summary},
-                 {"scenes", scenes},
-                 {"frames", frames}};
+  json scenes_every = json::object();
+  if (o.all_frames)
+    for (const auto& [name, a] : by_scene_every) scenes_every[name] = a.summary();
+  json report = {
+      {"run", o.run_dir.string()},
+      {"data", o.data_dir.string()},
+      {"device", device.str()},
+      {"noisy_version", o.version},
+      {"checkpoint",
+       {{"file", used.checkpoint.string()},
+        {"epoch", used.state.epoch},
+        {"step", used.state.step},
+        {"best_loss", std::isfinite(used.state.best) ? json(used.state.best) : json()}}},
+      {"metrics_note",
+       "SSIM and PSNR on sRGB-encoded images clamped to [0,1]; relative MSE on "
+       "linear HDR, (d-r)^2/(r^2+0.01); in focus = CoC < 1 px"},
+      {"summary", summary},
+      {"scenes", scenes},
+      {"all_frames",
+       o.all_frames ? json{{"summary", every.summary()}, {"scenes", scenes_every}} : json()},
+      {"frames", frames}};
   std::ofstream(o.out_dir / "report.json") << report.dump(1) << "\n";
 
   std::ofstream md(o.out_dir / "report.md");
@@ -306,9 +338,9 @@ EvalSummary evaluate(const EvalOptions& o) {
      << "| scene | input | SSIM all | SSIM in focus | SSIM out of focus | PSNR all (dB) | "
         "PSNR in | PSNR out | relMSE all | relMSE in | relMSE out | ms/frame |\n"
      << "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n";
-  // The table's cells, one row per (scene, input), for report.md and report.html.
-  std::vector<std::vector<std::string>> summary_rows;
-  auto add_rows = [&](const std::string& name, const Accumulator& a) {
+  // The tables' cells, one row per (scene, input), for report.md and report.html.
+  using Rows = std::vector<std::vector<std::string>>;
+  auto add_rows = [](Rows& summary_rows, const std::string& name, const Accumulator& a) {
     for (int k = 0; k < 2; ++k) {
       std::vector<std::string> row = {name + " (" + std::to_string(a.frames) + " frames)",
                                       k == 0 ? "noisy (1 spp)" : "denoised"};
@@ -318,11 +350,30 @@ EvalSummary evaluate(const EvalOptions& o) {
       summary_rows.push_back(std::move(row));
     }
   };
-  for (const auto& [name, a] : by_scene) add_rows(name.empty() ? "(unnamed)" : name, a);
-  if (by_scene.size() > 1) add_rows("all scenes", all);
+  auto rows_of = [&](const std::map<std::string, Accumulator>& scenes, const Accumulator& total) {
+    Rows rows;
+    for (const auto& [name, a] : scenes) add_rows(rows, name.empty() ? "(unnamed)" : name, a);
+    if (scenes.size() > 1) add_rows(rows, "all scenes", total);
+    return rows;
+  };
+  const Rows summary_rows = rows_of(by_scene, all);
+  const Rows every_rows = o.all_frames ? rows_of(by_scene_every, every) : Rows{};
+  const std::string md_header =
+      "| scene | input | SSIM all | SSIM in focus | SSIM out of focus | PSNR all (dB) | "
+      "PSNR in | PSNR out | relMSE all | relMSE in | relMSE out | ms/frame |\n"
+      "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n";
   for (const auto& row : summary_rows) {
     for (const std::string& c : row) md << "| " << c << " ";
     md << "|\n";
+  }
+  if (o.all_frames) {
+    md << "\n**All frames** (training and validation frames, as thesis table 5.1 scores "
+          "its scenes; the training frames flatter the model):\n\n"
+       << md_header;
+    for (const auto& row : every_rows) {
+      for (const std::string& c : row) md << "| " << c << " ";
+      md << "|\n";
+    }
   }
   md << "\nMean denoise time: " << cell(sum.ms, 2) << " ms per frame.\n\n"
      << "![loss per epoch](loss.svg)\n\n![loss per step](steps.svg)\n\n![learning rate](lr.svg)\n\n![validation SSIM and PSNR](quality.svg)\n\n"
@@ -370,7 +421,22 @@ EvalSummary evaluate(const EvalOptions& o) {
     for (const std::string& c : row) html << "<td>" << html_escape(c) << "</td>";
     html << "</tr>";
   }
-  html << "</table><h2>Training</h2>" << loss_svg << step_svg << lr_svg << quality_svg
+  html << "</table>";
+  if (o.all_frames) {
+    html << "<p>All frames (training and validation frames, as thesis table 5.1 scores its "
+            "scenes; the training frames flatter the model):</p><table id=\"summary_all_frames\">"
+         << "<tr><th>scene</th><th>input</th><th>SSIM all</th><th>SSIM in focus</th>"
+            "<th>SSIM out of focus</th><th>PSNR all (dB)</th><th>PSNR in (dB)</th>"
+            "<th>PSNR out (dB)</th><th>relMSE all</th><th>relMSE in</th><th>relMSE out</th>"
+            "<th>ms/frame</th></tr>";
+    for (const auto& row : every_rows) {
+      html << "<tr>";
+      for (const std::string& c : row) html << "<td>" << html_escape(c) << "</td>";
+      html << "</tr>";
+    }
+    html << "</table>";
+  }
+  html << "<h2>Training</h2>" << loss_svg << step_svg << lr_svg << quality_svg
        << "<h2>Comparisons</h2>";
   for (const Strip& st : strips) {
     const int panel = std::max(st.width, 256);

@@ -3,6 +3,7 @@
 
 #include <torch/torch.h>
 
+#include <cmath>
 #include <filesystem>
 #include <vector>
 
@@ -38,11 +39,17 @@ struct EvalOptions {
   int max_images = 8;  // comparison PNGs written (first frames)
   int version = 0;     // noisy version fed to the network
   std::string checkpoint = "best";  // best | last | PATH
+  // Also score every frame of the data, training frames included (thesis
+  // 5.1: table 5.1 averages over each scene's complete set of frames): a
+  // second table in the report, "all_frames" in report.json.
+  bool all_frames = true;
 };
 
 struct EvalSummary {
   int frames = 0;
   double ssim = 0, psnr = 0, rel_mse = 0, ms = 0;  // means over frames, denoised
+  int frames_all = 0;                              // with all_frames: every frame
+  double ssim_all = NAN;
 };
 
 // The buffers denoise() reads for noisy version `version` with `cfg`, and how

@@ -3,6 +3,9 @@
 #include <cmath>
 #include <nlohmann/json.hpp>
 
+#include "common/exr_io.h"
+#include "common/image.h"
+#include "trainer/inputs.h"
 #include "trainer/model.h"
 
 namespace dofarm::trainer {
@@ -12,25 +15,27 @@ using nlohmann::json;
 std::string denoiser_contract(const LoadedRun& run) {
   const TrainConfig& cfg = run.config;
   const DataConfig& d = cfg.data;
-  const bool own_albedo = d.albedo == AlbedoSource::kVersion;
-  const std::string albedo = own_albedo ? "albedo.<v>" : "albedo_ref";
+  const std::string albedo = demodulation_buffer(d) == "albedo" ? "albedo.<v>" : "albedo_ref";
+  const RadianceSpace space = radiance_space(cfg.model);
+  // One entry per channel, from the input table (trainer/inputs.h): the
+  // frame layers it is made from and its transform.
   json inputs = json::array();
-  auto add = [&](const std::string& name, const std::string& layer, const std::string& transform) {
-    inputs.push_back({{"index", inputs.size()}, {"name", name}, {"layer", layer},
-                      {"transform", transform}});
-  };
-  for (const char* c : {"R", "G", "B"})
-    add(std::string("radiance.") + c, std::string("noisy.<v>.") + c + ", " + albedo + "." + c,
-        std::string("log1p(max(noisy.") + c + " / (" + albedo + "." + c + " + demod_eps), 0))");
-  for (const char* c : {"R", "G", "B"})
-    add(std::string("albedo.") + c, albedo + "." + c, "as stored");
-  // Frame EXR layers as docs/exr_format.md names them (normal x, y, z in R, G, B).
-  for (int c = 0; c < 3; ++c)
-    add(std::string("normal.") + "XYZ"[c], std::string("normal.") + "RGB"[c], "as stored (camera space: x right, y up, z towards the viewer; unit)");
-  add("depth", "Z, header dofarm.camera.focal_distance",
-      "z / (z + focal_distance) where z > 0 and finite, else 1 (0.5 on the focal plane)");
-  add("roughness", "roughness.Y", "as stored");
-  if (cfg.model.dof) add("coc", "coc.Y", "log1p(max(coc, 0)) / coc_log_scale (coc in pixels)");
+  for (const ResolvedInput& in : resolve_inputs(cfg.model, d)) {
+    const BufferInfo& b = buffer_info(in.buffer);
+    for (int c = 0; c < in.channels; ++c) {
+      const std::string ch = channel_name(b, c);
+      std::string source = frame_exr_channel(b.name, c, "<v>");  // docs/exr_format.md
+      if (std::string(in.row->input) == "radiance") source += ", " + albedo + "." + ch;
+      if (std::string(in.row->input) == "depth" && std::string(in.row->encoding) == "focal")
+        source += ", header dofarm.camera.focal_distance";
+      inputs.push_back({{"index", inputs.size()},
+                        {"name", std::string(in.row->input) + (in.channels > 1 ? "." + ch : "")},
+                        {"input", in.row->input},
+                        {"encoding", in.row->encoding},
+                        {"layer", source},
+                        {"transform", in.row->formula}});
+    }
+  }
 
   json j = {
       {"format", kContractFormat},
@@ -43,15 +48,23 @@ std::string denoiser_contract(const LoadedRun& run) {
       {"input_channels", cfg.model.input_channels()},
       {"inputs", inputs},
       {"layout", "NCHW float32, one frame [B, C, H, W], channel order as in inputs"},
-      {"size", {{"any", true},
-                {"multiple", kSizeMultiple},
-                {"rule", "H and W are padded by edge replication to the next multiple inside "
-                         "forward() and the output is cropped back"}}},
-      {"constants", {{"demod_eps", d.demod_eps}, {"coc_log_scale", d.coc_log_scale}}},
+      {"size",
+       {{"any", true},
+        {"multiple", kSizeMultiple},
+        {"rule",
+         "H and W are padded by edge replication to the next multiple inside "
+         "forward() and the output is cropped back"}}},
+      {"constants",
+       {{"demod_eps", d.demod_eps},
+        {"coc_log_scale", d.coc_log_scale},
+        {"coc_sharp_px", d.coc_sharp_px},
+        {"coc_max_px", d.coc_max_px},
+        {"depth_scale", d.depth_scale}}},
       {"noisy_version", "<v>: any noisy version of the frame (0 by default)"},
       {"output",
        {{"channels", {"R", "G", "B"}},
-        {"transform", "radiance.c = expm1(max(y.c, 0)) * (" + albedo + ".c + demod_eps)"}}},
+        {"transform", std::string("radiance.c = ") + radiance_inverse_formula(space) + " * (" +
+                          albedo + ".c + demod_eps)"}}},
       {"recurrent", cfg.model.recurrent},
       {"recurrent_state",
        cfg.model.recurrent

@@ -1,10 +1,18 @@
-// Training loss of thesis 4.3 (eq. 4.2-4.4) plus the RAE's temporal term.
+// Training loss of thesis 4.3.4 (eq. 4.2-4.4) plus the RAE's temporal term.
 //
-//   L = w_l1 * L1(out, target) + w_log * L1(LoG * out, LoG * target)
-//       + w_t * L1(d/dt out, d/dt target)          (recurrent model only)
+//   L = w_l1 * L1(out, target) + w_log * L_g + w_t * L1(d/dt out, d/dt target)
 //
-// LoG * x is the image filtered with a Laplacian of Gaussian (eq. 4.3): it
-// responds to edges and fine detail, which L1 alone lets the network blur.
+//   L1: eq. 4.3, the mean absolute difference.
+//   L_g, loss.log_form = "thesis": eq. 4.4, per frame
+//        sum (LoG*out - LoG*target)^2 / sum (LoG*target)^2, mean over frames
+//        (the sums run over the frame's channels and filtered pixels; the
+//        denominator gets kLogFloor per element so a flat target crop stays
+//        finite);
+//   L_g, loss.log_form = "l1": the project's mean |LoG*out - LoG*target|.
+//   The temporal term is Chaitanya 2017 eq. 4 (for the recurrent model).
+//
+// LoG * x is the image filtered with a Laplacian of Gaussian: it responds to
+// edges and fine detail, which L1 alone lets the network blur.
 // The filter is applied 'valid' (no padding: no fake edges at the crop border)
 // and its kernel sums to exactly zero, so flat images give exactly zero
 // response and the loss is finite and zero for identical inputs.
@@ -13,14 +21,23 @@
 #include <torch/torch.h>
 
 #include "trainer/config.h"
+#include "trainer/inputs.h"
 
 namespace dofarm::trainer {
+
+// Per element, added to eq. 4.4's denominator (of the unit-L1 kernel's
+// responses): a real edge contributes ~1e-3, a flat crop 0.
+inline constexpr double kLogFloor = 1e-8;
 
 // The (2r+1)^2 LoG kernel, r = ceil(3 sigma), zero-mean, unit L1 norm.
 torch::Tensor log_kernel(float sigma);
 
 // Laplacian-of-Gaussian filtered images: [N, C, H, W] -> [N, C, H-2r, W-2r].
 torch::Tensor log_filter(const torch::Tensor& x, const torch::Tensor& kernel);
+
+// The network's output back to demodulated radiance (inverse of the
+// radiance input's encoding), element-wise on a tensor.
+torch::Tensor radiance_inverse(const torch::Tensor& y, RadianceSpace space);
 
 struct LossTerms {
   torch::Tensor total, l1, log, temporal;  // scalars

@@ -23,6 +23,7 @@ std::string layer_name(char kind, int level, int index) {
 DenoiserImpl::DenoiserImpl(const ModelConfig& cfg)
     : cfg_(cfg), widths_(cfg.effective_channels()), bottleneck_(cfg.effective_bottleneck()) {
   DOFARM_CHECK_EQ(int(widths_.size()), kLevels);
+  const bool thesis = cfg.decoder == DecoderForm::kThesis;
   int in = cfg.input_channels();
   enc_.resize(kLevels);
   for (int i = 0; i < kLevels; ++i) {
@@ -35,22 +36,36 @@ DenoiserImpl::DenoiserImpl(const ModelConfig& cfg)
     enc_[i].push_back(add_conv(layer_name('e', i, 2), w, w));
     in = w;
   }
-  mid_.push_back(add_conv("m_0", in, bottleneck_));
-  mid_.push_back(add_conv("m_1", bottleneck_, bottleneck_));
-  in = bottleneck_;
+  // Thesis 4.3.1: the bottleneck is like an encoder block whose convolutions
+  // keep the channel count.
+  for (int k = 0; k < cfg.bottleneck_convs; ++k) {
+    mid_.push_back(add_conv("m_" + std::to_string(k), in, bottleneck_));
+    in = bottleneck_;
+  }
   dec_.resize(kLevels);
   for (int i = kLevels - 1; i >= 0; --i) {
     const int w = widths_[i];
-    dec_[i].push_back(add_conv(layer_name('d', i, 0), in + w, w));
-    dec_[i].push_back(add_conv(layer_name('d', i, 1), w, w));
-    in = w;
+    if (thesis) {
+      // The first convolution halves the concatenation back to this level's
+      // width, the second gives the next level's (3 channels at the end);
+      // the last block has no activation (thesis 4.3.1, fig. 4.3).
+      const int next = i > 0 ? widths_[i - 1] : 3;
+      dec_[i].push_back(add_conv(layer_name('d', i, 0), in + w, w, i > 0));
+      dec_[i].push_back(add_conv(layer_name('d', i, 1), w, next, i > 0));
+      in = next;
+    } else {
+      dec_[i].push_back(add_conv(layer_name('d', i, 0), in + w, w));
+      dec_[i].push_back(add_conv(layer_name('d', i, 1), w, w));
+      in = w;
+    }
   }
-  out_ = add_conv("out", in, 3);
+  if (!thesis) out_ = add_conv("out", in, 3, false);
 }
 
-DenoiserImpl::Conv DenoiserImpl::add_conv(const std::string& name, int in, int out) {
+DenoiserImpl::Conv DenoiserImpl::add_conv(const std::string& name, int in, int out, bool activate) {
   Conv c;
   c.name = name;
+  c.activate = activate;
   c.conv =
       register_module(name, torch::nn::Conv2d(torch::nn::Conv2dOptions(in, out, 3).padding(1)));
   // He initialisation for leaky ReLU keeps activations at unit scale through
@@ -97,9 +112,12 @@ torch::Tensor DenoiserImpl::forward_frame(const torch::Tensor& x,
   for (int i = kLevels - 1; i >= 0; --i) {
     h = torch::upsample_nearest2d(h, {h.size(2) * 2, h.size(3) * 2});  // nearest x2
     h = torch::cat({h, skips[i]}, 1);
-    for (auto& c : dec_[i]) h = act(c.conv->forward(h));
+    for (auto& c : dec_[i]) {
+      h = c.conv->forward(h);
+      if (c.activate) h = act(h);
+    }
   }
-  return out_.conv->forward(h);
+  return out_.conv ? out_.conv->forward(h) : h;
 }
 
 torch::Tensor DenoiserImpl::forward(const torch::Tensor& seq) {
@@ -167,11 +185,16 @@ void DenoiserImpl::export_torchscript(const std::filesystem::path& path,
         << "], 1)\n";
     for (const Conv& c : dec_[i]) {
       reg(c);
-      src << "  h = " << conv(c, "h", true) << "\n";
+      src << "  h = " << conv(c, "h", c.activate) << "\n";
     }
   }
-  reg(out_);
-  src << "  y = " << conv(out_, "h", false) << "\n  y = y[:, :, 0:H, 0:W]\n";
+  if (out_.conv) {
+    reg(out_);
+    src << "  y = " << conv(out_, "h", false) << "\n";
+  } else {
+    src << "  y = h\n";
+  }
+  src << "  y = y[:, :, 0:H, 0:W]\n";
   if (cfg_.recurrent) {
     src << "  return (y";
     for (int i = 0; i < kLevels; ++i) src << ", k" << i;

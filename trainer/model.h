@@ -1,10 +1,15 @@
-// The denoiser: the convolutional autoencoder of thesis 4.2 (after Chaitanya
-// et al. 2017), with their recurrent encoder blocks as an option.
+// The denoiser: the convolutional autoencoder of thesis 4.3.1 (after
+// Chaitanya et al. 2017), with their recurrent encoder blocks as an option.
 //
 //   encoder i = 0..4: [concat hidden_i] -> 3 x (conv3x3 + LeakyReLU) -> skip_i -> maxpool2x2
-//   bottleneck:       2 x (conv3x3 + LeakyReLU) at 1/32 resolution
-//   decoder i = 4..0: nearest upsample x2 -> concat skip_i -> 2 x (conv3x3 + LeakyReLU)
-//   output:           conv3x3 -> 3 channels, linear (transformed demodulated radiance)
+//   bottleneck:       model.bottleneck_convs x (conv3x3 + LeakyReLU) at 1/32 resolution
+//   decoder i = 4..0: nearest upsample x2 -> concat skip_i -> 2 x conv3x3, then
+//     model.decoder = "project": both to width_i with LeakyReLU; then an
+//                                output conv3x3 -> 3 channels, linear
+//     model.decoder = "thesis":  width_i, then width_{i-1} (3 for i = 0), with
+//                                LeakyReLU except in block 0, which is linear
+//                                and is the output (thesis 4.3.1, fig. 4.3)
+// The output is transformed demodulated radiance (trainer/inputs.h).
 //
 // Frame sides must be multiples of 32 (five poolings); pad_to_multiple() pads
 // full frames for inference. In the recurrent model the output of encoder
@@ -62,8 +67,9 @@ class DenoiserImpl : public torch::nn::Module {
   struct Conv {
     torch::nn::Conv2d conv{nullptr};
     std::string name;
+    bool activate = true;  // LeakyReLU after it
   };
-  Conv add_conv(const std::string& name, int in, int out);
+  Conv add_conv(const std::string& name, int in, int out, bool activate = true);
   torch::Tensor act(torch::Tensor x) const;  // on a convolution output, in place
 
   ModelConfig cfg_;
@@ -72,7 +78,7 @@ class DenoiserImpl : public torch::nn::Module {
   int bottleneck_ = 0;
   std::vector<std::vector<Conv>> enc_, dec_;
   std::vector<Conv> mid_;
-  Conv out_;
+  Conv out_;  // null with the thesis decoder
 };
 TORCH_MODULE(Denoiser);
 

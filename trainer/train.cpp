@@ -10,6 +10,7 @@
 #include <exception>
 #include <fstream>
 #include <mutex>
+#include <nlohmann/json.hpp>
 #include <sstream>
 #include <thread>
 
@@ -24,7 +25,16 @@ namespace dofarm::trainer {
 
 namespace fs = std::filesystem;
 
-double learning_rate(const OptimConfig& o, int64_t step, int epoch) {
+double thesis_learning_rate(int64_t pass) {
+  // Thesis eq. 4.5: a tenfold geometric rise over passes 0..9 (1.25893 =
+  // 10^(1/10)), then 0.0001 * 10 / sqrt(E).
+  if (pass <= 9) return 1e-4 * std::pow(1.25893, double(pass));
+  return 1e-4 * 10.0 / std::sqrt(double(pass));
+}
+
+double learning_rate(const OptimConfig& o, int64_t step, int epoch, int64_t steps_per_pass) {
+  if (o.schedule == Schedule::kThesis)
+    return thesis_learning_rate(step / std::max<int64_t>(1, steps_per_pass));
   double warm = o.warmup_steps > 0 ? std::min(1.0, double(step + 1) / o.warmup_steps) : 1.0;
   double lr = double(o.lr) * warm * std::pow(double(o.lr_decay), epoch);
   return std::max(lr, double(o.lr_min));
@@ -73,16 +83,43 @@ int64_t csv_epochs(const fs::path& csv) {
 
 TrainResult train_in(const TrainOptions& opt_in);
 
+// Optimizer steps of one pass over the training sequences: ceil(N / batch)
+// with N the training sequences of the split when the run started, kept in
+// RUN/passes.json so that shards arriving later do not stretch a pass
+// (and with it eq. 4.5's E) in a resumed run.
+template <typename Log>
+int64_t steps_per_pass_of(const fs::path& run, const SequenceStream& stream, int batch, bool used,
+                          Log& log) {
+  const fs::path file = run / "passes.json";
+  int64_t n = 0;
+  if (fs::exists(file)) {
+    try {
+      n = nlohmann::json::parse(read_text_file(file)).at("training_sequences").get<int64_t>();
+    } catch (const nlohmann::json::exception& e) {
+      throw RuntimeError(file.string() + ": unreadable: " + e.what());
+    }
+    if (n < 1) throw RuntimeError(file.string() + ": training_sequences must be positive");
+  } else {
+    n = std::max<int64_t>(1, stream.training_sequences());
+    write_text_atomic(file, nlohmann::json{{"training_sequences", n}}.dump() + "\n");
+  }
+  const int64_t steps = (n + batch - 1) / batch;
+  if (used)
+    log(spdlog::level::info, "one pass over the training data: {} sequences, {} steps of {}", n,
+        steps, batch);
+  return steps;
+}
+
 // SSIM and PSNR of the validation frames (as eval scores them: remodulated,
 // sRGB-encoded, clamped), so the report can plot them over training.
 class ImageScores {
  public:
-  void add(const torch::Tensor& y, const Batch& b, float eps) {
-    // Input channels 3..5 are the albedo the radiance was demodulated by.
-    const torch::Tensor albedo = b.input.narrow(2, 3, 3);
+  // `albedo`: the samples' demodulation albedo, [B, T, 3, S, S].
+  void add(const torch::Tensor& y, const Batch& b, const torch::Tensor& albedo, float eps,
+           RadianceSpace space) {
     auto radiance = [&](const torch::Tensor& t) {
       const int64_t s = t.size(-1);
-      return (torch::expm1(t.clamp_min(0)) * (albedo + eps))
+      return (radiance_inverse(t.to(torch::kCPU, torch::kFloat32), space) * (albedo + eps))
           .reshape({-1, 3, s, s})
           .to(torch::kCPU, torch::kFloat32)
           .contiguous();
@@ -187,8 +224,14 @@ TrainResult train_in(const TrainOptions& opt_in) {
     log(spdlog::level::info, "new run: {} parameters on {}", parameter_count(*model), device.str());
   }
 
-  SequenceStream stream(opt_in.data_dir, run, cfg.data, cfg.model.dof, cfg.train.seed,
+  SequenceStream stream(opt_in.data_dir, run, cfg.data, cfg.model, cfg.train.seed,
                         uint64_t(st.sample_index));
+  const int64_t steps_per_pass = steps_per_pass_of(
+      run, stream, cfg.train.batch,
+      cfg.train.schedule == Schedule::kThesis || cfg.train.steps_per_epoch == 0, log);
+  const int64_t steps_per_epoch =
+      cfg.train.steps_per_epoch > 0 ? int64_t(cfg.train.steps_per_epoch) : steps_per_pass;
+  const RadianceSpace space = radiance_space(cfg.model);
   const torch::Tensor kernel = log_kernel(cfg.loss.log_sigma).to(device);
   const bool new_csv = !fs::exists(run / "loss.csv");
   std::ofstream csv(run / "loss.csv", std::ios::app);
@@ -209,7 +252,7 @@ TrainResult train_in(const TrainOptions& opt_in) {
   std::ofstream steps_csv(run / "steps.csv", std::ios::app);
 
   int bad_in_a_row = 0;
-  const int64_t total_steps = int64_t(cfg.train.epochs) * cfg.train.steps_per_epoch;
+  const int64_t total_steps = int64_t(cfg.train.epochs) * steps_per_epoch;
   Progress progress("train", std::max<int64_t>(0, total_steps - st.step), "steps");
   BatchPrefetcher batches(stream, cfg.train.batch, device, format);
   const int threads = at::get_num_threads();
@@ -224,11 +267,11 @@ TrainResult train_in(const TrainOptions& opt_in) {
     int good = 0, skipped = 0;
     double lr = 0;
     // Counted from the step, so an epoch interrupted mid-way resumes where it was.
-    while (st.step < (st.epoch + 1) * int64_t(cfg.train.steps_per_epoch)) {
+    while (st.step < (st.epoch + 1) * steps_per_epoch) {
       if (opt_in.stop_at_step >= 0 && st.step >= opt_in.stop_at_step) break;
       Batch batch = batches.next();  // the one after it is assembled meanwhile
       st.sample_index = int64_t(batch.next_index);
-      lr = st.lr_scale * learning_rate(cfg.train, st.step, int(st.epoch));
+      lr = st.lr_scale * learning_rate(cfg.train, st.step, int(st.epoch), steps_per_pass);
       for (auto& group : adam.param_groups())
         static_cast<torch::optim::AdamOptions&>(group.options()).lr(lr);
 
@@ -275,7 +318,7 @@ TrainResult train_in(const TrainOptions& opt_in) {
             last.string(), back.epoch, back.step, cfg.train.max_bad_steps, st.lr_scale);
       }
     }
-    const bool interrupted = st.step < (st.epoch + 1) * int64_t(cfg.train.steps_per_epoch);
+    const bool interrupted = st.step < (st.epoch + 1) * steps_per_epoch;
     if (interrupted) break;
 
     // Validation: the same sequences every epoch (while the shard set holds).
@@ -293,7 +336,11 @@ TrainResult train_in(const TrainOptions& opt_in) {
         torch::Tensor y = model->forward(b.input);
         sum += denoiser_loss(y, b.target, cfg.loss, kernel).total.item<double>() *
                double(part.size());
-        scores.add(y, b, cfg.data.demod_eps);
+        std::vector<torch::Tensor> albedo;
+        for (const Sample& smp : part)
+          albedo.push_back(torch::from_blob(const_cast<float*>(smp.albedo.data()),
+                                            {smp.frames, 3, smp.size, smp.size}));
+        scores.add(y, b, torch::stack(albedo), cfg.data.demod_eps, space);
       }
       val = sum / double(vs.size());
       val_ssim = scores.ssim();
@@ -312,11 +359,12 @@ TrainResult train_in(const TrainOptions& opt_in) {
     steps_csv.flush();
     spdlog::info("epoch {}/{}: train {:.5f} val {:.5f} lr {:.3g} ({:.1f} s)", st.epoch,
                  cfg.train.epochs, train_loss, val, lr, seconds);
-    // Best by validation loss; by training loss when there is no validation set.
-    // A non-finite validation loss never makes a model "best".
+    // Best by validation loss, or by training loss (train.best_by; thesis
+    // 5.1), and always by training loss when there is no validation set.
+    // A non-finite loss never makes a model "best".
     if (!vs.empty() && !std::isfinite(val))
       log(spdlog::level::warn, "epoch {}: non-finite validation loss", st.epoch);
-    double score = vs.empty() ? train_loss : val;
+    double score = vs.empty() || cfg.train.best_by == BestBy::kTraining ? train_loss : val;
     bool improved = std::isfinite(score) && score < st.best;
     if (improved) st.best = score;
     save_checkpoint(last, model, adam, st, cfg);

@@ -6,13 +6,14 @@
 //   checkpoints/         last.pt, best.pt, step-*.pt (run_folder.h)
 //   loss.csv             one row per epoch: ...,val_ssim,val_psnr
 //   steps.csv            one row per step: step,loss,lr
+//   passes.json          training sequences per pass (eq. 4.5's E; epochs of
+//                        train.steps_per_epoch = 0)
 //   events.log           new run, resumes, stops, skipped non-finite steps, rollbacks
 // Batches: batches.h; the step itself: step_runner.h.
 //
-// Adam(0.9, 0.99); learning rate per eq. 4.5 as implemented by
-// learning_rate(); a non-finite loss or gradient skips the step, and
-// max_bad_steps in a row roll the model and optimizer back to the last
-// checkpoint with the learning rate scaled by rollback_lr_factor.
+// Adam(0.9, 0.99); learning rate by learning_rate(); a non-finite loss or gradient skips the step,
+// and max_bad_steps in a row roll the model and optimizer back to the last checkpoint with the
+// learning rate scaled by rollback_lr_factor.
 #pragma once
 
 #include <torch/torch.h>
@@ -74,8 +75,13 @@ void keep_freed_memory();
 // progress, so that a corrected retry starts clean.
 TrainResult train(const TrainOptions& options);
 
-// Thesis eq. 4.5 as implemented: a linear warm-up over warmup_steps to lr,
-// then exponential decay by lr_decay per epoch, never below lr_min.
-double learning_rate(const OptimConfig& o, int64_t step, int epoch);
+// The learning rate of optimizer step `step` (0-based) in epoch `epoch`:
+//   train.schedule = "thesis": thesis eq. 4.5 with E = step / steps_per_pass,
+//     the passes over the training sequences completed;
+//   "warmup_decay": a linear warm-up over warmup_steps to lr, then
+//     exponential decay by lr_decay per epoch, never below lr_min.
+double learning_rate(const OptimConfig& o, int64_t step, int epoch, int64_t steps_per_pass);
+// Thesis eq. 4.5: 1e-4 * 1.25893^E for E <= 9, else 1e-3 / sqrt(E).
+double thesis_learning_rate(int64_t pass);
 
 }  // namespace dofarm::trainer

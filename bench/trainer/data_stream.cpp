@@ -93,7 +93,7 @@ int main(int argc, char** argv) {
     d.readers = readers;
     d.val_fraction = 0;  // every frame is a training frame, as in the h5py pipeline
     fs::remove_all(dir / "run");
-    SequenceStream stream(dir / "data", dir / "run", d, true, 1, 0, reader_options);
+    SequenceStream stream(dir / "data", dir / "run", d, ModelConfig{}, 1, 0, reader_options);
     stream.next();  // first sample: warm caches, start threads
     auto t0 = std::chrono::steady_clock::now();
     double c0 = cpu_seconds();

@@ -99,7 +99,7 @@ void kernels(const Options& o, torch::Device dev) {
     if (!o.all_models && !(v.dof && !v.recurrent)) continue;
     for (torch::MemoryFormat fmt : o.formats) {
       ModelConfig mc;
-      mc.dof = v.dof;
+      if (!v.dof) std::erase(mc.inputs, std::string("coc:log"));
       mc.recurrent = v.recurrent;
       torch::manual_seed(0);
       Denoiser m(mc);
@@ -163,7 +163,7 @@ void loop(const Options& o, torch::Device dev) {
         m->parameters(),
         torch::optim::AdamOptions(cfg.train.lr).betas({cfg.train.beta1, cfg.train.beta2}));
     torch::Tensor kernel = log_kernel(cfg.loss.log_sigma).to(dev);
-    SequenceStream stream(dir / "data", dir / "run", cfg.data, cfg.model.dof, cfg.train.seed);
+    SequenceStream stream(dir / "data", dir / "run", cfg.data, cfg.model, cfg.train.seed);
     BatchPrefetcher batches(stream, cfg.train.batch, dev, fmt);
     StepRunner runner(m, replicas_for(o, dev));
     auto step = [&] {

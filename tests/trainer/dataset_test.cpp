@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <fstream>
@@ -15,6 +16,12 @@ namespace {
 namespace fs = std::filesystem;
 
 fs::path fresh_dir(const std::string& name) { return testing::scratch_dir(name); }
+
+ModelConfig no_coc() {
+  ModelConfig m;
+  std::erase(m.inputs, std::string("coc:log"));
+  return m;
+}
 
 DataConfig small_data() {
   DataConfig d;
@@ -83,14 +90,14 @@ TEST(SequenceStream, SplitIsKeyedByShardContent) {
   testing::write_synthetic_shard(data / "shard-00000.h5", 8, 48, 48, 2, 1);
   std::string first_key;
   {
-    SequenceStream s(data, run, d, true, 1);
+    SequenceStream s(data, run, d, ModelConfig{}, 1);
     ASSERT_EQ(s.splits().size(), 1u);
     first_key = s.splits()[0].key;
     EXPECT_EQ(first_key.rfind("xxh64:", 0), 0u);
   }
   fs::remove(data / "shard-00000.h5");
   testing::write_synthetic_shard(data / "shard-00000.h5", 16, 48, 48, 2, 2);
-  SequenceStream s(data, run, d, true, 1);
+  SequenceStream s(data, run, d, ModelConfig{}, 1);
   ASSERT_EQ(s.splits().size(), 1u);
   EXPECT_NE(s.splits()[0].key, first_key);
   EXPECT_EQ(s.splits()[0].frames, 16);
@@ -110,15 +117,15 @@ TEST(SequenceStream, ANewRunHasAtLeastOneValidationSequence) {
   d.val_fraction = 0.001f;
   std::vector<ShardSplit> first;
   {
-    SequenceStream s(data, run, d, true, 1);
+    SequenceStream s(data, run, d, ModelConfig{}, 1);
     first = s.splits();
   }
   int val = 0;
   for (const ShardSplit& sp : first) val += (sp.val_end - sp.val_begin) / d.sequence;
   EXPECT_EQ(val, 1);
-  EXPECT_FALSE(SequenceStream(data, run, d, true, 1).validation(1).empty());
+  EXPECT_FALSE(SequenceStream(data, run, d, ModelConfig{}, 1).validation(1).empty());
   // Resumed, the split is the recorded one.
-  SequenceStream again(data, run, d, true, 1);
+  SequenceStream again(data, run, d, ModelConfig{}, 1);
   EXPECT_EQ(again.splits(), first);
 }
 
@@ -130,7 +137,7 @@ TEST(SequenceStream, HoldsAtMostQueueSamplesWhateverTheData) {
   DataConfig d = small_data();
   d.queue = 3;
   d.readers = 4;  // more readers than queue slots
-  SequenceStream s(data, run, d, true, 5);
+  SequenceStream s(data, run, d, ModelConfig{}, 5);
   auto wait_full = [&] {
     auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(20);
     while (s.held() < 3 && std::chrono::steady_clock::now() < deadline)
@@ -156,13 +163,13 @@ TEST(SequenceStream, DeterministicFiniteAndSplitPersisted) {
   DataConfig d = small_data();
   std::vector<Sample> a, b;
   {
-    SequenceStream s(data, run, d, true, 42);
+    SequenceStream s(data, run, d, ModelConfig{}, 42);
     for (int i = 0; i < 5; ++i) a.push_back(s.next());
     EXPECT_EQ(s.next_index(), 5u);
   }
   ASSERT_TRUE(fs::exists(run / "split.json"));
   {
-    SequenceStream s(data, run, d, true, 42, /*first_index=*/3);
+    SequenceStream s(data, run, d, ModelConfig{}, 42, /*first_index=*/3);
     for (int i = 0; i < 2; ++i) b.push_back(s.next());
   }
   EXPECT_EQ(a[3].input, b[0].input);  // sample i depends on (seed, i) only
@@ -181,7 +188,7 @@ TEST(SequenceStream, PicksUpShardsThatAppearWhileRunning) {
   testing::write_synthetic_shard(data / "shard-00000.h5", 10, 64, 64, 2, 1);
   DataConfig d = small_data();
   d.rescan_seconds = 0.05f;
-  SequenceStream s(data, run, d, false, 1);
+  SequenceStream s(data, run, d, no_coc(), 1);
   EXPECT_EQ(s.splits().size(), 1u);
   testing::write_synthetic_shard(data / "shard-00001.h5", 10, 64, 64, 2, 2);
   for (int i = 0; i < 400 && s.splits().size() < 2; ++i) {
@@ -204,7 +211,7 @@ TEST(SequenceStream, CorruptedShardGivesAClearError) {
   }
   { std::ofstream(data / "shard-00001.h5") << "this is not an HDF5 file"; }
   try {
-    SequenceStream s(data, run, small_data(), true, 1);
+    SequenceStream s(data, run, small_data(), ModelConfig{}, 1);
     for (int i = 0; i < 20; ++i) s.next();  // damage may only show when chunks are read
     FAIL() << "no error";
   } catch (const RuntimeError& e) {
@@ -230,7 +237,7 @@ TEST(SequenceStream, DamagedShardIsDroppedAndTrainingGoesOn) {
     std::string junk(size / 2, '\x5a');
     f.write(junk.data(), std::streamsize(junk.size()));
   }
-  SequenceStream s(data, run, small_data(), true, 3);
+  SequenceStream s(data, run, small_data(), ModelConfig{}, 3);
   for (int i = 0; i < 30; ++i) {
     Sample smp = s.next();
     for (float v : smp.target) ASSERT_TRUE(std::isfinite(v));
@@ -254,10 +261,16 @@ TEST(SequenceStream, ReadsExactlyThePlannedFramesVersionsAndCrop) {
   for (AlbedoSource src : {AlbedoSource::kReference, AlbedoSource::kVersion}) {
     DataConfig d = small_data();
     d.albedo = src;
-    SequenceStream s(data, run, d, true, 1);
+    SequenceStream s(data, run, d, ModelConfig{}, 1);
     std::mt19937_64 rng(4);
     SequencePlan plan = draw_plan(rng, d, 0, 12, 4, 96, 64);
     RawCrop raw = s.read_raw("shard-00000.h5", plan);
+    // Exactly the buffers the inputs, the demodulation and the target need.
+    std::vector<std::string> names;
+    for (const auto& [name, planes] : raw.buffers) names.push_back(name);
+    std::vector<std::string> want = sample_buffers(ModelConfig{}, d);
+    std::sort(want.begin(), want.end());
+    EXPECT_EQ(names, want);
     ShardReader reader(data / "shard-00000.h5");
     const int c = d.crop;
     const size_t n = size_t(c) * c;
@@ -270,9 +283,9 @@ TEST(SequenceStream, ReadsExactlyThePlannedFramesVersionsAndCrop) {
             size_t src_i =
                 ((size_t(v) * 3 + ch) * fb.height + plan.crop_y + y) * fb.width + plan.crop_x + x;
             size_t dst = ((size_t(plan.offset[i]) * raw.versions + v) * 3 + ch) * n + y * c + x;
-            ASSERT_EQ(raw.noisy[dst], fb.noisy[src_i]);
+            ASSERT_EQ(raw.buffers.at("noisy")[dst], fb.noisy[src_i]);
             if (src == AlbedoSource::kVersion) {
-              ASSERT_EQ(raw.albedo[dst], fb.albedo[src_i]);
+              ASSERT_EQ(raw.buffers.at("albedo")[dst], fb.albedo[src_i]);
             }
           }
       EXPECT_EQ(raw.focal_distance[plan.offset[i]], fb.camera.focal_distance);

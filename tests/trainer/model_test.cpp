@@ -5,16 +5,18 @@
 #include <torch/torch.h>
 #include <unistd.h>
 
+#include <cmath>
 #include <filesystem>
+#include <tuple>
 
+#include "trainer/config.h"
 #include "trainer/losses.h"
 
 namespace dofarm::trainer {
 namespace {
 
-ModelConfig tiny(bool recurrent = false, bool dof = true) {
+ModelConfig tiny(bool recurrent = false) {
   ModelConfig m;
-  m.dof = dof;
   m.recurrent = recurrent;
   m.channels = {8, 8, 8, 8, 8};
   return m;
@@ -42,6 +44,73 @@ TEST(LogLoss, ZeroForIdenticalAndFiniteOnFlatCrops) {
   EXPECT_EQ(z.total.item<float>(), 0.0f);
   z.total.backward();
   EXPECT_TRUE(torch::isfinite(same.grad()).all().item<bool>());
+}
+
+// Thesis eq. 4.4 against the same sums taken by direct convolution loops
+// with a kernel built here: L_g = sum (LoG P - LoG T)^2 / sum (LoG T)^2 per
+// frame, mean over frames; L = 0.8 L1 + 0.2 L_g (eq. 4.2, 4.3).
+TEST(LogLoss, ThesisEq44EqualsDirectSums) {
+  torch::manual_seed(4);
+  const int h = 11, w = 10, frames = 2;
+  const float sigma = 0.5f;  // radius ceil(1.5) = 2: a 5x5 kernel, 7x6 valid outputs
+  torch::Tensor p = torch::rand({1, frames, 3, h, w}, torch::kFloat64);
+  torch::Tensor t = torch::rand({1, frames, 3, h, w}, torch::kFloat64);
+  // The LoG up to scale (which eq. 4.4 cancels): (q - 1) e^-q, q = r^2 / 2 sigma^2,
+  // made zero-sum.
+  const int r = 2, kn = 2 * r + 1;
+  double k[kn][kn], mean = 0;
+  for (int y = 0; y < kn; ++y)
+    for (int x = 0; x < kn; ++x) {
+      const double q = ((x - r) * (x - r) + (y - r) * (y - r)) / (2.0 * sigma * sigma);
+      k[y][x] = (q - 1.0) * std::exp(-q);
+      mean += k[y][x] / (kn * kn);
+    }
+  for (auto& row : k)
+    for (double& v : row) v -= mean;
+  auto pa = p.accessor<double, 5>(), ta = t.accessor<double, 5>();
+  double lg = 0, l1 = 0;
+  for (int f = 0; f < frames; ++f) {
+    double num = 0, den = 0;
+    for (int c = 0; c < 3; ++c)
+      for (int y = 0; y + kn <= h; ++y)
+        for (int x = 0; x + kn <= w; ++x) {
+          double lp = 0, lt = 0;
+          for (int i = 0; i < kn; ++i)
+            for (int j = 0; j < kn; ++j) {
+              lp += k[i][j] * pa[0][f][c][y + i][x + j];
+              lt += k[i][j] * ta[0][f][c][y + i][x + j];
+            }
+          num += (lp - lt) * (lp - lt);
+          den += lt * lt;
+        }
+    lg += num / den / frames;
+    for (int c = 0; c < 3; ++c)
+      for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x)
+          l1 += std::abs(pa[0][f][c][y][x] - ta[0][f][c][y][x]) / (frames * 3 * h * w);
+  }
+  LossConfig cfg = apply_preset("thesis").loss;
+  LossTerms got =
+      denoiser_loss(p.to(torch::kFloat32), t.to(torch::kFloat32), cfg, log_kernel(sigma));
+  EXPECT_NEAR(got.log.item<double>(), lg, 1e-5 * lg);
+  EXPECT_NEAR(got.l1.item<double>(), l1, 1e-6);
+  EXPECT_NEAR(got.total.item<double>(), 0.8 * l1 + 0.2 * lg, 1e-5 * (0.8 * l1 + 0.2 * lg));
+  // The project's form is another number on the same data (|.| mean of a
+  // unit-L1 kernel's responses), so the switch does something.
+  cfg.log_form = GradientLoss::kL1;
+  EXPECT_GT(
+      std::abs(denoiser_loss(p.to(torch::kFloat32), t.to(torch::kFloat32), cfg, log_kernel(sigma))
+                   .log.item<double>() -
+               lg),
+      0.1 * lg);
+  // A flat target (no LoG response at all) stays finite, and identical
+  // images give exactly 0.
+  cfg.log_form = GradientLoss::kThesis;
+  torch::Tensor flat = torch::full({1, 1, 3, 16, 16}, 0.5f);
+  torch::Tensor edge = flat.clone();
+  edge.narrow(4, 8, 8).fill_(1.0f);
+  EXPECT_TRUE(std::isfinite(denoiser_loss(edge, flat, cfg, log_kernel(1.0f)).total.item<float>()));
+  EXPECT_EQ(denoiser_loss(edge, edge, cfg, log_kernel(1.0f)).log.item<float>(), 0.0f);
 }
 
 TEST(LogLoss, SeesBlurThatL1BarelySees) {
@@ -79,6 +148,72 @@ TEST(Denoiser, ThesisWidthsAndShapes) {
   EXPECT_GT(parameter_count(*r), parameter_count(*Denoiser(tiny(false))));
   EXPECT_EQ(r->forward(torch::rand({2, 3, 12, 32, 64})).sizes(),
             (std::vector<int64_t>{2, 3, 3, 32, 64}));
+}
+
+// Thesis 4.3.1 with the widths of its DOF network (36, 48, 64, 85, 113):
+// three convolutions per encoder block and in the bottleneck (which keeps
+// the channel count), decoder blocks of two that take twice the next
+// level's width and give it, the last one giving the 3 output channels; no
+// output convolution. Every convolution 3x3 with a bias.
+TEST(Denoiser, ThesisPresetLayerStructure) {
+  const ModelConfig cfg = apply_preset("thesis").model;
+  Denoiser m(cfg);
+  const std::vector<std::tuple<std::string, int, int>> want = {
+      {"e0_0", 12, 36},  {"e0_1", 36, 36},   {"e0_2", 36, 36},   {"e1_0", 36, 48},
+      {"e1_1", 48, 48},  {"e1_2", 48, 48},   {"e2_0", 48, 64},   {"e2_1", 64, 64},
+      {"e2_2", 64, 64},  {"e3_0", 64, 85},   {"e3_1", 85, 85},   {"e3_2", 85, 85},
+      {"e4_0", 85, 113}, {"e4_1", 113, 113}, {"e4_2", 113, 113}, {"m_0", 113, 113},
+      {"m_1", 113, 113}, {"m_2", 113, 113},  {"d4_0", 226, 113}, {"d4_1", 113, 85},
+      {"d3_0", 170, 85}, {"d3_1", 85, 64},   {"d2_0", 128, 64},  {"d2_1", 64, 48},
+      {"d1_0", 96, 48},  {"d1_1", 48, 36},   {"d0_0", 72, 36},   {"d0_1", 36, 3}};
+  auto params = m->named_parameters();
+  int64_t count = 0;
+  for (const auto& [name, in, out] : want) {
+    ASSERT_TRUE(params.contains(name + ".weight")) << name;
+    EXPECT_EQ(params[name + ".weight"].sizes(), (std::vector<int64_t>{out, in, 3, 3})) << name;
+    count += int64_t(9) * in * out + out;
+  }
+  EXPECT_EQ(params.size(), 2 * want.size());  // nothing else: no "out" convolution
+  EXPECT_EQ(parameter_count(*m), count);
+  // The no-CoC baseline of the thesis: 11 inputs, widths 32 ... 101.
+  ModelConfig no_coc = cfg;
+  std::erase(no_coc.inputs, std::string("coc:thesis"));
+  Denoiser b(no_coc);
+  EXPECT_EQ(b->named_parameters()["e0_0.weight"].sizes(), (std::vector<int64_t>{32, 11, 3, 3}));
+  EXPECT_EQ(b->named_parameters()["m_2.weight"].sizes(), (std::vector<int64_t>{101, 101, 3, 3}));
+  torch::NoGradGuard ng;
+  EXPECT_EQ(b->forward(torch::rand({1, 2, 11, 32, 32})).sizes(),
+            (std::vector<int64_t>{1, 2, 3, 32, 32}));
+}
+
+// The last decoder block has no activation (thesis fig. 4.3), in training
+// and in the export: with every weight 0, d0_0's bias -1 and d0_1 passing
+// channel 0 through with bias -0.5, the output is exactly -1.5 (a LeakyReLU
+// anywhere in the block would give -0.6 or -0.06).
+TEST(Denoiser, ThesisLastBlockIsLinear) {
+  ModelConfig cfg = apply_preset("thesis").model;
+  cfg.channels = {8, 8, 8, 8, 8};
+  Denoiser m(cfg);
+  {
+    torch::NoGradGuard ng;
+    for (auto& p : m->parameters()) p.zero_();
+    auto params = m->named_parameters();
+    params["d0_0.bias"].fill_(-1.0f);
+    params["d0_1.weight"][0][0][1][1] = 1.0f;
+    params["d0_1.bias"].fill_(-0.5f);
+  }
+  torch::NoGradGuard ng;
+  torch::Tensor x = torch::rand({1, 12, 32, 32});
+  std::vector<torch::Tensor> none;
+  torch::Tensor y = m->forward_frame(x, none);
+  EXPECT_TRUE(y.select(1, 0).eq(-1.5f).all().item<bool>()) << y.select(1, 0).max();
+  EXPECT_TRUE(y.select(1, 1).eq(-0.5f).all().item<bool>());
+  auto path = std::filesystem::temp_directory_path() /
+              ("dofarm_export_thesis_" + std::to_string(::getpid()) + ".pt");
+  m->export_torchscript(path);
+  torch::Tensor s = torch::jit::load(path.string()).forward({x}).toTensor();
+  std::filesystem::remove(path);
+  EXPECT_TRUE(s.equal(y));
 }
 
 TEST(Denoiser, RecurrentOutputDependsOnEarlierFrames) {

@@ -265,6 +265,41 @@ TEST(Export, CarriesItsContractAndTakesAnySize) {
   }
 }
 
+// The contract is written from the input table: one entry per channel, in
+// model.inputs order, with its input, encoding, layer and transform.
+TEST(Export, ContractListsTheInputTableChannels) {
+  LoadedRun r;
+  r.config = apply_preset("thesis");
+  r.checkpoint = "best.pt";
+  const nlohmann::json c = nlohmann::json::parse(denoiser_contract(r));
+  ASSERT_EQ(c["inputs"].size(), 12u);
+  EXPECT_EQ(c["input_channels"], 12);
+  const char* names[] = {"radiance.R", "radiance.G", "radiance.B", "albedo.R",
+                         "albedo.G",   "albedo.B",   "normal.X",   "normal.Y",
+                         "normal.Z",   "depth",      "roughness",  "coc"};
+  const char* encodings[] = {"linear",  "linear",  "linear",  "as_stored", "as_stored", "as_stored",
+                             "remap01", "remap01", "remap01", "scene",     "as_stored", "thesis"};
+  for (int i = 0; i < 12; ++i) {
+    EXPECT_EQ(c["inputs"][i]["index"], i);
+    EXPECT_EQ(c["inputs"][i]["name"], names[i]) << i;
+    EXPECT_EQ(c["inputs"][i]["encoding"], encodings[i]) << i;
+  }
+  EXPECT_EQ(c["inputs"][0]["layer"], "noisy.<v>.R, albedo_ref.R");
+  EXPECT_EQ(c["inputs"][7]["layer"], "normal.G");  // docs/exr_format.md: normal x, y, z in R, G, B
+  EXPECT_NE(c["inputs"][11]["transform"].get<std::string>().find("coc_max_px"), std::string::npos);
+  EXPECT_EQ(c["constants"]["depth_scale"], 5.0);
+  EXPECT_EQ(c["output"]["transform"], "radiance.c = max(y.c, 0) * (albedo_ref.c + demod_eps)");
+  // The no-CoC ablation: 11 channels, no coc entry; the version's own albedo.
+  r.config = parse_train_config("", "t.toml", {"model.dof=false", "data.albedo=\"version\""});
+  const nlohmann::json d = nlohmann::json::parse(denoiser_contract(r));
+  ASSERT_EQ(d["inputs"].size(), 11u);
+  for (const auto& e : d["inputs"]) EXPECT_NE(e["input"], "coc");
+  EXPECT_EQ(d["inputs"][0]["layer"], "noisy.<v>.R, albedo.<v>.R");
+  EXPECT_EQ(d["inputs"][4]["layer"], "albedo.<v>.G");
+  EXPECT_EQ(d["output"]["transform"],
+            "radiance.c = expm1(max(y.c, 0)) * (albedo.<v>.c + demod_eps)");
+}
+
 // Real processes and real signals.
 
 pid_t spawn(const std::vector<std::string>& args, const fs::path& log) {

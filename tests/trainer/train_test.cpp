@@ -216,10 +216,25 @@ TEST(LearningRate, WarmUpThenDecay) {
   o.lr = 1e-3f;
   o.warmup_steps = 10;
   o.lr_decay = 0.5f;
-  EXPECT_NEAR(learning_rate(o, 0, 0), 1e-4, 1e-9);
-  EXPECT_NEAR(learning_rate(o, 9, 0), 1e-3, 1e-9);
-  EXPECT_NEAR(learning_rate(o, 100, 2), 2.5e-4, 1e-9);
-  EXPECT_NEAR(learning_rate(o, 100, 100), o.lr_min, 1e-12);
+  EXPECT_NEAR(learning_rate(o, 0, 0, 1), 1e-4, 1e-9);
+  EXPECT_NEAR(learning_rate(o, 9, 0, 1), 1e-3, 1e-9);
+  EXPECT_NEAR(learning_rate(o, 100, 2, 1), 2.5e-4, 1e-9);
+  EXPECT_NEAR(learning_rate(o, 100, 100, 1), o.lr_min, 1e-12);
+}
+
+// Thesis eq. 4.5: 0.0001 * 1.25893^E for E <= 9, else 0.0001 * 10 / sqrt(E),
+// E the passes over the training data done, from 0.
+TEST(LearningRate, ThesisEq45) {
+  EXPECT_DOUBLE_EQ(thesis_learning_rate(0), 1e-4);
+  EXPECT_NEAR(thesis_learning_rate(9), 7.943e-4, 1e-7);  // 1e-3 / 10^(1/10)
+  EXPECT_NEAR(thesis_learning_rate(10), 3.16228e-4, 1e-9);
+  EXPECT_DOUBLE_EQ(thesis_learning_rate(16), 2.5e-4);
+  // Through learning_rate(): E counts passes of 5 steps, whatever the epoch.
+  OptimConfig o = apply_preset("thesis").train;
+  EXPECT_DOUBLE_EQ(learning_rate(o, 0, 0, 5), 1e-4);
+  EXPECT_DOUBLE_EQ(learning_rate(o, 4, 3, 5), 1e-4);
+  EXPECT_NEAR(learning_rate(o, 5, 0, 5), 1.25893e-4, 1e-12);
+  EXPECT_DOUBLE_EQ(learning_rate(o, 80, 0, 5), 2.5e-4);
 }
 
 }  // namespace
@@ -327,6 +342,58 @@ TEST(Denoise, ExrFrameGivesTheSameResultAsTheShardFrame) {
   for (float v : direct) ASSERT_TRUE(std::isfinite(v) && v >= 0.0f);
 }
 
+// The thesis preset end to end on the synthetic shard: an epoch is one pass
+// over the training sequences (passes.json), each step's learning rate is
+// eq. 4.5 of its pass, best.pt holds the epoch of the lowest training loss,
+// and eval scores the validation frames and, in a second table, every frame.
+TEST(Train, ThesisPresetPassesEq45BestByTrainingLossAndAllFrameEval) {
+  fs::path dir = fresh_dir("thesis_run");
+  TrainOptions o;
+  o.data_dir = shared_data();
+  o.run_dir = dir / "run";
+  const TrainConfig thesis = apply_preset("thesis");
+  o.config = load_train_config(
+      "",
+      {"model.channels=[8, 8, 8, 8, 8]", "data.crop=32", "data.sequence=3", "data.queue=4",
+       "data.readers=1", "data.val_fraction=0.25", "train.epochs=3", "train.batch=2",
+       "train.val_sequences=2", "train.device=cpu"},
+      &thesis);
+  TrainResult r = train(o);
+  // 12 frames of 3-frame sequences, one of them validation: 3 training
+  // sequences, 2 steps of 2 per pass.
+  nlohmann::json passes = nlohmann::json::parse(std::ifstream(o.run_dir / "passes.json"));
+  EXPECT_EQ(passes["training_sequences"], 3);
+  EXPECT_EQ(r.steps, 6);
+  const StepCurve steps = read_steps_csv(o.run_dir / "steps.csv");
+  ASSERT_EQ(steps.lr.size(), 6u);
+  for (size_t i = 0; i < 6; ++i)
+    EXPECT_NEAR(steps.lr[i], thesis_learning_rate(int64_t(i) / 2), 1e-9) << i;
+  const LossCurve epochs = read_loss_csv(o.run_dir / "loss.csv");
+  ASSERT_EQ(epochs.train.size(), 3u);
+  size_t best = 0;
+  for (size_t i = 1; i < 3; ++i)
+    if (epochs.train[i] < epochs.train[best]) best = i;
+  LoadedRun b = load_run(o.run_dir, torch::kCPU, "best");
+  EXPECT_EQ(b.state.epoch, int64_t(best) + 1);
+  EXPECT_NEAR(b.state.best, epochs.train[best], 1e-5 * epochs.train[best]);  // CSV: 6 digits
+  fs::path out = dir / "eval";
+  EvalOptions e{o.run_dir, shared_data(), out, 0, 0, 0};
+  EvalSummary s = evaluate(e);
+  EXPECT_EQ(s.frames, 3);
+  EXPECT_EQ(s.frames_all, 12);
+  nlohmann::json j = nlohmann::json::parse(std::ifstream(out / "report.json"));
+  EXPECT_EQ(j["summary"]["frames"], 3);
+  EXPECT_EQ(j["all_frames"]["summary"]["frames"], 12);
+  EXPECT_NEAR(j["all_frames"]["summary"]["denoised"]["all"]["ssim"].get<double>(), s.ssim_all,
+              1e-12);
+  std::ifstream md(out / "report.md");
+  const std::string text((std::istreambuf_iterator<char>(md)), std::istreambuf_iterator<char>());
+  EXPECT_NE(text.find("**All frames**"), std::string::npos);
+  e.all_frames = false;
+  e.out_dir = dir / "eval_val";
+  EXPECT_EQ(evaluate(e).frames_all, 0);
+}
+
 int run_cli(const std::string& args) {
   std::string cmd = std::string(DOFARM_BINARY_DIR) + "/dofarm-train " + args + " >/dev/null 2>&1";
   int rc = std::system(cmd.c_str());
@@ -346,6 +413,29 @@ TEST(Cli, ExitCodesSayWhatWentWrong) {
       run_cli("export --run " + trained_run().string() + " --out " + (run / "model.pt").string()),
       0);
   EXPECT_TRUE(fs::exists(run / "model.pt"));
+}
+
+// The preset by its one name, as a user runs it: the run's config.toml holds
+// the thesis's values (so a resume needs no --preset), --set applies over it,
+// and an unknown name is bad input.
+TEST(Cli, ThesisPresetByName) {
+  if (!fs::exists(fs::path(DOFARM_BINARY_DIR) / "dofarm-train")) GTEST_SKIP() << "no binary";
+  fs::path run = fresh_dir("cli_thesis") / "run";
+  const std::string common = " --data " + shared_data().string() + " --run " + run.string() +
+                             " --set 'model.channels=[8, 8, 8, 8, 8]' --set data.crop=32"
+                             " --set data.sequence=3 --set data.readers=1 --set train.epochs=1"
+                             " --set train.val_sequences=1 --set train.device=cpu";
+  EXPECT_EQ(run_cli("train --preset thesys" + common), 2);
+  ASSERT_EQ(run_cli("train --preset thesis" + common + " --set model.dof=false"), 0);
+  const TrainConfig saved = load_train_config(run / "config.toml");
+  TrainConfig want = apply_preset("thesis");
+  std::erase(want.model.inputs, std::string("coc:thesis"));
+  EXPECT_EQ(saved.model.inputs, want.model.inputs);
+  EXPECT_EQ(saved.model.decoder, DecoderForm::kThesis);
+  EXPECT_EQ(saved.loss.log_form, GradientLoss::kThesis);
+  EXPECT_EQ(saved.train.schedule, Schedule::kThesis);
+  EXPECT_EQ(saved.model.channels, (std::vector<int>{8, 8, 8, 8, 8}));
+  EXPECT_TRUE(fs::exists(run / "passes.json"));
 }
 
 }  // namespace
