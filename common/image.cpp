@@ -12,6 +12,7 @@ const std::vector<BufferInfo>& buffer_infos() {
       {"noisy", 3, true},      {"albedo", 3, true},         {"albedo_ref", 3, false},
       {"reference", 3, false}, {"reference_var", 1, false}, {"normal", 3, false},
       {"depth", 1, false},     {"roughness", 1, false},     {"coc", 1, false},
+      {"reference_half", 3, false},
   };
   return infos;
 }
@@ -26,6 +27,7 @@ std::vector<float>& buffer_data(FrameBuffers& fb, const std::string& name) {
   if (name == "depth") return fb.depth;
   if (name == "roughness") return fb.roughness;
   if (name == "coc") return fb.coc;
+  if (name == "reference_half") return fb.reference_half;
   throw RuntimeError("unknown buffer name '" + name + "'");
 }
 

@@ -38,6 +38,9 @@ struct FrameBuffers {
   std::vector<float> depth;          // 1, H, W
   std::vector<float> roughness;      // 1, H, W
   std::vector<float> coc;            // 1, H, W
+  // 3, H, W: mean of the first half of the reference's samples (an
+  // independent half estimate; the second half is 2 * reference - this)
+  std::vector<float> reference_half;
 
   void allocate(int w, int h, int v);
   size_t plane() const { return size_t(width) * height; }

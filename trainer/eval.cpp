@@ -12,6 +12,7 @@
 #include "common/error.h"
 #include "common/shard.h"
 #include "trainer/augment.h"
+#include "trainer/ceiling.h"
 #include "trainer/dataset.h"
 #include "trainer/metrics.h"
 #include "trainer/model.h"
@@ -175,6 +176,7 @@ EvalSummary evaluate(const EvalOptions& o) {
   Accumulator all;
   std::map<std::string, Accumulator> by_scene;  // thesis table 5.1 has a row per scene
   json frames = json::array();
+  ReferenceCeiling ceiling;  // how converged the references are (ceiling.h)
   int done = 0, images = 0;
   for (const std::string& file : list_shards(o.data_dir)) {
     ShardReader reader(o.data_dir / file);
@@ -219,6 +221,8 @@ EvalSummary evaluate(const EvalOptions& o) {
         a->ms.push_back(sec * 1e3);
         ++a->frames;
       }
+      const double c = ceiling.add(fb, file, reader.info().frame_start + f);
+      row["reference_ceiling_ssim"] = std::isfinite(c) ? json(c) : json();
       frames.push_back(row);
       if (images < o.max_images) {
         char name[64];
@@ -290,6 +294,7 @@ EvalSummary evaluate(const EvalOptions& o) {
                   "SSIM and PSNR on sRGB-encoded images clamped to [0,1]; relative MSE on "
                   "linear HDR, (d-r)^2/(r^2+0.01); in focus = CoC < 1 px"},
                  {"summary", summary},
+                 {"reference_ceiling", ceiling.to_json()},
                  {"scenes", scenes},
                  {"frames", frames}};
   std::ofstream(o.out_dir / "report.json") << report.dump(1) << "\n";
@@ -325,6 +330,7 @@ EvalSummary evaluate(const EvalOptions& o) {
     md << "|\n";
   }
   md << "\nMean denoise time: " << cell(sum.ms, 2) << " ms per frame.\n\n"
+     << ceiling.markdown() << "\n\n"
      << "![loss per epoch](loss.svg)\n\n![loss per step](steps.svg)\n\n![learning rate](lr.svg)\n\n![validation SSIM and PSNR](quality.svg)\n\n"
      << "Comparison images (`frame-NNN.png`): noisy | denoised | reference | error "
         "(mean absolute sRGB difference, ×4, black-red-yellow-white; white = 0.25). "
@@ -370,7 +376,8 @@ EvalSummary evaluate(const EvalOptions& o) {
     for (const std::string& c : row) html << "<td>" << html_escape(c) << "</td>";
     html << "</tr>";
   }
-  html << "</table><h2>Training</h2>" << loss_svg << step_svg << lr_svg << quality_svg
+  html << "</table><p id=\"reference-ceiling\">" << html_escape(ceiling.markdown()) << "</p>"
+       << "<h2>Training</h2>" << loss_svg << step_svg << lr_svg << quality_svg
        << "<h2>Comparisons</h2>";
   for (const Strip& st : strips) {
     const int panel = std::max(st.width, 256);

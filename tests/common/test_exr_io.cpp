@@ -212,7 +212,8 @@ TEST_F(ExrIo, ChannelNamesFollowTheSchema) {
       "noisy.1.B",   "albedo.0.R",  "albedo.0.G",   "albedo.0.B",      "albedo.1.R",
       "albedo.1.G",  "albedo.1.B",  "albedo_ref.R", "albedo_ref.G",    "albedo_ref.B",
       "reference.R", "reference.G", "reference.B",  "reference_var.Y", "normal.X",
-      "normal.Y",    "normal.Z",    "depth.Y",      "roughness.Y",     "coc.Y"};
+      "normal.Y",    "normal.Z",    "depth.Y",      "roughness.Y",     "coc.Y",
+      "reference_half.R", "reference_half.G", "reference_half.B"};
   EXPECT_EQ(names, expected);
   EXPECT_EQ(file.header().compression(), Imf::ZIP_COMPRESSION);
 }
