@@ -37,8 +37,7 @@ double reference_ceiling_ssim(const FrameBuffers& frame) {
   return ssim({da.data(), 3, h, w}, {db.data(), 3, h, w});
 }
 
-double ReferenceCeiling::add(const FrameBuffers& frame, const std::string& shard,
-                             int frame_index) {
+double ReferenceCeiling::add(const FrameBuffers& frame, const std::string& shard, int frame_index) {
   const double s = reference_ceiling_ssim(frame);
   if (!std::isfinite(s)) return s;
   if (ssim_.empty() || s < min()) {
@@ -65,13 +64,14 @@ double ReferenceCeiling::min() const {
 
 nlohmann::json ReferenceCeiling::to_json() const {
   auto num = [](double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(); };
-  nlohmann::json j = {{"method",
-                       "SSIM between the means of the first and the second half of the "
-                       "reference's samples (reference_half and 2*reference - reference_half), sRGB-encoded and "
-                       "clamped like the scores; a lower bound on the reference's own SSIM"},
-                      {"frames", frames()},
-                      {"mean_ssim", num(mean())},
-                      {"min_ssim", num(min())}};
+  nlohmann::json j = {
+      {"method",
+       "SSIM between the means of the first and the second half of the "
+       "reference's samples (reference_half and 2*reference - reference_half), sRGB-encoded and "
+       "clamped like the scores; a lower bound on the reference's own SSIM"},
+      {"frames", frames()},
+      {"mean_ssim", num(mean())},
+      {"min_ssim", num(min())}};
   if (frames() > 0) {
     j["min_shard"] = min_shard_;
     j["min_frame"] = min_frame_;

@@ -3,7 +3,8 @@
 // between the two independent half-sample references (trainer/ceiling.h),
 // the median and 99th percentile of the reference's per-pixel relative
 // standard error (sqrt(reference_var) / luminance), the render time an EXR
-// records and the largest circle of confusion (px). bench/trainer/reference_quality.sh drives it; bench/README.md
+// records and the largest circle of confusion (px). bench/trainer/reference_quality.sh drives it;
+// bench/README.md
 // ("Reference ceiling") holds the figures.
 //
 // Usage: reference_ceiling FILE.exr|FILE.h5 ...
@@ -36,8 +37,8 @@ std::pair<double, double> relative_error_quantiles(const dofarm::FrameBuffers& f
   const size_t n = fb.plane();
   std::vector<double> rel(n);
   for (size_t i = 0; i < n; ++i) {
-    const double lum = 0.2126 * fb.reference[i] + 0.7152 * fb.reference[n + i] +
-                       0.0722 * fb.reference[2 * n + i];
+    const double lum =
+        0.2126 * fb.reference[i] + 0.7152 * fb.reference[n + i] + 0.0722 * fb.reference[2 * n + i];
     rel[i] = std::sqrt(std::max(0.0, double(fb.reference_var[i]))) / std::max(std::fabs(lum), 1e-3);
   }
   std::sort(rel.begin(), rel.end());
@@ -72,11 +73,10 @@ int main(int argc, char** argv) {
     using dofarm::trainer::display_encode;
     const std::vector<float> da = display_encode({a.reference.data(), 3, a.height, a.width});
     const std::vector<float> db = display_encode({b.reference.data(), 3, b.height, b.width});
-    std::printf("pair: SSIM(reference A, reference B) %.5f; half-vs-half A %.5f, B %.5f\n",
-                dofarm::trainer::ssim({da.data(), 3, a.height, a.width},
-                                      {db.data(), 3, b.height, b.width}),
-                dofarm::trainer::reference_ceiling_ssim(a),
-                dofarm::trainer::reference_ceiling_ssim(b));
+    std::printf(
+        "pair: SSIM(reference A, reference B) %.5f; half-vs-half A %.5f, B %.5f\n",
+        dofarm::trainer::ssim({da.data(), 3, a.height, a.width}, {db.data(), 3, b.height, b.width}),
+        dofarm::trainer::reference_ceiling_ssim(a), dofarm::trainer::reference_ceiling_ssim(b));
     return 0;
   }
   std::vector<Row> rows;

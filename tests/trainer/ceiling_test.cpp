@@ -61,7 +61,7 @@ TEST(ReferenceCeiling, SummarisesMeanAndWorstFrame) {
   EXPECT_EQ(c.to_json()["mean_ssim"], nullptr);
   EXPECT_NE(c.markdown().find("not measured"), std::string::npos);
 
-  const FrameBuffers same = constant_halves(16, 12, 0.002f, 0.002f);   // 1
+  const FrameBuffers same = constant_halves(16, 12, 0.002f, 0.002f);    // 1
   const FrameBuffers apart = constant_halves(16, 12, 0.002f, 0.0015f);  // < 1
   const double low = reference_ceiling_ssim(apart);
   EXPECT_DOUBLE_EQ(c.add(same, "shard-00000.h5", 3), 1.0);
