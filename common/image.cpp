@@ -18,6 +18,7 @@ const std::vector<BufferInfo>& buffer_infos() {
       {"depth", 1, false, "Y", &FrameBuffers::depth},
       {"roughness", 1, false, "Y", &FrameBuffers::roughness},
       {"coc", 1, false, "Y", &FrameBuffers::coc},
+      {"reference_half", 3, false, "R,G,B", &FrameBuffers::reference_half, true},
   };
   return infos;
 }

@@ -38,6 +38,9 @@ struct FrameBuffers {
   std::vector<float> depth;          // 1, H, W
   std::vector<float> roughness;      // 1, H, W
   std::vector<float> coc;            // 1, H, W
+  // 3, H, W: mean of the first half of the reference's samples (an
+  // independent half estimate; the second half is 2 * reference - this)
+  std::vector<float> reference_half;
 
   void allocate(int w, int h, int v);
   size_t plane() const { return size_t(width) * height; }
@@ -57,6 +60,9 @@ struct BufferInfo {
   bool per_version;
   const char* channel_names;               // "R,G,B", "X,Y,Z" or "Y" (EXR suffixes)
   std::vector<float> FrameBuffers::*data;  // where a frame keeps it
+  // Added after shards were in use: a shard without it is read with the
+  // buffer empty (reference_half: the reference ceiling is then unknown).
+  bool optional_in_shards = false;
 };
 const std::vector<BufferInfo>& buffer_infos();
 // The row named `name`; throws RuntimeError for an unknown name.

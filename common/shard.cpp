@@ -388,9 +388,12 @@ void ShardReader::Impl::open(const fs::path& path_in) {
         std::to_string(i.height) + ", versions " + std::to_string(i.versions) + ", frames " +
         std::to_string(i.frame_start) + ".." + std::to_string(i.frame_end) + ")");
 
-  auto open_checked = [&](const std::string& name, const std::vector<hsize_t>& expect) {
-    if (H5Lexists(f, name.c_str(), H5P_DEFAULT) <= 0)
+  auto open_checked = [&](const std::string& name, const std::vector<hsize_t>& expect,
+                          bool optional = false) {
+    if (H5Lexists(f, name.c_str(), H5P_DEFAULT) <= 0) {
+      if (optional) return;  // an older shard: the buffer reads as empty
       throw ShardFormatError(where + ": dataset '" + name + "' is missing");
+    }
     Handle ds = checked(H5Dopen2(f, name.c_str(), H5P_DEFAULT), H5Dclose, path,
                         "opening dataset '" + name + "'");
     Handle space = checked(H5Dget_space(ds.get()), H5Sclose, path, "dataspace of " + name);
@@ -402,9 +405,11 @@ void ShardReader::Impl::open(const fs::path& path_in) {
                              " but the attributes say " + dims_to_string(expect));
     m.datasets.emplace(name, std::move(ds));
   };
-  for (const BufferInfo& b : buffer_infos()) open_checked(b.name, dataset_dims(b, i));
+  for (const BufferInfo& b : buffer_infos())
+    open_checked(b.name, dataset_dims(b, i), b.optional_in_shards);
   open_checked("camera", {hsize_t(i.frame_count()), hsize_t(kCameraColumns)});
-  for (const BufferInfo& b : buffer_infos()) probe_direct(b.name, b);
+  for (const BufferInfo& b : buffer_infos())
+    if (m.datasets.count(b.name)) probe_direct(b.name, b);
 }
 
 ShardReader::~ShardReader() {
@@ -484,7 +489,7 @@ FrameBuffers ShardReader::read_frame(int frame, const std::vector<std::string>& 
   for (const BufferInfo& b : buffer_infos()) {
     bool wanted = buffers.empty();
     for (const std::string& name : buffers) wanted |= name == b.name;
-    if (!wanted) continue;
+    if (!wanted || !impl_->datasets.count(b.name)) continue;  // absent: an older shard
     std::vector<float>& data = buffer_data(fb, b.name);
     data.resize(crop_size(b.name, 1, kAllVersions, fb.rect));
     impl_->read(b.name, &b, frame, 1, kAllVersions, fb.rect, data.data(), data.size());
@@ -497,7 +502,8 @@ std::vector<ShardReader::DatasetLayout> ShardReader::layout() const {
   const fs::path& p = impl_->path;
   std::vector<DatasetLayout> out;
   std::vector<std::string> names;
-  for (const BufferInfo& b : buffer_infos()) names.push_back(b.name);
+  for (const BufferInfo& b : buffer_infos())
+    if (impl_->datasets.count(b.name)) names.push_back(b.name);
   names.push_back("camera");
   for (const std::string& name : names) {
     hid_t ds = impl_->datasets.at(name).get();

@@ -13,6 +13,7 @@
 #include "common/error.h"
 #include "common/shard.h"
 #include "trainer/augment.h"
+#include "trainer/ceiling.h"
 #include "trainer/dataset.h"
 #include "trainer/inputs.h"
 #include "trainer/losses.h"
@@ -180,6 +181,7 @@ EvalSummary evaluate(const EvalOptions& o) {
   Accumulator all, every;  // validation frames; all frames (thesis 5.1, table 5.1)
   std::map<std::string, Accumulator> by_scene, by_scene_every;  // table 5.1 has a row per scene
   json frames = json::array();
+  ReferenceCeiling ceiling;  // how converged the references are (ceiling.h)
   int done = 0, done_every = 0, images = 0;
   for (const std::string& file : list_shards(o.data_dir)) {
     ShardReader reader(o.data_dir / file);
@@ -243,6 +245,8 @@ EvalSummary evaluate(const EvalOptions& o) {
       }
       done_every += want_every;
       if (!want_val) continue;
+      const double c = ceiling.add(fb, file, reader.info().frame_start + f);
+      row["reference_ceiling_ssim"] = std::isfinite(c) ? json(c) : json();
       frames.push_back(row);
       if (images < o.max_images) {
         char name[64];
@@ -320,6 +324,7 @@ EvalSummary evaluate(const EvalOptions& o) {
        "SSIM and PSNR on sRGB-encoded images clamped to [0,1]; relative MSE on "
        "linear HDR, (d-r)^2/(r^2+0.01); in focus = CoC < 1 px"},
       {"summary", summary},
+      {"reference_ceiling", ceiling.to_json()},
       {"scenes", scenes},
       {"all_frames",
        o.all_frames ? json{{"summary", every.summary()}, {"scenes", scenes_every}} : json()},
@@ -376,6 +381,7 @@ EvalSummary evaluate(const EvalOptions& o) {
     }
   }
   md << "\nMean denoise time: " << cell(sum.ms, 2) << " ms per frame.\n\n"
+     << ceiling.markdown() << "\n\n"
      << "![loss per epoch](loss.svg)\n\n![loss per step](steps.svg)\n\n![learning rate](lr.svg)\n\n![validation SSIM and PSNR](quality.svg)\n\n"
      << "Comparison images (`frame-NNN.png`): noisy | denoised | reference | error "
         "(mean absolute sRGB difference, ×4, black-red-yellow-white; white = 0.25). "
@@ -421,7 +427,7 @@ EvalSummary evaluate(const EvalOptions& o) {
     for (const std::string& c : row) html << "<td>" << html_escape(c) << "</td>";
     html << "</tr>";
   }
-  html << "</table>";
+  html << "</table><p id=\"reference-ceiling\">" << html_escape(ceiling.markdown()) << "</p>";
   if (o.all_frames) {
     html << "<p>All frames (training and validation frames, as thesis table 5.1 scores its "
             "scenes; the training frames flatter the model):</p><table id=\"summary_all_frames\">"

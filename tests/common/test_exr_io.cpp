@@ -445,7 +445,10 @@ TEST_F(ExrIo, ChannelNamesFollowTheSchema) {
                                           "normal.G",
                                           "normal.B",
                                           "roughness.Y",
-                                          "coc.Y"};
+                                          "coc.Y",
+                                          "reference_half.R",
+                                          "reference_half.G",
+                                          "reference_half.B"};
   EXPECT_EQ(names, expected);
   EXPECT_EQ(file.header().compression(), Imf::ZIP_COMPRESSION);
 }

@@ -524,6 +524,37 @@ TEST(Shard, VersionOneShardsWithoutJobHashStillRead) {
   EXPECT_EQ(r.frame_count(), int(frames.size()));
 }
 
+// Shards written before the reference halves existed have no
+// `reference_half`: they still read, with that buffer empty, and every
+// other buffer as written; a missing required dataset is still an error.
+TEST(Shard, ShardWithoutAnOptionalBufferStillReads) {
+  TempDir dir;
+  fs::path p = dir.path() / "s.h5";
+  auto frames = make_frames();
+  write_shard(p, make_info(), frames);
+  {
+    RawFile f(p, H5F_ACC_RDWR);
+    ASSERT_GE(H5Ldelete(f.id, "reference_half", H5P_DEFAULT), 0);
+  }
+  ShardReader r(p);
+  FrameBuffers got = r.read_frame(1);
+  EXPECT_TRUE(got.reference_half.empty());
+  EXPECT_EQ(got.reference, frames[1].reference);
+  EXPECT_EQ(got.coc, frames[1].coc);
+  for (const auto& l : r.layout()) EXPECT_NE(l.name, "reference_half");
+  {
+    RawFile f(p, H5F_ACC_RDWR);
+    ASSERT_GE(H5Ldelete(f.id, "reference_var", H5P_DEFAULT), 0);
+  }
+  try {
+    ShardReader bad(p);
+    ADD_FAILURE() << "a shard without reference_var was read";
+  } catch (const ShardFormatError& e) {
+    EXPECT_NE(std::string(e.what()).find("'reference_var' is missing"), std::string::npos)
+        << e.what();
+  }
+}
+
 TEST(Shard, NonHdf5FileIsNotAShard) {
   TempDir dir;
   std::ofstream(dir.path() / "notes.h5") << "this is not HDF5\n";

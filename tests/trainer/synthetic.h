@@ -54,6 +54,7 @@ inline FrameBuffers synthetic_frame(int frame, int w, int h, int versions, uint6
         float light = 0.5f + 0.4f * std::cos(4.0f * v + c);
         fb.albedo_ref[c * n + p] = albedo;
         fb.reference[c * n + p] = albedo * light;
+        fb.reference_half[c * n + p] = albedo * light;  // a converged reference
         fb.normal[c * n + p] = c == 2 ? 1.0f : 0.0f;
         for (int k = 0; k < versions; ++k) {
           size_t i = (size_t(k) * 3 + c) * n + p;

@@ -286,6 +286,11 @@ TEST(Eval, ReportHasEveryFrameAndBeatsTheNoisyInput) {
   EXPECT_GT(den, noisy);
   EXPECT_TRUE(std::isfinite(s.psnr));
   EXPECT_GT(s.ms, 0.0);
+  // Synthetic references are converged (reference_half == reference): the
+  // ceiling is exactly 1 on every frame (trainer/ceiling.h).
+  EXPECT_EQ(j["reference_ceiling"]["frames"], 3);
+  EXPECT_DOUBLE_EQ(j["reference_ceiling"]["mean_ssim"].get<double>(), 1.0);
+  EXPECT_DOUBLE_EQ(j["frames"][0]["reference_ceiling_ssim"].get<double>(), 1.0);
 }
 
 // The page as a reader sees it: opened by a real browser (Debian's

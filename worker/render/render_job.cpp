@@ -1,6 +1,7 @@
 #include "worker/render/render_job.h"
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <cfloat>
 #include <chrono>
@@ -113,19 +114,50 @@ class PixelRenderer {
     // Reference: a fixed sample count, or batches until the relative standard
     // error of the pixel's mean luminance meets the target. The stopping rule
     // only looks at this pixel's samples, so it is deterministic too.
+    //
+    // The mean of the first half of the samples is kept as well:
+    // reference_half (A). With B = 2 * reference - A, the mean of the second
+    // half, A and B are two estimates of the pixel from disjoint samples, so
+    // their difference measures how far the reference itself is from
+    // converged (trainer/ceiling.h). Halves by index range, not even/odd:
+    // with the shuffled Sobol' sampler the even-indexed samples of a slot all
+    // fall in one half of its first coordinate (the index's lowest bit is
+    // the point's first digit), so an even/odd split would compare two
+    // strata of the pixel, not two estimates of it. The first 2^m samples
+    // and the next 2^m are each a (0,m,2)-net per slot (sampler.h), so each
+    // half is as well stratified as a reference of its own. A has
+    // ceil(n/2) samples; for an even n (adaptive batches of 64 always are)
+    // B is exactly the mean of the other n/2.
     PixelSampler ref(spec_.sampler, spec_.seed, frame_, x, y, Stream::kReference);
     PixelAccumulator acc;
     const bool adaptive = spec_.reference_error > 0;
     const int target = adaptive ? spec_.reference_max_spp : spec_.reference_spp;
     const int batch = 64;
+    // Sums of the first (target + 1) / 2 samples (all taken: the half of a
+    // fixed count or of the cap) and, when adaptive, of every 32k samples
+    // (stopping after 64k samples, the half is 32k).
+    const int half_of_target = (target + 1) / 2;
+    std::array<double, 3> half_sum{};
+    std::vector<std::array<double, 3>> sums_at_32;
+    if (adaptive) sums_at_32.reserve(size_t(target / 32));
     for (int s = 0; s < target; ++s) {
       ref.start_sample(uint32_t(s));
       acc.add(trace_path(scene_, lens_ray(ref, x, y), ref, settings_));
+      if (s + 1 == half_of_target) half_sum = {acc.sum[0], acc.sum[1], acc.sum[2]};
+      if (adaptive && (s + 1) % 32 == 0) sums_at_32.push_back({acc.sum[0], acc.sum[1], acc.sum[2]});
       if (adaptive && (s + 1) % batch == 0 && acc.relative_error() <= spec_.reference_error) break;
+    }
+    int half_n = half_of_target;
+    if (acc.n < target) {  // stopped early: after a whole batch, so acc.n = 64k
+      half_n = acc.n / 2;
+      half_sum = sums_at_32[size_t(half_n / 32 - 1)];
     }
     Vec3 mean(to_buffer(acc.sum[0] / acc.n), to_buffer(acc.sum[1] / acc.n),
               to_buffer(acc.sum[2] / acc.n));
     put3(out.reference, 0, mean);
+    put3(out.reference_half, 0,
+         Vec3(to_buffer(half_sum[0] / half_n), to_buffer(half_sum[1] / half_n),
+              to_buffer(half_sum[2] / half_n)));
     out.reference_var[i] = to_buffer(acc.variance_of_mean());
   }
 

@@ -1,0 +1,119 @@
+// The reference ceiling of rendered frames (issue 13, item 2): for each frame
+// of the EXR files (`dofarm render`) or shards (`dofarm run`) given, the SSIM
+// between the two independent half-sample references (trainer/ceiling.h),
+// the median and 99th percentile of the reference's per-pixel relative
+// standard error (sqrt(reference_var) / luminance), the render time an EXR
+// records and the largest circle of confusion (px). bench/trainer/reference_quality.sh drives it;
+// bench/README.md
+// ("Reference ceiling") holds the figures.
+//
+// Usage: reference_ceiling FILE.exr|FILE.h5 ...
+//        reference_ceiling --pair A.exr B.exr
+// Prints one line per frame and a summary line; asserts nothing. --pair
+// scores two renders of the same frame with different seeds against each
+// other (the issue's own definition of the ceiling: an independent second
+// reference at the full sample count), to compare with the half-vs-half
+// figure of each.
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <string>
+#include <vector>
+
+#include "common/exr_io.h"
+#include "common/shard.h"
+#include "trainer/ceiling.h"
+#include "trainer/metrics.h"
+
+namespace {
+
+struct Row {
+  double ssim, median_rel, p99_rel, seconds, coc_max;
+};
+
+// Per-pixel relative standard error of the reference's luminance, as the
+// adaptive sampler measures it (worker/render/render_job.cpp).
+std::pair<double, double> relative_error_quantiles(const dofarm::FrameBuffers& fb) {
+  const size_t n = fb.plane();
+  std::vector<double> rel(n);
+  for (size_t i = 0; i < n; ++i) {
+    const double lum =
+        0.2126 * fb.reference[i] + 0.7152 * fb.reference[n + i] + 0.0722 * fb.reference[2 * n + i];
+    rel[i] = std::sqrt(std::max(0.0, double(fb.reference_var[i]))) / std::max(std::fabs(lum), 1e-3);
+  }
+  std::sort(rel.begin(), rel.end());
+  return {rel[n / 2], rel[std::min(n - 1, size_t(0.99 * double(n)))]};
+}
+
+Row measure(const dofarm::FrameBuffers& fb, double seconds) {
+  auto [med, p99] = relative_error_quantiles(fb);
+  double coc_max = 0;
+  for (float c : fb.coc) coc_max = std::max(coc_max, double(c));
+  return {dofarm::trainer::reference_ceiling_ssim(fb), med, p99, seconds, coc_max};
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc < 2) {
+    std::fprintf(stderr, "usage: reference_ceiling FILE.exr|FILE.h5 ...\n");
+    return 2;
+  }
+  if (std::string(argv[1]) == "--pair") {
+    if (argc != 4) {
+      std::fprintf(stderr, "usage: reference_ceiling --pair A.exr B.exr\n");
+      return 2;
+    }
+    const dofarm::FrameBuffers a = dofarm::read_frame_exr(argv[2]).buffers;
+    const dofarm::FrameBuffers b = dofarm::read_frame_exr(argv[3]).buffers;
+    if (a.width != b.width || a.height != b.height) {
+      std::fprintf(stderr, "reference_ceiling: %s and %s differ in size\n", argv[2], argv[3]);
+      return 2;
+    }
+    using dofarm::trainer::display_encode;
+    const std::vector<float> da = display_encode({a.reference.data(), 3, a.height, a.width});
+    const std::vector<float> db = display_encode({b.reference.data(), 3, b.height, b.width});
+    std::printf(
+        "pair: SSIM(reference A, reference B) %.5f; half-vs-half A %.5f, B %.5f\n",
+        dofarm::trainer::ssim({da.data(), 3, a.height, a.width}, {db.data(), 3, b.height, b.width}),
+        dofarm::trainer::reference_ceiling_ssim(a), dofarm::trainer::reference_ceiling_ssim(b));
+    return 0;
+  }
+  std::vector<Row> rows;
+  std::printf("%-40s %6s %9s %9s %9s %9s %8s\n", "file", "frame", "ceiling", "rel_med", "rel_p99",
+              "render_s", "coc_max");
+  for (int a = 1; a < argc; ++a) {
+    const std::string path = argv[a];
+    try {
+      if (path.size() > 3 && path.substr(path.size() - 3) == ".h5") {
+        dofarm::ShardReader reader(path);
+        for (int f = 0; f < reader.frame_count(); ++f) {
+          rows.push_back(measure(reader.read_frame(f), NAN));
+          std::printf("%-40s %6d %9.5f %9.4f %9.4f %9s %8.1f\n", path.c_str(),
+                      reader.info().frame_start + f, rows.back().ssim, rows.back().median_rel,
+                      rows.back().p99_rel, "-", rows.back().coc_max);
+        }
+      } else {
+        dofarm::ExrFrame exr = dofarm::read_frame_exr(path);
+        auto it = exr.attributes.find("dofarm.render_seconds");
+        double sec = it == exr.attributes.end() ? NAN : std::stod(it->second);
+        rows.push_back(measure(exr.buffers, sec));
+        std::printf("%-40s %6d %9.5f %9.4f %9.4f %9.1f %8.1f\n", path.c_str(),
+                    exr.buffers.camera.frame, rows.back().ssim, rows.back().median_rel,
+                    rows.back().p99_rel, sec, rows.back().coc_max);
+      }
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "%s: %s\n", path.c_str(), e.what());
+      return 1;
+    }
+  }
+  double sum = 0, worst = 1, secs = 0;
+  for (const Row& r : rows) {
+    sum += r.ssim;
+    worst = std::min(worst, r.ssim);
+    if (std::isfinite(r.seconds)) secs += r.seconds;
+  }
+  std::printf("summary: %zu frames, ceiling SSIM mean %.5f min %.5f, render %.1f s\n", rows.size(),
+              sum / double(rows.size()), worst, secs);
+  return 0;
+}
