@@ -35,6 +35,19 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
   const Environment* env = scene.environment();
 
   for (int depth = 0;; ++depth) {
+    // This vertex's light-sample numbers, drawn before its ray is traced (the
+    // slots are the same as if drawn after the hit: nothing between consumes
+    // any), so that what sampling an environment map reads, which is larger
+    // than the caches, loads during the traversal; likewise the texel an
+    // escaping bounce ray would read.
+    float u_select = 0;
+    Vec2 u_light;
+    if (depth < settings.max_depth) {
+      u_select = sampler.get1d();
+      u_light = sampler.get2d();
+      if (use_nee) scene.prefetch_light_sample(u_select, u_light);
+    }
+    if (env && depth > 0) env->prefetch_eval(ray.d);
     SurfaceHit hit;
     bool found = scene.intersect(ray, &hit);
     if (depth == 0 && albedo) *albedo = primary_albedo(found ? &hit : nullptr);
@@ -64,11 +77,6 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
 
     // A fixed number of dimensions per bounce keeps the sample streams of
     // different paths aligned (better stratification with Sobol').
-    const float u_select = sampler.get1d();
-    const Vec2 u_light = sampler.get2d();
-    // Sampling an environment map waits on memory; the work up to
-    // sample_light() below hides part of that wait.
-    if (use_nee) scene.prefetch_light_sample(u_select, u_light);
     const float u_lobe = sampler.get1d();
     const Vec2 u_bsdf = sampler.get2d();
     const bool roulette = depth + 1 >= settings.rr_start_depth;
