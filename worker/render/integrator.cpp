@@ -96,9 +96,23 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
         float bsdf_pdf;
         Vec3 f = bsdf.evaluate(out, ls.wi, &bsdf_pdf);
         if (max_component(f) > 0) {
-          Vec3 origin = scene.offset_origin(hit, ls.wi);
-          float t_max = std::isinf(ls.distance) ? ls.distance : ls.distance * (1.0f - 1e-4f);
-          if (!scene.occluded(origin, ls.wi, t_max)) {
+          const Vec3 origin = scene.offset_origin(hit, ls.wi);
+          Vec3 dir = ls.wi;
+          float t_max = ls.distance;
+          if (!std::isinf(ls.distance)) {
+            // Aimed from the offset origin at the light point itself. Along
+            // ls.wi from the moved origin the ray would reach the light's
+            // plane earlier by the offset over the cosine, which exceeds the
+            // 1e-4 margin below for a surface close to and parallel with the
+            // light (a ceiling 2 cm above a light's back face: the light
+            // itself occluded every sample, and NEE lost its share of that
+            // light; tests/render/test_integrator.cpp).
+            const Vec3 to = hit.p + ls.wi * ls.distance - origin;
+            const float len = length(to);
+            if (len > 0) dir = to / len;
+            t_max = len * (1.0f - 1e-4f);
+          }
+          if (!scene.occluded(origin, dir, t_max)) {
             float w = use_mis && !ls.is_delta ? power_heuristic(ls.pdf, bsdf_pdf) : 1.0f;
             L += beta * f * ls.radiance * (w / ls.pdf);
           }
