@@ -5,6 +5,10 @@
 #
 # usage: bench/cycles_vs_dofarm.sh [BUILD_DIR] [OUT_DIR]
 #   env: SPP (16,32,64,128,256), REF_SPP (4096), THREADS (2), REPEATS (1),
+#        MATERIALS=lambert (default: every material Lambert in both renderers,
+#        bench/cycles/lambert_scene.py, so both render one model and their
+#        references can be compared for bias) or gltf (the bundled scene as
+#        each renderer reads it: the models differ, only noise is compared),
 #        CYCLES_CLAMP=1 for Blender's default clamp and filter glossy (biased),
 #        KEEP_REF=1 to reuse a Cycles reference already in OUT_DIR (dofarm's is
 #        rendered again: it is what changes), KEEP_REF=2 to reuse both
@@ -12,7 +16,8 @@
 # Each renderer renders the spp list (REPEATS times, alternating Cycles and
 # dofarm; the fastest time of each is kept) and a reference at REF_SPP with
 # other random numbers; every image is compared with its own renderer's
-# reference (bench/cycles/compare.py), so the two materials need not agree.
+# reference (bench/cycles/compare.py). With MATERIALS=lambert the two
+# references are then compared with each other (mean and regions).
 # Needs `blender` (3.4; its glTF importer needs python3-numpy) and
 # BUILD_DIR/bench/render_spp.
 set -euo pipefail
@@ -23,21 +28,42 @@ spp=${SPP:-16,32,64,128,256}
 ref=${REF_SPP:-4096}
 threads=${THREADS:-2}
 repeats=${REPEATS:-1}
-job=$root/bench/cycles/cornell_dof.toml
+materials=${MATERIALS:-lambert}
 mkdir -p "$out"
+case "$materials" in
+  lambert)
+    python3 "$root/bench/cycles/lambert_scene.py" "$out"
+    job=$out/cornell_lambert.toml
+    gltf=$out/cornell_lambert.gltf
+    blender_flags=(--lambert)
+    dofarm_flags=(--lambert)
+    ;;
+  gltf)
+    job=$root/bench/cycles/cornell_dof.toml
+    gltf=$root/jobs/scenes/cornell.gltf
+    blender_flags=()
+    dofarm_flags=()
+    ;;
+  *)
+    echo "cycles_vs_dofarm.sh: MATERIALS must be lambert or gltf, got '$materials'" >&2
+    exit 2
+    ;;
+esac
 
 # The camera of cornell_dof.toml, for Blender.
 camera=(--position 0.15 1.02 3.75 --look-at 0 1 0 --fov 38 --focus 4.9 --aperture 0.0261379
         --max-bounces 15 --size 256)
 [[ "${CYCLES_CLAMP:-0}" == 1 ]] && camera+=(--blender-clamp)
+camera+=("${blender_flags[@]}")
 
 cycles() {  # cycles SEED PREFIX SPP_LIST
   blender -b --factory-startup --python "$root/bench/cycles/render_cornell.py" -- \
-    --gltf "$root/jobs/scenes/cornell.gltf" --threads "$threads" --seed "$1" --out "$2" \
+    --gltf "$gltf" --threads "$threads" --seed "$1" --out "$2" \
     --spp "$3" "${camera[@]}" | grep '^spp '
 }
 dofarm() {  # dofarm SEED PREFIX SPP_LIST
-  "$build/bench/render_spp" --job "$job" --threads "$threads" --seed "$1" --out "$2" --spp "$3"
+  "$build/bench/render_spp" --job "$job" --threads "$threads" --seed "$1" --out "$2" --spp "$3" \
+    "${dofarm_flags[@]}"
 }
 
 keep=${KEEP_REF:-0}
@@ -57,3 +83,6 @@ for ((r = 0; r < repeats; ++r)); do
   dofarm 7 "$out/dofarm_" "$spp" | tee -a "$out/dofarm_times.txt" >&2
 done
 python3 "$root/bench/cycles/compare.py" "$out" "$spp" "$ref"
+if [[ "$materials" == lambert ]]; then
+  python3 "$root/bench/cycles/compare.py" --bias "$out" "$spp" "$ref"
+fi

@@ -6,6 +6,12 @@
 //
 // Usage: render_spp --job FILE [--frame F] --spp 16,32,... [--seed S]
 //                   [--threads 2] [--out PREFIX] [--rr-start D] [--max-depth D]
+//                   [--lambert]
+// --lambert: every material of the scene becomes a pure Lambertian surface
+// with its base colour (metallic 0, IOR 1: no specular interface, bsdf.h),
+// emission kept. A glTF file cannot ask for that (dofarm reads IOR 1 as "not
+// set", scene_data.cpp), and the matched-material comparison with Cycles
+// needs it (bench/README.md, "cycles_vs_dofarm.sh").
 // Writes PREFIX<N>.pfm (default PREFIX: dofarm_spp) and prints one line per
 // render: "spp N cpu_s C wall_s W paths P rays R". Scene loading and the BVH
 // build are not timed; one warm-up render at 1 spp runs first (untimed).
@@ -22,8 +28,10 @@
 #include <vector>
 
 #include "common/jobspec.h"
+#include "worker/render/environment.h"
 #include "worker/render/render_job.h"
 #include "worker/render/scene.h"
+#include "worker/render/scene_data.h"
 
 namespace {
 
@@ -36,7 +44,7 @@ double cpu_seconds() {
 void usage() {
   std::fprintf(stderr,
                "usage: render_spp --job FILE [--frame F] --spp 16,32,64 [--seed S] "
-               "[--threads 2] [--out PREFIX] [--rr-start D] [--max-depth D]\n");
+               "[--threads 2] [--out PREFIX] [--rr-start D] [--max-depth D] [--lambert]\n");
   std::exit(2);
 }
 
@@ -64,6 +72,7 @@ int main(int argc, char** argv) {
   std::vector<int> spps;
   int frame = -1, threads = 2, rr_start = 0, max_depth = 0;
   long long seed = -1;
+  bool lambert = false;
   for (int i = 1; i < argc; ++i) {
     auto value = [&]() -> std::string {
       if (i + 1 >= argc) usage();
@@ -86,6 +95,8 @@ int main(int argc, char** argv) {
       rr_start = std::atoi(value().c_str());
     } else if (!std::strcmp(argv[i], "--max-depth")) {
       max_depth = std::atoi(value().c_str());
+    } else if (!std::strcmp(argv[i], "--lambert")) {
+      lambert = true;
     } else {
       usage();
     }
@@ -104,7 +115,19 @@ int main(int argc, char** argv) {
     spec.versions = 1;
     spec.albedo_ref_spp = 1;
     spec.reference_error = 0;
-    auto scene = dofarm::render::load_scene(spec);
+    std::shared_ptr<const dofarm::render::Scene> scene;
+    if (lambert) {
+      dofarm::render::SceneData data = dofarm::render::load_scene_data(spec.scene);
+      for (dofarm::render::Material& m : data.materials) {
+        m.metallic = 0.0f;
+        m.ior = 1.0f;
+      }
+      std::unique_ptr<dofarm::render::Environment> env;
+      if (spec.environment) env = dofarm::render::Environment::from_spec(*spec.environment);
+      scene = std::make_shared<const dofarm::render::Scene>(std::move(data), std::move(env));
+    } else {
+      scene = dofarm::render::load_scene(spec);
+    }
 
     dofarm::render::RenderOptions options;
     options.threads = threads;

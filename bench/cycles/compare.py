@@ -5,6 +5,7 @@
 # runs wherever the driver does.
 #
 #   compare.py DIR SPP_LIST REF_SPP
+#   compare.py --bias DIR SPP_LIST REF_SPP
 #
 # DIR holds cycles_<N>.pfm, cycles_ref<REF>.pfm, dofarm_<N>.pfm,
 # dofarm_ref<REF>.pfm, cycles_times.txt and dofarm_times.txt.
@@ -25,6 +26,14 @@
 # the nearest point with error ~ time^(-1/2) (Monte Carlo). The error levels
 # are Cycles' errors at each sample count; the ratio is dofarm's time over
 # Cycles' time at that error, for CPU time (the target) and wall time.
+# --bias (for matched materials, where both render the same model): the two
+# references against each other, the whole image and a 4x4 grid of regions,
+# on the mean of R, G and B. The standard error of a region's mean comes from
+# each renderer's own noise: the squared difference between its image at the
+# largest N and its reference, (v_N - v_ref)^2, estimates Var(v_ref) (1 +
+# REF / N) per pixel (pixels are independent), and z = (dofarm - Cycles) /
+# sqrt(se_dofarm^2 + se_cycles^2). Fireflies make the noise heavy-tailed, so
+# a |z| of 3-4 in one region of sixteen is not yet evidence of a bias.
 import math
 import os
 import struct
@@ -87,9 +96,68 @@ def time_at_error(points, e):
     return t_near * (e_near / e) ** 2
 
 
+def grey(image):
+    (w, h), px = image
+    return (w, h), [(px[3 * i] + px[3 * i + 1] + px[3 * i + 2]) / 3.0 for i in range(w * h)]
+
+
+def region_stats(ref, noisy, n, ref_spp, x0, y0, x1, y1):
+    """Mean of ref over the rectangle and its standard error (see the top)."""
+    (w, _), r = ref
+    _, v = noisy
+    total = sq = 0.0
+    count = 0
+    for y in range(y0, y1):
+        for x in range(x0, x1):
+            i = y * w + x
+            total += r[i]
+            sq += (v[i] - r[i]) ** 2 / (1.0 + ref_spp / n)
+            count += 1
+    return total / count, math.sqrt(sq) / count
+
+
+def bias(folder, spps, ref_spp):
+    n = max(spps)
+    img = {}
+    for name in ("cycles", "dofarm"):
+        img[name] = (grey(read_pfm(os.path.join(folder, "%s_ref%d.pfm" % (name, ref_spp)))),
+                     grey(read_pfm(os.path.join(folder, "%s_%d.pfm" % (name, n)))))
+    (w, h), _ = img["cycles"][0]
+    if img["dofarm"][0][0] != (w, h):
+        raise SystemExit("image sizes differ")
+
+    def compare(x0, y0, x1, y1):
+        md, sd = region_stats(*img["dofarm"], n, ref_spp, x0, y0, x1, y1)
+        mc, sc = region_stats(*img["cycles"], n, ref_spp, x0, y0, x1, y1)
+        z = (md - mc) / math.hypot(sd, sc) if sd > 0 or sc > 0 else 0.0
+        return md, mc, md / mc - 1.0 if mc > 0 else math.nan, math.hypot(sd, sc) / mc, z
+
+    print("### bias: dofarm's %d-spp reference against Cycles' (mean of R, G, B)\n" % ref_spp)
+    md, mc, rel, se, z = compare(0, 0, w, h)
+    print("whole image: dofarm %.5f, Cycles %.5f, difference %+.3f%% (standard error %.3f%%, "
+          "z %+.2f)\n" % (md, mc, 100 * rel, 100 * se, z))
+    print("| region (row from the top, column) | dofarm | Cycles | difference | std. error | z |")
+    print("| --- | --- | --- | --- | --- | --- |")
+    grid, worst = 4, 0.0
+    for gy in range(grid):
+        for gx in range(grid):
+            # PFM rows run bottom-up: region row 0 is the top of the image.
+            y1 = h - gy * h // grid
+            y0 = h - (gy + 1) * h // grid
+            x0, x1 = gx * w // grid, (gx + 1) * w // grid
+            md, mc, rel, se, z = compare(x0, y0, x1, y1)
+            worst = max(worst, abs(z))
+            print("| %d, %d | %.5f | %.5f | %+.2f%% | %.2f%% | %+.2f |" % (gy, gx, md, mc, 100 * rel,
+                                                                      100 * se, z))
+    print("\nlargest |z| over the %d regions: %.2f" % (grid * grid, worst))
+
+
 def main():
+    if len(sys.argv) == 5 and sys.argv[1] == "--bias":
+        bias(sys.argv[2], [int(s) for s in sys.argv[3].split(",")], int(sys.argv[4]))
+        return
     if len(sys.argv) != 4:
-        raise SystemExit("usage: compare.py DIR SPP_LIST REF_SPP")
+        raise SystemExit("usage: compare.py [--bias] DIR SPP_LIST REF_SPP")
     folder, spps, ref_spp = sys.argv[1], [int(s) for s in sys.argv[2].split(",")], int(sys.argv[3])
     for metric, error in METRICS:
         print("### %s\n" % metric)

@@ -6,7 +6,7 @@
 #       --gltf jobs/scenes/cornell.gltf --out PREFIX --spp 16,32,64 [--seed 0] \
 #       [--threads 2] [--size 256] [--position 0.15 1.02 3.75] \
 #       [--look-at 0 1 0] [--fov 38] [--focus 4.9] [--aperture 0.0261379] \
-#       [--max-bounces 15]
+#       [--max-bounces 15] [--blender-clamp] [--lambert]
 #
 # Camera values are in glTF coordinates (+y up) and dofarm's units, as in
 # bench/cycles/cornell_dof.toml: --fov is the vertical field of view in
@@ -56,12 +56,49 @@ def parse_args():
     # Blender's defaults for clamping (indirect 10) and filter glossy (1.0):
     # less noise, but biased; what a Blender user renders with.
     p.add_argument("--blender-clamp", action="store_true")
+    # Every material as Lambert (Diffuse BSDF, roughness 0) with the base
+    # colour the importer read, plus its emission: the model dofarm renders
+    # for a glTF material with IOR 1 (bench/README.md, "matched materials").
+    p.add_argument("--lambert", action="store_true")
     return p.parse_args(argv)
 
 
 def gltf_to_blender(v):
     # The glTF importer turns +y up into Blender's +z up: (x, y, z) -> (x, -z, y).
     return Vector((v[0], -v[2], v[1]))
+
+
+def make_lambert(material):
+    """Replaces the importer's Principled BSDF by Diffuse BSDF + Emission.
+
+    Blender 3.4's Principled BSDF is not Lambert even at specular 0: its
+    diffuse part is Disney's, with a retro-reflection term that depends on
+    roughness. The Diffuse BSDF at roughness 0 is exactly Lambert (Cycles
+    uses its Lambert closure, not Oren-Nayar, at roughness 0)."""
+    tree = material.node_tree
+    principled = next(n for n in tree.nodes if n.type == "BSDF_PRINCIPLED")
+    output = next(n for n in tree.nodes if n.type == "OUTPUT_MATERIAL")
+    for name in ("Base Color", "Emission", "Emission Strength"):
+        if principled.inputs[name].is_linked:
+            raise SystemExit("%s: %s is textured; --lambert takes constant materials only"
+                             % (material.name, name))
+    base = principled.inputs["Base Color"].default_value
+    emission = principled.inputs["Emission"].default_value
+    strength = principled.inputs["Emission Strength"].default_value
+    diffuse = tree.nodes.new("ShaderNodeBsdfDiffuse")
+    diffuse.inputs["Color"].default_value = base
+    diffuse.inputs["Roughness"].default_value = 0.0
+    shader = diffuse.outputs["BSDF"]
+    if strength > 0 and max(emission[:3]) > 0:
+        emit = tree.nodes.new("ShaderNodeEmission")
+        emit.inputs["Color"].default_value = emission
+        emit.inputs["Strength"].default_value = strength
+        add = tree.nodes.new("ShaderNodeAddShader")
+        tree.links.new(diffuse.outputs["BSDF"], add.inputs[0])
+        tree.links.new(emit.outputs["Emission"], add.inputs[1])
+        shader = add.outputs["Shader"]
+    tree.nodes.remove(principled)
+    tree.links.new(shader, output.inputs["Surface"])
 
 
 def setup(args):
@@ -76,6 +113,10 @@ def setup(args):
     bpy.ops.wm.read_factory_settings(use_empty=True)
     bpy.ops.import_scene.gltf(filepath=os.path.abspath(args.gltf))
     scene = bpy.context.scene
+    if args.lambert:
+        for material in bpy.data.materials:
+            if material.use_nodes:
+                make_lambert(material)
 
     # Camera: vertical fit on a 36 mm sensor, so lens = 18 mm / tan(fov / 2)
     # and Cycles' aperture radius lens / (2 N) equals --aperture.

@@ -214,5 +214,80 @@ TEST(Environment, SamplesFollowThePdfOverTheSphere) {
   }
 }
 
+// A map whose size is not a multiple of the 4x4 blocks (the last blocks
+// overhang the edge), with zero rows and columns inside blocks, a sun and a
+// black ground: the blocked tables must still give every texel exactly the
+// probability weight / total that one table over all texels gives, and never
+// sample past the edge.
+RgbImage awkward_sky() {
+  RgbImage img;
+  img.width = 30;
+  img.height = 15;
+  img.rgb.assign(size_t(30) * 15 * 3, 0.0f);
+  for (int y = 0; y < 11; ++y)
+    for (int x = 0; x < 30; ++x) {
+      if (x % 7 == 3 || y == 5) continue;  // zero columns and a zero row
+      for (int c = 0; c < 3; ++c) img.rgb[(size_t(y) * 30 + x) * 3 + c] = 0.05f + 0.1f * (x % 3);
+    }
+  for (int c = 0; c < 3; ++c) img.rgb[(size_t(2) * 30 + 29) * 3 + c] = 300.0f;  // at the edge
+  return img;
+}
+
+TEST(Environment, BlockedTablesGiveEachTexelItsWeightOverTheTotal) {
+  const RgbImage img = awkward_sky();
+  const Environment env(img, 1.0f, 0.0f);
+  const int w = img.width, h = img.height;
+  std::vector<double> weight(size_t(w) * h);
+  double total = 0;
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      const float* t = &img.rgb[(size_t(y) * w + x) * 3];
+      const double wt =
+          double(luminance(Vec3(t[0], t[1], t[2]))) * std::sin(kPi * (y + 0.5f) / float(h));
+      weight[size_t(y) * w + x] = wt;
+      total += wt;
+    }
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      // The direction through the texel's centre (the map's convention,
+      // environment.h: phi = atan2(d.x, -d.z), u = phi / 2pi + 1/2).
+      const float theta = kPi * (y + 0.5f) / float(h);
+      const float phi = kTwoPi * ((x + 0.5f) / float(w) - 0.5f);
+      const Vec3 d(std::sin(theta) * std::sin(phi), std::cos(theta),
+                   -std::sin(theta) * std::cos(phi));
+      // pdf over the unit square = probability * w * h.
+      const double pdf_uv = double(env.pdf(d)) * 2.0 * kPi * kPi * std::sin(theta);
+      const double want = weight[size_t(y) * w + x] / total * w * h;
+      EXPECT_NEAR(pdf_uv, want, 1e-4 * want + 1e-9) << "texel " << x << ", " << y;
+    }
+}
+
+TEST(Environment, SamplesFollowThePdfOnAMapNotMadeOfWholeBlocks) {
+  const Environment env(awkward_sky(), 1.0f, 0.0f);
+  test::Chi2Options opt;
+  opt.cells = test::SphereCells{Vec3(0, 1, 0), 0.0, 15, 30};
+  opt.samples = 200000;
+  auto sample = [&](Vec2 u) -> std::optional<Vec3> {
+    EnvSample s = env.sample(u);
+    if (!(s.pdf > 0)) return std::nullopt;
+    return s.wi;
+  };
+  auto pdf = [&](Vec3 d) { return env.pdf(d); };
+  test::Chi2Result r = test::chi2_test(sample, pdf, opt);
+  EXPECT_NEAR(r.pdf_integral, 1.0, 2e-3) << r.summary();
+  EXPECT_GT(r.p_value, 1e-4) << r.summary();
+  EXPECT_EQ(r.outside_support, 0) << r.summary();
+  // Every sample is a texel of the map with that texel's radiance and pdf.
+  for (int i = 0; i < 64; ++i)
+    for (int j = 0; j < 64; ++j) {
+      EnvSample s = env.sample(Vec2((i + 0.5f) / 64, (j + 0.5f) / 64));
+      if (!(s.pdf > 0)) continue;
+      float p;
+      const Vec3 le = env.eval(s.wi, &p);
+      EXPECT_NEAR(p, s.pdf, 1e-3f * s.pdf);
+      EXPECT_EQ(le.x, s.radiance.x);
+    }
+}
+
 }  // namespace
 }  // namespace dofarm::render

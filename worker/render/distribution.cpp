@@ -50,11 +50,6 @@ size_t Distribution1D::find_cell(float u) const {
   return i;
 }
 
-void Distribution1D::prefetch(float u) const {
-  const double x = double(u) * double(guide_.size());
-  __builtin_prefetch(&guide_[x > 0 ? std::min(guide_.size() - 1, size_t(x)) : 0]);
-}
-
 float Distribution1D::pmf(size_t i) const { return float(cdf_[i + 1] - cdf_[i]); }
 
 size_t Distribution1D::sample_discrete(float u, float* pmf_out, float* remapped) const {
@@ -105,10 +100,17 @@ Vec2 Distribution2D::sample(Vec2 u, float* pdf_out, size_t* cell) const {
   return {x, y};
 }
 
-void Distribution2D::prefetch(Vec2 u) const {
-  size_t row;
-  marginal_.sample_continuous(u.y, nullptr, &row);  // small, so in the cache
-  conditional_[row].prefetch(u.x);
+size_t Distribution2D::sample_discrete(Vec2 u, Vec2* remapped) const {
+  float ry, rx;
+  const size_t row = marginal_.sample_discrete(u.y, nullptr, &ry);
+  const size_t column = conditional_[row].sample_discrete(u.x, nullptr, &rx);
+  *remapped = Vec2(rx, ry);
+  return row * size_t(nu_) + column;
+}
+
+double Distribution2D::pmf(size_t cell) const {
+  const size_t row = cell / size_t(nu_);
+  return double(marginal_.pmf(row)) * double(conditional_[row].pmf(cell % size_t(nu_)));
 }
 
 float Distribution2D::pdf(Vec2 p) const {

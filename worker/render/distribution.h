@@ -31,8 +31,6 @@ class Distribution1D {
   // Continuous over [0,1): density pdf (relative to the uniform density).
   float sample_continuous(float u, float* pdf, size_t* cell = nullptr) const;
   float pdf(float x) const;
-  // A hint: starts loading what sample_*(u) will read first.
-  void prefetch(float u) const;
 
  private:
   size_t find_cell(float u) const;
@@ -54,9 +52,12 @@ class Distribution2D {
   // the cell the point lies in, known before the point's coordinates are
   // (a caller's lookup by cell can start while they are computed).
   Vec2 sample(Vec2 u, float* pdf, size_t* cell = nullptr) const;
+  // Discrete: the cell (row * nu + column) with probability pmf(cell), by
+  // the same inversion as sample(); `remapped` is u rescaled to [0,1)^2
+  // within the cell (x from the column, y from the row), for sampling inside it.
+  size_t sample_discrete(Vec2 u, Vec2* remapped) const;
+  double pmf(size_t cell) const;
   float pdf(Vec2 p) const;
-  // A hint: starts loading the row's table that sample(u) will read.
-  void prefetch(Vec2 u) const;
 
  private:
   std::vector<Distribution1D> conditional_;

@@ -58,21 +58,125 @@ Environment::Environment(RgbImage image, float intensity, float rotation_deg)
     }
   }
   mean_luminance_ = solid_angle > 0 ? float(sum / solid_angle) : 0.0f;
-  distribution_ = Distribution2D(weights, w, h);
-  // The pdf is constant over a texel: Distribution2D::pdf at its centre is the
-  // value it gives anywhere inside it.
-  texels_.resize(size_t(w) * h);
-  for (int y = 0; y < h; ++y)
-    for (int x = 0; x < w; ++x) {
-      const size_t i = size_t(y) * w + x;
-      const Vec2 centre((float(x) + 0.5f) / float(w), (float(y) + 0.5f) / float(h));
-      texels_[i] = {image.rgb[i * 3], image.rgb[i * 3 + 1], image.rgb[i * 3 + 2],
-                    distribution_.pdf(centre)};
+
+  // Texel weights by block (0 past the map's edge), block sums.
+  blocks_w_ = (w + kBlock - 1) / kBlock;
+  blocks_h_ = (h + kBlock - 1) / kBlock;
+  auto weight = [&](int x, int y) -> double {
+    if (x >= w || y >= h) return 0.0;
+    const float v = weights[size_t(y) * w + x];
+    return std::isfinite(v) && v > 0 ? double(v) : 0.0;
+  };
+  std::vector<float> block_sums(size_t(blocks_w_) * blocks_h_);
+  for (int by = 0; by < blocks_h_; ++by)
+    for (int bx = 0; bx < blocks_w_; ++bx) {
+      double s = 0;
+      for (int y = 0; y < kBlock; ++y)
+        for (int x = 0; x < kBlock; ++x) s += weight(bx * kBlock + x, by * kBlock + y);
+      block_sums[size_t(by) * blocks_w_ + bx] = float(s);
+    }
+  block_distribution_ = Distribution2D(block_sums, blocks_w_, blocks_h_);
+
+  // Each block's inversion tables, and each texel's pdf over the map's unit
+  // square from exactly the probabilities sampling uses: the block's pmf
+  // (Distribution2D), then the row's and the column's share as the float
+  // tables give them. A block of weight 0 (the coarse table never picks it
+  // unless the whole map is black) gets uniform tables.
+  blocks_.resize(size_t(blocks_w_) * blocks_h_);
+  const double texel_area_inv = double(w) * double(h);  // uv area of a texel: 1 / (w h)
+  for (int by = 0; by < blocks_h_; ++by)
+    for (int bx = 0; bx < blocks_w_; ++bx) {
+      const size_t cell = size_t(by) * blocks_w_ + bx;
+      Block& b = blocks_[cell];
+      double row_w[kBlock] = {0, 0, 0, 0}, col_w[kBlock][kBlock];
+      for (int y = 0; y < kBlock; ++y)
+        for (int x = 0; x < kBlock; ++x) {
+          col_w[y][x] = weight(bx * kBlock + x, by * kBlock + y);
+          row_w[y] += col_w[y][x];
+        }
+      // Cumulative shares as floats; the probability of entry k is then
+      // cdf[k] - cdf[k - 1] in float, which is what inversion delivers.
+      auto fill = [](const double* wts, float* cdf, float* prob) {
+        double total = 0;
+        for (int k = 0; k < kBlock; ++k) total += wts[k];
+        double run = 0;
+        float prev = 0.0f;
+        for (int k = 0; k < kBlock; ++k) {
+          run += wts[k];
+          const float c = k == kBlock - 1 ? 1.0f
+                          : total > 0     ? float(std::min(1.0, run / total))
+                                          : float(k + 1) / float(kBlock);
+          if (k < kBlock - 1) cdf[k] = c;
+          prob[k] = c - prev;
+          prev = c;
+        }
+      };
+      float row_p[kBlock], col_p[kBlock][kBlock];
+      fill(row_w, b.row_cdf, row_p);
+      for (int y = 0; y < kBlock; ++y) fill(col_w[y], b.column_cdf[y], col_p[y]);
+      b.unused = 0;
+      const double block_p = block_distribution_.pmf(cell);
+      for (int y = 0; y < kBlock; ++y)
+        for (int x = 0; x < kBlock; ++x) {
+          const int tx = bx * kBlock + x, ty = by * kBlock + y;
+          Texel& t = b.texel[y * kBlock + x];
+          if (tx >= w || ty >= h) {
+            t = {0, 0, 0, 0};
+            continue;
+          }
+          const float* rgb = &image.rgb[(size_t(ty) * w + tx) * 3];
+          const double p = block_p * double(row_p[y]) * double(col_p[y][x]) * texel_area_inv;
+          t = {rgb[0], rgb[1], rgb[2], float(p)};
+        }
     }
 }
 
+void Environment::prefetch_sample(Vec2 u) const {
+  if (blocks_.empty()) return;
+  Vec2 unused;
+  const char* b = reinterpret_cast<const char*>(&blocks_[block_distribution_.sample_discrete(u, &unused)]);
+  for (size_t line = 0; line < sizeof(Block); line += 64) __builtin_prefetch(b + line);
+}
+
+namespace {
+
+// atan(x) for |x| <= 1 within about 1e-5 (a minimax polynomial in x^2):
+// only to find the cache line of a texel ahead of time, never for a value.
+inline float rough_atan_unit(float x) {
+  const float x2 = x * x;
+  return x * (0.99997726f +
+              x2 * (-0.33262347f + x2 * (0.19354346f + x2 * (-0.11643287f +
+                                                           x2 * (0.05265332f + x2 * -0.01172120f)))));
+}
+
+inline float rough_atan2(float y, float x) {
+  const float ax = std::fabs(x), ay = std::fabs(y);
+  const float hi = std::max(ax, ay), lo = std::min(ax, ay);
+  if (!(hi > 0)) return 0.0f;
+  float a = rough_atan_unit(lo / hi);
+  if (ay > ax) a = 0.5f * kPi - a;
+  if (x < 0) a = kPi - a;
+  return y < 0 ? -a : a;
+}
+
+}  // namespace
+
+void Environment::prefetch_eval(Vec3 d) const {
+  if (blocks_.empty()) return;
+  // dir_to_uv() with rough inverse trigonometry: a neighbouring texel at
+  // worst, usually on the same line.
+  const float theta = rough_atan2(std::sqrt(std::max(0.0f, d.x * d.x + d.z * d.z)), d.y);
+  float u = rough_atan2(d.x, -d.z) * (1.0f / kTwoPi) + 0.5f - rotation_ * (1.0f / kTwoPi);
+  u -= std::floor(u);
+  const int x = std::clamp(int(u * float(width_)), 0, width_ - 1);
+  const int y = std::clamp(int(theta * kInvPi * float(height_)), 0, height_ - 1);
+  __builtin_prefetch(&texel(x, y));
+}
+
 Vec2 Environment::dir_to_uv(Vec3 d) const {
-  float theta = std::acos(std::clamp(d.y, -1.0f, 1.0f));
+  // atan2 rather than acos(d.y): well conditioned at the poles too, where
+  // the pdf's 1 / sin(theta) magnifies any error in theta.
+  float theta = std::atan2(std::sqrt(d.x * d.x + d.z * d.z), d.y);
   float phi = std::atan2(d.x, -d.z) - rotation_;
   float u = phi / kTwoPi + 0.5f;
   u -= std::floor(u);
@@ -88,47 +192,61 @@ Vec3 Environment::uv_to_dir(Vec2 uv) const {
 const Environment::Texel& Environment::texel(Vec2 uv) const {
   int x = std::clamp(int(uv.x * float(width_)), 0, width_ - 1);
   int y = std::clamp(int(uv.y * float(height_)), 0, height_ - 1);
-  return texels_[size_t(y) * width_ + x];
+  return texel(x, y);
 }
 
 Vec3 Environment::eval(Vec3 dir) const {
-  if (texels_.empty()) return constant_;
+  if (blocks_.empty()) return constant_;
   const Texel& t = texel(dir_to_uv(dir));
   return {t.r, t.g, t.b};
 }
 
 Vec3 Environment::eval(Vec3 dir, float* pdf_out) const {
-  if (texels_.empty()) {
+  if (blocks_.empty()) {
     *pdf_out = 1.0f / (4.0f * kPi);
     return constant_;
   }
   const Vec2 uv = dir_to_uv(dir);
   const Texel& t = texel(uv);
-  const float sin_theta = std::sin(uv.y * kPi);
-  *pdf_out = sin_theta <= 0 ? 0.0f : t.pdf_uv / (2.0f * kPi * kPi * sin_theta);
+  const float r = std::sqrt(dir.x * dir.x + dir.z * dir.z);
+  const float sin_theta = r / std::sqrt(r * r + dir.y * dir.y);
+  *pdf_out = !(sin_theta > 0) ? 0.0f : t.pdf_uv / (2.0f * kPi * kPi * sin_theta);
   return {t.r, t.g, t.b};
 }
 
 EnvSample Environment::sample(Vec2 u) const {
   EnvSample s;
-  if (texels_.empty()) {  // uniform sphere
+  if (blocks_.empty()) {  // uniform sphere
     float z = 1.0f - 2.0f * u.x, r = safe_sqrt(1.0f - z * z), phi = kTwoPi * u.y;
     s.wi = Vec3(r * std::cos(phi), z, r * std::sin(phi));
     s.radiance = constant_;
     s.pdf = 1.0f / (4.0f * kPi);
     return s;
   }
-  float pdf_uv;
-  size_t cell;
-  Vec2 uv = distribution_.sample(u, &pdf_uv, &cell);
-  float sin_theta = std::sin(uv.y * kPi);
-  if (pdf_uv <= 0 || sin_theta <= 0) return s;  // pdf 0: the caller skips it
+  // The block, then its row and column by inversion, each step passing on
+  // its number rescaled to [0, 1) within the chosen entry.
+  Vec2 r;
+  const size_t cell = block_distribution_.sample_discrete(u, &r);
+  const Block& b = blocks_[cell];
+  auto pick = [](const float* cdf, float* v) {
+    // Entries of probability 0 have equal bounds and are never picked.
+    const int k = int(*v >= cdf[0]) + int(*v >= cdf[1]) + int(*v >= cdf[2]);
+    const float lo = k > 0 ? cdf[k - 1] : 0.0f, hi = k < kBlock - 1 ? cdf[k] : 1.0f;
+    *v = hi > lo ? std::clamp((*v - lo) / (hi - lo), 0.0f, 0x1.fffffep-1f) : 0.5f;
+    return k;
+  };
+  const int row = pick(b.row_cdf, &r.y);
+  const int column = pick(b.column_cdf[row], &r.x);
+  const Texel& t = b.texel[row * kBlock + column];
+  const int x = int(cell % size_t(blocks_w_)) * kBlock + column;
+  const int y = int(cell / size_t(blocks_w_)) * kBlock + row;
+  if (!(t.pdf_uv > 0) || x >= width_ || y >= height_) return s;  // pdf 0: the caller skips it
+  const Vec2 uv((float(x) + r.x) / float(width_), (float(y) + r.y) / float(height_));
+  const float sin_theta = std::sin(uv.y * kPi);
+  if (sin_theta <= 0) return s;
   s.wi = uv_to_dir(uv);
-  // The texel of the sampled cell, by index rather than through uv: the
-  // same texel, and its load need not wait for uv (sampling waits on memory).
-  const Texel& t = texels_[cell];
   s.radiance = Vec3(t.r, t.g, t.b);
-  s.pdf = pdf_uv / (2.0f * kPi * kPi * sin_theta);
+  s.pdf = t.pdf_uv / (2.0f * kPi * kPi * sin_theta);
   return s;
 }
 

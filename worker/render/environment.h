@@ -3,6 +3,18 @@
 // (pbrt-v3 section 14.2.4). Lookups are nearest-texel, the exact function the
 // sampling distribution describes, so MIS weights and pdfs agree exactly.
 //
+// Memory layout (the map and its tables outgrow the caches, and sampling
+// waited on them): texels are stored in blocks of 4x4, each block one
+// 320-byte, cache-line-aligned record holding the block's own sampling
+// tables (one line) and its 16 texels (radiance and pdf side by side).
+// Sampling is hierarchical and exact: a block from a small 2D distribution
+// over the blocks' summed weights, then a row and a column inside the block
+// by inverting its tables, so a texel is chosen with probability weight /
+// total, as with one table over all texels, and the map stays a monotone
+// (stratification-keeping) function of the sample point. All a sample reads
+// beyond the small block table is one record, which prefetch_sample() can
+// start loading before the caller's ray traversal.
+//
 // Mapping: +y is up; theta = acos(d.y) from the zenith; phi = atan2(d.x, -d.z),
 // so the map's centre column (u = 0.5) is seen looking down -z; `rotation`
 // turns the map about +y.
@@ -33,12 +45,11 @@ class Environment {
 
   Vec3 eval(Vec3 dir) const;
   EnvSample sample(Vec2 u) const;
-  // A hint: starts loading what sample(u) will read first (the map's tables
-  // are larger than the caches; a caller with other work to do before it
-  // samples can hide that wait).
-  void prefetch_sample(Vec2 u) const {
-    if (!texels_.empty()) distribution_.prefetch(u);
-  }
+  // Hints: start loading what sample(u), or eval() towards roughly `dir`,
+  // will read (a caller that traces a ray before it samples or looks up can
+  // hide that wait behind the traversal).
+  void prefetch_sample(Vec2 u) const;
+  void prefetch_eval(Vec3 dir) const;
   float pdf(Vec3 dir) const;
   // eval() and pdf() at once, from one direction-to-texel mapping and one
   // memory access (an escaped ray under MIS needs both).
@@ -56,13 +67,30 @@ class Environment {
     float r, g, b;
     float pdf_uv;
   };
+  static constexpr int kBlock = 4;  // texels per block side
+  struct alignas(64) Block {
+    // Inversion tables, each the cumulative probability after entries 0..2
+    // (the last entry ends at 1): rows of the block, then columns of each row.
+    float row_cdf[kBlock - 1];
+    float column_cdf[kBlock][kBlock - 1];
+    float unused;
+    Texel texel[kBlock * kBlock];  // row-major within the block
+  };
+  static_assert(sizeof(Block) == 320, "one line of tables, four of texels");
+  const Texel& texel(int x, int y) const {
+    return blocks_[size_t(y / kBlock) * blocks_w_ + size_t(x / kBlock)]
+        .texel[(y % kBlock) * kBlock + x % kBlock];
+  }
   const Texel& texel(Vec2 uv) const;
 
   int width_ = 0, height_ = 0;
-  std::vector<Texel> texels_;  // row 0 = top; empty for a constant environment
+  int blocks_w_ = 0, blocks_h_ = 0;
+  // Row 0 = top; empty for a constant environment. Texels past the map's
+  // edge (in blocks at the right and bottom) have weight 0.
+  std::vector<Block> blocks_;
+  Distribution2D block_distribution_;  // over the blocks' summed weights
   Vec3 constant_{0};
   float rotation_ = 0;  // radians
-  Distribution2D distribution_;
   float mean_luminance_ = 0;
 };
 

@@ -35,6 +35,19 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
   const Environment* env = scene.environment();
 
   for (int depth = 0;; ++depth) {
+    // This vertex's light-sample numbers, drawn before its ray is traced (the
+    // slots are the same as if drawn after the hit: nothing between consumes
+    // any), so that what sampling an environment map reads, which is larger
+    // than the caches, loads during the traversal; likewise the texel an
+    // escaping bounce ray would read.
+    float u_select = 0;
+    Vec2 u_light;
+    if (depth < settings.max_depth) {
+      u_select = sampler.get1d();
+      u_light = sampler.get2d();
+      if (use_nee) scene.prefetch_light_sample(u_select, u_light);
+    }
+    if (env && depth > 0) env->prefetch_eval(ray.d);
     SurfaceHit hit;
     bool found = scene.intersect(ray, &hit);
     if (depth == 0 && albedo) *albedo = primary_albedo(found ? &hit : nullptr);
@@ -64,11 +77,6 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
 
     // A fixed number of dimensions per bounce keeps the sample streams of
     // different paths aligned (better stratification with Sobol').
-    const float u_select = sampler.get1d();
-    const Vec2 u_light = sampler.get2d();
-    // Sampling an environment map waits on memory; the work up to
-    // sample_light() below hides part of that wait.
-    if (use_nee) scene.prefetch_light_sample(u_select, u_light);
     const float u_lobe = sampler.get1d();
     const Vec2 u_bsdf = sampler.get2d();
     const bool roulette = depth + 1 >= settings.rr_start_depth;
@@ -88,9 +96,23 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
         float bsdf_pdf;
         Vec3 f = bsdf.evaluate(out, ls.wi, &bsdf_pdf);
         if (max_component(f) > 0) {
-          Vec3 origin = scene.offset_origin(hit, ls.wi);
-          float t_max = std::isinf(ls.distance) ? ls.distance : ls.distance * (1.0f - 1e-4f);
-          if (!scene.occluded(origin, ls.wi, t_max)) {
+          const Vec3 origin = scene.offset_origin(hit, ls.wi);
+          Vec3 dir = ls.wi;
+          float t_max = ls.distance;
+          if (!std::isinf(ls.distance)) {
+            // Aimed from the offset origin at the light point itself. Along
+            // ls.wi from the moved origin the ray would reach the light's
+            // plane earlier by the offset over the cosine, which exceeds the
+            // 1e-4 margin below for a surface close to and parallel with the
+            // light (a ceiling 2 cm above a light's back face: the light
+            // itself occluded every sample, and NEE lost its share of that
+            // light; tests/render/test_integrator.cpp).
+            const Vec3 to = hit.p + ls.wi * ls.distance - origin;
+            const float len = length(to);
+            if (len > 0) dir = to / len;
+            t_max = len * (1.0f - 1e-4f);
+          }
+          if (!scene.occluded(origin, dir, t_max)) {
             float w = use_mis && !ls.is_delta ? power_heuristic(ls.pdf, bsdf_pdf) : 1.0f;
             L += beta * f * ls.radiance * (w / ls.pdf);
           }
