@@ -638,6 +638,7 @@ ExrFrame read_frame_exr(const std::filesystem::path& path, uint64_t* file_checks
     if (!with_reference) {
       fb.reference.clear();
       fb.reference_var.clear();
+      fb.reference_half.clear();
     }
     fb.camera = read_camera(header, path);
 

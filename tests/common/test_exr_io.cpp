@@ -277,6 +277,7 @@ TEST_F(ExrIo, FrameWithoutReferenceShowsTheNoisyMean) {
   for (float& v : fb.noisy) v = std::fmod(std::fabs(v), 10.0f);  // a mean that cannot overflow
   fb.reference.clear();
   fb.reference_var.clear();
+  fb.reference_half.clear();
   const fs::path path = dir_ / "frame.exr";
   write_frame_exr(path, fb);
   Imf::InputFile file(path.c_str());
