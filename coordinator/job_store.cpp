@@ -240,16 +240,18 @@ void JobStore::exec(const char* sql) {
   }
 }
 
+// Whether `table` of this store has `column` (stores of older versions may lack it).
+bool JobStore::has_column(const std::string& table, const std::string& column) {
+  Statement s(*this, "SELECT count(*) FROM pragma_table_info('" + table + "') WHERE name='" +
+                         column + "'");
+  return s.step() && s.integer(0) > 0;
+}
+
 // Stores written before jobs were snapshots lack the batches' job columns;
 // they are added in place (empty for the old batches), so such a store still
 // opens and its batches still run.
 void JobStore::add_missing_batch_columns() {
-  bool has_job = false;
-  {
-    Statement s(*this, "SELECT count(*) FROM pragma_table_info('batches') WHERE name='job'");
-    if (s.step()) has_job = s.integer(0) > 0;
-  }
-  if (has_job) return;
+  if (has_column("batches", "job")) return;
   Transaction t(*this);
   exec("ALTER TABLE batches ADD COLUMN job TEXT NOT NULL DEFAULT ''");
   exec("ALTER TABLE batches ADD COLUMN snapshot TEXT NOT NULL DEFAULT ''");
@@ -261,12 +263,7 @@ void JobStore::add_missing_batch_columns() {
 // added in place (old events get an empty kind), so such a store opens as it
 // was and reads the same.
 void JobStore::add_missing_event_columns() {
-  bool has_kind = false;
-  {
-    Statement s(*this, "SELECT count(*) FROM pragma_table_info('events') WHERE name='kind'");
-    if (s.step()) has_kind = s.integer(0) > 0;
-  }
-  if (has_kind) return;
+  if (has_column("events", "kind")) return;
   Transaction t(*this);
   exec("ALTER TABLE events ADD COLUMN kind TEXT NOT NULL DEFAULT ''");
   exec("ALTER TABLE events ADD COLUMN task INTEGER NOT NULL DEFAULT 0");

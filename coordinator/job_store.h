@@ -276,6 +276,7 @@ class JobStore {
   void create_schema();
   void add_missing_batch_columns();
   void add_missing_event_columns();
+  bool has_column(const std::string& table, const std::string& column);  // literals only
 
   std::filesystem::path path_;
   sqlite3* db_ = nullptr;

@@ -181,14 +181,12 @@ RgbImage sky_with_a_sun() {
   return img;
 }
 
-// The environment's directions have the solid-angle density pdf() claims,
-// which integrates to 1 over the sphere; the two-output eval() agrees with
-// eval() and pdf(); a sample's radiance and pdf are those of its direction.
-TEST(Environment, SamplesFollowThePdfOverTheSphere) {
-  const Environment env(sky_with_a_sun(), 1.0f, 30.0f);
+// The environment's sampled directions pass a chi-square test against the
+// solid-angle density pdf() claims, which integrates to 1 over the sphere.
+void expect_samples_follow_pdf(const Environment& env, test::SphereCells cells, int samples) {
   test::Chi2Options opt;
-  opt.cells = test::SphereCells{Vec3(0, 1, 0), 0.0, 24, 48};
-  opt.samples = 300000;
+  opt.cells = cells;
+  opt.samples = samples;
   auto sample = [&](Vec2 u) -> std::optional<Vec3> {
     EnvSample s = env.sample(u);
     if (!(s.pdf > 0)) return std::nullopt;
@@ -199,6 +197,14 @@ TEST(Environment, SamplesFollowThePdfOverTheSphere) {
   EXPECT_NEAR(r.pdf_integral, 1.0, 2e-3) << r.summary();
   EXPECT_GT(r.p_value, 1e-4) << r.summary();
   EXPECT_EQ(r.outside_support, 0) << r.summary();
+}
+
+// The environment's directions have the solid-angle density pdf() claims,
+// which integrates to 1 over the sphere; the two-output eval() agrees with
+// eval() and pdf(); a sample's radiance and pdf are those of its direction.
+TEST(Environment, SamplesFollowThePdfOverTheSphere) {
+  const Environment env(sky_with_a_sun(), 1.0f, 30.0f);
+  expect_samples_follow_pdf(env, test::SphereCells{Vec3(0, 1, 0), 0.0, 24, 48}, 300000);
 
   std::mt19937_64 rng(23);
   auto uniform = [&] { return float(rng() >> 40) * 0x1p-24f; };
@@ -264,19 +270,7 @@ TEST(Environment, BlockedTablesGiveEachTexelItsWeightOverTheTotal) {
 
 TEST(Environment, SamplesFollowThePdfOnAMapNotMadeOfWholeBlocks) {
   const Environment env(awkward_sky(), 1.0f, 0.0f);
-  test::Chi2Options opt;
-  opt.cells = test::SphereCells{Vec3(0, 1, 0), 0.0, 15, 30};
-  opt.samples = 200000;
-  auto sample = [&](Vec2 u) -> std::optional<Vec3> {
-    EnvSample s = env.sample(u);
-    if (!(s.pdf > 0)) return std::nullopt;
-    return s.wi;
-  };
-  auto pdf = [&](Vec3 d) { return env.pdf(d); };
-  test::Chi2Result r = test::chi2_test(sample, pdf, opt);
-  EXPECT_NEAR(r.pdf_integral, 1.0, 2e-3) << r.summary();
-  EXPECT_GT(r.p_value, 1e-4) << r.summary();
-  EXPECT_EQ(r.outside_support, 0) << r.summary();
+  expect_samples_follow_pdf(env, test::SphereCells{Vec3(0, 1, 0), 0.0, 15, 30}, 200000);
   // Every sample is a texel of the map with that texel's radiance and pdf.
   for (int i = 0; i < 64; ++i)
     for (int j = 0; j < 64; ++j) {
