@@ -173,7 +173,7 @@ Command add_denoise(CLI::App& app) {
       "image with --albedo/--normal/--depth files (docs/trainer.md)");
   struct Opts {
     std::string run, in, out, checkpoint = "best", albedo, normal, depth, view_layer;
-    std::string normal_space = "view";
+    std::string normal_space = "view", device = "auto";
     int version = 0;
     bool repair = false;
     std::optional<double> fstop, focal_length, sensor_width, focus_distance, clip_start;
@@ -189,6 +189,10 @@ Command add_denoise(CLI::App& app) {
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
   add_checkpoint_option(cmd, &o->checkpoint);
+  cmd->add_option("--device", o->device,
+                  "where the network runs: auto (CUDA when usable), cpu or cuda")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"auto", "cpu", "cuda"}));
   cmd->add_flag("--repair-nonfinite", o->repair,
                 "set NaN/Inf input values to 0 (counted in the log) instead of refusing the frame");
   auto* files = cmd->add_option_group("separate passes",
@@ -241,7 +245,7 @@ Command add_denoise(CLI::App& app) {
                             "is an input (" + input +
                                 "); denoise writes a new file and never replaces its input");
         }
-        FrameDenoiser den(o->run, pick_device("auto"), o->checkpoint);
+        FrameDenoiser den(o->run, pick_device(o->device), o->checkpoint);
         ForeignInputs fi;
         fi.input = o->in;
         fi.albedo = o->albedo;
