@@ -158,7 +158,8 @@ Command add_eval(CLI::App& app) {
                   "to that size; 0 = off)")
       ->capture_default_str()
       ->check(CLI::Range(0, 16384));
-  cmd->add_option("--time-reps", o->time_reps, "timed runs at --time-size (median; after a warm-up)")
+  cmd->add_option("--time-reps", o->time_reps,
+                  "timed runs at --time-size (median; after a warm-up)")
       ->capture_default_str()
       ->check(CLI::Range(1, 1000));
   return {cmd, [o] {

@@ -28,7 +28,6 @@ void copy_frames(const float* src, int frames, int channels, int size, torch::Me
   }
 }
 
-
 }  // namespace
 
 Batch make_batch(const std::vector<Sample>& samples, torch::Device device,

@@ -70,11 +70,11 @@ struct DataConfig {
   // (thesis 6.1, 6.3 future work; trainer/prefilter.h). Off by default.
   AlbedoPrefilter albedo_prefilter = AlbedoPrefilter::kNone;
   float albedo_prefilter_scale = 0.25f;  // sigma per CoC pixel: a disc's spread
-  float demod_eps = 1e-3f;        // radiance / (albedo + eps)
-  float coc_log_scale = 3.4965f;  // ln(1 + 32): a 32-pixel CoC maps to 1 (coc:log)
-  float coc_sharp_px = 1.0f;      // coc:thesis "acceptable" CoC (thesis 4.2.4)
-  float coc_max_px = 32.0f;       // coc:thesis scene maximum CoC (thesis 4.2.4)
-  float depth_scale = 5.0f;       // depth:scene, scene units (thesis 4.2.4)
+  float demod_eps = 1e-3f;               // radiance / (albedo + eps)
+  float coc_log_scale = 3.4965f;         // ln(1 + 32): a 32-pixel CoC maps to 1 (coc:log)
+  float coc_sharp_px = 1.0f;             // coc:thesis "acceptable" CoC (thesis 4.2.4)
+  float coc_max_px = 32.0f;              // coc:thesis scene maximum CoC (thesis 4.2.4)
+  float depth_scale = 5.0f;              // depth:scene, scene units (thesis 4.2.4)
   SplitMode split = SplitMode::kFrames;
   float val_fraction = 0.1f;     // of frames (kFrames) or of shards (kShard)
   int queue = 32;                // sequences held ready (bounds memory)

@@ -60,8 +60,8 @@ LossTerms denoiser_loss(const torch::Tensor& out, const torch::Tensor& target,
   if (cfg.focus_weight > 0) {
     DOFARM_CHECK(coc.defined());
     DOFARM_CHECK_EQ(coc.numel(), s[0] * s[1] * s[3] * s[4]);
-    w = focus_weights(coc.reshape({s[0] * s[1], 1, s[3], s[4]}).to(out.dtype()),
-                      cfg.focus_weight, cfg.focus_coc_px);
+    w = focus_weights(coc.reshape({s[0] * s[1], 1, s[3], s[4]}).to(out.dtype()), cfg.focus_weight,
+                      cfg.focus_coc_px);
   }
   LossTerms l;
   // eq. 4.3, the spatial term of eq. 4.2

@@ -6,8 +6,8 @@
 #include <unistd.h>
 
 #include <cmath>
-#include <limits>
 #include <filesystem>
+#include <limits>
 #include <tuple>
 
 #include "trainer/config.h"
@@ -144,8 +144,8 @@ TEST(LogLoss, TemporalTermPenalisesFlickerOnly) {
 // focus), divided by their mean; frame 1 is all sharp: uniform weights 1.
 TEST(FocusLoss, WeightsFollowTheCocAndAverageOnePerFrame) {
   const float nan = std::numeric_limits<float>::quiet_NaN();
-  torch::Tensor coc = torch::tensor({0.0f, 1.0f, nan, 100.0f, 0.0f, 0.0f, 0.0f, 0.0f})
-                          .reshape({2, 1, 2, 2});
+  torch::Tensor coc =
+      torch::tensor({0.0f, 1.0f, nan, 100.0f, 0.0f, 0.0f, 0.0f, 0.0f}).reshape({2, 1, 2, 2});
   torch::Tensor w = focus_weights(coc, 3.0f, 1.0f);
   const double raw[4] = {4.0, 1.0 + 3.0 / std::exp(1.0), 1.0, 1.0};
   const double mean = (raw[0] + raw[1] + raw[2] + raw[3]) / 4.0;

@@ -91,7 +91,8 @@ TEST(AlbedoPrefilter, SampleUsesTheFilteredAlbedoEverywhere) {
   // The albedo input (channels 3..5 of the default inputs).
   for (size_t i = 0; i < 3 * n; ++i) ASSERT_EQ(smp.input[3 * n + i], want[i]) << i;
   for (size_t i = 0; i < 3 * n; ++i) {
-    const float r = radiance_inverse(smp.target[i], radiance_space(model)) * (want[i] + data.demod_eps);
+    const float r =
+        radiance_inverse(smp.target[i], radiance_space(model)) * (want[i] + data.demod_eps);
     ASSERT_NEAR(r, 0.5f, 1e-5) << i;
   }
   // Sharp pixels (left half) keep the stored albedo; the right half changed.

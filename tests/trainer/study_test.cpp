@@ -102,7 +102,8 @@ TEST(Study, OneCommandScoresEveryConfigurationAndResumes) {
   ASSERT_EQ(run_study(dir / "data", out, dir / "second.log"), 0) << read_all(dir / "second.log");
   const std::string second = read_all(dir / "second.log");
   for (const std::string& c : configs) {
-    EXPECT_NE(second.find(c + ": trained (2 steps), not trained again"), std::string::npos) << second;
+    EXPECT_NE(second.find(c + ": trained (2 steps), not trained again"), std::string::npos)
+        << second;
     EXPECT_NE(second.find(c + ": evaluated, not evaluated again"), std::string::npos) << second;
     EXPECT_EQ(fs::last_write_time(out / "runs" / c / "checkpoints" / "last.pt"), before[c]) << c;
   }
