@@ -82,13 +82,17 @@ std::vector<float> FrameDenoiser::denoise(const FrameBuffers& f, int version, do
   }
   const float* albedo = view.at(demodulation_buffer(cfg.data));
   std::vector<float> filtered;
+  double prefilter_seconds = 0;  // part of the denoiser: counted in `seconds`
   if (cfg.data.albedo_prefilter == AlbedoPrefilter::kCoc) {
     // As in training (augment.cpp): the filtered albedo everywhere.
+    const auto p0 = std::chrono::steady_clock::now();
     filtered.resize(3 * n);
     prefilter_by_coc(albedo, 3, view.at("coc"), f.width, f.height,
                      cfg.data.albedo_prefilter_scale, filtered.data());
     albedo = filtered.data();
     view.buffers[demodulation_buffer(cfg.data)] = albedo;
+    prefilter_seconds =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - p0).count();
   }
   view.albedo = albedo;
   const int c = cfg.model.input_channels();
@@ -108,7 +112,8 @@ std::vector<float> FrameDenoiser::denoise(const FrameBuffers& f, int version, do
   out = out.to(torch::kCPU).contiguous();
   if (device_.is_cuda()) torch::cuda::synchronize();
   if (seconds)
-    *seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    *seconds = prefilter_seconds +
+               std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   // Finite inputs and finite weights (checked at load) can still overflow:
   // never hand out a non-finite pixel.
   const int64_t bad = (~torch::isfinite(out)).sum().item<int64_t>();

@@ -21,7 +21,8 @@ class FrameDenoiser {
                 const std::string& checkpoint = "best");
   // Linear RGB (3, H, W) from noisy version `version` of `frame`.
   // `seconds` receives the time of network + remodulation (no IO, no input
-  // preparation), synchronised with the device.
+  // preparation; with data.albedo_prefilter the prefilter too), synchronised
+  // with the device.
   std::vector<float> denoise(const FrameBuffers& frame, int version, double* seconds = nullptr);
   void reset_sequence() { state_.clear(); }
   const TrainConfig& config() const { return run_.config; }
