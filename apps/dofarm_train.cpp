@@ -3,7 +3,7 @@
 //   dofarm-train train --data DIR --run RUNDIR [--preset NAME] [--config TRAIN.toml]
 //                      [--set K=V]... [--save-every STEPS]
 //   dofarm-train eval --run RUNDIR --data DIR --out REPORTDIR [--checkpoint best|last|PATH]
-//                     [--validation-only]
+//                     [--validation-only] [--time-size N] [--time-reps R]
 //   dofarm-train denoise --run RUNDIR IN OUT.exr [--checkpoint ...] [--repair-nonfinite]
 //                        [--albedo F --normal F --depth F] [--fstop N --focal-length MM
 //                        --sensor-width MM --focus-distance D] (other renderers' frames)
@@ -131,7 +131,7 @@ Command add_eval(CLI::App& app) {
   auto* cmd = app.add_subcommand("eval", "score the run on its validation frames (report)");
   struct Opts {
     std::string run, data, out, checkpoint = "best";
-    int frames = 0, images = 8, version = 0;
+    int frames = 0, images = 8, version = 0, time_size = 0, time_reps = 3;
     bool validation_only = false;
   };
   auto o = std::make_shared<Opts>();
@@ -153,12 +153,26 @@ Command add_eval(CLI::App& app) {
   cmd->add_flag("--validation-only", o->validation_only,
                 "score only the validation frames (by default the report also has a table over "
                 "all frames, as thesis table 5.1)");
+  cmd->add_option("--time-size", o->time_size,
+                  "also time the denoise of an N x N frame (the first validation frame repeated "
+                  "to that size; 0 = off)")
+      ->capture_default_str()
+      ->check(CLI::Range(0, 16384));
+  cmd->add_option("--time-reps", o->time_reps,
+                  "timed runs at --time-size (median; after a warm-up)")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 1000));
   return {cmd, [o] {
             EvalOptions e{o->run, o->data, o->out, o->frames, o->images, o->version, o->checkpoint};
             e.all_frames = !o->validation_only;
+            e.time_side = o->time_size;
+            e.time_reps = o->time_reps;
             EvalSummary s = evaluate(e);
-            std::printf("%d frames: SSIM %.4f  PSNR %.2f dB  relMSE %.4f  %.2f ms/frame\n",
-                        s.frames, s.ssim, s.psnr, s.rel_mse, s.ms);
+            std::printf(
+                "%d frames: SSIM %.4f  PSNR %.2f dB  relMSE %.4f  flicker %.4g  %.2f ms/frame\n",
+                s.frames, s.ssim, s.psnr, s.rel_mse, s.flicker, s.ms);
+            if (e.time_side > 0)
+              std::printf("%.2f ms per %dx%d frame\n", s.ms_at_size, e.time_side, e.time_side);
             if (e.all_frames)
               std::printf("all %d frames (training + validation, thesis table 5.1): SSIM %.4f\n",
                           s.frames_all, s.ssim_all);

@@ -5,6 +5,7 @@
 
 #include "common/error.h"
 #include "common/image.h"
+#include "trainer/prefilter.h"
 
 namespace dofarm::trainer {
 
@@ -146,7 +147,10 @@ Sample build_sample(const RawCrop& raw, const SequencePlan& plan, const DataConf
   out.input.resize(size_t(t) * out.channels * n);
   out.target.resize(size_t(t) * 3 * n);
   out.albedo.resize(size_t(t) * 3 * n);
-  std::vector<float> turned;  // a direction buffer's planes, turned per pixel
+  const bool has_coc = raw.buffers.count("coc") > 0;
+  if (has_coc) out.coc.resize(size_t(t) * n);
+  std::vector<float> turned;    // a direction buffer's planes, turned per pixel
+  std::vector<float> filtered;  // the prefiltered albedo (data.albedo_prefilter)
   for (int i = 0; i < t; ++i) {
     const int f = plan.offset[i], v = plan.version[i];
     DOFARM_CHECK_LT(v, raw.versions);
@@ -160,6 +164,14 @@ Sample build_sample(const RawCrop& raw, const SequencePlan& plan, const DataConf
       view.buffers[name] = &data_planes[at];
     }
     const float* albedo = view.at(albedo_name);
+    if (data.albedo_prefilter == AlbedoPrefilter::kCoc) {
+      // Thesis 6.1: every use of the demodulation albedo sees it filtered.
+      filtered.resize(3 * n);
+      prefilter_by_coc(albedo, 3, view.at("coc"), s, s, data.albedo_prefilter_scale,
+                       filtered.data());
+      albedo = filtered.data();
+      view.buffers[albedo_name] = albedo;
+    }
     view.albedo = albedo;
     view.focal_distance = raw.focal_distance[f];
     view.pixels = n;
@@ -174,7 +186,9 @@ Sample build_sample(const RawCrop& raw, const SequencePlan& plan, const DataConf
     make_input(view, data, inputs, in);
     make_target(view.at("reference"), albedo, n, data, space, &out.target[size_t(i) * 3 * n]);
     std::copy(albedo, albedo + 3 * n, &out.albedo[size_t(i) * 3 * n]);
+    if (has_coc) std::copy(view.at("coc"), view.at("coc") + n, &out.coc[size_t(i) * n]);
     if (plan.quarter_turns) {
+      if (has_coc) rotate_planes(&out.coc[size_t(i) * n], 1, s, plan.quarter_turns);
       rotate_planes(in, out.channels, s, plan.quarter_turns);
       rotate_planes(&out.target[size_t(i) * 3 * n], 3, s, plan.quarter_turns);
       rotate_planes(&out.albedo[size_t(i) * 3 * n], 3, s, plan.quarter_turns);

@@ -85,6 +85,7 @@ struct Sample {
   std::vector<float> input;   // T, C, S, S
   std::vector<float> target;  // T, 3, S, S (transformed, demodulated)
   std::vector<float> albedo;  // T, 3, S, S (what remodulation multiplies by)
+  std::vector<float> coc;     // T, 1, S, S: CoC in pixels (focus-weighted loss); empty without
 };
 
 // Applies `plan` to `raw` (whose frame 0 is plan.first_frame, whose crop is

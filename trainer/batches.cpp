@@ -28,7 +28,6 @@ void copy_frames(const float* src, int frames, int channels, int size, torch::Me
   }
 }
 
-
 }  // namespace
 
 Batch make_batch(const std::vector<Sample>& samples, torch::Device device,
@@ -56,6 +55,15 @@ Batch make_batch(const std::vector<Sample>& samples, torch::Device device,
   Batch out;
   out.input = in.view({b, t, c, s, s}).to(device);
   out.target = tg.view({b, t, 3, s, s}).to(device);
+  if (!first.coc.empty()) {
+    torch::Tensor coc = torch::empty({b, t, 1, s, s});
+    for (int64_t i = 0; i < b; ++i) {
+      const Sample& x = samples[size_t(i)];
+      DOFARM_CHECK_EQ(x.coc.size(), size_t(t) * s * s);
+      std::copy(x.coc.begin(), x.coc.end(), coc.data_ptr<float>() + size_t(i) * t * s * s);
+    }
+    out.coc = coc.to(device);
+  }
   return out;
 }
 

@@ -19,6 +19,7 @@ class SequenceStream;
 // model takes is NHWC without a copy).
 struct Batch {
   torch::Tensor input, target;
+  torch::Tensor coc;  // [B, T, 1, S, S], pixels; undefined when the samples have none
   uint64_t next_index = 0;  // the stream's next sample after this batch
 };
 Batch make_batch(const std::vector<Sample>& samples, torch::Device device,

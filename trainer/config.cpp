@@ -233,6 +233,10 @@ std::vector<Field> fields(TrainConfig& c) {
   f.push_back(enum_field(
       "data.albedo", &d.albedo,
       {{"reference", AlbedoSource::kReference}, {"version", AlbedoSource::kVersion}}, true));
+  f.push_back(enum_field("data.albedo_prefilter", &d.albedo_prefilter,
+                         {{"none", AlbedoPrefilter::kNone}, {"coc", AlbedoPrefilter::kCoc}}, true));
+  f.push_back(number_field("data.albedo_prefilter_scale", &d.albedo_prefilter_scale, 0.0, 100.0,
+                           true));
   f.push_back(number_field("data.demod_eps", &d.demod_eps, 1e-6, 1.0, true));
   f.push_back(number_field("data.coc_log_scale", &d.coc_log_scale, 1e-3, 100.0, true));
   f.push_back(number_field("data.coc_sharp_px", &d.coc_sharp_px, 0.0, 1e4, true));
@@ -251,6 +255,8 @@ std::vector<Field> fields(TrainConfig& c) {
                          {{"l1", GradientLoss::kL1}, {"thesis", GradientLoss::kThesis}}, false));
   f.push_back(number_field("loss.log_sigma", &l.log_sigma, 0.3, 8.0, false));
   f.push_back(number_field("loss.temporal", &l.temporal, 0.0, 1e3, false));
+  f.push_back(number_field("loss.focus_weight", &l.focus_weight, 0.0, 1e3, false));
+  f.push_back(number_field("loss.focus_coc_px", &l.focus_coc_px, 1e-3, 1e4, false));
   auto& o = c.train;
   f.push_back(number_field("train.epochs", &o.epochs, 1, kBig, false));
   f.push_back(number_field("train.steps_per_epoch", &o.steps_per_epoch, 0, kBig, false));

@@ -20,6 +20,11 @@ enum class AlbedoSource {
   kVersion,    // the 1-spp `albedo` of the same noisy version (what a game has)
 };
 
+enum class AlbedoPrefilter {
+  kNone,
+  kCoc,  // blur by the CoC (thesis 6.1; trainer/prefilter.h)
+};
+
 enum class SplitMode {
   kFrames,  // last val_fraction of every shard's frames is validation
   kShard,   // whole shards are validation, chosen by a hash of the file name
@@ -61,11 +66,15 @@ struct DataConfig {
   float reverse_probability = 0.5f;  // per sequence (thesis 4.3.3)
   bool rotate = true;                // one of 0/90/180/270 degrees per sequence
   AlbedoSource albedo = AlbedoSource::kReference;
-  float demod_eps = 1e-3f;        // radiance / (albedo + eps)
-  float coc_log_scale = 3.4965f;  // ln(1 + 32): a 32-pixel CoC maps to 1 (coc:log)
-  float coc_sharp_px = 1.0f;      // coc:thesis "acceptable" CoC (thesis 4.2.4)
-  float coc_max_px = 32.0f;       // coc:thesis scene maximum CoC (thesis 4.2.4)
-  float depth_scale = 5.0f;       // depth:scene, scene units (thesis 4.2.4)
+  // The demodulation albedo blurred per pixel by sigma = scale * CoC
+  // (thesis 6.1, 6.3 future work; trainer/prefilter.h). Off by default.
+  AlbedoPrefilter albedo_prefilter = AlbedoPrefilter::kNone;
+  float albedo_prefilter_scale = 0.25f;  // sigma per CoC pixel: a disc's spread
+  float demod_eps = 1e-3f;               // radiance / (albedo + eps)
+  float coc_log_scale = 3.4965f;         // ln(1 + 32): a 32-pixel CoC maps to 1 (coc:log)
+  float coc_sharp_px = 1.0f;             // coc:thesis "acceptable" CoC (thesis 4.2.4)
+  float coc_max_px = 32.0f;              // coc:thesis scene maximum CoC (thesis 4.2.4)
+  float depth_scale = 5.0f;              // depth:scene, scene units (thesis 4.2.4)
   SplitMode split = SplitMode::kFrames;
   float val_fraction = 0.1f;     // of frames (kFrames) or of shards (kShard)
   int queue = 32;                // sequences held ready (bounds memory)
@@ -86,6 +95,12 @@ struct LossConfig {
   // the LoG error the RAE's gradient loss is built on.
   float log_sigma = 1.5f;
   float temporal = 0.0f;  // L1 of frame differences (Chaitanya 2017; for the recurrent model)
+  // Focus weighting (thesis 6.1 / 6.3 future work: penalise lost detail
+  // where the CoC says the pixel is sharp): the L1 and gradient terms weigh
+  // each pixel by 1 + focus_weight * exp(-(coc / focus_coc_px)^2), normalised
+  // to mean 1 per frame. 0 = off.
+  float focus_weight = 0.0f;
+  float focus_coc_px = 1.0f;  // CoC (pixels) at which the extra weight falls to 1/e
 };
 
 enum class Schedule {

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <fstream>
 #include <map>
+#include <optional>
 #include <nlohmann/json.hpp>
 #include <sstream>
 
@@ -19,6 +20,7 @@
 #include "trainer/losses.h"
 #include "trainer/metrics.h"
 #include "trainer/model.h"
+#include "trainer/prefilter.h"
 #include "trainer/report.h"
 
 namespace dofarm::trainer {
@@ -42,6 +44,9 @@ std::vector<std::pair<std::string, size_t>> non_finite_inputs(FrameBuffers& f, i
   const std::string albedo = demodulation_buffer(cfg.data);
   if (std::find(names.begin(), names.end(), albedo) == names.end())
     names.insert(names.begin() + std::min<size_t>(1, names.size()), albedo);
+  if (cfg.data.albedo_prefilter == AlbedoPrefilter::kCoc &&
+      std::find(names.begin(), names.end(), "coc") == names.end())
+    names.push_back("coc");  // sizes the albedo prefilter
   for (const std::string& name : names) {
     const BufferInfo& b = buffer_info(name);
     std::vector<float>& data = buffer_data(f, name);
@@ -76,6 +81,19 @@ std::vector<float> FrameDenoiser::denoise(const FrameBuffers& f, int version, do
     if (data.size() >= begin + count) view.buffers[b.name] = data.data() + begin;
   }
   const float* albedo = view.at(demodulation_buffer(cfg.data));
+  std::vector<float> filtered;
+  double prefilter_seconds = 0;  // part of the denoiser: counted in `seconds`
+  if (cfg.data.albedo_prefilter == AlbedoPrefilter::kCoc) {
+    // As in training (augment.cpp): the filtered albedo everywhere.
+    const auto p0 = std::chrono::steady_clock::now();
+    filtered.resize(3 * n);
+    prefilter_by_coc(albedo, 3, view.at("coc"), f.width, f.height,
+                     cfg.data.albedo_prefilter_scale, filtered.data());
+    albedo = filtered.data();
+    view.buffers[demodulation_buffer(cfg.data)] = albedo;
+    prefilter_seconds =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - p0).count();
+  }
   view.albedo = albedo;
   const int c = cfg.model.input_channels();
   std::vector<float> input(size_t(c) * n);
@@ -94,7 +112,8 @@ std::vector<float> FrameDenoiser::denoise(const FrameBuffers& f, int version, do
   out = out.to(torch::kCPU).contiguous();
   if (device_.is_cuda()) torch::cuda::synchronize();
   if (seconds)
-    *seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    *seconds = prefilter_seconds +
+               std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   // Finite inputs and finite weights (checked at load) can still overflow:
   // never hand out a non-finite pixel.
   const int64_t bad = (~torch::isfinite(out)).sum().item<int64_t>();
@@ -104,10 +123,31 @@ std::vector<float> FrameDenoiser::denoise(const FrameBuffers& f, int version, do
   return std::vector<float>(out.data_ptr<float>(), out.data_ptr<float>() + 3 * n);
 }
 
+FrameBuffers tile_frame(const FrameBuffers& f, int w, int h) {
+  FrameBuffers out;
+  out.allocate(w, h, f.versions);
+  out.rect = Rect{0, 0, w, h};
+  out.camera = f.camera;
+  const size_t n = f.plane(), m = out.plane();
+  for (const BufferInfo& b : buffer_infos()) {
+    const std::vector<float>& src = buffer_data(f, b.name);
+    std::vector<float>& dst = buffer_data(out, b.name);
+    const size_t planes = n ? src.size() / n : 0;
+    dst.assign(planes * m, 0.0f);
+    for (size_t k = 0; k < planes; ++k)
+      for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x)
+          dst[k * m + size_t(y) * w + x] =
+              src[k * n + size_t(y % f.height) * f.width + x % f.width];
+  }
+  return out;
+}
+
 namespace {
 
 struct Scores {
   double ssim = NAN, psnr = NAN, rel_mse = NAN;
+  double flicker = NAN;  // against the previous frame (none for a sequence's first)
 };
 
 Scores score(const std::vector<float>& img, const std::vector<float>& ref, int w, int h,
@@ -120,7 +160,10 @@ Scores score(const std::vector<float>& img, const std::vector<float>& ref, int w
 
 json to_json(const Scores& s) {
   auto j = [](double v) { return std::isfinite(v) ? json(v) : json(nullptr); };
-  return {{"ssim", j(s.ssim)}, {"psnr", j(s.psnr)}, {"rel_mse", j(s.rel_mse)}};
+  return {{"ssim", j(s.ssim)},
+          {"psnr", j(s.psnr)},
+          {"rel_mse", j(s.rel_mse)},
+          {"flicker", j(s.flicker)}};
 }
 
 // Mean over frames of finite values (a frame without in-focus pixels has none).
@@ -134,7 +177,8 @@ double mean_of(const std::vector<double>& v) {
 
 // Per-frame scores, kept as lists so means skip frames without a region.
 struct Accumulator {
-  std::vector<double> v[2][3][3];  // [noisy, denoised][all, in, out][ssim, psnr, rel_mse]
+  // [noisy, denoised][all, in, out][ssim, psnr, rel_mse, flicker]
+  std::vector<double> v[2][3][4];
   std::vector<double> ms;
   int frames = 0;
   json summary() const {
@@ -144,7 +188,8 @@ struct Accumulator {
     for (int k = 0; k < 2; ++k)
       for (int r = 0; r < 3; ++r)
         j[who[k]][region[r]] =
-            to_json(Scores{mean_of(v[k][r][0]), mean_of(v[k][r][1]), mean_of(v[k][r][2])});
+            to_json(Scores{mean_of(v[k][r][0]), mean_of(v[k][r][1]), mean_of(v[k][r][2]),
+                           mean_of(v[k][r][3])});
     j["denoise_ms_mean"] = mean_of(ms);
     j["frames"] = frames;
     return j;
@@ -155,6 +200,14 @@ std::string cell(double v, int prec) {
   if (!std::isfinite(v)) return "–";
   char buf[32];
   std::snprintf(buf, sizeof buf, "%.*f", prec, v);
+  return buf;
+}
+
+// Three significant digits: flicker spans decades (1e-4 denoised, ~1 noisy).
+std::string cell_g(double v) {
+  if (!std::isfinite(v)) return "–";
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.3g", v);
   return buf;
 }
 
@@ -182,6 +235,7 @@ EvalSummary evaluate(const EvalOptions& o) {
   std::map<std::string, Accumulator> by_scene, by_scene_every;  // table 5.1 has a row per scene
   json frames = json::array();
   ReferenceCeiling ceiling;  // how converged the references are (ceiling.h)
+  std::optional<FrameBuffers> timing_frame;  // the first validation frame (time_side)
   int done = 0, done_every = 0, images = 0;
   for (const std::string& file : list_shards(o.data_dir)) {
     ShardReader reader(o.data_dir / file);
@@ -192,6 +246,10 @@ EvalSummary evaluate(const EvalOptions& o) {
                     : legacy.count(file) ? legacy[file]
                                          : assign_split(file, key, reader.frame_count(), cfg.data);
     den.reset_sequence();
+    // The previous scored frame of this shard, for the flicker of (f-1, f).
+    int prev_f = -1;
+    bool prev_val = false;
+    std::vector<float> prev_out, prev_noisy, prev_ref;
     // With all_frames every frame is scored once, in order; the validation
     // frames also count for the validation table, and the recurrent state
     // restarts at the first of them, so that table does not depend on
@@ -208,6 +266,7 @@ EvalSummary evaluate(const EvalOptions& o) {
       }
       if (f == sp.val_begin) den.reset_sequence();
       FrameBuffers fb = reader.read_frame(f);
+      if (o.time_side > 0 && want_val && !timing_frame) timing_frame = fb;
       const int w = fb.width, h = fb.height;
       const size_t n = fb.plane();
       double sec = 0;
@@ -229,16 +288,39 @@ EvalSummary evaluate(const EvalOptions& o) {
                   {"denoise_ms", sec * 1e3}};
       const uint8_t* masks[3] = {nullptr, in_focus.data(), out_focus.data()};
       const char* region[3] = {"all", "in_focus", "out_of_focus"};
+      // Flicker needs the frame before, scored in the same pass: it counts
+      // for the validation table when both frames are validation frames.
+      const bool pair = prev_f >= 0 && prev_f == f - 1;
+      std::vector<Accumulator*> to_flicker;
+      if (pair && want_val && prev_val) to_flicker.insert(to_flicker.end(), {&all, &scene});
+      if (pair && want_every) to_flicker.insert(to_flicker.end(), {&every, &scene_every});
       for (int k = 0; k < 2; ++k)
         for (int r = 0; r < 3; ++r) {
-          Scores s = score(k == 0 ? noisy : out, fb.reference, w, h, masks[r]);
+          const std::vector<float>& img = k == 0 ? noisy : out;
+          Scores s = score(img, fb.reference, w, h, masks[r]);
+          if (pair) {
+            const std::vector<float>& before = k == 0 ? prev_noisy : prev_out;
+            s.flicker = temporal_relative_mse({before.data(), 3, h, w}, {img.data(), 3, h, w},
+                                              {prev_ref.data(), 3, h, w},
+                                              {fb.reference.data(), 3, h, w}, masks[r]);
+          }
           for (Accumulator* a : to) {
             a->v[k][r][0].push_back(s.ssim);
             a->v[k][r][1].push_back(s.psnr);
             a->v[k][r][2].push_back(s.rel_mse);
           }
-          row[k == 0 ? "noisy" : "denoised"][region[r]] = to_json(s);
+          for (Accumulator* a : to_flicker) a->v[k][r][3].push_back(s.flicker);
+          // The rows list validation frames: a pair counts there when the
+          // frame before is a validation frame too.
+          Scores shown = s;
+          if (!(pair && want_val && prev_val)) shown.flicker = NAN;
+          row[k == 0 ? "noisy" : "denoised"][region[r]] = to_json(shown);
         }
+      prev_f = f;
+      prev_val = want_val;
+      prev_out = out;
+      prev_noisy = noisy;
+      prev_ref = fb.reference;
       for (Accumulator* a : to) {
         a->ms.push_back(sec * 1e3);
         ++a->frames;
@@ -268,12 +350,29 @@ EvalSummary evaluate(const EvalOptions& o) {
     throw SpecError(FileLoc{o.data_dir.string()}, "",
                     "no validation frames (check the data folder and the run's split.json)");
 
+  // Time at a fixed size (e.g. 512^2), so runs on data of any size compare.
+  json at_size;
+  if (timing_frame) {
+    const FrameBuffers big = tile_frame(*timing_frame, o.time_side, o.time_side);
+    std::vector<double> ms;
+    for (int r = 0; r <= std::max(1, o.time_reps); ++r) {
+      den.reset_sequence();  // the state would be of the data's size
+      double sec = 0;
+      den.denoise(big, o.version, &sec);
+      if (r > 0) ms.push_back(sec * 1e3);  // the first run warms up
+    }
+    std::sort(ms.begin(), ms.end());
+    at_size = {{"side", o.time_side}, {"ms", ms[ms.size() / 2]}, {"reps", ms.size()}};
+  }
+
   EvalSummary sum;
+  if (!at_size.is_null()) sum.ms_at_size = at_size["ms"].get<double>();
   sum.frames = done;
   sum.ssim = mean_of(all.v[1][0][0]);
   sum.psnr = mean_of(all.v[1][0][1]);
   sum.rel_mse = mean_of(all.v[1][0][2]);
   sum.ms = mean_of(all.ms);
+  sum.flicker = mean_of(all.v[1][0][3]);
   sum.frames_all = every.frames;
   sum.ssim_all = mean_of(every.v[1][0][0]);
 
@@ -322,8 +421,11 @@ EvalSummary evaluate(const EvalOptions& o) {
         {"best_loss", std::isfinite(used.state.best) ? json(used.state.best) : json()}}},
       {"metrics_note",
        "SSIM and PSNR on sRGB-encoded images clamped to [0,1]; relative MSE on "
-       "linear HDR, (d-r)^2/(r^2+0.01); in focus = CoC < 1 px"},
+       "linear HDR, (d-r)^2/(r^2+0.01); flicker: relative MSE of frame-to-frame differences, "
+       "((d_t-d_t-1)-(r_t-r_t-1))^2/(m^2+0.01), m = (r_t+r_t-1)/2, over consecutive frames "
+       "(null on a sequence's first frame); in focus = CoC < 1 px"},
       {"summary", summary},
+      {"denoise_ms_at_size", at_size},
       {"reference_ceiling", ceiling.to_json()},
       {"scenes", scenes},
       {"all_frames",
@@ -338,19 +440,25 @@ EvalSummary evaluate(const EvalOptions& o) {
      << "Checkpoint `" << used.checkpoint.string() << "`: epoch " << used.state.epoch << ", step "
      << used.state.step << ", best loss " << cell(used.state.best, 5) << ".\n\n"
      << "SSIM and PSNR are taken on sRGB-encoded images clamped to [0, 1]; relative MSE on "
-        "linear HDR radiance, mean of (d - r)^2 / (r^2 + 0.01). In focus: CoC < 1 pixel. "
-        "Time: network + remodulation per frame, no IO.\n\n"
+        "linear HDR radiance, mean of (d - r)^2 / (r^2 + 0.01). Flicker: the same relative MSE "
+        "of the frame-to-frame differences, ((d_t - d_t-1) - (r_t - r_t-1))^2 / (m^2 + 0.01) "
+        "with m the mean of r_t and r_t-1, over consecutive frames (Chaitanya et al. 2017, "
+        "eq. 4). In focus: CoC < 1 pixel. Time: network + remodulation per frame, no IO.\n\n"
      << "| scene | input | SSIM all | SSIM in focus | SSIM out of focus | PSNR all (dB) | "
-        "PSNR in | PSNR out | relMSE all | relMSE in | relMSE out | ms/frame |\n"
-     << "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n";
+        "PSNR in | PSNR out | relMSE all | relMSE in | relMSE out | flicker all | flicker in | "
+        "flicker out | ms/frame |\n"
+     << "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | "
+        "--- |\n";
   // The tables' cells, one row per (scene, input), for report.md and report.html.
   using Rows = std::vector<std::vector<std::string>>;
   auto add_rows = [](Rows& summary_rows, const std::string& name, const Accumulator& a) {
     for (int k = 0; k < 2; ++k) {
       std::vector<std::string> row = {name + " (" + std::to_string(a.frames) + " frames)",
                                       k == 0 ? "noisy (1 spp)" : "denoised"};
-      for (int m = 0; m < 3; ++m)
-        for (int r = 0; r < 3; ++r) row.push_back(cell(mean_of(a.v[k][r][m]), m == 1 ? 2 : 4));
+      for (int m = 0; m < 4; ++m)
+        for (int r = 0; r < 3; ++r)
+          row.push_back(m == 3 ? cell_g(mean_of(a.v[k][r][m]))
+                               : cell(mean_of(a.v[k][r][m]), m == 1 ? 2 : 4));
       row.push_back(k == 1 ? cell(mean_of(a.ms), 2) : std::string("–"));
       summary_rows.push_back(std::move(row));
     }
@@ -365,8 +473,10 @@ EvalSummary evaluate(const EvalOptions& o) {
   const Rows every_rows = o.all_frames ? rows_of(by_scene_every, every) : Rows{};
   const std::string md_header =
       "| scene | input | SSIM all | SSIM in focus | SSIM out of focus | PSNR all (dB) | "
-      "PSNR in | PSNR out | relMSE all | relMSE in | relMSE out | ms/frame |\n"
-      "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n";
+      "PSNR in | PSNR out | relMSE all | relMSE in | relMSE out | flicker all | flicker in | "
+      "flicker out | ms/frame |\n"
+      "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- "
+      "|\n";
   for (const auto& row : summary_rows) {
     for (const std::string& c : row) md << "| " << c << " ";
     md << "|\n";
@@ -380,7 +490,12 @@ EvalSummary evaluate(const EvalOptions& o) {
       md << "|\n";
     }
   }
-  md << "\nMean denoise time: " << cell(sum.ms, 2) << " ms per frame.\n\n"
+  md << "\nMean denoise time: " << cell(sum.ms, 2) << " ms per frame"
+     << (at_size.is_null() ? std::string()
+                           : "; " + cell(sum.ms_at_size, 2) + " ms per " +
+                                 std::to_string(o.time_side) + "² frame (median of " +
+                                 std::to_string(at_size["reps"].get<size_t>()) + ")")
+     << ".\n\n"
      << ceiling.markdown() << "\n\n"
      << "![loss per epoch](loss.svg)\n\n![loss per step](steps.svg)\n\n![learning rate](lr.svg)\n\n![validation SSIM and PSNR](quality.svg)\n\n"
      << "Comparison images (`frame-NNN.png`): noisy | denoised | reference | error "
@@ -417,11 +532,15 @@ EvalSummary evaluate(const EvalOptions& o) {
        << "</code>: epoch " << used.state.epoch << ", step " << used.state.step << ", best loss "
        << cell(used.state.best, 5) << ".</p>"
        << "<p>SSIM and PSNR on sRGB-encoded images clamped to [0, 1]; relative MSE on linear HDR "
-          "radiance, mean of (d − r)² / (r² + 0.01). In focus: CoC &lt; 1 pixel. Time: network + "
+          "radiance, mean of (d − r)² / (r² + 0.01). Flicker: that relative MSE of the "
+          "frame-to-frame differences, ((d<sub>t</sub> − d<sub>t−1</sub>) − (r<sub>t</sub> − "
+          "r<sub>t−1</sub>))² / (m² + 0.01), m the mean of r<sub>t</sub> and r<sub>t−1</sub>, over "
+          "consecutive frames (Chaitanya et al. 2017, eq. 4). In focus: CoC &lt; 1 pixel. Time: network + "
           "remodulation per frame, no IO.</p><table id=\"summary\"><tr><th>scene</th><th>input</th>"
           "<th>SSIM all</th><th>SSIM in focus</th><th>SSIM out of focus</th><th>PSNR all (dB)</th>"
           "<th>PSNR in (dB)</th><th>PSNR out (dB)</th><th>relMSE all</th><th>relMSE in</th>"
-          "<th>relMSE out</th><th>ms/frame</th></tr>";
+          "<th>relMSE out</th><th>flicker all</th><th>flicker in</th><th>flicker out</th>"
+          "<th>ms/frame</th></tr>";
   for (const auto& row : summary_rows) {
     html << "<tr>";
     for (const std::string& c : row) html << "<td>" << html_escape(c) << "</td>";
@@ -434,7 +553,7 @@ EvalSummary evaluate(const EvalOptions& o) {
          << "<tr><th>scene</th><th>input</th><th>SSIM all</th><th>SSIM in focus</th>"
             "<th>SSIM out of focus</th><th>PSNR all (dB)</th><th>PSNR in (dB)</th>"
             "<th>PSNR out (dB)</th><th>relMSE all</th><th>relMSE in</th><th>relMSE out</th>"
-            "<th>ms/frame</th></tr>";
+            "<th>flicker all</th><th>flicker in</th><th>flicker out</th><th>ms/frame</th></tr>";
     for (const auto& row : every_rows) {
       html << "<tr>";
       for (const std::string& c : row) html << "<td>" << html_escape(c) << "</td>";

@@ -21,7 +21,8 @@ class FrameDenoiser {
                 const std::string& checkpoint = "best");
   // Linear RGB (3, H, W) from noisy version `version` of `frame`.
   // `seconds` receives the time of network + remodulation (no IO, no input
-  // preparation), synchronised with the device.
+  // preparation; with data.albedo_prefilter the prefilter too), synchronised
+  // with the device.
   std::vector<float> denoise(const FrameBuffers& frame, int version, double* seconds = nullptr);
   void reset_sequence() { state_.clear(); }
   const TrainConfig& config() const { return run_.config; }
@@ -43,11 +44,18 @@ struct EvalOptions {
   // 5.1: table 5.1 averages over each scene's complete set of frames): a
   // second table in the report, "all_frames" in report.json.
   bool all_frames = true;
+  // Also time the denoise of a side x side frame (the first validation frame
+  // repeated periodically to that size), median of `time_reps` runs after
+  // one warm-up: "denoise_ms_at_size" in report.json. 0 = off.
+  int time_side = 0;
+  int time_reps = 3;
 };
 
 struct EvalSummary {
   int frames = 0;
   double ssim = 0, psnr = 0, rel_mse = 0, ms = 0;  // means over frames, denoised
+  double flicker = NAN;  // mean over consecutive validation frame pairs (metrics.h)
+  double ms_at_size = NAN;  // with time_side: median ms per side x side frame
   int frames_all = 0;                              // with all_frames: every frame
   double ssim_all = NAN;
 };
@@ -58,6 +66,10 @@ struct EvalSummary {
 std::vector<std::pair<std::string, size_t>> non_finite_inputs(FrameBuffers& frame, int version,
                                                               const TrainConfig& cfg,
                                                               bool repair);
+
+// `frame` repeated periodically (x mod width, y mod height) to w x h: every
+// buffer, the camera kept. For timing at a size the data does not have.
+FrameBuffers tile_frame(const FrameBuffers& frame, int w, int h);
 
 // Writes OUT/report.md, OUT/report.json, OUT/frame-*.png, OUT/loss.png.
 EvalSummary evaluate(const EvalOptions& options);

@@ -158,7 +158,9 @@ int input_width(const std::vector<std::string>& inputs) {
 }
 
 std::vector<std::string> sample_buffers(const ModelConfig& model, const DataConfig& data) {
-  std::vector<std::string> out = {demodulation_buffer(data), "reference"};
+  // The CoC always: the focus-weighted loss and the eval masks use it
+  // whether or not the network sees it (1 plane of ~20).
+  std::vector<std::string> out = {demodulation_buffer(data), "reference", "coc"};
   for (const ResolvedInput& r : resolve_inputs(model, data))
     if (std::find(out.begin(), out.end(), r.buffer) == out.end()) out.push_back(r.buffer);
   return out;

@@ -64,7 +64,7 @@ int input_width(const std::vector<std::string>& inputs);
 std::string demodulation_buffer(const DataConfig& data);
 
 // The buffers a training sample needs: the inputs' sources, the
-// demodulation albedo and the reference (target).
+// demodulation albedo, the reference (target) and the CoC (loss weights).
 std::vector<std::string> sample_buffers(const ModelConfig& model, const DataConfig& data);
 
 // The radiance space of the network: encoding of the `radiance` input.

@@ -10,6 +10,12 @@
 //        finite);
 //   L_g, loss.log_form = "l1": the project's mean |LoG*out - LoG*target|.
 //   The temporal term is Chaitanya 2017 eq. 4 (for the recurrent model).
+//   With loss.focus_weight k > 0 (thesis 6.1, 6.3: "penalize areas in focus
+//   harder for missing edges and detail", using the CoC buffer), the L1 term
+//   and the gradient term weigh each pixel by focus_weights(): the L1 term
+//   becomes mean(w |out - target|), the "l1" gradient term mean(w' |dLoG|)
+//   and eq. 4.4's numerator sum w' (dLoG)^2, with w' the weights of the
+//   LoG's valid region, renormalised to mean 1 there.
 //
 // LoG * x is the image filtered with a Laplacian of Gaussian: it responds to
 // edges and fine detail, which L1 alone lets the network blur.
@@ -39,12 +45,21 @@ torch::Tensor log_filter(const torch::Tensor& x, const torch::Tensor& kernel);
 // radiance input's encoding), element-wise on a tensor.
 torch::Tensor radiance_inverse(const torch::Tensor& y, RadianceSpace space);
 
+// Per-pixel focus weights from the CoC in pixels, [N, 1, H, W] ->
+// [N, 1, H, W]: w = 1 + k exp(-(coc / c0)^2), then divided by its mean over
+// each frame, so a frame keeps its total weight (and a batch split across
+// replicas the same gradient) and only the share of sharp pixels grows.
+// A non-finite CoC counts as far out of focus (w = 1 before normalising).
+torch::Tensor focus_weights(const torch::Tensor& coc, float k, float c0);
+
 struct LossTerms {
   torch::Tensor total, l1, log, temporal;  // scalars
 };
 
-// out, target: [B, T, 3, H, W] in the network's (transformed) space.
+// out, target: [B, T, 3, H, W] in the network's (transformed) space; coc:
+// [B, T, 1, H, W] in pixels, needed when cfg.focus_weight > 0.
 LossTerms denoiser_loss(const torch::Tensor& out, const torch::Tensor& target,
-                        const LossConfig& cfg, const torch::Tensor& kernel);
+                        const LossConfig& cfg, const torch::Tensor& kernel,
+                        const torch::Tensor& coc = {});
 
 }  // namespace dofarm::trainer

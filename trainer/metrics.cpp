@@ -132,4 +132,23 @@ double relative_mse(ImageView d, ImageView r, const uint8_t* mask) {
   return count ? sum / double(count) : std::numeric_limits<double>::quiet_NaN();
 }
 
+double temporal_relative_mse(ImageView dp, ImageView d, ImageView rp, ImageView r,
+                             const uint8_t* mask) {
+  check_same_shape(d, r);
+  check_same_shape(dp, d);
+  check_same_shape(rp, r);
+  double sum = 0;
+  size_t count = 0;
+  for (int c = 0; c < d.channels; ++c)
+    for (size_t p = 0; p < d.plane(); ++p) {
+      if (mask && !mask[p]) continue;
+      const size_t i = c * d.plane() + p;
+      const double dd = double(d.data[i]) - dp.data[i], dr = double(r.data[i]) - rp.data[i];
+      const double m = 0.5 * (double(r.data[i]) + rp.data[i]);
+      sum += (dd - dr) * (dd - dr) / (m * m + 0.01);
+      ++count;
+    }
+  return count ? sum / double(count) : std::numeric_limits<double>::quiet_NaN();
+}
+
 }  // namespace dofarm::trainer

@@ -43,4 +43,16 @@ double psnr(ImageView a, ImageView b, const uint8_t* mask = nullptr);
 // (d - r)^2 / (r^2 + 0.01) (Rousselle et al. 2011's regularised form).
 double relative_mse(ImageView denoised, ImageView reference, const uint8_t* mask = nullptr);
 
+// Temporal flicker of consecutive frames t-1, t: the relative MSE of the
+// frame-to-frame differences, after the temporal loss of Chaitanya et al.
+// 2017 (eq. 4, which compares the temporal derivatives of output and
+// reference). On linear HDR, mean over pixels and channels of
+//   ((d_t - d_{t-1}) - (r_t - r_{t-1}))^2 / (m^2 + 0.01),  m = (r_t + r_{t-1}) / 2,
+// so a change the reference also makes costs nothing, and a denoiser whose
+// output wobbles on a still reference scores above 0 even when each frame
+// alone is as close to it as a steady output's. `mask` (of frame t) as for
+// relative_mse(); NaN for an empty mask.
+double temporal_relative_mse(ImageView denoised_prev, ImageView denoised, ImageView reference_prev,
+                             ImageView reference, const uint8_t* mask = nullptr);
+
 }  // namespace dofarm::trainer

@@ -19,7 +19,7 @@ StepOutcome compute_gradients(Denoiser& model, const Batch& batch, const LossCon
   // Gradients set, not added to zeros: no memset and no accumulation pass.
   model->zero_grad(/*set_to_none=*/true);
   torch::Tensor loss =
-      denoiser_loss(model->forward(batch.input), batch.target, loss_cfg, kernel).total;
+      denoiser_loss(model->forward(batch.input), batch.target, loss_cfg, kernel, batch.coc).total;
   if (hook) loss = hook(loss);
   StepOutcome r;
   r.loss = loss.item<double>();
@@ -135,6 +135,7 @@ StepOutcome StepRunner::run(const Batch& batch, const LossConfig& loss, const to
     Batch p;
     p.input = batch.input.narrow(0, start, count);
     p.target = batch.target.narrow(0, start, count);
+    if (batch.coc.defined()) p.coc = batch.coc.narrow(0, start, count);
     return p;
   };
   const std::vector<torch::Tensor> params = model_->parameters();

@@ -334,7 +334,7 @@ TrainResult train_in(const TrainOptions& opt_in) {
                                  vs.begin() + std::min(vs.size(), i + cfg.train.batch));
         Batch b = make_batch(part, device, format);
         torch::Tensor y = model->forward(b.input);
-        sum += denoiser_loss(y, b.target, cfg.loss, kernel).total.item<double>() *
+        sum += denoiser_loss(y, b.target, cfg.loss, kernel, b.coc).total.item<double>() *
                double(part.size());
         std::vector<torch::Tensor> albedo;
         for (const Sample& smp : part)

@@ -101,5 +101,39 @@ TEST(DisplayEncode, SrgbCurveAndClamp) {
   EXPECT_NEAR(srgb_encode_clamped(0.002f), 0.02584f, 1e-6);  // linear toe
 }
 
+// Flicker (temporal_relative_mse) on a known two-pixel sequence, values by
+// hand: pixel 0 of a still reference (1) is denoised as 1.1, 0.9 (wobbling)
+// or 1.1, 1.1 (steady); pixel 1 is exact (0). Each frame alone is equally
+// wrong either way (|error| 0.1), so only the flicker tells them apart.
+TEST(Metrics, FlickerScoresAWobblingOutputAboveASteadyOneOnAStillReference) {
+  const std::vector<float> ref = {1.0f, 0.0f};
+  const std::vector<float> up = {1.1f, 0.0f}, down = {0.9f, 0.0f};
+  auto v = [](const std::vector<float>& x) { return ImageView{x.data(), 1, 1, 2}; };
+  // Per-frame relative MSE is the same for both outputs: 0.01 / 1.01 / 2.
+  EXPECT_NEAR(relative_mse(v(up), v(ref)), 0.01 / 1.01 / 2, 1e-7);
+  EXPECT_NEAR(relative_mse(v(down), v(ref)), 0.01 / 1.01 / 2, 1e-7);
+  // Wobbling: pixel 0 changes by -0.2 where the reference does not:
+  // (0.2^2 / (1^2 + 0.01) + 0) / 2.
+  const double wobble = temporal_relative_mse(v(up), v(down), v(ref), v(ref));
+  EXPECT_NEAR(wobble, 0.04 / 1.01 / 2, 1e-7);
+  EXPECT_EQ(temporal_relative_mse(v(up), v(up), v(ref), v(ref)), 0.0);  // steady
+  // In-focus / out-of-focus split: only pixel 0 counted, or only pixel 1.
+  const uint8_t first[2] = {1, 0}, second[2] = {0, 1}, none[2] = {0, 0};
+  EXPECT_NEAR(temporal_relative_mse(v(up), v(down), v(ref), v(ref), first), 0.04 / 1.01, 1e-7);
+  EXPECT_EQ(temporal_relative_mse(v(up), v(down), v(ref), v(ref), second), 0.0);
+  EXPECT_TRUE(std::isnan(temporal_relative_mse(v(up), v(down), v(ref), v(ref), none)));
+}
+
+// A change the reference makes costs nothing when the output makes it too,
+// and a frozen output is charged for it, relative to the mean brightness
+// m = (1 + 2) / 2: 1^2 / (1.5^2 + 0.01) on pixel 0.
+TEST(Metrics, FlickerChargesOnlyTheDifferenceFromTheReferencesChange) {
+  const std::vector<float> r0 = {1.0f, 0.0f}, r1 = {2.0f, 0.0f};
+  const std::vector<float> d0 = {1.1f, 0.0f}, d1 = {2.1f, 0.0f};
+  auto v = [](const std::vector<float>& x) { return ImageView{x.data(), 1, 1, 2}; };
+  EXPECT_NEAR(temporal_relative_mse(v(d0), v(d1), v(r0), v(r1)), 0.0, 1e-12);
+  EXPECT_NEAR(temporal_relative_mse(v(r0), v(r0), v(r0), v(r1)), 1.0 / 2.26 / 2, 1e-7);
+}
+
 }  // namespace
 }  // namespace dofarm::trainer

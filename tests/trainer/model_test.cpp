@@ -7,6 +7,7 @@
 
 #include <cmath>
 #include <filesystem>
+#include <limits>
 #include <tuple>
 
 #include "trainer/config.h"
@@ -136,6 +137,78 @@ TEST(LogLoss, TemporalTermPenalisesFlickerOnly) {
   torch::Tensor flicker = tgt.clone();
   flicker.select(1, 2).add_(0.1f);
   EXPECT_GT(denoiser_loss(flicker, tgt, cfg, log_kernel(1.0f)).temporal.item<float>(), 0.05f);
+}
+
+// Focus weights (thesis 6.3) by hand: k = 3, c0 = 1 px. Frame 0 has CoCs
+// 0, 1, NaN and 100 px: raw weights 4, 1 + 3/e, 1, 1 (NaN = far out of
+// focus), divided by their mean; frame 1 is all sharp: uniform weights 1.
+TEST(FocusLoss, WeightsFollowTheCocAndAverageOnePerFrame) {
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  torch::Tensor coc =
+      torch::tensor({0.0f, 1.0f, nan, 100.0f, 0.0f, 0.0f, 0.0f, 0.0f}).reshape({2, 1, 2, 2});
+  torch::Tensor w = focus_weights(coc, 3.0f, 1.0f);
+  const double raw[4] = {4.0, 1.0 + 3.0 / std::exp(1.0), 1.0, 1.0};
+  const double mean = (raw[0] + raw[1] + raw[2] + raw[3]) / 4.0;
+  for (int i = 0; i < 4; ++i) {
+    EXPECT_NEAR(w[0][0][i / 2][i % 2].item<float>(), raw[i] / mean, 1e-6) << i;
+    EXPECT_FLOAT_EQ(w[1][0][i / 2][i % 2].item<float>(), 1.0f) << i;
+  }
+  EXPECT_TRUE(torch::isfinite(w).all().item<bool>());
+  // c0 scales the CoC: at c0 = 2 a 2 px CoC gets what 1 px got at c0 = 1.
+  torch::Tensor w2 = focus_weights(coc * 2.0f, 3.0f, 2.0f);
+  EXPECT_TRUE(torch::allclose(w2, w, 1e-6, 1e-6));
+}
+
+// The L1 term with focus weights, by hand: one pixel of four is wrong by 1
+// in every channel. Sharp (CoC 0) among out-of-focus pixels (CoC 10), its
+// weight is 4 / (7/4) = 16/7, so L1 = 3 * 16/7 / 12 = 4/7 against 1/4
+// unweighted; when every pixel is as sharp, or k = 0, it is the plain L1.
+TEST(FocusLoss, L1WeighsTheErrorOfSharpPixelsMore) {
+  torch::Tensor tgt = torch::zeros({1, 1, 3, 2, 2});
+  torch::Tensor out = tgt.clone();
+  out.index_put_({0, 0, torch::indexing::Slice(), 0, 0}, 1.0f);
+  torch::Tensor coc = torch::tensor({0.0f, 10.0f, 10.0f, 10.0f}).reshape({1, 1, 1, 2, 2});
+  LossConfig cfg;
+  cfg.focus_weight = 3.0f;
+  cfg.focus_coc_px = 1.0f;
+  const torch::Tensor k = log_kernel(1.0f);  // larger than the image: no gradient term
+  EXPECT_NEAR(denoiser_loss(out, tgt, cfg, k, coc).l1.item<float>(), 4.0f / 7.0f, 1e-6);
+  EXPECT_NEAR(denoiser_loss(out, tgt, cfg, k, torch::zeros_like(coc)).l1.item<float>(), 0.25f,
+              1e-7);
+  // The error where it is out of focus instead: weight 1 / (7/4) = 4/7.
+  torch::Tensor moved = torch::tensor({10.0f, 0.0f, 10.0f, 10.0f}).reshape({1, 1, 1, 2, 2});
+  EXPECT_NEAR(denoiser_loss(out, tgt, cfg, k, moved).l1.item<float>(), 0.25f * 4.0f / 7.0f, 1e-6);
+  cfg.focus_weight = 0.0f;
+  EXPECT_NEAR(denoiser_loss(out, tgt, cfg, k, coc).l1.item<float>(), 0.25f, 1e-7);
+}
+
+// The gradient term, both forms, is weighted too, and stays finite and 0 for
+// identical images with any CoC (NaN included).
+TEST(FocusLoss, GradientTermIsWeightedAndNanSafe) {
+  torch::manual_seed(3);
+  torch::Tensor tgt = torch::rand({1, 2, 3, 24, 24});
+  torch::Tensor out = tgt + 0.1f * torch::randn({1, 2, 3, 24, 24});
+  torch::Tensor coc = torch::full({1, 2, 1, 24, 24}, 20.0f);
+  // Sharp where the error is: the left half.
+  coc.index_put_({torch::indexing::Slice(), torch::indexing::Slice(), 0, torch::indexing::Slice(),
+                  torch::indexing::Slice(0, 12)},
+                 0.0f);
+  torch::Tensor err_left = tgt.clone();
+  err_left.index_put_({"...", torch::indexing::Slice(0, 12)},
+                      out.index({"...", torch::indexing::Slice(0, 12)}));
+  for (GradientLoss form : {GradientLoss::kL1, GradientLoss::kThesis}) {
+    LossConfig cfg;
+    cfg.log_form = form;
+    const torch::Tensor k = log_kernel(1.0f);
+    const float plain = denoiser_loss(err_left, tgt, cfg, k, coc).log.item<float>();
+    cfg.focus_weight = 4.0f;
+    const float weighted = denoiser_loss(err_left, tgt, cfg, k, coc).log.item<float>();
+    EXPECT_GT(weighted, 1.25f * plain) << int(form);  // about 5/3 where the error is
+    torch::Tensor bad = coc.clone();
+    bad.index_put_({0, 0, 0, 5, 5}, std::numeric_limits<float>::quiet_NaN());
+    EXPECT_TRUE(std::isfinite(denoiser_loss(err_left, tgt, cfg, k, bad).total.item<float>()));
+    EXPECT_EQ(denoiser_loss(tgt, tgt, cfg, k, bad).total.item<float>(), 0.0f);
+  }
 }
 
 TEST(Denoiser, ThesisWidthsAndShapes) {

@@ -291,6 +291,42 @@ TEST(Eval, ReportHasEveryFrameAndBeatsTheNoisyInput) {
   EXPECT_EQ(j["reference_ceiling"]["frames"], 3);
   EXPECT_DOUBLE_EQ(j["reference_ceiling"]["mean_ssim"].get<double>(), 1.0);
   EXPECT_DOUBLE_EQ(j["frames"][0]["reference_ceiling_ssim"].get<double>(), 1.0);
+  // Flicker: none for a sequence's first frame, then per pair of frames; the
+  // noisy input (fresh noise every frame) flickers more than the output.
+  EXPECT_TRUE(j["frames"][0]["denoised"]["all"]["flicker"].is_null());
+  EXPECT_TRUE(j["frames"][1]["denoised"]["all"]["flicker"].is_number());
+  const double fl_noisy = j["summary"]["noisy"]["all"]["flicker"],
+               fl_den = j["summary"]["denoised"]["all"]["flicker"];
+  EXPECT_GT(fl_noisy, fl_den);
+  EXPECT_NEAR(s.flicker, fl_den, 1e-12);
+  EXPECT_TRUE(j["denoise_ms_at_size"].is_null());  // not asked for
+}
+
+// `eval --time-size` times a frame of a size the data does not have: the
+// first validation frame repeated periodically.
+TEST(Eval, TimesTheDenoiseAtARequestedSize) {
+  const FrameBuffers f = testing::synthetic_frame(1, 5, 3, 2, 4);
+  const FrameBuffers t = tile_frame(f, 12, 7);
+  ASSERT_EQ(t.width, 12);
+  ASSERT_EQ(t.versions, 2);
+  for (int y = 0; y < 7; ++y)
+    for (int x = 0; x < 12; ++x) {
+      ASSERT_EQ(t.coc[size_t(y) * 12 + x], f.coc[size_t(y % 3) * 5 + x % 5]);
+      // Version 1's blue plane.
+      ASSERT_EQ(t.noisy[(3 + 2) * 84 + size_t(y) * 12 + x],
+                f.noisy[(3 + 2) * 15 + size_t(y % 3) * 5 + x % 5]);
+    }
+  fs::path out = fresh_dir("eval_time");
+  EvalOptions e{trained_run(), shared_data(), out, 1, 0, 0};
+  e.all_frames = false;
+  e.time_side = 96;
+  e.time_reps = 2;
+  EvalSummary s = evaluate(e);
+  EXPECT_GT(s.ms_at_size, 0.0);
+  nlohmann::json j = nlohmann::json::parse(std::ifstream(out / "report.json"));
+  EXPECT_EQ(j["denoise_ms_at_size"]["side"], 96);
+  EXPECT_EQ(j["denoise_ms_at_size"]["reps"], 2);
+  EXPECT_DOUBLE_EQ(j["denoise_ms_at_size"]["ms"].get<double>(), s.ms_at_size);
 }
 
 // The page as a reader sees it: opened by a real browser (Debian's

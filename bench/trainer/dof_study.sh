@@ -1,0 +1,267 @@
+#!/usr/bin/env bash
+# The depth-of-field study of issue 13 in one command: on the same shards and
+# the same number of optimiser steps, train and evaluate
+#   thesis            (a) the thesis-exact preset, with its CoC input
+#   thesis_nococ      (b) the same without the CoC input (11 channels, widths 32..101:
+#                         the thesis's no-DOF network)
+#   default           (c) the project's default configuration
+#   thesis_focus      (d) (a) + focus-weighted loss (thesis 6.3)
+#   thesis_prefilter  (d) (a) + CoC-sized albedo prefilter (thesis 6.1)
+#   thesis_recurrent  (d) (a) + recurrent encoder blocks and the temporal loss
+#                         (Chaitanya 2017; thesis 6.3)
+# and write one table (OUT/results.md, OUT/results.csv) with, per
+# configuration, SSIM / PSNR / relative MSE over all, in-focus and
+# out-of-focus pixels, flicker, ms per 512² frame, training steps and wall
+# time, and one plot of error against time (OUT/results.svg). Scores are on
+# the validation frames of the run's split (the same frames for every
+# configuration: the split is drawn from the shards' content).
+#
+#   bench/trainer/dof_study.sh [--steps N] [--out DIR] [--epochs E] [--time-size S]
+#                              [--configs "thesis default ..."] [--set KEY=VALUE]... [DATA_DIR...]
+#
+# DATA_DIR: farm output folders (default: out/study/cornell out/study/courtyard,
+# rendered by bench/trainer/render_study.sh). Several folders are joined in
+# OUT/data by symbolic links. --steps (default 4000) optimiser steps per
+# configuration, as --epochs (default 10) epochs of ceil(steps / epochs)
+# steps. --time-size (default 512) the frame side the denoise is timed at.
+# --set is passed to every configuration's `train` (e.g. smaller models for
+# a smoke run). Environment: DOFARM_TRAIN (default build/dofarm-train).
+#
+# Resumable: each configuration is its own run folder OUT/runs/NAME (a
+# dofarm-train run, which resumes where it stopped) and its report
+# OUT/reports/NAME; a finished configuration (OUT/runs/NAME/study.done
+# naming the same step count) is not trained again, a report newer than the
+# run's checkpoint is not made again. Kill it at any point (Ctrl-C: the run
+# writes its checkpoint) and run the same command again.
+#
+# Prints figures; never asserts. Exit status: 0, 2 on bad arguments.
+set -euo pipefail
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
+TRAIN=${DOFARM_TRAIN:-$ROOT/build/dofarm-train}
+STEPS=4000
+EPOCHS=10
+OUT=$ROOT/out/study/results
+TIME_SIZE=512
+CONFIGS="thesis thesis_nococ default thesis_focus thesis_prefilter thesis_recurrent"
+SETS=()
+DATA=()
+usage() { sed -n '2,40p' "$0" | sed 's/^# \{0,1\}//'; }
+die() { echo "dof_study.sh: $*" >&2; exit 2; }
+while [ $# -gt 0 ]; do
+  case $1 in
+    --steps) STEPS=${2:?}; shift 2 ;;
+    --epochs) EPOCHS=${2:?}; shift 2 ;;
+    --out) OUT=${2:?}; shift 2 ;;
+    --time-size) TIME_SIZE=${2:?}; shift 2 ;;
+    --configs) CONFIGS=${2:?}; shift 2 ;;
+    --set) SETS+=(--set "${2:?}"); shift 2 ;;
+    -h|--help) usage; exit 0 ;;
+    -*) die "unknown option $1 (see --help)" ;;
+    *) DATA+=("$1"); shift ;;
+  esac
+done
+[[ $STEPS =~ ^[1-9][0-9]*$ ]] || die "--steps: expected a positive integer, got '$STEPS'"
+[[ $EPOCHS =~ ^[1-9][0-9]*$ ]] || die "--epochs: expected a positive integer, got '$EPOCHS'"
+[[ $TIME_SIZE =~ ^[1-9][0-9]*$ ]] || die "--time-size: expected a positive integer, got '$TIME_SIZE'"
+[ -x "$TRAIN" ] || die "$TRAIN not found; build dofarm-train or set DOFARM_TRAIN"
+command -v python3 > /dev/null || die "python3 is needed for the table and the plot"
+[ ${#DATA[@]} -gt 0 ] || DATA=("$ROOT/out/study/cornell" "$ROOT/out/study/courtyard")
+for d in "${DATA[@]}"; do
+  [ -d "$d" ] || die "no data folder $d (render the study set with bench/trainer/render_study.sh)"
+done
+for c in $CONFIGS; do
+  case $c in
+    thesis|thesis_nococ|default|thesis_focus|thesis_prefilter|thesis_recurrent) ;;
+    *) die "--configs: unknown configuration '$c'" ;;
+  esac
+done
+[ "$EPOCHS" -le "$STEPS" ] || EPOCHS=$STEPS
+PER_EPOCH=$(( (STEPS + EPOCHS - 1) / EPOCHS ))
+TOTAL=$(( EPOCHS * PER_EPOCH ))
+mkdir -p "$OUT/runs" "$OUT/reports"
+
+# One data folder for train and eval: the given one, or links to every shard
+# of several (named by folder, so that shard-00000.h5 of two jobs do not collide).
+if [ ${#DATA[@]} -eq 1 ]; then
+  DATA_DIR=$(cd "${DATA[0]}" && pwd)
+else
+  DATA_DIR=$OUT/data
+  mkdir -p "$DATA_DIR"
+  for d in "${DATA[@]}"; do
+    abs=$(cd "$d" && pwd)
+    for s in "$abs"/*.h5; do
+      [ -e "$s" ] || continue
+      ln -sfn "$s" "$DATA_DIR/$(basename "$abs")-$(basename "$s")"
+    done
+  done
+fi
+
+# The thesis's inputs without the CoC (thesis 4.3.2 no-DOF network).
+NOCOC='["radiance:linear", "albedo", "normal:remap01", "depth:scene", "roughness"]'
+args_of() {
+  case $1 in
+    thesis) echo "--preset thesis" ;;
+    thesis_nococ) echo "--preset thesis" ;;
+    default) echo "--preset default" ;;
+    thesis_focus) echo "--preset thesis --set loss.focus_weight=4 --set loss.focus_coc_px=1" ;;
+    thesis_prefilter) echo "--preset thesis --set data.albedo_prefilter=coc" ;;
+    # RAE: recurrent blocks, temporal weight 0.1 (Chaitanya 2017, sec. 5: 0.8 / 0.1 / 0.1).
+    thesis_recurrent) echo "--preset thesis --set model.recurrent=true --set loss.temporal=0.1" ;;
+  esac
+}
+describe() {
+  case $1 in
+    thesis) echo "(a) thesis-exact with CoC input" ;;
+    thesis_nococ) echo "(b) thesis-exact without CoC input" ;;
+    default) echo "(c) project default" ;;
+    thesis_focus) echo "(d) (a) + focus-weighted loss" ;;
+    thesis_prefilter) echo "(d) (a) + CoC albedo prefilter" ;;
+    thesis_recurrent) echo "(d) (a) + recurrent + temporal loss" ;;
+  esac
+}
+
+# The warm-up of the default schedule is 500 steps; a shorter study scales it
+# (a tenth of the steps) so that the default is not judged before it warms up.
+WARMUP=$(( TOTAL / 10 < 500 ? (TOTAL / 10 > 0 ? TOTAL / 10 : 1) : 500 ))
+
+printf 'dof_study.sh: %d steps per configuration (%d epochs x %d), data %s, out %s\n' \
+  "$TOTAL" "$EPOCHS" "$PER_EPOCH" "$DATA_DIR" "$OUT"
+for c in $CONFIGS; do
+  run=$OUT/runs/$c
+  report=$OUT/reports/$c
+  if [ -f "$run/study.done" ] && [ "$(cat "$run/study.done")" = "steps $TOTAL" ]; then
+    echo "dof_study.sh: $c: trained ($TOTAL steps), not trained again"
+  else
+    echo "dof_study.sh: $c: training ($(describe "$c")) -> $run"
+    # shellcheck disable=SC2046  # args_of gives words
+    extra=()
+    [ "$c" = thesis_nococ ] && extra=(--set "model.inputs=$NOCOC")
+    [ "$c" = default ] && extra=(--set "train.warmup_steps=$WARMUP")
+    "$TRAIN" --log-level warn train --data "$DATA_DIR" --run "$run" $(args_of "$c") \
+      "${extra[@]}" --set "train.epochs=$EPOCHS" --set "train.steps_per_epoch=$PER_EPOCH" \
+      "${SETS[@]}"
+    echo "steps $TOTAL" > "$run/study.done.tmp"
+    mv "$run/study.done.tmp" "$run/study.done"
+  fi
+  if [ -f "$report/report.json" ] && [ "$report/report.json" -nt "$run/checkpoints/last.pt" ]; then
+    echo "dof_study.sh: $c: evaluated, not evaluated again"
+  else
+    echo "dof_study.sh: $c: evaluating -> $report"
+    rm -rf "$report.tmp"
+    # The last weights: every configuration after the same number of steps
+    # (best.pt would pick each by its own criterion).
+    "$TRAIN" --log-level warn eval --run "$run" --data "$DATA_DIR" --out "$report.tmp" \
+      --checkpoint last --images 4 --validation-only --time-size "$TIME_SIZE" > /dev/null
+    rm -rf "$report"
+    mv "$report.tmp" "$report"
+  fi
+done
+
+# The table and the plot.
+python3 - "$OUT" "$TIME_SIZE" $CONFIGS <<'PY'
+import csv, json, math, os, sys
+
+out, side, configs = sys.argv[1], int(sys.argv[2]), sys.argv[3:]
+label = {
+    "thesis": "(a) thesis-exact with CoC input",
+    "thesis_nococ": "(b) thesis-exact without CoC input",
+    "default": "(c) project default",
+    "thesis_focus": "(d) (a) + focus-weighted loss",
+    "thesis_prefilter": "(d) (a) + CoC albedo prefilter",
+    "thesis_recurrent": "(d) (a) + recurrent + temporal loss",
+}
+cols = ["config", "description", "frames",
+        "ssim_all", "ssim_in", "ssim_out", "psnr_all", "psnr_in", "psnr_out",
+        "relmse_all", "relmse_in", "relmse_out", "flicker_all", "flicker_in", "flicker_out",
+        f"ms_per_{side}px_frame", "steps", "train_seconds"]
+rows = []
+for c in configs:
+    rep = json.load(open(os.path.join(out, "reports", c, "report.json")))
+    d = rep["summary"]["denoised"]
+    steps, seconds = 0, 0.0
+    with open(os.path.join(out, "runs", c, "loss.csv")) as f:
+        for r in csv.DictReader(f):
+            steps = int(r["step"])
+            seconds += float(r["seconds"])
+    row = {"config": c, "description": label[c], "frames": rep["summary"]["frames"]}
+    for m, key in (("ssim", "ssim"), ("psnr", "psnr"), ("relmse", "rel_mse"), ("flicker", "flicker")):
+        for region, short in (("all", "all"), ("in_focus", "in"), ("out_of_focus", "out")):
+            v = d[region][key]
+            row[f"{m}_{short}"] = float("nan") if v is None else float(v)
+    t = rep.get("denoise_ms_at_size") or {}
+    row[f"ms_per_{side}px_frame"] = float(t.get("ms", float("nan")))
+    row["steps"] = steps
+    row["train_seconds"] = seconds
+    rows.append(row)
+
+def fmt(v, spec):
+    return "–" if isinstance(v, float) and not math.isfinite(v) else format(v, spec)
+
+with open(os.path.join(out, "results.csv.tmp"), "w", newline="") as f:
+    w = csv.writer(f)
+    w.writerow(cols)
+    for r in rows:
+        w.writerow([r[c] if not isinstance(r[c], float) else repr(r[c]) for c in cols])
+os.replace(os.path.join(out, "results.csv.tmp"), os.path.join(out, "results.csv"))
+
+md = ["| configuration | SSIM all | SSIM in focus | SSIM out of focus | PSNR all (dB) | PSNR in | "
+      "PSNR out | relMSE all | relMSE in | relMSE out | flicker all | flicker in | flicker out | "
+      f"ms / {side}² frame | steps | train wall s |",
+      "| --- " * 16 + "|"]
+for r in rows:
+    md.append("| " + " | ".join([
+        f"`{r['config']}` {r['description']}",
+        *(fmt(r[f"ssim_{s}"], ".4f") for s in ("all", "in", "out")),
+        *(fmt(r[f"psnr_{s}"], ".2f") for s in ("all", "in", "out")),
+        *(fmt(r[f"relmse_{s}"], ".4f") for s in ("all", "in", "out")),
+        *(fmt(r[f"flicker_{s}"], ".3g") for s in ("all", "in", "out")),
+        fmt(r[f"ms_per_{side}px_frame"], ".0f"), str(r["steps"]), fmt(r["train_seconds"], ".0f"),
+    ]) + " |")
+frames = sorted({r["frames"] for r in rows})
+note = (f"\nValidation frames: {', '.join(map(str, frames))}; weights after the last step. "
+        "SSIM and PSNR on sRGB clamped to [0, 1]; relative MSE and flicker on linear HDR "
+        "(docs/trainer.md, \"Evaluation\"). In focus: CoC < 1 px.\n")
+with open(os.path.join(out, "results.md.tmp"), "w") as f:
+    f.write("\n".join(md) + "\n" + note)
+os.replace(os.path.join(out, "results.md.tmp"), os.path.join(out, "results.md"))
+
+# Plot: 1 - SSIM (all pixels) against ms per frame, one labelled point each.
+W, H, L, R, T, B = 720, 440, 80, 250, 40, 60
+pts = [(r[f"ms_per_{side}px_frame"], 1 - r["ssim_all"], r["config"]) for r in rows
+       if math.isfinite(r[f"ms_per_{side}px_frame"]) and math.isfinite(r["ssim_all"])]
+def span(vals):
+    lo, hi = min(vals), max(vals)
+    pad = (hi - lo) * 0.1 or abs(hi) * 0.1 or 1.0
+    return lo - pad, hi + pad
+svg = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{W}" height="{H}" font-family="sans-serif" font-size="12">',
+       f'<rect width="{W}" height="{H}" fill="white"/>',
+       f'<text x="{(L + W - R) / 2}" y="22" text-anchor="middle" font-size="15">'
+       f'Error against denoise time ({len(pts)} configurations)</text>']
+if pts:
+    x0, x1 = span([p[0] for p in pts])
+    y0, y1 = span([p[1] for p in pts])
+    y0 = max(0.0, y0)
+    X = lambda v: L + (v - x0) / (x1 - x0) * (W - L - R)
+    Y = lambda v: H - B - (v - y0) / (y1 - y0) * (H - T - B)
+    svg.append(f'<rect x="{L}" y="{T}" width="{W - L - R}" height="{H - T - B}" fill="none" stroke="#444"/>')
+    for i in range(5):
+        xv, yv = x0 + (x1 - x0) * i / 4, y0 + (y1 - y0) * i / 4
+        svg.append(f'<text class="xtick" x="{X(xv):.1f}" y="{H - B + 16}" text-anchor="middle">{xv:.0f}</text>')
+        svg.append(f'<text class="ytick" x="{L - 6}" y="{Y(yv) + 4:.1f}" text-anchor="end">{yv:.4f}</text>')
+    svg.append(f'<text x="{(L + W - R) / 2}" y="{H - 18}" text-anchor="middle">'
+               f'denoise time per {side}×{side} frame (ms)</text>')
+    svg.append(f'<text transform="translate(20 {(T + H - B) / 2}) rotate(-90)" text-anchor="middle">'
+               '1 − SSIM, all pixels (lower is better)</text>')
+    colours = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b"]
+    for i, (xv, yv, name) in enumerate(pts):
+        col = colours[i % len(colours)]
+        svg.append(f'<circle cx="{X(xv):.1f}" cy="{Y(yv):.1f}" r="5" fill="{col}"/>')
+        svg.append(f'<circle cx="{W - R + 20}" cy="{T + 10 + 20 * i}" r="5" fill="{col}"/>')
+        svg.append(f'<text x="{W - R + 30}" y="{T + 14 + 20 * i}">{label[name]}</text>')
+svg.append("</svg>")
+with open(os.path.join(out, "results.svg.tmp"), "w") as f:
+    f.write("\n".join(svg) + "\n")
+os.replace(os.path.join(out, "results.svg.tmp"), os.path.join(out, "results.svg"))
+print("\n".join(md) + "\n" + note)
+print(f"dof_study.sh: {out}/results.md, results.csv, results.svg")
+PY

@@ -1,0 +1,114 @@
+// bench/trainer/dof_study.sh end to end at smoke scale: the real script, the
+// real dofarm-train, a synthetic shard; tiny models and 2 steps, so it takes
+// seconds. It checks what the script promises (a row with finite numbers for
+// every configuration, the plot) and that a second run resumes instead of
+// training again; never a score or a timing.
+#include <gtest/gtest.h>
+#include <sys/stat.h>
+
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "synthetic.h"
+
+namespace dofarm::trainer {
+namespace {
+
+namespace fs = std::filesystem;
+
+std::string read_all(const fs::path& p) {
+  std::ifstream in(p);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+std::vector<std::string> split(const std::string& line, char sep) {
+  std::vector<std::string> out;
+  std::string cell;
+  std::istringstream is(line);
+  while (std::getline(is, cell, sep)) out.push_back(cell);
+  return out;
+}
+
+int run_study(const fs::path& data, const fs::path& out, const fs::path& log) {
+  const std::string cmd =
+      std::string("DOFARM_TRAIN=") + DOFARM_TRAIN_EXE + " bash " + DOFARM_SOURCE_DIR +
+      "/bench/trainer/dof_study.sh --steps 2 --epochs 1 --time-size 64 --out " + out.string() +
+      " --set 'model.channels=[8, 8, 8, 8, 8]' --set data.crop=32 --set data.sequence=3"
+      " --set data.val_fraction=0.25 --set data.readers=1 --set data.queue=4"
+      " --set train.batch=2 --set train.val_sequences=1 --set train.device=cpu " +
+      data.string() + " > " + log.string() + " 2>&1";
+  const int rc = std::system(cmd.c_str());
+  return WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
+}
+
+TEST(Study, OneCommandScoresEveryConfigurationAndResumes) {
+  const fs::path dir = testing::scratch_dir("study");
+  // 12 frames of 3-frame sequences, one of them validation (val_fraction 0.25).
+  fs::create_directories(dir / "data");
+  testing::write_synthetic_shard(dir / "data" / "shard-00000.h5", 12, 64, 64, 2, 5);
+  const fs::path out = dir / "out";
+  ASSERT_EQ(run_study(dir / "data", out, dir / "first.log"), 0) << read_all(dir / "first.log");
+
+  const std::vector<std::string> configs = {"thesis",       "thesis_nococ",     "default",
+                                            "thesis_focus", "thesis_prefilter", "thesis_recurrent"};
+  std::ifstream csv(out / "results.csv");
+  std::string line;
+  ASSERT_TRUE(std::getline(csv, line));
+  const std::vector<std::string> header = split(line, ',');
+  ASSERT_EQ(header.size(), 18u) << line;
+  EXPECT_EQ(header[15], "ms_per_64px_frame");
+  std::map<std::string, std::vector<std::string>> rows;
+  while (std::getline(csv, line))
+    if (!line.empty()) rows[split(line, ',')[0]] = split(line, ',');
+  ASSERT_EQ(rows.size(), configs.size());
+  for (const std::string& c : configs) {
+    ASSERT_TRUE(rows.count(c)) << c;
+    const std::vector<std::string>& r = rows[c];
+    ASSERT_EQ(r.size(), header.size()) << c;
+    EXPECT_EQ(r[2], "3") << c;  // validation frames
+    for (size_t i = 3; i < r.size(); ++i)
+      EXPECT_TRUE(std::isfinite(std::stod(r[i]))) << c << " " << header[i] << " = " << r[i];
+    EXPECT_EQ(r[16], "2") << c;  // steps
+    // The configuration is what its name says.
+    const std::string cfg = read_all(out / "runs" / c / "config.toml");
+    if (c == "thesis_nococ") EXPECT_EQ(cfg.find("coc:thesis"), std::string::npos);
+    if (c == "thesis") EXPECT_NE(cfg.find("coc:thesis"), std::string::npos);
+    if (c == "thesis_focus") EXPECT_NE(cfg.find("focus_weight = 4"), std::string::npos);
+    if (c == "thesis_prefilter") EXPECT_NE(cfg.find("albedo_prefilter = 'coc'"), std::string::npos);
+    if (c == "thesis_recurrent") EXPECT_NE(cfg.find("recurrent = true"), std::string::npos);
+    if (c == "default") EXPECT_NE(cfg.find("coc:log"), std::string::npos);
+  }
+  const std::string md = read_all(out / "results.md");
+  for (const std::string& c : configs) EXPECT_NE(md.find("`" + c + "`"), std::string::npos) << c;
+  const std::string svg = read_all(out / "results.svg");
+  EXPECT_NE(svg.find("<svg"), std::string::npos);
+  size_t points = 0;  // one dot on the plot and one in the legend per configuration
+  for (size_t at = svg.find("<circle"); at != std::string::npos; at = svg.find("<circle", at + 1))
+    ++points;
+  EXPECT_EQ(points, 2 * configs.size());
+
+  // A second run resumes: nothing is trained or evaluated again.
+  std::map<std::string, fs::file_time_type> before;
+  for (const std::string& c : configs)
+    before[c] = fs::last_write_time(out / "runs" / c / "checkpoints" / "last.pt");
+  ASSERT_EQ(run_study(dir / "data", out, dir / "second.log"), 0) << read_all(dir / "second.log");
+  const std::string second = read_all(dir / "second.log");
+  for (const std::string& c : configs) {
+    EXPECT_NE(second.find(c + ": trained (2 steps), not trained again"), std::string::npos)
+        << second;
+    EXPECT_NE(second.find(c + ": evaluated, not evaluated again"), std::string::npos) << second;
+    EXPECT_EQ(fs::last_write_time(out / "runs" / c / "checkpoints" / "last.pt"), before[c]) << c;
+  }
+  EXPECT_EQ(read_all(out / "results.md"), md);  // the same table again
+}
+
+}  // namespace
+}  // namespace dofarm::trainer
