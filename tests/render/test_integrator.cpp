@@ -277,6 +277,59 @@ TEST(Integrator, RouletteEndsOnlyLowThroughputPaths) {
   EXPECT_LT(one, quarter);
 }
 
+// The measurement hook of bench/path_variance: the terms it is told of are
+// the whole estimate (their sum is what trace_path returns), every surface
+// hit is reported once per depth, and observing changes no bit of a path.
+struct RecordingObserver : PathObserver {
+  Vec3 sum{0};
+  int terms = 0, vertices = 0, last_depth = -1, roulettes = 0;
+  bool depths_in_order = true;
+  void vertex(int depth, const SurfaceHit&) override {
+    depths_in_order = depths_in_order && depth == last_depth + 1;
+    last_depth = depth;
+    ++vertices;
+  }
+  void contribution(Kind, int, Vec3 value) override {
+    sum += value;
+    ++terms;
+  }
+  void roulette(int, float survive, bool) override {
+    roulettes += survive < 1 ? 1 : 0;
+  }
+};
+
+TEST(Integrator, ObserverSeesEveryTermOfTheEstimateAndChangesNothing) {
+  auto scene = make_scene(testing::small_room());
+  JobSpec spec = make_spec(8, 8, Vec3(0, 1, 3.2f), Vec3(0, 0.9f, 0), 45.0f);
+  Camera cam(camera_for_frame(spec, scene->data(), 0), spec.width, spec.height);
+  IntegratorSettings plain;
+  plain.rr_start_depth = 1;
+  int terms = 0, roulettes = 0;
+  for (int y = 0; y < spec.height; ++y)
+    for (int x = 0; x < spec.width; ++x)
+      for (int s = 0; s < 16; ++s) {
+        RecordingObserver obs;
+        IntegratorSettings observed = plain;
+        observed.observer = &obs;
+        const Ray ray = cam.pinhole_ray({x + 0.5f, y + 0.5f});
+        PixelSampler a(spec.sampler, spec.seed, 0, x, y, Stream::kTest);
+        PixelSampler b(spec.sampler, spec.seed, 0, x, y, Stream::kTest);
+        a.start_sample(uint32_t(s));
+        b.start_sample(uint32_t(s));
+        const Vec3 without = trace_path(*scene, ray, a, plain);
+        const Vec3 with = trace_path(*scene, ray, b, observed);
+        for (int c = 0; c < 3; ++c) {
+          ASSERT_EQ(without[c], with[c]) << "pixel " << x << "," << y << " sample " << s;
+          EXPECT_NEAR(obs.sum[c], with[c], 1e-5f * std::max(1.0f, with[c]));
+        }
+        EXPECT_TRUE(obs.depths_in_order);
+        terms += obs.terms;
+        roulettes += obs.roulettes;
+      }
+  EXPECT_GT(terms, 8 * 8 * 16);  // NEE at every vertex: more terms than paths
+  EXPECT_GT(roulettes, 0);
+}
+
 TEST(Integrator, SceneWithoutLightIsRefused) {
   SceneData d;
   d.source = "dark.gltf";

@@ -51,6 +51,7 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
     SurfaceHit hit;
     bool found = scene.intersect(ray, &hit);
     if (depth == 0 && albedo) *albedo = primary_albedo(found ? &hit : nullptr);
+    if (found && settings.observer) settings.observer->vertex(depth, hit);
 
     if (!found) {
       if (env && (delta_bounce || use_bsdf_hits)) {
@@ -64,6 +65,8 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
           le = env->eval(ray.d);
         }
         L += beta * le * w;
+        if (settings.observer)
+          settings.observer->contribution(PathObserver::Kind::kEnvironment, depth, beta * le * w);
       }
       break;
     }
@@ -72,6 +75,10 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
       if (!delta_bounce && use_mis)
         w = power_heuristic(prev_bsdf_pdf, scene.light_pdf(prev_p, hit));
       L += beta * hit.emission * w;
+      if (settings.observer)
+        settings.observer->contribution(
+            delta_bounce ? PathObserver::Kind::kEmitted : PathObserver::Kind::kBsdfHit, depth,
+            beta * hit.emission * w);
     }
     if (depth >= settings.max_depth) break;
 
@@ -115,6 +122,9 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
           if (!scene.occluded(origin, dir, t_max)) {
             float w = use_mis && !ls.is_delta ? power_heuristic(ls.pdf, bsdf_pdf) : 1.0f;
             L += beta * f * ls.radiance * (w / ls.pdf);
+            if (settings.observer)
+              settings.observer->contribution(PathObserver::Kind::kLight, depth,
+                                              beta * f * ls.radiance * (w / ls.pdf));
           }
         }
       }
@@ -135,6 +145,8 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
       // probability max(beta) / rr_threshold and is then weighted up to the
       // threshold, so the expectation is unchanged (E[beta'] = q beta / q).
       const float survive = std::min(1.0f, max_component(beta) / settings.rr_threshold);
+      if (settings.observer && survive < 1)
+        settings.observer->roulette(depth, survive, u_rr < survive);
       if (u_rr >= survive) break;
       beta = beta / survive;
     }

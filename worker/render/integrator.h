@@ -13,6 +13,24 @@ namespace dofarm::render {
 // all three estimate the same integral.
 enum class LightStrategy { kMis, kNeeOnly, kBsdfOnly };
 
+// A measurement hook (bench/path_variance): told of every surface a path
+// hits, of every term it adds to its estimate and of every roulette decision.
+// Null in the renderer, where it costs one untaken branch per event.
+class PathObserver {
+ public:
+  enum class Kind {
+    kEmitted,      // emission reached by the camera ray or after a delta bounce
+    kBsdfHit,      // emission reached by BSDF sampling, MIS-weighted
+    kLight,        // next-event estimation, MIS-weighted
+    kEnvironment,  // environment reached by an escaping ray
+  };
+  virtual ~PathObserver() = default;
+  virtual void vertex(int depth, const SurfaceHit& hit) = 0;
+  virtual void contribution(Kind kind, int depth, Vec3 value) = 0;
+  // `survive` < 1: the path was played for; it continues iff `survived`.
+  virtual void roulette(int depth, float survive, bool survived) = 0;
+};
+
 struct IntegratorSettings {
   int max_depth = 16;  // surface interactions after the camera
   int rr_start_depth = 3;
@@ -23,6 +41,7 @@ struct IntegratorSettings {
   // relative MSE x CPU time 29% lower than with 1 (no roulette: 12% higher).
   float rr_threshold = 0.25f;
   LightStrategy strategy = LightStrategy::kMis;
+  PathObserver* observer = nullptr;  // measurements only (bench/path_variance)
 };
 
 // What the denoiser sees of the first surface: the reflectance used to
