@@ -24,6 +24,7 @@
 #include "common/jobspec.h"
 #include "common/messages.h"
 #include "common/progress.h"
+#include "common/stop_signals.h"
 #include "common/transport.h"
 #include "coordinator/server.h"
 #include "farm/embedded_run.h"
@@ -37,23 +38,6 @@ namespace dofarm {
 
 namespace fs = std::filesystem;
 using protocol::Json;
-
-std::atomic<bool>& stop_requested() {
-  static std::atomic<bool> flag{false};
-  return flag;
-}
-
-namespace {
-extern "C" void on_stop_signal(int) { stop_requested().store(true); }
-}  // namespace
-
-void install_stop_signals() {
-  struct sigaction sa = {};
-  sa.sa_handler = on_stop_signal;
-  sigemptyset(&sa.sa_mask);
-  sigaction(SIGINT, &sa, nullptr);
-  sigaction(SIGTERM, &sa, nullptr);
-}
 
 namespace {
 
@@ -161,7 +145,7 @@ Command add_run_impl(CLI::App& app) {
             a->exe = fs::read_symlink("/proc/self/exe");
             std::string level = app.get_option("--log-level")->as<std::string>();
             a->worker_log_level = level == "info" ? "warn" : level;
-            install_stop_signals();
+            install_stop_signals(RepeatedSignal::kAsksAgain);
             farm::EmbeddedRunResult r = farm::run_embedded(*a, stop_requested());
             const auto& b = r.status;
             if (r.stranded)
@@ -213,7 +197,7 @@ Command add_coordinator(CLI::App& app) {
       ->capture_default_str();
   add_http_options(cmd, a->http);
   return {cmd, [a]() {
-            install_stop_signals();
+            install_stop_signals(RepeatedSignal::kAsksAgain);
             coordinator::SystemClock clock;
             coordinator::ServerOptions so;
             so.listen = a->listen;
@@ -270,7 +254,7 @@ Command add_worker(CLI::App& app) {
   return {cmd, [o, curve, key_pair]() {
             if (!curve->empty()) o->curve_public = *curve;
             if (!key_pair->empty()) o->curve_client = *key_pair;
-            install_stop_signals();
+            install_stop_signals(RepeatedSignal::kAsksAgain);
             return worker::run_worker(*o, stop_requested());
           }};
 }
@@ -386,7 +370,7 @@ Command add_status(CLI::App& app) {
           std::cout << (a->json ? st.dump(2) + "\n" : farm::format_status(st)) << std::flush;
           return kExitOk;
         }
-        install_stop_signals();
+        install_stop_signals(RepeatedSignal::kAsksAgain);
         farm::WatchOptions wo;
         wo.interval_seconds = interval;
         wo.terminal = isatty(STDOUT_FILENO);

@@ -15,10 +15,6 @@ namespace dofarm {
 // --set KEY=VALUE, shared by every command that reads a job spec.
 void add_set_option(CLI::App* cmd, std::vector<std::string>& sets);
 
-// Set by SIGINT/SIGTERM once install_stop_signals() ran.
-std::atomic<bool>& stop_requested();
-void install_stop_signals();
-
 Command add_run(CLI::App& app);
 Command add_coordinator(CLI::App& app);
 Command add_worker(CLI::App& app);

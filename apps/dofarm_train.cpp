@@ -14,12 +14,10 @@
 // stderr; 3 (kExitStopped) when `train` stopped on SIGINT/SIGTERM after
 // finishing its step and writing last.pt (run the same command to resume).
 // A second signal ends the process at once, as the signal's default does.
-#include <signal.h>
 #include <spdlog/spdlog.h>
 
 #include <CLI/CLI.hpp>
 #include <atomic>
-#include <csignal>
 #include <cstdio>
 #include <filesystem>
 #include <functional>
@@ -32,6 +30,7 @@
 #include "common/error.h"
 #include "common/exr_io.h"
 #include "common/log.h"
+#include "common/stop_signals.h"
 #include "trainer/config.h"
 #include "trainer/eval.h"
 #include "trainer/export_contract.h"
@@ -48,24 +47,6 @@ using namespace dofarm::trainer;
 
 // `train` stopped on request with its checkpoint written.
 constexpr int kExitStopped = 3;
-
-std::atomic<bool> g_stop{false};
-
-extern "C" void on_train_signal(int sig) {
-  if (g_stop.exchange(true)) {
-    // The second signal: the default action (terminate), now.
-    std::signal(sig, SIG_DFL);
-    std::raise(sig);
-  }
-}
-
-void install_train_signals() {
-  struct sigaction sa = {};
-  sa.sa_handler = on_train_signal;
-  sigemptyset(&sa.sa_mask);
-  sigaction(SIGINT, &sa, nullptr);
-  sigaction(SIGTERM, &sa, nullptr);
-}
 
 void add_checkpoint_option(CLI::App* cmd, std::string* which) {
   cmd->add_option("--checkpoint", *which,
@@ -118,8 +99,8 @@ Command add_train(CLI::App& app) {
               t.config = load_train_config(o->config, o->sets, &base);
             }
             t.save_every = o->save_every;
-            t.stop = &g_stop;
-            install_train_signals();
+            t.stop = &stop_requested();
+            install_stop_signals(RepeatedSignal::kTerminates);
             TrainResult r = train(t);
             spdlog::info("{} epochs ({} steps); best loss {:.5f}; {} skipped steps, {} rollbacks",
                          r.epochs, r.steps, r.best_val, r.skipped_steps, r.rollbacks);

@@ -1,3 +1,6 @@
+// Frame EXRs (docs/exr_format.md) and the plain RGB EXRs of reports and of
+// other renderers' frames. The bytes are read and written by
+// common/exr_stream.cpp; image loading is common/image_load.cpp.
 #include "common/exr_io.h"
 
 #include <ImfBoxAttribute.h>
@@ -7,39 +10,26 @@
 #include <ImfFloatVectorAttribute.h>
 #include <ImfFrameBuffer.h>
 #include <ImfHeader.h>
-#include <ImfIO.h>
 #include <ImfInputFile.h>
 #include <ImfIntAttribute.h>
-#include <ImfOutputFile.h>
-#include <ImfRgbaFile.h>
 #include <ImfStringAttribute.h>
 #include <ImfVecAttribute.h>
-#include <fcntl.h>
-#include <sys/stat.h>
-#include <unistd.h>
 
 #include <algorithm>
-#include <atomic>
-#include <cerrno>
 #include <cmath>
-#include <cstring>
 #include <exception>
-#include <limits>
-#include <system_error>
 
 #include "common/checksum.h"
-#include "common/content_hash.h"
 #include "common/error.h"
-
-#define STB_IMAGE_IMPLEMENTATION
-#define STBI_NO_PSD
-#define STBI_NO_PIC
-#define STBI_NO_PNM
-#define STBI_NO_GIF
-#include <stb_image.h>
+#include "common/exr_stream.h"
 
 namespace dofarm {
 namespace {
+
+using exr_detail::MemIStream;
+using exr_detail::quoted;
+using exr_detail::read_whole_file;
+using exr_detail::write_exr_atomically;
 
 // Written into every frame EXR; read_frame_exr() refuses any other value, so a
 // future layout change cannot be misread silently (STYLE.md 9). Version 1
@@ -68,10 +58,6 @@ constexpr const char* kRgbNoisyMean = "noisy_mean";
 bool is_openexr_string_attribute(const std::string& name) {
   return name == "name" || name == "type" || name == "view";
 }
-
-std::string quoted(const std::filesystem::path& path) { return "'" + path.string() + "'"; }
-
-std::string errno_text(int err) { return std::error_code(err, std::generic_category()).message(); }
 
 // --- Channel layout (docs/exr_format.md) --------------------------------------
 
@@ -141,154 +127,6 @@ std::string frame_exr_channel(const std::string& buffer, int c, const std::strin
 
 namespace {
 
-// --- Atomic file writing ----------------------------------------------------
-
-// An Imf::OStream into memory. A frame is encoded whole before any byte
-// reaches the disk, so its checksum is computed over the very bytes written
-// and nobody has to read the file back for it. OutputFile writes its offset
-// table from its destructor, which swallows exceptions, so the first failure
-// (out of memory) is remembered: an incomplete encoding must not be written.
-class MemOStream : public Imf::OStream {
- public:
-  explicit MemOStream(const std::string& name) : Imf::OStream(name.c_str()) {}
-
-  void write(const char c[], int n) override {
-    try {
-      if (pos_ + size_t(n) > bytes_.size()) bytes_.resize(pos_ + size_t(n));
-    } catch (const std::exception& e) {
-      error_ = std::string("out of memory encoding the image: ") + e.what();
-      throw Iex::IoExc(error_);
-    }
-    std::memcpy(bytes_.data() + pos_, c, size_t(n));
-    pos_ += size_t(n);
-  }
-  uint64_t tellp() override { return pos_; }
-  void seekp(uint64_t pos) override { pos_ = pos; }
-
-  const std::vector<char>& bytes() const { return bytes_; }
-  const std::string& error() const { return error_; }
-
- private:
-  std::vector<char> bytes_;
-  size_t pos_ = 0;
-  std::string error_;
-};
-
-// An Imf::IStream over bytes already in memory (memory-mapped in OpenEXR's
-// sense: the decoder reads them in place).
-class MemIStream : public Imf::IStream {
- public:
-  MemIStream(const std::string& name, const std::vector<char>& bytes)
-      : Imf::IStream(name.c_str()), bytes_(bytes) {}
-
-  bool isMemoryMapped() const override { return true; }
-  char* readMemoryMapped(int n) override {
-    if (n < 0 || pos_ + size_t(n) > bytes_.size()) throw Iex::InputExc("unexpected end of file");
-    char* p = const_cast<char*>(bytes_.data()) + pos_;
-    pos_ += size_t(n);
-    return p;
-  }
-  bool read(char c[], int n) override {
-    std::memcpy(c, readMemoryMapped(n), size_t(n));
-    return pos_ < bytes_.size();
-  }
-  uint64_t tellg() override { return pos_; }
-  void seekg(uint64_t pos) override { pos_ = pos; }
-  void clear() override {}
-
- private:
-  const std::vector<char>& bytes_;
-  size_t pos_ = 0;
-};
-
-// The whole file in one read. Throws RuntimeError naming it.
-std::vector<char> read_whole_file(const std::filesystem::path& path) {
-  int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-  if (fd < 0) throw RuntimeError("cannot open " + quoted(path) + ": " + errno_text(errno));
-  std::vector<char> bytes;
-  try {
-    struct stat st {};
-    if (::fstat(fd, &st) != 0)
-      throw RuntimeError("cannot stat " + quoted(path) + ": " + errno_text(errno));
-    bytes.resize(size_t(st.st_size));
-    size_t done = 0;
-    while (done < bytes.size()) {
-      ssize_t k = ::pread(fd, bytes.data() + done, bytes.size() - done, off_t(done));
-      if (k < 0 && errno == EINTR) continue;
-      if (k < 0) throw RuntimeError("cannot read " + quoted(path) + ": " + errno_text(errno));
-      if (k == 0) break;  // shrank meanwhile: decode what is there, the reader reports it
-      done += size_t(k);
-    }
-    bytes.resize(done);
-  } catch (...) {
-    ::close(fd);
-    throw;
-  }
-  ::close(fd);
-  return bytes;
-}
-
-// Writes all of `bytes` to `fd`. Throws RuntimeError.
-void write_all(int fd, const std::vector<char>& bytes) {
-  size_t done = 0;
-  while (done < bytes.size()) {
-    ssize_t k = ::write(fd, bytes.data() + done, bytes.size() - done);
-    if (k < 0 && errno == EINTR) continue;
-    if (k <= 0) throw RuntimeError("write failed: " + errno_text(k < 0 ? errno : EIO));
-    done += size_t(k);
-  }
-}
-
-// Makes a rename durable: the directory entry itself must reach the disk.
-void fsync_directory(const std::filesystem::path& dir) {
-  int fd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-  if (fd < 0) throw RuntimeError("cannot open directory " + quoted(dir) + ": " + errno_text(errno));
-  int rc = ::fsync(fd);
-  int err = errno;
-  ::close(fd);
-  if (rc != 0) throw RuntimeError("cannot fsync directory " + quoted(dir) + ": " + errno_text(err));
-}
-
-// Writes `header` and `frame_buffer` to `path` so that a reader sees either
-// the old file or the complete new one (LevelDB-style temp, fsync, rename).
-// This is the one boundary where OpenEXR exceptions become RuntimeError.
-uint64_t write_exr_atomically(const std::filesystem::path& path, const Imf::Header& header,
-                              const Imf::FrameBuffer& frame_buffer) {
-  // The counter keeps two threads of one process writing the same path from
-  // sharing a temporary file.
-  static std::atomic<unsigned> counter{0};
-  const std::filesystem::path tmp = path.string() + ".tmp-" + std::to_string(::getpid()) + "-" +
-                                    std::to_string(counter.fetch_add(1));
-  const std::filesystem::path dir = path.has_parent_path() ? path.parent_path() : ".";
-  int fd = -1;
-  try {
-    MemOStream stream(tmp.string());
-    {
-      Imf::OutputFile file(stream, header, 1);
-      file.setFrameBuffer(frame_buffer);
-      file.writePixels(header.dataWindow().max.y - header.dataWindow().min.y + 1);
-    }  // the destructor writes the line offset table
-    if (!stream.error().empty()) throw RuntimeError(stream.error());
-    const uint64_t sum = checksum64(stream.bytes().data(), stream.bytes().size());
-    std::filesystem::create_directories(dir);
-    fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-    if (fd < 0) throw RuntimeError("cannot create " + quoted(tmp) + ": " + errno_text(errno));
-    write_all(fd, stream.bytes());
-    if (::fsync(fd) != 0) throw RuntimeError("fsync failed: " + errno_text(errno));
-    int rc = ::close(fd);
-    fd = -1;
-    if (rc != 0) throw RuntimeError("close failed: " + errno_text(errno));
-    std::filesystem::rename(tmp, path);
-    fsync_directory(dir);
-    return sum;
-  } catch (const std::exception& e) {
-    if (fd >= 0) ::close(fd);
-    std::error_code ignored;
-    std::filesystem::remove(tmp, ignored);
-    throw RuntimeError("cannot write EXR " + quoted(path) + ": " + e.what());
-  }
-}
-
 // --- Frame header -----------------------------------------------------------
 
 template <typename T>
@@ -334,168 +172,7 @@ CameraState read_camera(const Imf::Header& header, const std::filesystem::path& 
   cam.aperture = required_attribute<Imf::FloatAttribute>(header, kApertureAttr, path).value();
   return cam;
 }
-
-// --- Image loading ----------------------------------------------------------
-
-std::string lower_extension(const std::filesystem::path& path) {
-  std::string ext = path.extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(),
-                 [](unsigned char c) { return std::tolower(c); });
-  return ext;
-}
-
-RgbImage load_exr_rgb(const std::filesystem::path& path) {
-  RgbImage img;
-  try {
-    Imf::InputFile file(path.c_str());
-    const Imf::Header& header = file.header();
-    const Imath::Box2i dw = header.dataWindow();
-    img.width = dw.max.x - dw.min.x + 1;
-    img.height = dw.max.y - dw.min.y + 1;
-    img.rgb.assign(size_t(img.width) * img.height * 3, 0.0f);
-    const Imf::ChannelList& channels = header.channels();
-    if (channels.findChannel("R") && channels.findChannel("G") && channels.findChannel("B")) {
-      // Read R, G, B as FLOAT whatever their stored type: OpenEXR converts
-      // exactly, where RgbaInputFile would round 32-bit data to half.
-      Imf::FrameBuffer fb;
-      const char* const names[] = {"R", "G", "B"};
-      for (int c = 0; c < 3; ++c)
-        fb.insert(names[c], Imf::Slice::Make(Imf::FLOAT, img.rgb.data() + c, dw, 3 * sizeof(float),
-                                             3 * sizeof(float) * size_t(img.width)));
-      file.setFrameBuffer(fb);
-      file.readPixels(dw.min.y, dw.max.y);
-    } else {
-      // Luminance or luminance/chroma files: RgbaInputFile knows how to turn
-      // them into RGB (half precision is all such files hold).
-      Imf::RgbaInputFile rgba_file(path.c_str());
-      if (!(rgba_file.channels() & Imf::WRITE_Y)) throw RuntimeError("no R, G, B or Y channels");
-      std::vector<Imf::Rgba> pixels(size_t(img.width) * img.height);
-      rgba_file.setFrameBuffer(pixels.data() - dw.min.x - size_t(dw.min.y) * img.width, 1,
-                               size_t(img.width));
-      rgba_file.readPixels(dw.min.y, dw.max.y);
-      for (size_t i = 0; i < pixels.size(); ++i) {
-        img.rgb[3 * i + 0] = pixels[i].r;
-        img.rgb[3 * i + 1] = pixels[i].g;
-        img.rgb[3 * i + 2] = pixels[i].b;
-      }
-    }
-  } catch (const std::exception& e) {
-    throw RuntimeError("cannot read image " + quoted(path) + ": " + e.what());
-  }
-  return img;
-}
-
-// Where stb_image reads from: a file, or encoded bytes in memory (a texture
-// embedded in a glTF). Both decode through the same code below.
-struct StbSource {
-  const std::filesystem::path* path = nullptr;
-  const stbi_uc* data = nullptr;
-  int size = 0;
-  bool is_16_bit() const {
-    return path ? stbi_is_16_bit(path->c_str()) : stbi_is_16_bit_from_memory(data, size);
-  }
-  float* loadf(int* w, int* h, int* c) const {
-    return path ? stbi_loadf(path->c_str(), w, h, c, 3)
-                : stbi_loadf_from_memory(data, size, w, h, c, 3);
-  }
-  stbi_us* load_16(int* w, int* h, int* c) const {
-    return path ? stbi_load_16(path->c_str(), w, h, c, 3)
-                : stbi_load_16_from_memory(data, size, w, h, c, 3);
-  }
-  stbi_uc* load(int* w, int* h, int* c) const {
-    return path ? stbi_load(path->c_str(), w, h, c, 3)
-                : stbi_load_from_memory(data, size, w, h, c, 3);
-  }
-};
-
-// Throws RuntimeError naming `what` (the file, or the embedded image).
-RgbImage load_stb_rgb(const StbSource& src, const std::string& what, bool hdr, bool srgb) {
-  RgbImage img;
-  int channels_in_file = 0;
-  const size_t n = [&] {
-    if (hdr) {
-      // Radiance .hdr holds linear radiance; stbi_loadf returns it unchanged.
-      float* data = src.loadf(&img.width, &img.height, &channels_in_file);
-      if (!data) return size_t(0);
-      img.rgb.assign(data, data + size_t(img.width) * img.height * 3);
-      stbi_image_free(data);
-    } else if (src.is_16_bit()) {
-      // 16-bit PNGs keep their precision instead of being cut to 8 bits.
-      stbi_us* data = src.load_16(&img.width, &img.height, &channels_in_file);
-      if (!data) return size_t(0);
-      const size_t count = size_t(img.width) * img.height * 3;
-      img.rgb.resize(count);
-      for (size_t i = 0; i < count; ++i) {
-        float v = data[i] / 65535.0f;
-        img.rgb[i] = srgb ? srgb_to_linear(v) : v;
-      }
-      stbi_image_free(data);
-    } else {
-      // Not stbi_loadf: for 8-bit files it applies a pure 2.2 gamma, not the
-      // sRGB curve. Decode the exact curve through a table of the 256 codes.
-      stbi_uc* data = src.load(&img.width, &img.height, &channels_in_file);
-      if (!data) return size_t(0);
-      float table[256];
-      for (int i = 0; i < 256; ++i) table[i] = srgb ? srgb_to_linear(i / 255.0f) : i / 255.0f;
-      const size_t count = size_t(img.width) * img.height * 3;
-      img.rgb.resize(count);
-      for (size_t i = 0; i < count; ++i) img.rgb[i] = table[data[i]];
-      stbi_image_free(data);
-    }
-    return img.rgb.size();
-  }();
-  if (n == 0) {
-    const char* reason = stbi_failure_reason();
-    throw RuntimeError("cannot read image " + what + ": " +
-                       (reason ? reason : "unknown stb_image error"));
-  }
-  return img;
-}
-
-// Textures and environment maps feed the renderer, which must never see a
-// NaN, an Inf or negative radiance; such texels are zeroed here, once, and
-// counted so the caller can warn.
-void sanitize(RgbImage* img) {
-  for (float& v : img->rgb) {
-    if (!(v >= 0.0f) || std::isinf(v)) {
-      v = 0.0f;
-      ++img->sanitized_values;
-    }
-  }
-}
-
 }  // namespace
-
-// --- Public API -------------------------------------------------------------
-
-RgbImage load_rgb_image(const std::filesystem::path& path, bool srgb) {
-  const std::string ext = lower_extension(path);
-  note_input_file(path);  // a job's snapshot holds every image it reads
-  RgbImage img;
-  if (ext == ".exr") {
-    img = load_exr_rgb(path);
-  } else if (ext == ".hdr") {
-    img = load_stb_rgb(StbSource{&path}, quoted(path), /*hdr=*/true, srgb);
-  } else if (ext == ".png" || ext == ".jpg" || ext == ".jpeg" || ext == ".tga" || ext == ".bmp") {
-    img = load_stb_rgb(StbSource{&path}, quoted(path), /*hdr=*/false, srgb);
-  } else {
-    throw RuntimeError("cannot read image " + quoted(path) + ": unknown extension '" + ext +
-                       "' (expected .exr, .hdr, .png, .jpg, .jpeg, .tga or .bmp)");
-  }
-  sanitize(&img);
-  return img;
-}
-
-RgbImage decode_rgb_image(const void* data, size_t size, const std::string& name, bool srgb) {
-  const std::string what = std::string(1, '"').append(name).append(1, '"');
-  if (size == 0 || size > size_t(std::numeric_limits<int>::max()))
-    throw RuntimeError("cannot read image " + what + ": " + std::to_string(size) + " bytes");
-  StbSource src{nullptr, static_cast<const stbi_uc*>(data), int(size)};
-  const bool hdr = stbi_is_hdr_from_memory(src.data, src.size) != 0;
-  RgbImage img = load_stb_rgb(src, what, hdr, srgb);
-  sanitize(&img);
-  return img;
-}
 
 uint64_t write_frame_exr(const std::filesystem::path& path, const FrameBuffers& fb,
                          const std::map<std::string, std::string>& attributes, FrameExtent frame) {
@@ -796,17 +473,6 @@ void write_rgb_exr_like(const std::filesystem::path& path, const RgbImage& img,
                                               sizeof(float), row));
   }
   write_exr_atomically(path, header, frame_buffer);
-}
-
-// IEC 61966-2-1: linear segment below the knee, 2.4 power above it.
-float srgb_to_linear(float v) {
-  if (v <= 0.04045f) return v / 12.92f;
-  return std::pow((v + 0.055f) / 1.055f, 2.4f);
-}
-
-float linear_to_srgb(float v) {
-  if (v <= 0.0031308f) return v * 12.92f;
-  return 1.055f * std::pow(v, 1.0f / 2.4f) - 0.055f;
 }
 
 }  // namespace dofarm

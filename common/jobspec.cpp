@@ -2,7 +2,9 @@
 // JobSpec. Every value is read at exactly one place below, every problem is a
 // SpecError located at file:line:col of the offending key or value (STYLE.md 2),
 // and unknown keys are errors so that a typo never falls back to a default.
-// jobs/README.md documents the keys; keep it in step with this file.
+// jobs/README.md documents the keys; keep it in step with this file. The
+// located reading of a TOML table is common/spec_section.h, the overrides
+// common/spec_overrides.cpp.
 #include "common/jobspec.h"
 
 #include <fmt/format.h>
@@ -10,348 +12,28 @@
 
 #include <algorithm>
 #include <climits>
-#include <cmath>
 #include <fstream>
-#include <limits>
 #include <map>
 #include <sstream>
 #include <string_view>
 #include <system_error>
-#include <unordered_map>
 
 #include "common/error.h"
+#include "common/spec_section.h"
 
 namespace dofarm {
 namespace {
 
 namespace fs = std::filesystem;
-
-// ---------------------------------------------------------------------------
-// Locations
-
-// Where each node came from. Nodes of the spec file carry their own
-// toml::source_region; nodes inserted by a --set override do not (or carry one
-// that points into the override text), so they are remembered by address. A
-// toml::table owns its children through unique_ptr, so the addresses are
-// stable for as long as the tree lives.
-class Origins {
- public:
-  explicit Origins(std::string file) : file_(std::move(file)) {}
-
-  const std::string& file() const { return file_; }
-
-  void mark_override(const toml::node& node, const std::string& text) {
-    overrides_[&node] = text;
-    if (const auto* t = node.as_table()) {
-      for (const auto& [k, child] : *t) mark_override(child, text);
-    } else if (const auto* a = node.as_array()) {
-      for (const auto& child : *a) mark_override(child, text);
-    }
-  }
-
-  void forget(const toml::node& node) {
-    overrides_.erase(&node);
-    if (const auto* t = node.as_table()) {
-      for (const auto& [k, child] : *t) forget(child);
-    } else if (const auto* a = node.as_array()) {
-      for (const auto& child : *a) forget(child);
-    }
-  }
-
-  bool is_override(const toml::node& node) const { return overrides_.count(&node) > 0; }
-
-  FileLoc of(const toml::node& node) const {
-    if (auto it = overrides_.find(&node); it != overrides_.end()) return FileLoc{it->second};
-    return from_region(node.source());
-  }
-
-  // A key is located at its own text when it has one (the value may be on a
-  // later line for inline tables), otherwise where its value is.
-  FileLoc of(const toml::key& key, const toml::node& value) const {
-    if (!is_override(value) && key.source().begin.line > 0) return from_region(key.source());
-    return of(value);
-  }
-
- private:
-  FileLoc from_region(const toml::source_region& r) const {
-    return FileLoc{file_, static_cast<int>(r.begin.line), static_cast<int>(r.begin.column)};
-  }
-
-  std::string file_;
-  std::unordered_map<const toml::node*, std::string> overrides_;
-};
-
-[[noreturn]] void fail(const FileLoc& loc, const std::string& key, const std::string& msg) {
-  throw SpecError(loc, key, msg);
-}
-
-std::string join_key(const std::string& prefix, std::string_view key) {
-  return prefix.empty() ? std::string(key) : prefix + "." + std::string(key);
-}
-
-// How a value reads in an error message: scalars by value, the rest by kind.
-std::string describe(const toml::node& node) {
-  switch (node.type()) {
-    case toml::node_type::integer:
-      return std::to_string(node.as_integer()->get());
-    case toml::node_type::floating_point:
-      return fmt::format("{}", node.as_floating_point()->get());
-    case toml::node_type::boolean:
-      return node.as_boolean()->get() ? "true" : "false";
-    case toml::node_type::string: {
-      std::ostringstream os;
-      os << "the string \"" << node.as_string()->get() << "\"";
-      return os.str();
-    }
-    case toml::node_type::array:
-      return "an array";
-    case toml::node_type::table:
-      return "a table";
-    case toml::node_type::date:
-      return "a date";
-    case toml::node_type::time:
-      return "a time";
-    case toml::node_type::date_time:
-      return "a date-time";
-    default:
-      return "nothing";
-  }
-}
-
-// ---------------------------------------------------------------------------
-// Ranges, each with the words used in "expected ..., got ..."
-
-struct IntRange {
-  int64_t lo, hi;
-  std::string what;
-  static IntRange positive() { return {1, INT_MAX, "a positive integer"}; }
-  static IntRange non_negative() { return {0, INT_MAX, "a non-negative integer"}; }
-  static IntRange between(int64_t lo, int64_t hi) {
-    return {lo, hi, fmt::format("an integer in [{}, {}]", lo, hi)};
-  }
-};
+using spec_reading::fail;
+using spec_reading::Interval;
+using spec_reading::IntRange;
+using spec_reading::join_key;
+using spec_reading::Origins;
+using spec_reading::Section;
 
 // The largest lens radius (`aperture`) a spec may give, in scene units.
 constexpr double kMaxLensRadius = 1e6;
-
-struct Interval {
-  double lo, hi;
-  bool lo_open, hi_open;
-  std::string what;
-  bool contains(double v) const {
-    return (lo_open ? v > lo : v >= lo) && (hi_open ? v < hi : v <= hi);
-  }
-  static Interval any() {
-    double inf = std::numeric_limits<double>::infinity();
-    return {-inf, inf, true, true, "a finite number"};
-  }
-  static Interval positive() {
-    return {0, std::numeric_limits<double>::infinity(), true, true, "a positive number"};
-  }
-  static Interval non_negative() {
-    return {0, std::numeric_limits<double>::infinity(), false, true, "a non-negative number"};
-  }
-  static Interval closed(double lo, double hi, std::string what) {
-    return {lo, hi, false, false, std::move(what)};
-  }
-  static Interval open(double lo, double hi) {
-    return {lo, hi, true, true, fmt::format("a number in ({}, {})", lo, hi)};
-  }
-};
-
-// ---------------------------------------------------------------------------
-// Reading one table of the spec
-
-// A table of the spec with its dotted name. The typed getters return nullopt
-// for an absent key (the caller keeps the struct's default) and throw a
-// located SpecError for a present key with a bad value.
-class Section {
- public:
-  Section(const Origins& origins, const toml::table* table, std::string name, FileLoc fallback_loc)
-      : origins_(origins),
-        table_(table),
-        name_(std::move(name)),
-        fallback_(std::move(fallback_loc)) {}
-
-  bool present() const { return table_ != nullptr; }
-  const std::string& name() const { return name_; }
-  std::string key(std::string_view k) const { return join_key(name_, k); }
-
-  // Where the table itself is, for "missing key" errors. An implicit table
-  // (e.g. `camera` made by [[camera.key]]) has no text of its own.
-  FileLoc loc() const {
-    if (table_) {
-      FileLoc l = origins_.of(*table_);
-      if (l.line > 0 || origins_.is_override(*table_)) return l;
-    }
-    return fallback_;
-  }
-
-  const toml::node* find(std::string_view k) const { return table_ ? table_->get(k) : nullptr; }
-  FileLoc loc_of(std::string_view k) const { return origins_.of(*find(k)); }
-
-  [[noreturn]] void fail_at(std::string_view k, const std::string& msg) const {
-    fail(loc_of(k), key(k), msg);
-  }
-
-  // Unknown keys are errors; the first one in the file is reported.
-  void check_keys(std::initializer_list<std::string_view> allowed) const {
-    if (!table_) return;
-    const toml::key* worst_key = nullptr;
-    const toml::node* worst_node = nullptr;
-    auto order = [&](const toml::key& k, const toml::node& n) {
-      FileLoc l = origins_.of(k, n);
-      // File positions first, then overrides (which have no line).
-      return std::make_tuple(l.line == 0, l.line, l.column);
-    };
-    for (const auto& [k, node] : *table_) {
-      if (std::find(allowed.begin(), allowed.end(), k.str()) != allowed.end()) continue;
-      if (!worst_key || order(k, node) < order(*worst_key, *worst_node)) {
-        worst_key = &k;
-        worst_node = &node;
-      }
-    }
-    if (!worst_key) return;
-    std::string list;
-    for (auto a : allowed) list += (list.empty() ? "" : ", ") + std::string(a);
-    fail(origins_.of(*worst_key, *worst_node), key(worst_key->str()),
-         "unknown key (allowed here: " + list + ")");
-  }
-
-  std::optional<int64_t> integer(std::string_view k, const IntRange& range) const {
-    const toml::node* n = find(k);
-    if (!n) return std::nullopt;
-    const auto* v = n->as_integer();
-    if (!v) fail_at(k, "expected " + range.what + ", got " + describe(*n));
-    int64_t x = v->get();
-    if (x < range.lo || x > range.hi) {
-      std::string extra = x > range.hi && range.hi == INT_MAX ? " (too large)" : "";
-      fail_at(k, "expected " + range.what + ", got " + std::to_string(x) + extra);
-    }
-    return x;
-  }
-
-  // Integers are accepted where numbers are expected (`fov = 40`).
-  std::optional<double> number(std::string_view k, const Interval& range) const {
-    const toml::node* n = find(k);
-    if (!n) return std::nullopt;
-    return number_of(*n, origins_.of(*n), key(k), "", range);
-  }
-
-  std::optional<bool> boolean(std::string_view k) const {
-    const toml::node* n = find(k);
-    if (!n) return std::nullopt;
-    const auto* v = n->as_boolean();
-    if (!v) fail_at(k, "expected true or false, got " + describe(*n));
-    return v->get();
-  }
-
-  std::optional<std::string> string(std::string_view k) const {
-    const toml::node* n = find(k);
-    if (!n) return std::nullopt;
-    const auto* v = n->as_string();
-    if (!v) fail_at(k, "expected a string, got " + describe(*n));
-    return v->get();
-  }
-
-  // [x, y, z], each element checked against `range`.
-  std::optional<Vec3> vec3(std::string_view k, const Interval& range = Interval::any()) const {
-    const toml::node* n = find(k);
-    if (!n) return std::nullopt;
-    const auto* a = n->as_array();
-    if (!a) fail_at(k, "expected an array of 3 numbers, got " + describe(*n));
-    if (a->size() != 3) {
-      fail_at(k, fmt::format("expected an array of 3 numbers, got {} element{}", a->size(),
-                             a->size() == 1 ? "" : "s"));
-    }
-    Vec3 out;
-    for (int i = 0; i < 3; ++i) {
-      const toml::node& e = *a->get(i);
-      out[i] = static_cast<float>(
-          number_of(e, origins_.of(e), key(k), fmt::format("element [{}]: ", i), range));
-    }
-    return out;
-  }
-
-  // A path relative to `base` that must name an existing file.
-  std::optional<fs::path> existing_file(std::string_view k, const fs::path& base) const {
-    auto s = string(k);
-    if (!s) return std::nullopt;
-    if (s->empty()) fail_at(k, "expected a file path, got an empty string");
-    fs::path p = fs::path(*s);
-    if (p.is_relative()) p = base / p;
-    p = p.lexically_normal();
-    std::error_code ec;
-    fs::file_status st = fs::status(p, ec);
-    if (!fs::exists(st)) fail_at(k, "file not found: " + p.string());
-    if (fs::is_directory(st)) fail_at(k, "expected a file, got a directory: " + p.string());
-    return p;
-  }
-
-  // A sub-table (absent: a Section whose getters all return nullopt).
-  Section table(std::string_view k) const {
-    const toml::node* n = find(k);
-    const toml::table* t = nullptr;
-    if (n) {
-      t = n->as_table();
-      if (!t) fail_at(k, "expected a table, got " + describe(*n));
-    }
-    return Section(origins_, t, key(k), fallback_);
-  }
-
-  const toml::array* array_of_tables(std::string_view k) const {
-    const toml::node* n = find(k);
-    if (!n) return nullptr;
-    const auto* a = n->as_array();
-    // An empty array has no element type; it is an empty list of keys.
-    if (!a || (!a->empty() && !a->is_array_of_tables())) {
-      fail_at(k, "expected an array of tables ([[" + key(k) + "]]), got " +
-                     (a ? std::string("an array of values") : describe(*n)));
-    }
-    return a;
-  }
-
-  // "give either a or b, not both": reported at whichever comes later.
-  void exclusive(std::string_view a, std::string_view b) const {
-    const toml::node* na = find(a);
-    const toml::node* nb = find(b);
-    if (!na || !nb) return;
-    FileLoc la = origins_.of(*na), lb = origins_.of(*nb);
-    bool b_later =
-        lb.line == 0 || std::make_pair(lb.line, lb.column) > std::make_pair(la.line, la.column);
-    std::string_view later = b_later ? b : a;
-    fail_at(later, fmt::format("give either {} or {}, not both", a, b));
-  }
-
-  const Origins& origins() const { return origins_; }
-
- private:
-  static double number_of(const toml::node& n, const FileLoc& loc, const std::string& key,
-                          const std::string& prefix, const Interval& range) {
-    double x;
-    if (const auto* i = n.as_integer()) {
-      x = static_cast<double>(i->get());
-    } else if (const auto* f = n.as_floating_point()) {
-      x = f->get();
-    } else {
-      fail(loc, key, prefix + "expected " + range.what + ", got " + describe(n));
-    }
-    // NaN and Inf are valid TOML but never a valid job parameter.
-    if (!std::isfinite(x)) fail(loc, key, prefix + "expected a finite number, got " + describe(n));
-    // Values must survive the conversion to float unchanged in kind.
-    if (std::fabs(x) > std::numeric_limits<float>::max()) {
-      fail(loc, key, prefix + "expected a number within float range, got " + describe(n));
-    }
-    if (!range.contains(x))
-      fail(loc, key, prefix + "expected " + range.what + ", got " + describe(n));
-    return x;
-  }
-
-  const Origins& origins_;
-  const toml::table* table_;
-  std::string name_;
-  FileLoc fallback_;
-};
 
 // ---------------------------------------------------------------------------
 // The spec, section by section, in the order of jobs/README.md
@@ -645,147 +327,6 @@ JobSpec read_spec(const toml::table& root, const Origins& origins, const fs::pat
   return spec;
 }
 
-// ---------------------------------------------------------------------------
-// --set KEY=VALUE
-
-// Keys that replace each other: an override of one removes the others from
-// the same table, so `--set buffers.reference_spp=16` works whether the file
-// uses reference_spp or reference_error. In the file itself both are errors.
-struct Alternatives {
-  std::string_view table;  // dotted, array indices written as '#'
-  std::vector<std::vector<std::string_view>> groups;
-};
-const std::vector<Alternatives>& alternatives() {
-  static const std::vector<Alternatives> kAlternatives = {
-      {"buffers", {{"reference_spp"}, {"reference_error", "reference_max_spp"}}},
-      {"camera.key.#", {{"look_at", "up"}, {"rotation"}}},
-      {"camera.key.#", {{"aperture"}, {"fstop", "focal_length", "sensor_width"}}},
-      {"camera.key.#", {{"focal_distance"}, {"focus_point"}, {"focus"}}},
-      {"environment", {{"map"}, {"color"}}},
-      {"farm", {{"tile"}, {"task_seconds"}}},
-  };
-  return kAlternatives;
-}
-
-bool is_index(std::string_view s) {
-  return !s.empty() && s.size() < 10 &&
-         std::all_of(s.begin(), s.end(), [](char c) { return c >= '0' && c <= '9'; });
-}
-
-std::string toml_quote(std::string_view s) {
-  std::string out = "\"";
-  for (char c : s) {
-    unsigned char u = static_cast<unsigned char>(c);
-    if (c == '"' || c == '\\') {
-      out += '\\';
-      out += c;
-    } else if (u < 0x20 || u == 0x7f) {
-      out += fmt::format("\\u{:04x}", u);
-    } else {
-      out += c;
-    }
-  }
-  return out + "\"";
-}
-
-// VALUE as TOML (64, 0.5, true, "str", [1, 2, 3]); a bare word that is not
-// valid TOML (scenes/a.gltf) is taken as a string.
-toml::table parse_override_value(const std::string& value, const std::string& source) {
-  try {
-    toml::table t = toml::parse("v = " + value, source);
-    if (t.size() == 1 && t.contains("v")) return t;
-  } catch (const toml::parse_error&) {
-  }
-  return toml::parse("v = " + toml_quote(value), source);
-}
-
-void apply_override(toml::table& root, const std::string& text, Origins& origins) {
-  const FileLoc loc{"--set " + text};
-  const size_t eq = text.find('=');
-  if (eq == std::string::npos) fail(loc, "", "expected KEY=VALUE");
-  std::string dotted = text.substr(0, eq);
-  while (!dotted.empty() && dotted.back() == ' ') dotted.pop_back();
-  while (!dotted.empty() && dotted.front() == ' ') dotted.erase(dotted.begin());
-  if (dotted.empty()) fail(loc, "", "expected KEY=VALUE, got an empty key");
-
-  std::vector<std::string> parts;
-  for (size_t start = 0;;) {
-    size_t dot = dotted.find('.', start);
-    parts.push_back(dotted.substr(start, dot - start));
-    if (parts.back().empty()) fail(loc, dotted, "empty part in dotted key");
-    if (dot == std::string::npos) break;
-    start = dot + 1;
-  }
-
-  toml::table parsed = parse_override_value(text.substr(eq + 1), loc.file);
-  toml::node& value = *parsed.get("v");
-
-  toml::node* cur = &root;
-  std::string path, pattern;  // pattern: path with indices as '#'
-  for (size_t i = 0; i < parts.size(); ++i) {
-    const std::string& part = parts[i];
-    const bool last = i + 1 == parts.size();
-    const std::string here = join_key(path, part);
-    if (toml::array* arr = cur->as_array()) {
-      if (!is_index(part)) {
-        fail(loc, here,
-             fmt::format("\"{}\" is an array: expected an element index, got \"{}\"", path, part));
-      }
-      size_t idx = std::stoul(part);
-      if (idx >= arr->size()) {
-        fail(loc, here,
-             fmt::format("index {} is out of range: \"{}\" has {} element{}", idx, path,
-                         arr->size(), arr->size() == 1 ? "" : "s"));
-      }
-      if (last) {
-        origins.forget(*arr->get(idx));
-        arr->replace(arr->cbegin() + static_cast<ptrdiff_t>(idx), std::move(value));
-        origins.mark_override(*arr->get(idx), loc.file);
-        return;
-      }
-      cur = arr->get(idx);
-      pattern = join_key(pattern, "#");
-    } else if (toml::table* tbl = cur->as_table()) {
-      if (last) {
-        for (const auto& alt : alternatives()) {
-          if (alt.table != pattern) continue;
-          auto mine = std::find_if(alt.groups.begin(), alt.groups.end(), [&](const auto& g) {
-            return std::find(g.begin(), g.end(), part) != g.end();
-          });
-          if (mine == alt.groups.end()) continue;
-          for (auto g = alt.groups.begin(); g != alt.groups.end(); ++g) {
-            if (g == mine) continue;
-            for (std::string_view other : *g) {
-              if (toml::node* n = tbl->get(other)) {
-                origins.forget(*n);
-                tbl->erase(other);
-              }
-            }
-          }
-        }
-        if (toml::node* old = tbl->get(part)) origins.forget(*old);
-        tbl->insert_or_assign(part, std::move(value));
-        origins.mark_override(*tbl->get(part), loc.file);
-        return;
-      }
-      toml::node* child = tbl->get(part);
-      if (!child) {
-        if (is_index(parts[i + 1])) {
-          fail(loc, here, "no such array in the spec to index into");
-        }
-        tbl->insert(part, toml::table{});
-        child = tbl->get(part);
-        origins.mark_override(*child, loc.file);
-      }
-      cur = child;
-      pattern = join_key(pattern, part);
-    } else {
-      fail(loc, path, "is a value, not a table: cannot set \"" + dotted + "\" inside it");
-    }
-    path = here;
-  }
-}
-
 }  // namespace
 
 FileLoc JobSpec::where(const std::string& key) const {
@@ -864,7 +405,7 @@ JobSpec parse_job_spec(const std::string& toml_text, const fs::path& virtual_pat
                     std::string(e.description()));
   }
   Origins origins(display);
-  for (const auto& o : overrides) apply_override(root, o, origins);
+  for (const auto& o : overrides) spec_reading::apply_override(root, o, origins);
   return read_spec(root, origins, fs::absolute(virtual_path).lexically_normal());
 }
 

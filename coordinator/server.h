@@ -170,6 +170,9 @@ class Server {
   static constexpr uint64_t kClaimBytesPerRound = 16u << 20;
 };
 
+// The JSON bodies of the replies (coordinator/server_replies.cpp).
+// The `task` reply of an assignment, with the lease's length and token.
+protocol::Json assignment_json(const Assignment& a, double lease_seconds, const std::string& token);
 // The status report as JSON (the `status --json` output and the wire form),
 // always below the message limit: what does not fit in its budget is counted
 // (`batches_omitted`, `workers_omitted`, per batch `failed_omitted` and

@@ -1,4 +1,6 @@
-// The dofarm.shard/2 format (and reading /1): writer, reader, checksums, manifest and inspect.
+// The dofarm.shard/2 format (and reading /1): writer and reader. Checksums,
+// the manifest and inspect: test_checksum.cpp, test_manifest.cpp,
+// test_inspect.cpp; the shared batch: shard_fixtures.h.
 #include <gtest/gtest.h>
 #include <hdf5.h>
 #include <hdf5_hl.h>
@@ -13,90 +15,13 @@
 #include <thread>
 
 #include "common/checksum.h"
-#include "common/inspect.h"
-#include "common/manifest.h"
 #include "common/shard.h"
+#include "shard_fixtures.h"
 
 namespace dofarm {
 namespace {
 namespace fs = std::filesystem;
-
-// 70x50 is deliberately not a multiple of the 64-pixel chunk edge, so edge
-// chunks are partial in both directions.
-constexpr int kW = 70, kH = 50, kV = 2, kFirstFrame = 10, kFrames = 3;
-
-// A fresh, empty folder per test.
-class TempDir {
- public:
-  TempDir() {
-    const auto* t = ::testing::UnitTest::GetInstance()->current_test_info();
-    path_ = fs::temp_directory_path() / ("dofarm_shard_" + std::to_string(::getpid()) + "_" +
-                                         t->test_suite_name() + "_" + t->name());
-    fs::remove_all(path_);
-    fs::create_directories(path_);
-  }
-  ~TempDir() { fs::remove_all(path_); }
-  const fs::path& path() const { return path_; }
-  std::vector<std::string> files() const {
-    std::vector<std::string> out;
-    for (const auto& e : fs::directory_iterator(path_)) out.push_back(e.path().filename());
-    return out;
-  }
-
- private:
-  fs::path path_;
-};
-
-// Every value of every buffer is distinct (buffer, frame and element are all
-// encoded), so any misplaced crop, swapped version or swapped frame shows.
-// Integers below 2^24 are exact in float32.
-FrameBuffers make_frame(int frame) {
-  FrameBuffers fb;
-  fb.allocate(kW, kH, kV);
-  fb.rect = {0, 0, kW, kH};
-  int bi = 0;
-  for (const BufferInfo& b : buffer_infos()) {
-    std::vector<float>& d = buffer_data(fb, b.name);
-    for (size_t i = 0; i < d.size(); ++i) d[i] = float(bi * 1000000 + frame * 40000 + int(i));
-    ++bi;
-  }
-  fb.camera.frame = frame;
-  fb.camera.time = frame / 24.0f;
-  fb.camera.position[0] = 0.5f * frame;
-  fb.camera.position[1] = 1.0f;
-  fb.camera.position[2] = 3.6f;
-  fb.camera.rotation[0] = 0.9238795f;
-  fb.camera.rotation[2] = 0.3826834f;
-  fb.camera.fov_deg = 40.0f + frame;
-  fb.camera.focal_distance = 3.6f;
-  fb.camera.aperture = 0.05f;
-  return fb;
-}
-
-std::vector<FrameBuffers> make_frames() {
-  std::vector<FrameBuffers> frames;
-  for (int f = 0; f < kFrames; ++f) frames.push_back(make_frame(kFirstFrame + f));
-  return frames;
-}
-
-ShardInfo make_info() {
-  ShardInfo info;
-  info.batch_id = "batch-7f3a";
-  info.scene_id = "cornell";
-  info.scene_hash = "xxh64:00000000deadbeef";
-  info.job_hash = "0123456789abcdef0123456789abcdef";
-  info.width = kW;
-  info.height = kH;
-  info.versions = kV;
-  info.spp_reference = 1024;
-  info.spp_albedo_ref = 24;
-  info.seed = 0xFEDCBA9876543210ull;  // above 2^63: checks the unsigned attribute
-  info.frame_start = kFirstFrame;
-  info.frame_end = kFirstFrame + kFrames - 1;
-  info.renderer_version = "0.1.0";
-  info.render_seconds = 12.5;
-  return info;
-}
+using namespace shard_testing;
 
 // Expected crop of a full-frame buffer, computed independently of HDF5.
 std::vector<float> crop_of(const FrameBuffers& fb, const std::string& name, int version, Rect r) {
@@ -127,57 +52,6 @@ struct RawFile {
   std::lock_guard<std::recursive_mutex> lock;
   hid_t id = -1;
 };
-
-// --- checksum -----------------------------------------------------------------
-
-TEST(Checksum, MatchesPublishedXxh64Vectors) {
-  // Values from the xxHash reference implementation (seed 0); the 39-byte
-  // input exercises the 32-byte stripe loop, the others only the tail.
-  EXPECT_EQ(checksum64("", 0), 0xEF46DB3751D8E999ull);
-  EXPECT_EQ(checksum64("a", 1), 0xD24EC4F1A98C6E5Bull);
-  EXPECT_EQ(checksum64("abc", 3), 0x44BC2CF5AD770999ull);
-  const std::string s = "Nobody inspects the spammish repetition";
-  EXPECT_EQ(checksum64(s.data(), s.size()), 0xFBCEA83C8A378BF1ull);
-}
-
-TEST(Checksum, StreamingEqualsOneShotForEverySplit) {
-  std::string data;
-  for (int i = 0; i < 150; ++i) data += char(i * 37 + 11);
-  for (size_t n = 0; n <= data.size(); n += 7) {
-    uint64_t one = checksum64(data.data(), n);
-    for (size_t cut = 0; cut <= n; ++cut) {
-      Checksum64 c;
-      c.update(data.data(), cut);
-      c.update(data.data() + cut, 0);
-      c.update(data.data() + cut, n - cut);
-      ASSERT_EQ(c.digest(), one) << "length " << n << " split at " << cut;
-    }
-  }
-}
-
-TEST(Checksum, OneFlippedBitChangesIt) {
-  std::vector<unsigned char> data(4096, 0x5a);
-  uint64_t before = checksum64(data.data(), data.size());
-  data[2000] ^= 0x10;
-  EXPECT_NE(checksum64(data.data(), data.size()), before);
-}
-
-TEST(Checksum, TextFormRoundTripsAndRejectsJunk) {
-  EXPECT_EQ(checksum_to_string(0x00ab00cd00ef0012ull), "xxh64:00ab00cd00ef0012");
-  EXPECT_EQ(parse_checksum("xxh64:00ab00cd00ef0012"), 0x00ab00cd00ef0012ull);
-  EXPECT_FALSE(parse_checksum("xxh64:00ab00cd00ef001"));   // too short
-  EXPECT_FALSE(parse_checksum("xxh64:00AB00CD00EF0012"));  // upper case is not the form
-  EXPECT_FALSE(parse_checksum("crc32:00ab00cd00ef0012"));
-}
-
-TEST(Checksum, FileChecksumEqualsChecksumOfContents) {
-  TempDir dir;
-  std::string data(3 << 20, 'x');  // spans several read blocks
-  for (size_t i = 0; i < data.size(); i += 4099) data[i] = char(i);
-  std::ofstream(dir.path() / "blob", std::ios::binary) << data;
-  EXPECT_EQ(checksum_file(dir.path() / "blob"), checksum64(data.data(), data.size()));
-  EXPECT_THROW(checksum_file(dir.path() / "missing"), RuntimeError);
-}
 
 // --- shard ----------------------------------------------------------------------
 
@@ -589,19 +463,6 @@ TEST(Shard, TruncatedFileGivesClearError) {
   }
 }
 
-// Overwrites `n` bytes in the middle of the file, where the chunk data lies.
-void corrupt_middle(const fs::path& p, int n) {
-  std::fstream f(p, std::ios::in | std::ios::out | std::ios::binary);
-  auto mid = std::streamoff(fs::file_size(p) / 2);
-  for (int i = 0; i < n; ++i) {
-    f.seekg(mid + i);
-    char c = 0;
-    f.get(c);
-    f.seekp(mid + i);
-    f.put(char(c ^ 0xA5));
-  }
-}
-
 TEST(Shard, CorruptedChunkFailsTheReadNamingTheFile) {
   TempDir dir;
   fs::path p = dir.path() / "s.h5";
@@ -664,150 +525,6 @@ TEST(Shard, WrongFrameSizeIsRefused) {
   EXPECT_THROW(w.add_frame(small), RuntimeError);
   w.abort();
   EXPECT_TRUE(dir.files().empty());
-}
-
-// --- manifest ---------------------------------------------------------------------
-
-// Writes shard `index` of the test batch into `dir` and lists it.
-ManifestEntry write_and_list(const fs::path& dir, int index) {
-  ShardInfo info = make_info();
-  info.frame_start = kFirstFrame + index * kFrames;
-  info.frame_end = info.frame_start + kFrames - 1;
-  std::vector<FrameBuffers> frames;
-  for (int f = info.frame_start; f <= info.frame_end; ++f) frames.push_back(make_frame(f));
-  char name[32];
-  std::snprintf(name, sizeof name, "shard-%05d.h5", index);
-  ShardWriteResult res = write_shard(dir / name, info, frames);
-  ManifestEntry e = manifest_entry(info, res);
-  add_to_manifest(dir, e);
-  return e;
-}
-
-TEST(Manifest, AbsentManifestIsEmpty) {
-  TempDir dir;
-  EXPECT_TRUE(load_manifest(dir.path()).shards.empty());
-  EXPECT_TRUE(verify_manifest(dir.path()).empty());
-}
-
-TEST(Manifest, AddLoadAndVerifyShards) {
-  TempDir dir;
-  ManifestEntry b = write_and_list(dir.path(), 1);
-  ManifestEntry a = write_and_list(dir.path(), 0);
-  Manifest m = load_manifest(dir.path());
-  ASSERT_EQ(m.shards.size(), 2u);
-  EXPECT_EQ(m.shards[0], a);  // sorted by file name
-  EXPECT_EQ(m.shards[1], b);
-  EXPECT_EQ(a.file, "shard-00000.h5");
-  EXPECT_EQ(b.frame_start, kFirstFrame + kFrames);
-  EXPECT_EQ(b.frame_end, kFirstFrame + 2 * kFrames - 1);
-  EXPECT_EQ(a.scene_id, "cornell");
-  EXPECT_EQ(a.size, fs::file_size(dir.path() / a.file));
-  EXPECT_EQ(a.checksum, checksum_file(dir.path() / a.file));
-  EXPECT_TRUE(verify_manifest(dir.path()).empty());
-  // Listing the same shard again (a retried pack job) replaces, not duplicates.
-  add_to_manifest(dir.path(), a);
-  EXPECT_EQ(load_manifest(dir.path()).shards.size(), 2u);
-  for (const std::string& f : dir.files())  // no temporary files left behind
-    EXPECT_EQ(f.find(".tmp-"), std::string::npos) << f;
-}
-
-TEST(Manifest, VerifyCatchesCorruptionMissingAndResizedShards) {
-  TempDir dir;
-  ManifestEntry a = write_and_list(dir.path(), 0);
-  ManifestEntry b = write_and_list(dir.path(), 1);
-  ManifestEntry c = write_and_list(dir.path(), 2);
-  corrupt_middle(dir.path() / a.file, 4);  // same size: only the checksum sees it
-  fs::remove(dir.path() / b.file);
-  fs::resize_file(dir.path() / c.file, c.size + 10);
-  std::vector<ManifestProblem> problems = verify_manifest(dir.path());
-  ASSERT_EQ(problems.size(), 3u);
-  EXPECT_EQ(problems[0].file, a.file);
-  EXPECT_EQ(problems[0].problem.rfind("checksum ", 0), 0u) << problems[0].problem;
-  EXPECT_EQ(problems[1].file, b.file);
-  EXPECT_EQ(problems[1].problem.rfind("missing", 0), 0u) << problems[1].problem;
-  EXPECT_EQ(problems[2].file, c.file);
-  EXPECT_EQ(problems[2].problem.rfind("size ", 0), 0u) << problems[2].problem;
-  // Without checksums only the cheap checks run, so the corruption passes.
-  EXPECT_EQ(verify_manifest(dir.path(), false).size(), 2u);
-}
-
-TEST(Manifest, MalformedManifestNamesTheKey) {
-  TempDir dir;
-  write_and_list(dir.path(), 0);
-  fs::path p = dir.path() / kManifestFile;
-  std::ifstream in(p);
-  nlohmann::json j = nlohmann::json::parse(in);
-  j["shards"][0]["checksum"] = "12345";
-  std::ofstream(p) << j.dump();
-  try {
-    load_manifest(dir.path());
-    FAIL() << "bad checksum accepted";
-  } catch (const RuntimeError& e) {
-    EXPECT_NE(std::string(e.what()).find("shards[0].checksum"), std::string::npos) << e.what();
-  }
-  std::ofstream(p) << R"({"schema": "dofarm.manifest/9", "shards": []})";
-  EXPECT_THROW(load_manifest(dir.path()), RuntimeError);
-  std::ofstream(p) << R"({"schema": "dofarm.manifest/1", "shards": [{"file": "../x.h5"}]})";
-  EXPECT_THROW(load_manifest(dir.path()), RuntimeError);
-}
-
-// --- inspect ----------------------------------------------------------------------
-
-TEST(Inspect, TextReportHasShapesStatsAndNoNonFiniteValues) {
-  TempDir dir;
-  write_shard(dir.path() / "s.h5", make_info(), make_frames());
-  std::ostringstream out, err;
-  EXPECT_EQ(inspect_shard(dir.path() / "s.h5", false, out, err), kExitOk) << err.str();
-  std::string s = out.str();
-  EXPECT_NE(s.find("dofarm.shard/2"), std::string::npos) << s;
-  EXPECT_NE(s.find("3x2x3x50x70"), std::string::npos) << s;  // noisy shape
-  EXPECT_NE(s.find("1x1x3x50x64"), std::string::npos) << s;  // noisy chunk
-  EXPECT_NE(s.find("shuffle,deflate(4),fletcher32"), std::string::npos) << s;
-  EXPECT_NE(s.find("non-finite values: 0"), std::string::npos) << s;
-  EXPECT_NE(s.find(" ok\n"), std::string::npos) << s;
-}
-
-TEST(Inspect, JsonReportParsesAndHoldsExactStatistics) {
-  TempDir dir;
-  auto frames = make_frames();
-  write_shard(dir.path() / "s.h5", make_info(), frames);
-  std::ostringstream out, err;
-  ASSERT_EQ(inspect_shard(dir.path() / "s.h5", true, out, err), kExitOk) << err.str();
-  nlohmann::json j = nlohmann::json::parse(out.str());
-  EXPECT_EQ(j["attributes"]["schema"], "dofarm.shard/2");
-  EXPECT_EQ(j["attributes"]["job_hash"], make_info().job_hash);
-  EXPECT_EQ(j["frames"], kFrames);
-  EXPECT_EQ(j["non_finite"], 0);
-  EXPECT_TRUE(j["data_checksum"]["ok"].get<bool>());
-  // depth is buffer 6: value 6e6 + frame * 40000 + i over i < W*H, frames 10..12.
-  const nlohmann::json* depth = nullptr;
-  for (const auto& d : j["datasets"])
-    if (d["name"] == "depth") depth = &d;
-  ASSERT_NE(depth, nullptr);
-  const auto& c = (*depth)["channels"][0];
-  EXPECT_EQ(c["name"], "Y");
-  EXPECT_EQ(c["min"].get<double>(), 6e6 + 10 * 40000);
-  EXPECT_EQ(c["max"].get<double>(), 6e6 + 12 * 40000 + kW * kH - 1);
-  EXPECT_NEAR(c["mean"].get<double>(), 6e6 + 11 * 40000 + (kW * kH - 1) / 2.0, 1e-6);
-  // Independent std: over frames f in {10,11,12} and i in [0, N).
-  double n = kW * kH, var_i = (n * n - 1) / 12.0, var_f = 40000.0 * 40000.0 * 2.0 / 3.0;
-  EXPECT_NEAR(c["std"].get<double>(), std::sqrt(var_i + var_f), 1e-6);
-  EXPECT_EQ(c["non_finite"], 0);
-  EXPECT_GT((*depth)["compression_ratio"].get<double>(), 1.0);
-}
-
-TEST(Inspect, ExitCodesSayNotAShardOrIoError) {
-  TempDir dir;
-  std::ostringstream out, err;
-  std::ofstream(dir.path() / "notes.h5") << "plain text";
-  EXPECT_EQ(inspect_shard(dir.path() / "notes.h5", false, out, err), kExitBadInput);
-  EXPECT_NE(err.str().find("not an HDF5 file"), std::string::npos) << err.str();
-  EXPECT_EQ(inspect_shard(dir.path() / "missing.h5", false, out, err), kExitRuntime);
-  write_shard(dir.path() / "s.h5", make_info(), make_frames());
-  corrupt_middle(dir.path() / "s.h5", 16);
-  std::ostringstream jout;
-  EXPECT_EQ(inspect_shard(dir.path() / "s.h5", true, jout, err), kExitRuntime);
-  EXPECT_TRUE(nlohmann::json::parse(jout.str()).contains("error")) << jout.str();
 }
 
 }  // namespace

@@ -43,6 +43,21 @@ inline JobSpec tiny_spec(int frames, int per_shard, int tiles_per_side = 1) {
   return spec;
 }
 
+// The scheduler options of the failure-policy tests (test_failure_policy,
+// test_operator_view): a 30 s lease, a first retry after 2 s, failure for
+// good at the third failure, a blocklist after two failed tasks of a batch,
+// and `stall_timeout` seconds without an eligible worker to fail a batch
+// (0: never).
+inline SchedulerOptions failure_policy_options(double stall_timeout) {
+  SchedulerOptions o;
+  o.lease_seconds = 30;
+  o.backoff_base = 2;
+  o.max_task_failures = 3;
+  o.blocklist_after = 2;
+  o.stall_timeout = stall_timeout;
+  return o;
+}
+
 // The next task for `worker`; a test failure (and an empty assignment) when
 // there is none.
 inline Assignment take(Scheduler& sched, const std::string& worker) {

@@ -15,15 +15,7 @@ using testing::tiny_spec;
 
 class FailurePolicyTest : public ::testing::Test {
  protected:
-  static SchedulerOptions options() {
-    SchedulerOptions o;
-    o.lease_seconds = 30;
-    o.backoff_base = 2;
-    o.max_task_failures = 3;
-    o.blocklist_after = 2;
-    o.stall_timeout = 60;
-    return o;
-  }
+  static SchedulerOptions options() { return testing::failure_policy_options(60); }
   FailurePolicyTest() : store_(dir_.path() / "state.db") { reopen(options()); }
   void reopen(SchedulerOptions o) {
     sched_.reset();

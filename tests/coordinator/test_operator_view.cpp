@@ -19,15 +19,7 @@ using testing::tiny_spec;
 
 class OperatorViewTest : public ::testing::Test {
  protected:
-  static SchedulerOptions options() {
-    SchedulerOptions o;
-    o.lease_seconds = 30;
-    o.backoff_base = 2;
-    o.max_task_failures = 3;
-    o.blocklist_after = 2;
-    o.stall_timeout = 0;
-    return o;
-  }
+  static SchedulerOptions options() { return testing::failure_policy_options(0); }
   OperatorViewTest() : store_(dir_.path() / "state.db") { reopen(); }
   void reopen() {
     sched_.reset();
