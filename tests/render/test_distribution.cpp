@@ -166,6 +166,122 @@ TEST(Distribution2D, SamplesFollowThePdf) {
   EXPECT_GT(test::chi2_p_value(stat, dof), 1e-4) << "chi2 = " << stat << ", dof = " << dof;
 }
 
+// The compact 2D table (the environment map's block table) as a 1D
+// distribution (one row): every cell is picked with its pmf on a fine grid
+// of u, the cell never decreases with u, zero cells are never picked, the
+// pmf is weight / total to float precision, and the boundaries are exact: u
+// at a cell's start picks that cell, the float below it an earlier one. Rows
+// of 256 cells (one summary line, full) and of 5000 (a summary of 20 lines)
+// are among the sizes.
+TEST(CompactDistribution2D, OneRowFollowsThePmfWithExactBoundaries) {
+  auto sets = awkward_weights();
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<float> uni(0.0f, 1.0f);
+  for (int n : {16, 17, 256, 5000}) {
+    std::vector<float> w(static_cast<size_t>(n));
+    for (float& x : w) x = uni(rng) < 0.25f ? 0.0f : uni(rng) * uni(rng);
+    w[size_t(n) - 1] = 0.0f;  // trailing zero cells
+    sets.push_back(w);
+  }
+  constexpr int kGrid = 1 << 20;
+  for (const auto& wf : sets) {
+    const std::vector<double> w(wf.begin(), wf.end());
+    const int n = int(w.size());
+    const CompactDistribution2D dist(w, n, 1);
+    double total = 0;
+    for (double x : w) total += x;
+    std::vector<double> count(w.size(), 0.0);
+    size_t last = 0;
+    for (int k = 0; k < kGrid; ++k) {
+      Vec2 r;
+      const size_t i = dist.sample_discrete(Vec2(float(k) / float(kGrid), 0.5f), &r);
+      ASSERT_LT(i, w.size());
+      ASSERT_GE(i, last) << "u = " << float(k) / float(kGrid);
+      ASSERT_GT(dist.pmf(i), 0.0) << "picked a zero cell " << i;
+      ASSERT_GE(r.x, 0.0f);
+      ASSERT_LT(r.x, 1.0f);
+      last = i;
+      count[i] += 1;
+    }
+    double pmf_sum = 0, start = 0;
+    for (int i = 0; i < n; ++i) {
+      const double p = dist.pmf(size_t(i));
+      EXPECT_NEAR(count[i] / kGrid, p, 1.0 / kGrid + 1e-12) << "cell " << i << " of " << n;
+      const double want = total > 0 ? w[i] / total : 1.0 / n;
+      EXPECT_NEAR(p, want, 1e-6 * want + 1.2e-7) << "cell " << i << " of " << n;
+      // Partial sums of the exact float differences are the float starts.
+      if (p > 0) {
+        const float s = float(start);
+        Vec2 r;
+        EXPECT_EQ(dist.sample_discrete(Vec2(s, 0.5f), &r), size_t(i)) << "start of " << i;
+        EXPECT_EQ(r.x, 0.0f);
+        if (s > 0) {
+          const size_t below = dist.sample_discrete(Vec2(std::nextafter(s, 0.0f), 0.5f), &r);
+          EXPECT_LT(below, size_t(i)) << "below the start of " << i;
+          EXPECT_GT(dist.pmf(below), 0.0);
+        }
+      }
+      start += p;
+      pmf_sum += p;
+    }
+    EXPECT_NEAR(pmf_sum, 1.0, 1e-12);
+    // Outside [0, 1) clamps: the first and the last cell with weight.
+    Vec2 r;
+    EXPECT_EQ(dist.sample_discrete(Vec2(-1.0f, 0.5f), &r), dist.sample_discrete(Vec2(0.0f, 0.5f), &r));
+    EXPECT_EQ(dist.sample_discrete(Vec2(1.0f, 0.5f), &r),
+              dist.sample_discrete(Vec2(0x1.fffffep-1f, 0.5f), &r));
+  }
+}
+
+// Rows then columns: on a grid of u the number of points in a cell is the
+// number of rows of the grid in the row's interval times the columns in the
+// column's interval, so it is pmf * N up to the edges of the two intervals;
+// the pmf is the cell's weight over the total.
+TEST(CompactDistribution2D, RowsThenColumnsFollowThePmf) {
+  constexpr int nu = 37, nv = 300, kX = 1 << 11, kY = 1 << 12;
+  std::vector<double> w(size_t(nu) * nv);
+  std::mt19937 gen(21);
+  std::uniform_real_distribution<double> uni(0.0, 1.0);
+  for (double& x : w) x = uni(gen) < 0.2 ? 0.0 : uni(gen) * uni(gen);
+  for (int x = 0; x < nu; ++x) w[size_t(7) * nu + x] = 0.0;  // an empty row
+  w[size_t(150) * nu + 36] = 50.0;                            // a sun at a row's end
+  double total = 0;
+  for (double x : w) total += x;
+  const CompactDistribution2D dist(w, nu, nv);
+  std::vector<double> count(w.size(), 0.0);
+  for (int j = 0; j < kY; ++j)
+    for (int i = 0; i < kX; ++i) {
+      Vec2 r;
+      const size_t c = dist.sample_discrete(Vec2((i + 0.5f) / kX, (j + 0.5f) / kY), &r);
+      ASSERT_LT(c, w.size());
+      ASSERT_GT(w[c], 0.0) << "cell " << c;
+      ASSERT_TRUE(r.x >= 0.0f && r.x < 1.0f && r.y >= 0.0f && r.y < 1.0f);
+      count[c] += 1;
+    }
+  double pmf_sum = 0;
+  for (size_t c = 0; c < w.size(); ++c) {
+    const double p = dist.pmf(c);
+    pmf_sum += p;
+    // Row and column probabilities each come from two float starts, so each
+    // is within 2^-24 of its exact value: p = pr pc is within 2^-24 (pr + pc).
+    const size_t row = c / nu;
+    double row_w = 0;
+    for (int x = 0; x < nu; ++x) row_w += w[row * nu + size_t(x)];
+    if (row_w > 0) {
+      EXPECT_NEAR(p, w[c] / total, 0x1p-24 * (row_w / total + w[c] / row_w) + 1e-15)
+          << "cell " << c;
+    }
+    // Rows of the grid in the row's interval: kY * pmf_row +- 1; likewise
+    // columns. pmf_row from the row's cells.
+    double row_p = 0;
+    for (int x = 0; x < nu; ++x) row_p += dist.pmf(row * nu + size_t(x));
+    if (row_p <= 0) continue;
+    const double a = kY * row_p, b = kX * p / row_p;
+    EXPECT_LE(std::fabs(count[c] - a * b), a + b + 1) << "cell " << c;
+  }
+  EXPECT_NEAR(pmf_sum, 1.0, 1e-9);
+}
+
 RgbImage sky_with_a_sun() {
   RgbImage img;
   img.width = 32;

@@ -67,19 +67,19 @@ Environment::Environment(RgbImage image, float intensity, float rotation_deg)
     const float v = weights[size_t(y) * w + x];
     return std::isfinite(v) && v > 0 ? double(v) : 0.0;
   };
-  std::vector<float> block_sums(size_t(blocks_w_) * blocks_h_);
+  std::vector<double> block_sums(size_t(blocks_w_) * blocks_h_);
   for (int by = 0; by < blocks_h_; ++by)
     for (int bx = 0; bx < blocks_w_; ++bx) {
       double s = 0;
       for (int y = 0; y < kBlock; ++y)
         for (int x = 0; x < kBlock; ++x) s += weight(bx * kBlock + x, by * kBlock + y);
-      block_sums[size_t(by) * blocks_w_ + bx] = float(s);
+      block_sums[size_t(by) * blocks_w_ + bx] = s;
     }
-  block_distribution_ = Distribution2D(block_sums, blocks_w_, blocks_h_);
+  block_distribution_ = CompactDistribution2D(block_sums, blocks_w_, blocks_h_);
 
   // Each block's inversion tables, and each texel's pdf over the map's unit
   // square from exactly the probabilities sampling uses: the block's pmf
-  // (Distribution2D), then the row's and the column's share as the float
+  // (CompactDistribution2D), then the row's and the column's share as the float
   // tables give them. A block of weight 0 (the coarse table never picks it
   // unless the whole map is black) gets uniform tables.
   blocks_.resize(size_t(blocks_w_) * blocks_h_);
@@ -131,11 +131,14 @@ Environment::Environment(RgbImage image, float intensity, float rotation_deg)
     }
 }
 
-void Environment::prefetch_sample(Vec2 u) const {
-  if (blocks_.empty()) return;
-  Vec2 unused;
-  const char* b = reinterpret_cast<const char*>(&blocks_[block_distribution_.sample_discrete(u, &unused)]);
+Environment::Choice Environment::choose(Vec2 u) const {
+  Choice c;
+  c.u = u;
+  if (blocks_.empty()) return c;
+  c.block = uint32_t(block_distribution_.sample_discrete(u, &c.r));
+  const char* b = reinterpret_cast<const char*>(&blocks_[c.block]);
   for (size_t line = 0; line < sizeof(Block); line += 64) __builtin_prefetch(b + line);
+  return c;
 }
 
 namespace {
@@ -214,8 +217,9 @@ Vec3 Environment::eval(Vec3 dir, float* pdf_out) const {
   return {t.r, t.g, t.b};
 }
 
-EnvSample Environment::sample(Vec2 u) const {
+EnvSample Environment::sample(const Choice& choice) const {
   EnvSample s;
+  const Vec2 u = choice.u;
   if (blocks_.empty()) {  // uniform sphere
     float z = 1.0f - 2.0f * u.x, r = safe_sqrt(1.0f - z * z), phi = kTwoPi * u.y;
     s.wi = Vec3(r * std::cos(phi), z, r * std::sin(phi));
@@ -223,10 +227,10 @@ EnvSample Environment::sample(Vec2 u) const {
     s.pdf = 1.0f / (4.0f * kPi);
     return s;
   }
-  // The block, then its row and column by inversion, each step passing on
-  // its number rescaled to [0, 1) within the chosen entry.
-  Vec2 r;
-  const size_t cell = block_distribution_.sample_discrete(u, &r);
+  // The block (choose()), then its row and column by inversion, each step
+  // passing on its number rescaled to [0, 1) within the chosen entry.
+  Vec2 r = choice.r;
+  const size_t cell = choice.block;
   const Block& b = blocks_[cell];
   auto pick = [](const float* cdf, float* v) {
     // Entries of probability 0 have equal bounds and are never picked.

@@ -37,15 +37,15 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
   for (int depth = 0;; ++depth) {
     // This vertex's light-sample numbers, drawn before its ray is traced (the
     // slots are the same as if drawn after the hit: nothing between consumes
-    // any), so that what sampling an environment map reads, which is larger
-    // than the caches, loads during the traversal; likewise the texel an
-    // escaping bounce ray would read.
-    float u_select = 0;
-    Vec2 u_light;
+    // any), and the light and environment block chosen from them, so that
+    // what sampling an environment map reads, which is larger than the
+    // caches, loads during the traversal; likewise the texel an escaping
+    // bounce ray would read.
+    Scene::LightChoice light_choice;
     if (depth < settings.max_depth) {
-      u_select = sampler.get1d();
-      u_light = sampler.get2d();
-      if (use_nee) scene.prefetch_light_sample(u_select, u_light);
+      const float u_select = sampler.get1d();
+      const Vec2 u_light = sampler.get2d();
+      if (use_nee) light_choice = scene.choose_light(u_select, u_light);
     }
     if (env && depth > 0) env->prefetch_eval(ray.d);
     SurfaceHit hit;
@@ -92,7 +92,7 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
 
     if (use_nee && bsdf.has_non_delta()) {
       LightSample ls;
-      if (scene.sample_light(hit.p, u_select, u_light, &ls)) {
+      if (scene.sample_light(hit.p, light_choice, &ls)) {
         float bsdf_pdf;
         Vec3 f = bsdf.evaluate(out, ls.wi, &bsdf_pdf);
         if (max_component(f) > 0) {
