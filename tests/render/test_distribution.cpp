@@ -384,6 +384,56 @@ TEST(Environment, BlockedTablesGiveEachTexelItsWeightOverTheTotal) {
     }
 }
 
+// Direction to texel (environment.h's mapping, evaluated without libm's
+// atan2): every direction lands in the texel that the mapping computed in
+// double with std::atan2 gives, unless it lies within 1e-4 of a texel's
+// width of a texel edge (float rounding may go either way there). Each
+// texel's radiance names it: (x + 1, y + 1, 1).
+TEST(Environment, EveryDirectionFindsItsTexel) {
+  constexpr int w = 96, h = 48;
+  RgbImage img;
+  img.width = w;
+  img.height = h;
+  img.rgb.resize(size_t(w) * h * 3);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      float* t = &img.rgb[(size_t(y) * w + x) * 3];
+      t[0] = float(x + 1);
+      t[1] = float(y + 1);
+      t[2] = 1.0f;
+    }
+  const double rotation = 30.0 * M_PI / 180.0;
+  const Environment env(img, 1.0f, 30.0f);
+  std::mt19937_64 rng(31);
+  std::normal_distribution<double> normal;
+  int checked = 0;
+  for (int i = 0; i < 200000; ++i) {
+    double d[3] = {normal(rng), normal(rng), normal(rng)};
+    if (i < 8) {  // the axes and octant edges too
+      d[0] = (i & 1) ? 0.0 : (i & 2 ? -1.0 : 1.0);
+      d[1] = (i & 4) ? 1.0 : 0.0;
+      d[2] = (i & 1) ? 1.0 : 0.0;
+    }
+    const double len = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+    const Vec3 dir(float(d[0] / len), float(d[1] / len), float(d[2] / len));
+    const double theta = std::atan2(std::hypot(double(dir.x), double(dir.z)), double(dir.y));
+    double u = (std::atan2(double(dir.x), -double(dir.z)) - rotation) / (2 * M_PI) + 0.5;
+    u -= std::floor(u);
+    const double fx = u * w, fy = theta / M_PI * h;
+    auto near_edge = [](double f) { return std::fabs(f - std::round(f)) < 1e-4; };
+    if (near_edge(fx) || near_edge(fy)) continue;
+    const int x = std::min(w - 1, int(fx)), y = std::min(h - 1, int(fy));
+    const Vec3 le = env.eval(dir);
+    ASSERT_EQ(le.x, float(x + 1)) << dir.x << " " << dir.y << " " << dir.z;
+    ASSERT_EQ(le.y, float(y + 1)) << dir.x << " " << dir.y << " " << dir.z;
+    float p;
+    EXPECT_EQ(env.eval(env.locate(dir), dir, &p).x, le.x);
+    EXPECT_EQ(p, env.pdf(dir));
+    ++checked;
+  }
+  EXPECT_GT(checked, 199000);
+}
+
 TEST(Environment, SamplesFollowThePdfOnAMapNotMadeOfWholeBlocks) {
   const Environment env(awkward_sky(), 1.0f, 0.0f);
   expect_samples_follow_pdf(env, test::SphereCells{Vec3(0, 1, 0), 0.0, 15, 30}, 200000);

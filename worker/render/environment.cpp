@@ -143,20 +143,30 @@ Environment::Choice Environment::choose(Vec2 u) const {
 
 namespace {
 
-// atan(x) for |x| <= 1 within about 1e-5 (a minimax polynomial in x^2):
-// only to find the cache line of a texel ahead of time, never for a value.
-inline float rough_atan_unit(float x) {
-  const float x2 = x * x;
-  return x * (0.99997726f +
-              x2 * (-0.33262347f + x2 * (0.19354346f + x2 * (-0.11643287f +
-                                                           x2 * (0.05265332f + x2 * -0.01172120f)))));
-}
-
-inline float rough_atan2(float y, float x) {
+// atan2(y, x) to float precision, without a call into libm (the environment
+// maps a direction to its texel for every ray that may escape). The ratio
+// z = min/max of |x|, |y| is in [0, 1]; above tan(pi/12) it is reduced by
+// atan(z) = pi/6 + atan((sqrt(3) z - 1) / (z + sqrt(3))) (Cody and Waite
+// 1980, "Software Manual for the Elementary Functions", ch. 11), leaving
+// |t| <= tan(pi/12) = 0.268, where the Taylor series of atan to t^11 is
+// within t^13 / 13 < 3e-9 of it, below float's resolution. The octant is
+// then restored as atan2 does (x < 0 mirrors, y < 0 negates).
+inline float precise_atan2(float y, float x) {
   const float ax = std::fabs(x), ay = std::fabs(y);
   const float hi = std::max(ax, ay), lo = std::min(ax, ay);
   if (!(hi > 0)) return 0.0f;
-  float a = rough_atan_unit(lo / hi);
+  float z = lo / hi;
+  float base = 0.0f;
+  constexpr float kSqrt3 = 1.7320508075688772f, kTanPi12 = 0.2679491924311227f;
+  if (z > kTanPi12) {
+    z = (z * kSqrt3 - 1.0f) / (z + kSqrt3);
+    base = kPi / 6.0f;
+  }
+  const float z2 = z * z;
+  float a = base +
+            z * (1.0f + z2 * (-1.0f / 3.0f +
+                              z2 * (1.0f / 5.0f +
+                                    z2 * (-1.0f / 7.0f + z2 * (1.0f / 9.0f + z2 * (-1.0f / 11.0f))))));
   if (ay > ax) a = 0.5f * kPi - a;
   if (x < 0) a = kPi - a;
   return y < 0 ? -a : a;
@@ -164,23 +174,22 @@ inline float rough_atan2(float y, float x) {
 
 }  // namespace
 
-void Environment::prefetch_eval(Vec3 d) const {
-  if (blocks_.empty()) return;
-  // dir_to_uv() with rough inverse trigonometry: a neighbouring texel at
-  // worst, usually on the same line.
-  const float theta = rough_atan2(std::sqrt(std::max(0.0f, d.x * d.x + d.z * d.z)), d.y);
-  float u = rough_atan2(d.x, -d.z) * (1.0f / kTwoPi) + 0.5f - rotation_ * (1.0f / kTwoPi);
-  u -= std::floor(u);
-  const int x = std::clamp(int(u * float(width_)), 0, width_ - 1);
-  const int y = std::clamp(int(theta * kInvPi * float(height_)), 0, height_ - 1);
-  __builtin_prefetch(&texel(x, y));
+Environment::Located Environment::locate(Vec3 dir) const {
+  Located at;
+  if (blocks_.empty()) return at;
+  const Vec2 uv = dir_to_uv(dir);
+  const int x = std::clamp(int(uv.x * float(width_)), 0, width_ - 1);
+  const int y = std::clamp(int(uv.y * float(height_)), 0, height_ - 1);
+  at.texel = &texel(x, y);
+  __builtin_prefetch(at.texel);
+  return at;
 }
 
 Vec2 Environment::dir_to_uv(Vec3 d) const {
   // atan2 rather than acos(d.y): well conditioned at the poles too, where
   // the pdf's 1 / sin(theta) magnifies any error in theta.
-  float theta = std::atan2(std::sqrt(d.x * d.x + d.z * d.z), d.y);
-  float phi = std::atan2(d.x, -d.z) - rotation_;
+  float theta = precise_atan2(std::sqrt(d.x * d.x + d.z * d.z), d.y);
+  float phi = precise_atan2(d.x, -d.z) - rotation_;
   float u = phi / kTwoPi + 0.5f;
   u -= std::floor(u);
   return {u, theta * kInvPi};
@@ -192,25 +201,21 @@ Vec3 Environment::uv_to_dir(Vec2 uv) const {
   return {st * std::sin(phi), std::cos(theta), -st * std::cos(phi)};
 }
 
-const Environment::Texel& Environment::texel(Vec2 uv) const {
-  int x = std::clamp(int(uv.x * float(width_)), 0, width_ - 1);
-  int y = std::clamp(int(uv.y * float(height_)), 0, height_ - 1);
-  return texel(x, y);
+Vec3 Environment::eval(Vec3 dir) const { return eval(locate(dir)); }
+
+Vec3 Environment::eval(const Located& at) const {
+  if (!at.texel) return constant_;
+  return {at.texel->r, at.texel->g, at.texel->b};
 }
 
-Vec3 Environment::eval(Vec3 dir) const {
-  if (blocks_.empty()) return constant_;
-  const Texel& t = texel(dir_to_uv(dir));
-  return {t.r, t.g, t.b};
-}
+Vec3 Environment::eval(Vec3 dir, float* pdf_out) const { return eval(locate(dir), dir, pdf_out); }
 
-Vec3 Environment::eval(Vec3 dir, float* pdf_out) const {
-  if (blocks_.empty()) {
+Vec3 Environment::eval(const Located& at, Vec3 dir, float* pdf_out) const {
+  if (!at.texel) {
     *pdf_out = 1.0f / (4.0f * kPi);
     return constant_;
   }
-  const Vec2 uv = dir_to_uv(dir);
-  const Texel& t = texel(uv);
+  const Texel& t = *at.texel;
   const float r = std::sqrt(dir.x * dir.x + dir.z * dir.z);
   const float sin_theta = r / std::sqrt(r * r + dir.y * dir.y);
   *pdf_out = !(sin_theta > 0) ? 0.0f : t.pdf_uv / (2.0f * kPi * kPi * sin_theta);

@@ -59,8 +59,20 @@ class Environment {
   };
   Choice choose(Vec2 u) const;
   EnvSample sample(const Choice& choice) const;
-  // A hint: starts loading what eval() towards roughly `dir` will read.
-  void prefetch_eval(Vec3 dir) const;
+  // eval() in two steps, for a ray that may escape: locate() maps the
+  // direction to its texel and starts loading it (before the ray is
+  // traced), eval(located, ...) reads it (after the ray escaped). Same values
+  // as eval(dir) and eval(dir, pdf), from one mapping.
+ private:
+  struct Texel;
+
+ public:
+  struct Located {
+    const Texel* texel = nullptr;  // null for a constant environment
+  };
+  Located locate(Vec3 dir) const;
+  Vec3 eval(const Located& at) const;
+  Vec3 eval(const Located& at, Vec3 dir, float* pdf) const;
   float pdf(Vec3 dir) const;
   // eval() and pdf() at once, from one direction-to-texel mapping and one
   // memory access (an escaped ray under MIS needs both).
@@ -92,7 +104,6 @@ class Environment {
     return blocks_[size_t(y / kBlock) * blocks_w_ + size_t(x / kBlock)]
         .texel[(y % kBlock) * kBlock + x % kBlock];
   }
-  const Texel& texel(Vec2 uv) const;
 
   int width_ = 0, height_ = 0;
   int blocks_w_ = 0, blocks_h_ = 0;

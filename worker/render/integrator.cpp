@@ -47,7 +47,8 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
       const Vec2 u_light = sampler.get2d();
       if (use_nee) light_choice = scene.choose_light(u_select, u_light);
     }
-    if (env && depth > 0) env->prefetch_eval(ray.d);
+    Environment::Located escape;
+    if (env && depth > 0) escape = env->locate(ray.d);
     SurfaceHit hit;
     bool found = scene.intersect(ray, &hit);
     if (depth == 0 && albedo) *albedo = primary_albedo(found ? &hit : nullptr);
@@ -56,12 +57,13 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
       if (env && (delta_bounce || use_bsdf_hits)) {
         float w = 1.0f;
         Vec3 le;
+        if (depth == 0) escape = env->locate(ray.d);
         if (!delta_bounce && use_mis) {
           float light_pdf;
-          le = scene.environment_radiance(ray.d, &light_pdf);
+          le = scene.environment_radiance(escape, ray.d, &light_pdf);
           w = power_heuristic(prev_bsdf_pdf, light_pdf);
         } else {
-          le = env->eval(ray.d);
+          le = env->eval(escape);
         }
         L += beta * le * w;
       }

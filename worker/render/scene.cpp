@@ -338,8 +338,8 @@ float Scene::light_pdf(Vec3 from, const SurfaceHit& hit) const {
   return light_select_.pmf(size_t(i)) * dist2 / (cos_l * light_tri_area_[i]);
 }
 
-Vec3 Scene::environment_radiance(Vec3 dir, float* pdf) const {
-  Vec3 le = environment_->eval(dir, pdf);
+Vec3 Scene::environment_radiance(const Environment::Located& at, Vec3 dir, float* pdf) const {
+  Vec3 le = environment_->eval(at, dir, pdf);
   *pdf = env_sampled_ ? env_select_pmf_ * *pdf : 0.0f;
   return le;
 }

@@ -99,7 +99,11 @@ class Scene {
   // The environment's radiance towards `dir` (which must have one) and the
   // solid-angle pdf sample_light() would give to that direction (selection
   // probability included), from one lookup.
-  Vec3 environment_radiance(Vec3 dir, float* pdf) const;
+  Vec3 environment_radiance(Vec3 dir, float* pdf) const {
+    return environment_radiance(environment_->locate(dir), dir, pdf);
+  }
+  // The same for a direction already located (Environment::locate).
+  Vec3 environment_radiance(const Environment::Located& at, Vec3 dir, float* pdf) const;
 
   float radius() const { return radius_; }
   Vec3 center() const { return center_; }
