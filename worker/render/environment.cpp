@@ -6,6 +6,7 @@
 #include <cmath>
 
 #include "common/error.h"
+#include "worker/render/trig.h"
 
 namespace dofarm::render {
 
@@ -141,39 +142,6 @@ Environment::Choice Environment::choose(Vec2 u) const {
   return c;
 }
 
-namespace {
-
-// atan2(y, x) to float precision, without a call into libm (the environment
-// maps a direction to its texel for every ray that may escape). The ratio
-// z = min/max of |x|, |y| is in [0, 1]; above tan(pi/12) it is reduced by
-// atan(z) = pi/6 + atan((sqrt(3) z - 1) / (z + sqrt(3))) (Cody and Waite
-// 1980, "Software Manual for the Elementary Functions", ch. 11), leaving
-// |t| <= tan(pi/12) = 0.268, where the Taylor series of atan to t^11 is
-// within t^13 / 13 < 3e-9 of it, below float's resolution. The octant is
-// then restored as atan2 does (x < 0 mirrors, y < 0 negates).
-inline float precise_atan2(float y, float x) {
-  const float ax = std::fabs(x), ay = std::fabs(y);
-  const float hi = std::max(ax, ay), lo = std::min(ax, ay);
-  if (!(hi > 0)) return 0.0f;
-  float z = lo / hi;
-  float base = 0.0f;
-  constexpr float kSqrt3 = 1.7320508075688772f, kTanPi12 = 0.2679491924311227f;
-  if (z > kTanPi12) {
-    z = (z * kSqrt3 - 1.0f) / (z + kSqrt3);
-    base = kPi / 6.0f;
-  }
-  const float z2 = z * z;
-  float a = base +
-            z * (1.0f + z2 * (-1.0f / 3.0f +
-                              z2 * (1.0f / 5.0f +
-                                    z2 * (-1.0f / 7.0f + z2 * (1.0f / 9.0f + z2 * (-1.0f / 11.0f))))));
-  if (ay > ax) a = 0.5f * kPi - a;
-  if (x < 0) a = kPi - a;
-  return y < 0 ? -a : a;
-}
-
-}  // namespace
-
 Environment::Located Environment::locate(Vec3 dir) const {
   Located at;
   if (blocks_.empty()) return at;
@@ -197,8 +165,10 @@ Vec2 Environment::dir_to_uv(Vec3 d) const {
 
 Vec3 Environment::uv_to_dir(Vec2 uv) const {
   float theta = uv.y * kPi, phi = (uv.x - 0.5f) * kTwoPi + rotation_;
-  float st = std::sin(theta);
-  return {st * std::sin(phi), std::cos(theta), -st * std::cos(phi)};
+  float st, ct, sp, cp;
+  precise_sincos(theta, &st, &ct);
+  precise_sincos(phi, &sp, &cp);
+  return {st * sp, ct, -st * cp};
 }
 
 Vec3 Environment::eval(Vec3 dir) const { return eval(locate(dir)); }
@@ -251,9 +221,10 @@ EnvSample Environment::sample(const Choice& choice) const {
   const int y = int(cell / size_t(blocks_w_)) * kBlock + row;
   if (!(t.pdf_uv > 0) || x >= width_ || y >= height_) return s;  // pdf 0: the caller skips it
   const Vec2 uv((float(x) + r.x) / float(width_), (float(y) + r.y) / float(height_));
-  const float sin_theta = std::sin(uv.y * kPi);
-  if (sin_theta <= 0) return s;
   s.wi = uv_to_dir(uv);
+  // sin(theta) as uv_to_dir() has it: the length of the direction's xz part.
+  const float sin_theta = std::sqrt(s.wi.x * s.wi.x + s.wi.z * s.wi.z);
+  if (!(sin_theta > 0)) return s;
   s.radiance = Vec3(t.r, t.g, t.b);
   s.pdf = t.pdf_uv / (2.0f * kPi * kPi * sin_theta);
   return s;
