@@ -166,6 +166,122 @@ TEST(Distribution2D, SamplesFollowThePdf) {
   EXPECT_GT(test::chi2_p_value(stat, dof), 1e-4) << "chi2 = " << stat << ", dof = " << dof;
 }
 
+// The compact 2D table (the environment map's block table) as a 1D
+// distribution (one row): every cell is picked with its pmf on a fine grid
+// of u, the cell never decreases with u, zero cells are never picked, the
+// pmf is weight / total to float precision, and the boundaries are exact: u
+// at a cell's start picks that cell, the float below it an earlier one. Rows
+// of 256 cells (one summary line, full) and of 5000 (a summary of 20 lines)
+// are among the sizes.
+TEST(CompactDistribution2D, OneRowFollowsThePmfWithExactBoundaries) {
+  auto sets = awkward_weights();
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<float> uni(0.0f, 1.0f);
+  for (int n : {16, 17, 256, 5000}) {
+    std::vector<float> w(static_cast<size_t>(n));
+    for (float& x : w) x = uni(rng) < 0.25f ? 0.0f : uni(rng) * uni(rng);
+    w[size_t(n) - 1] = 0.0f;  // trailing zero cells
+    sets.push_back(w);
+  }
+  constexpr int kGrid = 1 << 20;
+  for (const auto& wf : sets) {
+    const std::vector<double> w(wf.begin(), wf.end());
+    const int n = int(w.size());
+    const CompactDistribution2D dist(w, n, 1);
+    double total = 0;
+    for (double x : w) total += x;
+    std::vector<double> count(w.size(), 0.0);
+    size_t last = 0;
+    for (int k = 0; k < kGrid; ++k) {
+      Vec2 r;
+      const size_t i = dist.sample_discrete(Vec2(float(k) / float(kGrid), 0.5f), &r);
+      ASSERT_LT(i, w.size());
+      ASSERT_GE(i, last) << "u = " << float(k) / float(kGrid);
+      ASSERT_GT(dist.pmf(i), 0.0) << "picked a zero cell " << i;
+      ASSERT_GE(r.x, 0.0f);
+      ASSERT_LT(r.x, 1.0f);
+      last = i;
+      count[i] += 1;
+    }
+    double pmf_sum = 0, start = 0;
+    for (int i = 0; i < n; ++i) {
+      const double p = dist.pmf(size_t(i));
+      EXPECT_NEAR(count[i] / kGrid, p, 1.0 / kGrid + 1e-12) << "cell " << i << " of " << n;
+      const double want = total > 0 ? w[i] / total : 1.0 / n;
+      EXPECT_NEAR(p, want, 1e-6 * want + 1.2e-7) << "cell " << i << " of " << n;
+      // Partial sums of the exact float differences are the float starts.
+      if (p > 0) {
+        const float s = float(start);
+        Vec2 r;
+        EXPECT_EQ(dist.sample_discrete(Vec2(s, 0.5f), &r), size_t(i)) << "start of " << i;
+        EXPECT_EQ(r.x, 0.0f);
+        if (s > 0) {
+          const size_t below = dist.sample_discrete(Vec2(std::nextafter(s, 0.0f), 0.5f), &r);
+          EXPECT_LT(below, size_t(i)) << "below the start of " << i;
+          EXPECT_GT(dist.pmf(below), 0.0);
+        }
+      }
+      start += p;
+      pmf_sum += p;
+    }
+    EXPECT_NEAR(pmf_sum, 1.0, 1e-12);
+    // Outside [0, 1) clamps: the first and the last cell with weight.
+    Vec2 r;
+    EXPECT_EQ(dist.sample_discrete(Vec2(-1.0f, 0.5f), &r), dist.sample_discrete(Vec2(0.0f, 0.5f), &r));
+    EXPECT_EQ(dist.sample_discrete(Vec2(1.0f, 0.5f), &r),
+              dist.sample_discrete(Vec2(0x1.fffffep-1f, 0.5f), &r));
+  }
+}
+
+// Rows then columns: on a grid of u the number of points in a cell is the
+// number of rows of the grid in the row's interval times the columns in the
+// column's interval, so it is pmf * N up to the edges of the two intervals;
+// the pmf is the cell's weight over the total.
+TEST(CompactDistribution2D, RowsThenColumnsFollowThePmf) {
+  constexpr int nu = 37, nv = 300, kX = 1 << 11, kY = 1 << 12;
+  std::vector<double> w(size_t(nu) * nv);
+  std::mt19937 gen(21);
+  std::uniform_real_distribution<double> uni(0.0, 1.0);
+  for (double& x : w) x = uni(gen) < 0.2 ? 0.0 : uni(gen) * uni(gen);
+  for (int x = 0; x < nu; ++x) w[size_t(7) * nu + x] = 0.0;  // an empty row
+  w[size_t(150) * nu + 36] = 50.0;                            // a sun at a row's end
+  double total = 0;
+  for (double x : w) total += x;
+  const CompactDistribution2D dist(w, nu, nv);
+  std::vector<double> count(w.size(), 0.0);
+  for (int j = 0; j < kY; ++j)
+    for (int i = 0; i < kX; ++i) {
+      Vec2 r;
+      const size_t c = dist.sample_discrete(Vec2((i + 0.5f) / kX, (j + 0.5f) / kY), &r);
+      ASSERT_LT(c, w.size());
+      ASSERT_GT(w[c], 0.0) << "cell " << c;
+      ASSERT_TRUE(r.x >= 0.0f && r.x < 1.0f && r.y >= 0.0f && r.y < 1.0f);
+      count[c] += 1;
+    }
+  double pmf_sum = 0;
+  for (size_t c = 0; c < w.size(); ++c) {
+    const double p = dist.pmf(c);
+    pmf_sum += p;
+    // Row and column probabilities each come from two float starts, so each
+    // is within 2^-24 of its exact value: p = pr pc is within 2^-24 (pr + pc).
+    const size_t row = c / nu;
+    double row_w = 0;
+    for (int x = 0; x < nu; ++x) row_w += w[row * nu + size_t(x)];
+    if (row_w > 0) {
+      EXPECT_NEAR(p, w[c] / total, 0x1p-24 * (row_w / total + w[c] / row_w) + 1e-15)
+          << "cell " << c;
+    }
+    // Rows of the grid in the row's interval: kY * pmf_row +- 1; likewise
+    // columns. pmf_row from the row's cells.
+    double row_p = 0;
+    for (int x = 0; x < nu; ++x) row_p += dist.pmf(row * nu + size_t(x));
+    if (row_p <= 0) continue;
+    const double a = kY * row_p, b = kX * p / row_p;
+    EXPECT_LE(std::fabs(count[c] - a * b), a + b + 1) << "cell " << c;
+  }
+  EXPECT_NEAR(pmf_sum, 1.0, 1e-9);
+}
+
 RgbImage sky_with_a_sun() {
   RgbImage img;
   img.width = 32;
@@ -266,6 +382,56 @@ TEST(Environment, BlockedTablesGiveEachTexelItsWeightOverTheTotal) {
       const double want = weight[size_t(y) * w + x] / total * w * h;
       EXPECT_NEAR(pdf_uv, want, 1e-4 * want + 1e-9) << "texel " << x << ", " << y;
     }
+}
+
+// Direction to texel (environment.h's mapping, evaluated without libm's
+// atan2): every direction lands in the texel that the mapping computed in
+// double with std::atan2 gives, unless it lies within 1e-4 of a texel's
+// width of a texel edge (float rounding may go either way there). Each
+// texel's radiance names it: (x + 1, y + 1, 1).
+TEST(Environment, EveryDirectionFindsItsTexel) {
+  constexpr int w = 96, h = 48;
+  RgbImage img;
+  img.width = w;
+  img.height = h;
+  img.rgb.resize(size_t(w) * h * 3);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      float* t = &img.rgb[(size_t(y) * w + x) * 3];
+      t[0] = float(x + 1);
+      t[1] = float(y + 1);
+      t[2] = 1.0f;
+    }
+  const double rotation = 30.0 * M_PI / 180.0;
+  const Environment env(img, 1.0f, 30.0f);
+  std::mt19937_64 rng(31);
+  std::normal_distribution<double> normal;
+  int checked = 0;
+  for (int i = 0; i < 200000; ++i) {
+    double d[3] = {normal(rng), normal(rng), normal(rng)};
+    if (i < 8) {  // the axes and octant edges too
+      d[0] = (i & 1) ? 0.0 : (i & 2 ? -1.0 : 1.0);
+      d[1] = (i & 4) ? 1.0 : 0.0;
+      d[2] = (i & 1) ? 1.0 : 0.0;
+    }
+    const double len = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+    const Vec3 dir(float(d[0] / len), float(d[1] / len), float(d[2] / len));
+    const double theta = std::atan2(std::hypot(double(dir.x), double(dir.z)), double(dir.y));
+    double u = (std::atan2(double(dir.x), -double(dir.z)) - rotation) / (2 * M_PI) + 0.5;
+    u -= std::floor(u);
+    const double fx = u * w, fy = theta / M_PI * h;
+    auto near_edge = [](double f) { return std::fabs(f - std::round(f)) < 1e-4; };
+    if (near_edge(fx) || near_edge(fy)) continue;
+    const int x = std::min(w - 1, int(fx)), y = std::min(h - 1, int(fy));
+    const Vec3 le = env.eval(dir);
+    ASSERT_EQ(le.x, float(x + 1)) << dir.x << " " << dir.y << " " << dir.z;
+    ASSERT_EQ(le.y, float(y + 1)) << dir.x << " " << dir.y << " " << dir.z;
+    float p;
+    EXPECT_EQ(env.eval(env.locate(dir), dir, &p).x, le.x);
+    EXPECT_EQ(p, env.pdf(dir));
+    ++checked;
+  }
+  EXPECT_GT(checked, 199000);
 }
 
 TEST(Environment, SamplesFollowThePdfOnAMapNotMadeOfWholeBlocks) {

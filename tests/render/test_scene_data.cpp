@@ -446,6 +446,10 @@ TEST(Texture, RepeatWraps) {
   EXPECT_FLOAT_EQ(t.lookup({1.25f, -0.75f}).y, 0.0f);
   EXPECT_FLOAT_EQ(t.lookup({-3.25f, 7.75f}).y, 3.0f);
   EXPECT_FLOAT_EQ(t.lookup({1000.75f, 0.25f}).y, 1.0f);
+  // Just below 1, and a negative u so small that wrapping rounds it to 1:
+  // both between the last column and the first, like u = 0.
+  EXPECT_NEAR(t.lookup({0x1.fffffep-1f, 0.25f}).y, 0.5f, 1e-6f);
+  EXPECT_FLOAT_EQ(t.lookup({-1e-10f, 0.25f}).y, 0.5f);
 }
 
 TEST(Texture, EmptyTextureIsWhite) {

@@ -3,6 +3,7 @@
 #include <cmath>
 
 #include "worker/render/microfacet.h"
+#include "worker/render/trig.h"
 
 namespace dofarm::render {
 
@@ -197,8 +198,9 @@ BsdfSample Bsdf::sample(const Outgoing& o, float u_lobe, Vec2 u) const {
     wi = reflect(wo, h);
   } else {
     // Cosine-weighted hemisphere (Malley's method).
-    float r = std::sqrt(u.x), phi = kTwoPi * u.y;
-    wi = Vec3(r * std::cos(phi), r * std::sin(phi), safe_sqrt(1.0f - u.x));
+    float r = std::sqrt(u.x), sin_phi, cos_phi;
+    precise_sincos(kTwoPi * u.y, &sin_phi, &cos_phi);
+    wi = Vec3(r * cos_phi, r * sin_phi, safe_sqrt(1.0f - u.x));
   }
   if (wi.z <= 0) return s;
   s.wi = frame_.to_world(wi);

@@ -8,6 +8,7 @@
 
 #include "common/error.h"
 #include "common/thin_lens.h"
+#include "worker/render/trig.h"
 
 namespace dofarm::render {
 
@@ -75,7 +76,9 @@ Vec2 sample_concentric_disk(Vec2 u) {
     r = oy;
     theta = kPi / 2.0f - (kPi / 4.0f) * (ox / oy);
   }
-  return {r * std::cos(theta), r * std::sin(theta)};
+  float s, c;
+  precise_sincos(theta, &s, &c);
+  return {r * c, r * s};
 }
 
 namespace {

@@ -119,3 +119,105 @@ float Distribution2D::pdf(Vec2 p) const {
 }
 
 }  // namespace dofarm::render
+
+namespace dofarm::render {
+
+namespace {
+
+constexpr float kPad = 2.0f;  // above every u in [0, 1): never counted
+
+// How many of the 16 floats at p are <= u: a fixed-length loop the compiler
+// turns into a few vector compares, no branches.
+inline int count_at_most(const float* p, float u) {
+  int c = 0;
+  for (int k = 0; k < 16; ++k) c += p[k] <= u ? 1 : 0;
+  return c;
+}
+
+}  // namespace
+
+CompactDistribution2D::Layout CompactDistribution2D::layout(int n) {
+  Layout l;
+  l.n = n;
+  l.lines = (n + 15) / 16;
+  l.summary = (l.lines + 15) / 16;
+  return l;
+}
+
+void CompactDistribution2D::fill(const double* w, int n, const Layout& l, Line* out) {
+  double total = 0;
+  for (int i = 0; i < n; ++i) total += std::isfinite(w[i]) && w[i] > 0 ? w[i] : 0.0;
+  float* summary = out[0].start;
+  float* cells = out[l.summary].start;
+  std::fill(summary, summary + size_t(l.summary) * 16, kPad);
+  std::fill(cells, cells + size_t(l.lines) * 16, kPad);
+  double run = 0;
+  for (int i = 0; i < n; ++i) {
+    // The start of cell i as a float; rounding keeps the starts
+    // non-decreasing, and cells after the last positive weight start at
+    // exactly 1 (run == total), so u < 1 never reaches them.
+    const float s = total > 0 ? float(std::min(1.0, run / total)) : float(double(i) / double(n));
+    cells[i] = s;
+    if (i % 16 == 0) summary[i / 16] = s;
+    run += std::isfinite(w[i]) && w[i] > 0 ? w[i] : 0.0;
+  }
+}
+
+CompactDistribution2D::CompactDistribution2D(const std::vector<double>& w, int nu, int nv)
+    : nu_(nu), nv_(nv) {
+  marginal_ = layout(nv);
+  row_ = layout(nu);
+  row_base_ = marginal_.stride();
+  lines_.resize(row_base_ + size_t(nv) * row_.stride());
+  std::vector<double> row_sums(size_t(nv), 0.0);
+  for (int v = 0; v < nv; ++v) {
+    const double* row = &w[size_t(v) * nu];
+    for (int x = 0; x < nu; ++x) row_sums[v] += std::isfinite(row[x]) && row[x] > 0 ? row[x] : 0.0;
+    fill(row, nu, row_, &lines_[row_base_ + size_t(v) * row_.stride()]);
+  }
+  fill(row_sums.data(), nv, marginal_, lines_.data());
+}
+
+float CompactDistribution2D::start(const Line* base, const Layout& l, int i) {
+  return base[l.summary + i / 16].start[i % 16];
+}
+
+double CompactDistribution2D::cell_pmf(const Line* base, const Layout& l, int i) {
+  const double end = i + 1 < l.n ? double(start(base, l, i + 1)) : 1.0;
+  return end - double(start(base, l, i));
+}
+
+size_t CompactDistribution2D::find(const Line* base, const Layout& l, float u,
+                                   float* remapped) const {
+  // The line: how many line starts are <= u, less one (entry 0 is 0 <= u).
+  int g = -1;
+  for (int s = 0; s < l.summary; ++s) g += count_at_most(base[s].start, u);
+  // The cell within the line, whose first start is <= u by the choice of g:
+  // the largest i with start(i) <= u, which skips cells of zero width (their
+  // start equals the next one's).
+  const float* c = base[l.summary + g].start;
+  const int j = count_at_most(c, u) - 1;
+  const float lo = c[j];
+  const float next = j < 15            ? c[j + 1]
+                     : g + 1 < l.lines ? base[(g + 1) / 16].start[(g + 1) % 16]
+                                       : kPad;
+  const float hi = std::min(1.0f, next);  // the padding past the last cell ends at 1
+  *remapped = hi > lo ? std::clamp((u - lo) / (hi - lo), 0.0f, 0x1.fffffep-1f) : 0.5f;
+  return size_t(g) * 16 + size_t(j);
+}
+
+size_t CompactDistribution2D::sample_discrete(Vec2 u, Vec2* remapped) const {
+  auto unit = [](float x) { return x >= 0.0f ? std::min(x, 0x1.fffffep-1f) : 0.0f; };  // NaN -> 0
+  float ry, rx;
+  const size_t row = find(lines_.data(), marginal_, unit(u.y), &ry);
+  const size_t column = find(row_table(int(row)), row_, unit(u.x), &rx);
+  *remapped = Vec2(rx, ry);
+  return row * size_t(nu_) + column;
+}
+
+double CompactDistribution2D::pmf(size_t cell) const {
+  const int row = int(cell / size_t(nu_)), column = int(cell % size_t(nu_));
+  return cell_pmf(lines_.data(), marginal_, row) * cell_pmf(row_table(row), row_, column);
+}
+
+}  // namespace dofarm::render

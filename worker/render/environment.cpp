@@ -6,6 +6,7 @@
 #include <cmath>
 
 #include "common/error.h"
+#include "worker/render/trig.h"
 
 namespace dofarm::render {
 
@@ -67,19 +68,19 @@ Environment::Environment(RgbImage image, float intensity, float rotation_deg)
     const float v = weights[size_t(y) * w + x];
     return std::isfinite(v) && v > 0 ? double(v) : 0.0;
   };
-  std::vector<float> block_sums(size_t(blocks_w_) * blocks_h_);
+  std::vector<double> block_sums(size_t(blocks_w_) * blocks_h_);
   for (int by = 0; by < blocks_h_; ++by)
     for (int bx = 0; bx < blocks_w_; ++bx) {
       double s = 0;
       for (int y = 0; y < kBlock; ++y)
         for (int x = 0; x < kBlock; ++x) s += weight(bx * kBlock + x, by * kBlock + y);
-      block_sums[size_t(by) * blocks_w_ + bx] = float(s);
+      block_sums[size_t(by) * blocks_w_ + bx] = s;
     }
-  block_distribution_ = Distribution2D(block_sums, blocks_w_, blocks_h_);
+  block_distribution_ = CompactDistribution2D(block_sums, blocks_w_, blocks_h_);
 
   // Each block's inversion tables, and each texel's pdf over the map's unit
   // square from exactly the probabilities sampling uses: the block's pmf
-  // (Distribution2D), then the row's and the column's share as the float
+  // (CompactDistribution2D), then the row's and the column's share as the float
   // tables give them. A block of weight 0 (the coarse table never picks it
   // unless the whole map is black) gets uniform tables.
   blocks_.resize(size_t(blocks_w_) * blocks_h_);
@@ -131,53 +132,32 @@ Environment::Environment(RgbImage image, float intensity, float rotation_deg)
     }
 }
 
-void Environment::prefetch_sample(Vec2 u) const {
-  if (blocks_.empty()) return;
-  Vec2 unused;
-  const char* b = reinterpret_cast<const char*>(&blocks_[block_distribution_.sample_discrete(u, &unused)]);
+Environment::Choice Environment::choose(Vec2 u) const {
+  Choice c;
+  c.u = u;
+  if (blocks_.empty()) return c;
+  c.block = uint32_t(block_distribution_.sample_discrete(u, &c.r));
+  const char* b = reinterpret_cast<const char*>(&blocks_[c.block]);
   for (size_t line = 0; line < sizeof(Block); line += 64) __builtin_prefetch(b + line);
+  return c;
 }
 
-namespace {
-
-// atan(x) for |x| <= 1 within about 1e-5 (a minimax polynomial in x^2):
-// only to find the cache line of a texel ahead of time, never for a value.
-inline float rough_atan_unit(float x) {
-  const float x2 = x * x;
-  return x * (0.99997726f +
-              x2 * (-0.33262347f + x2 * (0.19354346f + x2 * (-0.11643287f +
-                                                           x2 * (0.05265332f + x2 * -0.01172120f)))));
-}
-
-inline float rough_atan2(float y, float x) {
-  const float ax = std::fabs(x), ay = std::fabs(y);
-  const float hi = std::max(ax, ay), lo = std::min(ax, ay);
-  if (!(hi > 0)) return 0.0f;
-  float a = rough_atan_unit(lo / hi);
-  if (ay > ax) a = 0.5f * kPi - a;
-  if (x < 0) a = kPi - a;
-  return y < 0 ? -a : a;
-}
-
-}  // namespace
-
-void Environment::prefetch_eval(Vec3 d) const {
-  if (blocks_.empty()) return;
-  // dir_to_uv() with rough inverse trigonometry: a neighbouring texel at
-  // worst, usually on the same line.
-  const float theta = rough_atan2(std::sqrt(std::max(0.0f, d.x * d.x + d.z * d.z)), d.y);
-  float u = rough_atan2(d.x, -d.z) * (1.0f / kTwoPi) + 0.5f - rotation_ * (1.0f / kTwoPi);
-  u -= std::floor(u);
-  const int x = std::clamp(int(u * float(width_)), 0, width_ - 1);
-  const int y = std::clamp(int(theta * kInvPi * float(height_)), 0, height_ - 1);
-  __builtin_prefetch(&texel(x, y));
+Environment::Located Environment::locate(Vec3 dir) const {
+  Located at;
+  if (blocks_.empty()) return at;
+  const Vec2 uv = dir_to_uv(dir);
+  const int x = std::clamp(int(uv.x * float(width_)), 0, width_ - 1);
+  const int y = std::clamp(int(uv.y * float(height_)), 0, height_ - 1);
+  at.texel = &texel(x, y);
+  __builtin_prefetch(at.texel);
+  return at;
 }
 
 Vec2 Environment::dir_to_uv(Vec3 d) const {
   // atan2 rather than acos(d.y): well conditioned at the poles too, where
   // the pdf's 1 / sin(theta) magnifies any error in theta.
-  float theta = std::atan2(std::sqrt(d.x * d.x + d.z * d.z), d.y);
-  float phi = std::atan2(d.x, -d.z) - rotation_;
+  float theta = precise_atan2(std::sqrt(d.x * d.x + d.z * d.z), d.y);
+  float phi = precise_atan2(d.x, -d.z) - rotation_;
   float u = phi / kTwoPi + 0.5f;
   u -= std::floor(u);
   return {u, theta * kInvPi};
@@ -185,37 +165,36 @@ Vec2 Environment::dir_to_uv(Vec3 d) const {
 
 Vec3 Environment::uv_to_dir(Vec2 uv) const {
   float theta = uv.y * kPi, phi = (uv.x - 0.5f) * kTwoPi + rotation_;
-  float st = std::sin(theta);
-  return {st * std::sin(phi), std::cos(theta), -st * std::cos(phi)};
+  float st, ct, sp, cp;
+  precise_sincos(theta, &st, &ct);
+  precise_sincos(phi, &sp, &cp);
+  return {st * sp, ct, -st * cp};
 }
 
-const Environment::Texel& Environment::texel(Vec2 uv) const {
-  int x = std::clamp(int(uv.x * float(width_)), 0, width_ - 1);
-  int y = std::clamp(int(uv.y * float(height_)), 0, height_ - 1);
-  return texel(x, y);
+Vec3 Environment::eval(Vec3 dir) const { return eval(locate(dir)); }
+
+Vec3 Environment::eval(const Located& at) const {
+  if (!at.texel) return constant_;
+  return {at.texel->r, at.texel->g, at.texel->b};
 }
 
-Vec3 Environment::eval(Vec3 dir) const {
-  if (blocks_.empty()) return constant_;
-  const Texel& t = texel(dir_to_uv(dir));
-  return {t.r, t.g, t.b};
-}
+Vec3 Environment::eval(Vec3 dir, float* pdf_out) const { return eval(locate(dir), dir, pdf_out); }
 
-Vec3 Environment::eval(Vec3 dir, float* pdf_out) const {
-  if (blocks_.empty()) {
+Vec3 Environment::eval(const Located& at, Vec3 dir, float* pdf_out) const {
+  if (!at.texel) {
     *pdf_out = 1.0f / (4.0f * kPi);
     return constant_;
   }
-  const Vec2 uv = dir_to_uv(dir);
-  const Texel& t = texel(uv);
+  const Texel& t = *at.texel;
   const float r = std::sqrt(dir.x * dir.x + dir.z * dir.z);
   const float sin_theta = r / std::sqrt(r * r + dir.y * dir.y);
   *pdf_out = !(sin_theta > 0) ? 0.0f : t.pdf_uv / (2.0f * kPi * kPi * sin_theta);
   return {t.r, t.g, t.b};
 }
 
-EnvSample Environment::sample(Vec2 u) const {
+EnvSample Environment::sample(const Choice& choice) const {
   EnvSample s;
+  const Vec2 u = choice.u;
   if (blocks_.empty()) {  // uniform sphere
     float z = 1.0f - 2.0f * u.x, r = safe_sqrt(1.0f - z * z), phi = kTwoPi * u.y;
     s.wi = Vec3(r * std::cos(phi), z, r * std::sin(phi));
@@ -223,10 +202,10 @@ EnvSample Environment::sample(Vec2 u) const {
     s.pdf = 1.0f / (4.0f * kPi);
     return s;
   }
-  // The block, then its row and column by inversion, each step passing on
-  // its number rescaled to [0, 1) within the chosen entry.
-  Vec2 r;
-  const size_t cell = block_distribution_.sample_discrete(u, &r);
+  // The block (choose()), then its row and column by inversion, each step
+  // passing on its number rescaled to [0, 1) within the chosen entry.
+  Vec2 r = choice.r;
+  const size_t cell = choice.block;
   const Block& b = blocks_[cell];
   auto pick = [](const float* cdf, float* v) {
     // Entries of probability 0 have equal bounds and are never picked.
@@ -242,9 +221,10 @@ EnvSample Environment::sample(Vec2 u) const {
   const int y = int(cell / size_t(blocks_w_)) * kBlock + row;
   if (!(t.pdf_uv > 0) || x >= width_ || y >= height_) return s;  // pdf 0: the caller skips it
   const Vec2 uv((float(x) + r.x) / float(width_), (float(y) + r.y) / float(height_));
-  const float sin_theta = std::sin(uv.y * kPi);
-  if (sin_theta <= 0) return s;
   s.wi = uv_to_dir(uv);
+  // sin(theta) as uv_to_dir() has it: the length of the direction's xz part.
+  const float sin_theta = std::sqrt(s.wi.x * s.wi.x + s.wi.z * s.wi.z);
+  if (!(sin_theta > 0)) return s;
   s.radiance = Vec3(t.r, t.g, t.b);
   s.pdf = t.pdf_uv / (2.0f * kPi * kPi * sin_theta);
   return s;

@@ -7,19 +7,21 @@
 // waited on them): texels are stored in blocks of 4x4, each block one
 // 320-byte, cache-line-aligned record holding the block's own sampling
 // tables (one line) and its 16 texels (radiance and pdf side by side).
-// Sampling is hierarchical and exact: a block from a small 2D distribution
-// over the blocks' summed weights, then a row and a column inside the block
+// Sampling is hierarchical and exact: a block from a compact 2D distribution
+// over the blocks' summed weights (two cache lines per level, 139 KB for a
+// 1024x512 map; distribution.h), then a row and a column inside the block
 // by inverting its tables, so a texel is chosen with probability weight /
 // total, as with one table over all texels, and the map stays a monotone
 // (stratification-keeping) function of the sample point. All a sample reads
-// beyond the small block table is one record, which prefetch_sample() can
-// start loading before the caller's ray traversal.
+// beyond the block table is one record, which choose() starts loading
+// before the caller's ray traversal and sample(choice) reads after it.
 //
 // Mapping: +y is up; theta = acos(d.y) from the zenith; phi = atan2(d.x, -d.z),
 // so the map's centre column (u = 0.5) is seen looking down -z; `rotation`
 // turns the map about +y.
 #pragma once
 
+#include <cstdint>
 #include <memory>
 #include <vector>
 
@@ -44,12 +46,33 @@ class Environment {
   explicit Environment(Vec3 constant_radiance);
 
   Vec3 eval(Vec3 dir) const;
-  EnvSample sample(Vec2 u) const;
-  // Hints: start loading what sample(u), or eval() towards roughly `dir`,
-  // will read (a caller that traces a ray before it samples or looks up can
-  // hide that wait behind the traversal).
-  void prefetch_sample(Vec2 u) const;
-  void prefetch_eval(Vec3 dir) const;
+  EnvSample sample(Vec2 u) const { return sample(choose(u)); }
+  // sample(u) in two steps, so that a caller can choose before it traces a
+  // ray and sample after it: choose() runs the table searches and starts
+  // loading the block record that sample(choice) reads, which then waits for
+  // nothing the traversal did not hide. The same numbers give the same
+  // sample either way.
+  struct Choice {
+    Vec2 u;         // the sample's numbers
+    Vec2 r;         // u rescaled to [0, 1)^2 within the block
+    uint32_t block = 0;
+  };
+  Choice choose(Vec2 u) const;
+  EnvSample sample(const Choice& choice) const;
+  // eval() in two steps, for a ray that may escape: locate() maps the
+  // direction to its texel and starts loading it (before the ray is
+  // traced), eval(located, ...) reads it (after the ray escaped). Same values
+  // as eval(dir) and eval(dir, pdf), from one mapping.
+ private:
+  struct Texel;
+
+ public:
+  struct Located {
+    const Texel* texel = nullptr;  // null for a constant environment
+  };
+  Located locate(Vec3 dir) const;
+  Vec3 eval(const Located& at) const;
+  Vec3 eval(const Located& at, Vec3 dir, float* pdf) const;
   float pdf(Vec3 dir) const;
   // eval() and pdf() at once, from one direction-to-texel mapping and one
   // memory access (an escaped ray under MIS needs both).
@@ -81,14 +104,13 @@ class Environment {
     return blocks_[size_t(y / kBlock) * blocks_w_ + size_t(x / kBlock)]
         .texel[(y % kBlock) * kBlock + x % kBlock];
   }
-  const Texel& texel(Vec2 uv) const;
 
   int width_ = 0, height_ = 0;
   int blocks_w_ = 0, blocks_h_ = 0;
   // Row 0 = top; empty for a constant environment. Texels past the map's
   // edge (in blocks at the right and bottom) have weight 0.
   std::vector<Block> blocks_;
-  Distribution2D block_distribution_;  // over the blocks' summed weights
+  CompactDistribution2D block_distribution_;  // over the blocks' summed weights
   Vec3 constant_{0};
   float rotation_ = 0;  // radians
   float mean_luminance_ = 0;

@@ -37,17 +37,18 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
   for (int depth = 0;; ++depth) {
     // This vertex's light-sample numbers, drawn before its ray is traced (the
     // slots are the same as if drawn after the hit: nothing between consumes
-    // any), so that what sampling an environment map reads, which is larger
-    // than the caches, loads during the traversal; likewise the texel an
-    // escaping bounce ray would read.
-    float u_select = 0;
-    Vec2 u_light;
+    // any), and the light and environment block chosen from them, so that
+    // what sampling an environment map reads, which is larger than the
+    // caches, loads during the traversal; likewise the texel an escaping
+    // bounce ray would read.
+    Scene::LightChoice light_choice;
     if (depth < settings.max_depth) {
-      u_select = sampler.get1d();
-      u_light = sampler.get2d();
-      if (use_nee) scene.prefetch_light_sample(u_select, u_light);
+      const float u_select = sampler.get1d();
+      const Vec2 u_light = sampler.get2d();
+      if (use_nee) light_choice = scene.choose_light(u_select, u_light);
     }
-    if (env && depth > 0) env->prefetch_eval(ray.d);
+    Environment::Located escape;
+    if (env && depth > 0) escape = env->locate(ray.d);
     SurfaceHit hit;
     bool found = scene.intersect(ray, &hit);
     if (depth == 0 && albedo) *albedo = primary_albedo(found ? &hit : nullptr);
@@ -57,12 +58,13 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
       if (env && (delta_bounce || use_bsdf_hits)) {
         float w = 1.0f;
         Vec3 le;
+        if (depth == 0) escape = env->locate(ray.d);
         if (!delta_bounce && use_mis) {
           float light_pdf;
-          le = scene.environment_radiance(ray.d, &light_pdf);
+          le = scene.environment_radiance(escape, ray.d, &light_pdf);
           w = power_heuristic(prev_bsdf_pdf, light_pdf);
         } else {
-          le = env->eval(ray.d);
+          le = env->eval(escape);
         }
         L += beta * le * w;
         if (settings.observer)
@@ -99,7 +101,7 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
 
     if (use_nee && bsdf.has_non_delta()) {
       LightSample ls;
-      if (scene.sample_light(hit.p, u_select, u_light, &ls)) {
+      if (scene.sample_light(hit.p, light_choice, &ls)) {
         float bsdf_pdf;
         Vec3 f = bsdf.evaluate(out, ls.wi, &bsdf_pdf);
         if (max_component(f) > 0) {

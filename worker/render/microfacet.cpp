@@ -2,6 +2,8 @@
 
 #include <cmath>
 
+#include "worker/render/trig.h"
+
 namespace dofarm::render::ggx {
 
 using detail::sin2;
@@ -51,8 +53,10 @@ Vec3 sample_vndf(Vec3 wo, float alpha, Vec2 u) {
   // half-height vh.z): that projection is what a ray along -vh sees.
   float r = std::sqrt(u.x);
   float phi = kTwoPi * u.y;
-  float p1 = r * std::cos(phi);
-  float p2 = r * std::sin(phi);
+  float sin_phi, cos_phi;
+  precise_sincos(phi, &sin_phi, &cos_phi);
+  float p1 = r * cos_phi;
+  float p2 = r * sin_phi;
   float s = 0.5f * (1.0f + vh.z);
   p2 = (1.0f - s) * safe_sqrt(1.0f - p1 * p1) + s * p2;
   // Lift the disk point onto the hemisphere, then unstretch the normal

@@ -252,9 +252,19 @@ Vec3 Scene::offset_origin(const SurfaceHit& hit, Vec3 dir) const {
   return hit.p + hit.ng * (dot(dir, hit.ng) >= 0 ? eps : -eps);
 }
 
-bool Scene::sample_light(Vec3 from, float u_select, Vec2 u, LightSample* out) const {
-  float pmf;
-  size_t i = light_select_.sample_discrete(u_select, &pmf);
+Scene::LightChoice Scene::choose_light(float u_select, Vec2 u) const {
+  LightChoice c;
+  c.u = u;
+  c.light = light_select_.sample_discrete(u_select, &c.pmf);
+  if (env_sampled_ && c.light >= light_tris_.size() + data_.lights.size())
+    c.env = environment_->choose(u);
+  return c;
+}
+
+bool Scene::sample_light(Vec3 from, const LightChoice& choice, LightSample* out) const {
+  const float pmf = choice.pmf;
+  const size_t i = choice.light;
+  const Vec2 u = choice.u;
   if (!(pmf > 0)) return false;
   out->is_delta = false;
   if (i >= light_tris_.size() && i < light_tris_.size() + data_.lights.size()) {
@@ -263,7 +273,7 @@ bool Scene::sample_light(Vec3 from, float u_select, Vec2 u, LightSample* out) co
     return true;
   }
   if (i >= light_tris_.size()) {  // the environment
-    EnvSample es = environment_->sample(u);
+    EnvSample es = environment_->sample(choice.env);
     if (!(es.pdf > 0)) return false;
     out->wi = es.wi;
     out->distance = std::numeric_limits<float>::infinity();
@@ -318,12 +328,6 @@ bool Scene::sample_punctual(const PunctualLight& light, Vec3 from, LightSample* 
   return is_finite(radiance);
 }
 
-void Scene::prefetch_light_sample(float u_select, Vec2 u) const {
-  if (env_sampled_ &&
-      light_select_.sample_discrete(u_select, nullptr) >= light_tris_.size() + data_.lights.size())
-    environment_->prefetch_sample(u);
-}
-
 float Scene::light_pdf(Vec3 from, const SurfaceHit& hit) const {
   int i = light_index_of_prim_[hit.prim];
   if (i < 0) return 0;
@@ -334,8 +338,8 @@ float Scene::light_pdf(Vec3 from, const SurfaceHit& hit) const {
   return light_select_.pmf(size_t(i)) * dist2 / (cos_l * light_tri_area_[i]);
 }
 
-Vec3 Scene::environment_radiance(Vec3 dir, float* pdf) const {
-  Vec3 le = environment_->eval(dir, pdf);
+Vec3 Scene::environment_radiance(const Environment::Located& at, Vec3 dir, float* pdf) const {
+  Vec3 le = environment_->eval(at, dir, pdf);
   *pdf = env_sampled_ ? env_select_pmf_ * *pdf : 0.0f;
   return le;
 }

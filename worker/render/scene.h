@@ -77,16 +77,33 @@ class Scene {
   // Next-event estimation: pick a light by power (emissive triangles, the
   // punctual lights, the environment), then a point on it. A punctual light's
   // sample is_delta: its pdf is the selection probability alone.
-  bool sample_light(Vec3 from, float u_select, Vec2 u, LightSample* out) const;
-  // A hint: starts loading what sample_light(., u_select, u) will read first.
-  void prefetch_light_sample(float u_select, Vec2 u) const;
+  bool sample_light(Vec3 from, float u_select, Vec2 u, LightSample* out) const {
+    return sample_light(from, choose_light(u_select, u), out);
+  }
+  // The same in two steps (a caller that traces a ray between them hides the
+  // environment map's memory traffic behind it): choose_light() selects the
+  // light and, for the environment, its map block (starting to load it);
+  // sample_light(from, choice) gives exactly what sample_light(from,
+  // u_select, u) gives.
+  struct LightChoice {
+    size_t light = 0;  // index in the selection (triangles, punctual, environment)
+    float pmf = 0;     // its selection probability
+    Vec2 u;
+    Environment::Choice env;  // when the environment was selected
+  };
+  LightChoice choose_light(float u_select, Vec2 u) const;
+  bool sample_light(Vec3 from, const LightChoice& choice, LightSample* out) const;
   // Solid-angle pdf that sample_light() would give to reaching `hit` (an
   // emissive triangle) from `from`.
   float light_pdf(Vec3 from, const SurfaceHit& hit) const;
   // The environment's radiance towards `dir` (which must have one) and the
   // solid-angle pdf sample_light() would give to that direction (selection
   // probability included), from one lookup.
-  Vec3 environment_radiance(Vec3 dir, float* pdf) const;
+  Vec3 environment_radiance(Vec3 dir, float* pdf) const {
+    return environment_radiance(environment_->locate(dir), dir, pdf);
+  }
+  // The same for a direction already located (Environment::locate).
+  Vec3 environment_radiance(const Environment::Located& at, Vec3 dir, float* pdf) const;
 
   float radius() const { return radius_; }
   Vec3 center() const { return center_; }

@@ -35,9 +35,11 @@ Vec3 Texture::lookup(Vec2 uv) const {
     float x = t * static_cast<float>(size) - 0.5f;
     float fx = std::floor(x);
     *frac = x - fx;
+    // t is in [0, 1], so i is in [-1, size - 1]: the wrap is one compare
+    // each way (no integer division in the hot path).
     int i = static_cast<int>(fx);
-    *i0 = (i % size + size) % size;
-    *i1 = (*i0 + 1) % size;
+    *i0 = i < 0 ? size - 1 : (i >= size ? size - 1 : i);
+    *i1 = *i0 + 1 == size ? 0 : *i0 + 1;
   };
   int x0, x1, y0, y1;
   float fx, fy;
