@@ -37,6 +37,7 @@
 #include <thread>
 #include <vector>
 
+#include "bench/bench_scene.h"
 #include "common/jobspec.h"
 #include "worker/render/camera.h"
 #include "worker/render/environment.h"
@@ -196,19 +197,8 @@ int main(int argc, char** argv) {
       tw = spec.width;
       th = spec.height;
     }
-    std::shared_ptr<const dofarm::render::Scene> scene;
-    if (lambert) {
-      dofarm::render::SceneData data = dofarm::render::load_scene_data(spec.scene);
-      for (dofarm::render::Material& m : data.materials) {
-        m.metallic = 0.0f;
-        m.ior = 1.0f;
-      }
-      std::unique_ptr<dofarm::render::Environment> env;
-      if (spec.environment) env = dofarm::render::Environment::from_spec(*spec.environment);
-      scene = std::make_shared<const dofarm::render::Scene>(std::move(data), std::move(env));
-    } else {
-      scene = dofarm::render::load_scene(spec);
-    }
+    const std::shared_ptr<const dofarm::render::Scene> scene =
+        dofarm::bench::load_bench_scene(spec, lambert);
     const dofarm::render::Camera camera(dofarm::render::frame_camera(*scene, spec, frame),
                                         spec.width, spec.height);
 

@@ -27,6 +27,7 @@
 #include <string>
 #include <vector>
 
+#include "bench/bench_scene.h"
 #include "common/jobspec.h"
 #include "worker/render/environment.h"
 #include "worker/render/render_job.h"
@@ -115,19 +116,8 @@ int main(int argc, char** argv) {
     spec.versions = 1;
     spec.albedo_ref_spp = 1;
     spec.reference_error = 0;
-    std::shared_ptr<const dofarm::render::Scene> scene;
-    if (lambert) {
-      dofarm::render::SceneData data = dofarm::render::load_scene_data(spec.scene);
-      for (dofarm::render::Material& m : data.materials) {
-        m.metallic = 0.0f;
-        m.ior = 1.0f;
-      }
-      std::unique_ptr<dofarm::render::Environment> env;
-      if (spec.environment) env = dofarm::render::Environment::from_spec(*spec.environment);
-      scene = std::make_shared<const dofarm::render::Scene>(std::move(data), std::move(env));
-    } else {
-      scene = dofarm::render::load_scene(spec);
-    }
+    const std::shared_ptr<const dofarm::render::Scene> scene =
+        dofarm::bench::load_bench_scene(spec, lambert);
 
     dofarm::render::RenderOptions options;
     options.threads = threads;
