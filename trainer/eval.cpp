@@ -433,6 +433,19 @@ EvalSummary evaluate(const EvalOptions& o) {
       {"frames", frames}};
   std::ofstream(o.out_dir / "report.json") << report.dump(1) << "\n";
 
+  // The summary tables' header, the same for the validation and all-frames
+  // tables of report.md, and of report.html.
+  const std::string md_header =
+      "| scene | input | SSIM all | SSIM in focus | SSIM out of focus | PSNR all (dB) | "
+      "PSNR in | PSNR out | relMSE all | relMSE in | relMSE out | flicker all | flicker in | "
+      "flicker out | ms/frame |\n"
+      "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- "
+      "|\n";
+  const std::string html_header =
+      "<tr><th>scene</th><th>input</th><th>SSIM all</th><th>SSIM in focus</th>"
+      "<th>SSIM out of focus</th><th>PSNR all (dB)</th><th>PSNR in (dB)</th>"
+      "<th>PSNR out (dB)</th><th>relMSE all</th><th>relMSE in</th><th>relMSE out</th>"
+      "<th>flicker all</th><th>flicker in</th><th>flicker out</th><th>ms/frame</th></tr>";
   std::ofstream md(o.out_dir / "report.md");
   md << "# Denoiser evaluation\n\n"
      << "Run `" << o.run_dir.string() << "`, data `" << o.data_dir.string() << "`, " << done
@@ -444,11 +457,7 @@ EvalSummary evaluate(const EvalOptions& o) {
         "of the frame-to-frame differences, ((d_t - d_t-1) - (r_t - r_t-1))^2 / (m^2 + 0.01) "
         "with m the mean of r_t and r_t-1, over consecutive frames (Chaitanya et al. 2017, "
         "eq. 4). In focus: CoC < 1 pixel. Time: network + remodulation per frame, no IO.\n\n"
-     << "| scene | input | SSIM all | SSIM in focus | SSIM out of focus | PSNR all (dB) | "
-        "PSNR in | PSNR out | relMSE all | relMSE in | relMSE out | flicker all | flicker in | "
-        "flicker out | ms/frame |\n"
-     << "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | "
-        "--- |\n";
+     << md_header;
   // The tables' cells, one row per (scene, input), for report.md and report.html.
   using Rows = std::vector<std::vector<std::string>>;
   auto add_rows = [](Rows& summary_rows, const std::string& name, const Accumulator& a) {
@@ -471,24 +480,18 @@ EvalSummary evaluate(const EvalOptions& o) {
   };
   const Rows summary_rows = rows_of(by_scene, all);
   const Rows every_rows = o.all_frames ? rows_of(by_scene_every, every) : Rows{};
-  const std::string md_header =
-      "| scene | input | SSIM all | SSIM in focus | SSIM out of focus | PSNR all (dB) | "
-      "PSNR in | PSNR out | relMSE all | relMSE in | relMSE out | flicker all | flicker in | "
-      "flicker out | ms/frame |\n"
-      "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- "
-      "|\n";
-  for (const auto& row : summary_rows) {
-    for (const std::string& c : row) md << "| " << c << " ";
-    md << "|\n";
-  }
+  auto md_rows = [&md](const Rows& rows) {
+    for (const auto& row : rows) {
+      for (const std::string& c : row) md << "| " << c << " ";
+      md << "|\n";
+    }
+  };
+  md_rows(summary_rows);
   if (o.all_frames) {
     md << "\n**All frames** (training and validation frames, as thesis table 5.1 scores "
           "its scenes; the training frames flatter the model):\n\n"
        << md_header;
-    for (const auto& row : every_rows) {
-      for (const std::string& c : row) md << "| " << c << " ";
-      md << "|\n";
-    }
+    md_rows(every_rows);
   }
   md << "\nMean denoise time: " << cell(sum.ms, 2) << " ms per frame"
      << (at_size.is_null() ? std::string()
@@ -536,29 +539,22 @@ EvalSummary evaluate(const EvalOptions& o) {
           "frame-to-frame differences, ((d<sub>t</sub> − d<sub>t−1</sub>) − (r<sub>t</sub> − "
           "r<sub>t−1</sub>))² / (m² + 0.01), m the mean of r<sub>t</sub> and r<sub>t−1</sub>, over "
           "consecutive frames (Chaitanya et al. 2017, eq. 4). In focus: CoC &lt; 1 pixel. Time: network + "
-          "remodulation per frame, no IO.</p><table id=\"summary\"><tr><th>scene</th><th>input</th>"
-          "<th>SSIM all</th><th>SSIM in focus</th><th>SSIM out of focus</th><th>PSNR all (dB)</th>"
-          "<th>PSNR in (dB)</th><th>PSNR out (dB)</th><th>relMSE all</th><th>relMSE in</th>"
-          "<th>relMSE out</th><th>flicker all</th><th>flicker in</th><th>flicker out</th>"
-          "<th>ms/frame</th></tr>";
-  for (const auto& row : summary_rows) {
-    html << "<tr>";
-    for (const std::string& c : row) html << "<td>" << html_escape(c) << "</td>";
-    html << "</tr>";
-  }
-  html << "</table><p id=\"reference-ceiling\">" << html_escape(ceiling.markdown()) << "</p>";
-  if (o.all_frames) {
-    html << "<p>All frames (training and validation frames, as thesis table 5.1 scores its "
-            "scenes; the training frames flatter the model):</p><table id=\"summary_all_frames\">"
-         << "<tr><th>scene</th><th>input</th><th>SSIM all</th><th>SSIM in focus</th>"
-            "<th>SSIM out of focus</th><th>PSNR all (dB)</th><th>PSNR in (dB)</th>"
-            "<th>PSNR out (dB)</th><th>relMSE all</th><th>relMSE in</th><th>relMSE out</th>"
-            "<th>flicker all</th><th>flicker in</th><th>flicker out</th><th>ms/frame</th></tr>";
-    for (const auto& row : every_rows) {
+          "remodulation per frame, no IO.</p><table id=\"summary\">"
+       << html_header;
+  auto html_rows = [&html](const Rows& rows) {
+    for (const auto& row : rows) {
       html << "<tr>";
       for (const std::string& c : row) html << "<td>" << html_escape(c) << "</td>";
       html << "</tr>";
     }
+  };
+  html_rows(summary_rows);
+  html << "</table><p id=\"reference-ceiling\">" << html_escape(ceiling.markdown()) << "</p>";
+  if (o.all_frames) {
+    html << "<p>All frames (training and validation frames, as thesis table 5.1 scores its "
+            "scenes; the training frames flatter the model):</p><table id=\"summary_all_frames\">"
+         << html_header;
+    html_rows(every_rows);
     html << "</table>";
   }
   html << "<h2>Training</h2>" << loss_svg << step_svg << lr_svg << quality_svg

@@ -30,6 +30,22 @@ void check_same_shape(ImageView a, ImageView b) {
   DOFARM_CHECK_EQ(a.width, b.width);
 }
 
+// The mean over the pixels `mask` keeps (all when null) and every channel of
+// term(i), i the element's index in a planar image of `shape`'s size; NaN
+// when the mask keeps none.
+template <class Term>
+double masked_mean(ImageView shape, const uint8_t* mask, Term term) {
+  double sum = 0;
+  size_t count = 0;
+  for (int c = 0; c < shape.channels; ++c)
+    for (size_t p = 0; p < shape.plane(); ++p) {
+      if (mask && !mask[p]) continue;
+      sum += term(c * shape.plane() + p);
+      ++count;
+    }
+  return count ? sum / double(count) : std::numeric_limits<double>::quiet_NaN();
+}
+
 constexpr int kRadius = 5;  // 11x11 window: scipy's truncate 3.5 * sigma 1.5, rounded
 
 // Normalised 1-D Gaussian, sigma 1.5 (Wang 2004, section III-C).
@@ -102,34 +118,21 @@ double ssim(ImageView a, ImageView b, const uint8_t* mask) {
 
 double psnr(ImageView a, ImageView b, const uint8_t* mask) {
   check_same_shape(a, b);
-  double se = 0;
-  size_t count = 0;
-  for (int c = 0; c < a.channels; ++c)
-    for (size_t p = 0; p < a.plane(); ++p) {
-      if (mask && !mask[p]) continue;
-      double d = double(a.data[c * a.plane() + p]) - b.data[c * b.plane() + p];
-      se += d * d;
-      ++count;
-    }
-  if (!count) return std::numeric_limits<double>::quiet_NaN();
-  double mse = se / double(count);
+  const double mse = masked_mean(a, mask, [&](size_t i) {
+    const double d = double(a.data[i]) - b.data[i];
+    return d * d;
+  });
+  if (std::isnan(mse)) return mse;  // an empty mask
   if (mse <= std::pow(10.0, -kPsnrCap / 10.0)) return kPsnrCap;
   return -10.0 * std::log10(mse);
 }
 
 double relative_mse(ImageView d, ImageView r, const uint8_t* mask) {
   check_same_shape(d, r);
-  double sum = 0;
-  size_t count = 0;
-  for (int c = 0; c < d.channels; ++c)
-    for (size_t p = 0; p < d.plane(); ++p) {
-      if (mask && !mask[p]) continue;
-      double ref = r.data[c * r.plane() + p];
-      double diff = double(d.data[c * d.plane() + p]) - ref;
-      sum += diff * diff / (ref * ref + 0.01);
-      ++count;
-    }
-  return count ? sum / double(count) : std::numeric_limits<double>::quiet_NaN();
+  return masked_mean(d, mask, [&](size_t i) {
+    const double ref = r.data[i], diff = double(d.data[i]) - ref;
+    return diff * diff / (ref * ref + 0.01);
+  });
 }
 
 double temporal_relative_mse(ImageView dp, ImageView d, ImageView rp, ImageView r,
@@ -137,18 +140,11 @@ double temporal_relative_mse(ImageView dp, ImageView d, ImageView rp, ImageView 
   check_same_shape(d, r);
   check_same_shape(dp, d);
   check_same_shape(rp, r);
-  double sum = 0;
-  size_t count = 0;
-  for (int c = 0; c < d.channels; ++c)
-    for (size_t p = 0; p < d.plane(); ++p) {
-      if (mask && !mask[p]) continue;
-      const size_t i = c * d.plane() + p;
-      const double dd = double(d.data[i]) - dp.data[i], dr = double(r.data[i]) - rp.data[i];
-      const double m = 0.5 * (double(r.data[i]) + rp.data[i]);
-      sum += (dd - dr) * (dd - dr) / (m * m + 0.01);
-      ++count;
-    }
-  return count ? sum / double(count) : std::numeric_limits<double>::quiet_NaN();
+  return masked_mean(d, mask, [&](size_t i) {
+    const double dd = double(d.data[i]) - dp.data[i], dr = double(r.data[i]) - rp.data[i];
+    const double m = 0.5 * (double(r.data[i]) + rp.data[i]);
+    return (dd - dr) * (dd - dr) / (m * m + 0.01);
+  });
 }
 
 }  // namespace dofarm::trainer

@@ -69,33 +69,6 @@ command -v python3 > /dev/null || die "python3 is needed for the table and the p
 for d in "${DATA[@]}"; do
   [ -d "$d" ] || die "no data folder $d (render the study set with bench/trainer/render_study.sh)"
 done
-for c in $CONFIGS; do
-  case $c in
-    thesis|thesis_nococ|default|thesis_focus|thesis_prefilter|thesis_recurrent) ;;
-    *) die "--configs: unknown configuration '$c'" ;;
-  esac
-done
-[ "$EPOCHS" -le "$STEPS" ] || EPOCHS=$STEPS
-PER_EPOCH=$(( (STEPS + EPOCHS - 1) / EPOCHS ))
-TOTAL=$(( EPOCHS * PER_EPOCH ))
-mkdir -p "$OUT/runs" "$OUT/reports"
-
-# One data folder for train and eval: the given one, or links to every shard
-# of several (named by folder, so that shard-00000.h5 of two jobs do not collide).
-if [ ${#DATA[@]} -eq 1 ]; then
-  DATA_DIR=$(cd "${DATA[0]}" && pwd)
-else
-  DATA_DIR=$OUT/data
-  mkdir -p "$DATA_DIR"
-  for d in "${DATA[@]}"; do
-    abs=$(cd "$d" && pwd)
-    for s in "$abs"/*.h5; do
-      [ -e "$s" ] || continue
-      ln -sfn "$s" "$DATA_DIR/$(basename "$abs")-$(basename "$s")"
-    done
-  done
-fi
-
 # The thesis's inputs without the CoC (thesis 4.3.2 no-DOF network).
 NOCOC='["radiance:linear", "albedo", "normal:remap01", "depth:scene", "roughness"]'
 args_of() {
@@ -119,6 +92,31 @@ describe() {
     thesis_recurrent) echo "(d) (a) + recurrent + temporal loss" ;;
   esac
 }
+for c in $CONFIGS; do
+  [ -n "$(describe "$c")" ] || die "--configs: unknown configuration '$c'"
+done
+
+[ "$EPOCHS" -le "$STEPS" ] || EPOCHS=$STEPS
+PER_EPOCH=$(( (STEPS + EPOCHS - 1) / EPOCHS ))
+TOTAL=$(( EPOCHS * PER_EPOCH ))
+mkdir -p "$OUT/runs" "$OUT/reports"
+
+# One data folder for train and eval: the given one, or links to every shard
+# of several (named by folder, so that shard-00000.h5 of two jobs do not collide).
+if [ ${#DATA[@]} -eq 1 ]; then
+  DATA_DIR=$(cd "${DATA[0]}" && pwd)
+else
+  DATA_DIR=$OUT/data
+  mkdir -p "$DATA_DIR"
+  for d in "${DATA[@]}"; do
+    abs=$(cd "$d" && pwd)
+    for s in "$abs"/*.h5; do
+      [ -e "$s" ] || continue
+      ln -sfn "$s" "$DATA_DIR/$(basename "$abs")-$(basename "$s")"
+    done
+  done
+fi
+
 
 # The warm-up of the default schedule is 500 steps; a shorter study scales it
 # (a tenth of the steps) so that the default is not judged before it warms up.
@@ -158,18 +156,14 @@ for c in $CONFIGS; do
 done
 
 # The table and the plot.
-python3 - "$OUT" "$TIME_SIZE" $CONFIGS <<'PY'
+described=()
+for c in $CONFIGS; do described+=("$c=$(describe "$c")"); done
+python3 - "$OUT" "$TIME_SIZE" "${described[@]}" <<'PY'
 import csv, json, math, os, sys
 
-out, side, configs = sys.argv[1], int(sys.argv[2]), sys.argv[3:]
-label = {
-    "thesis": "(a) thesis-exact with CoC input",
-    "thesis_nococ": "(b) thesis-exact without CoC input",
-    "default": "(c) project default",
-    "thesis_focus": "(d) (a) + focus-weighted loss",
-    "thesis_prefilter": "(d) (a) + CoC albedo prefilter",
-    "thesis_recurrent": "(d) (a) + recurrent + temporal loss",
-}
+out, side = sys.argv[1], int(sys.argv[2])
+label = dict(arg.split("=", 1) for arg in sys.argv[3:])  # configuration -> describe()
+configs = list(label)
 cols = ["config", "description", "frames",
         "ssim_all", "ssim_in", "ssim_out", "psnr_all", "psnr_in", "psnr_out",
         "relmse_all", "relmse_in", "relmse_out", "flicker_all", "flicker_in", "flicker_out",
