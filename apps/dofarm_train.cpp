@@ -36,6 +36,7 @@
 #include "trainer/export_contract.h"
 #include "trainer/foreign_frame.h"
 #include "trainer/inputs.h"
+#include "trainer/precision.h"
 #include "trainer/run_folder.h"
 #include "trainer/train.h"
 
@@ -47,6 +48,14 @@ using namespace dofarm::trainer;
 
 // `train` stopped on request with its checkpoint written.
 constexpr int kExitStopped = 3;
+
+void add_precision_option(CLI::App* cmd, std::string* which) {
+  cmd->add_option("--precision", *which,
+                  "the network's arithmetic: fp32, or bf16 (bfloat16 autocast, CPU only; "
+                  "docs/trainer.md)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"fp32", "bf16"}));
+}
 
 void add_checkpoint_option(CLI::App* cmd, std::string* which) {
   cmd->add_option("--checkpoint", *which,
@@ -111,7 +120,7 @@ Command add_train(CLI::App& app) {
 Command add_eval(CLI::App& app) {
   auto* cmd = app.add_subcommand("eval", "score the run on its validation frames (report)");
   struct Opts {
-    std::string run, data, out, checkpoint = "best";
+    std::string run, data, out, checkpoint = "best", precision = "fp32";
     int frames = 0, images = 8, version = 0, time_size = 0, time_reps = 3;
     bool validation_only = false;
   };
@@ -131,6 +140,7 @@ Command add_eval(CLI::App& app) {
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
   add_checkpoint_option(cmd, &o->checkpoint);
+  add_precision_option(cmd, &o->precision);
   cmd->add_flag("--validation-only", o->validation_only,
                 "score only the validation frames (by default the report also has a table over "
                 "all frames, as thesis table 5.1)");
@@ -148,6 +158,7 @@ Command add_eval(CLI::App& app) {
             e.all_frames = !o->validation_only;
             e.time_side = o->time_size;
             e.time_reps = o->time_reps;
+            e.precision = parse_precision(o->precision, "--precision");
             EvalSummary s = evaluate(e);
             std::printf(
                 "%d frames: SSIM %.4f  PSNR %.2f dB  relMSE %.4f  flicker %.4g  %.2f ms/frame\n",
@@ -168,7 +179,7 @@ Command add_denoise(CLI::App& app) {
       "image with --albedo/--normal/--depth files (docs/trainer.md)");
   struct Opts {
     std::string run, in, out, checkpoint = "best", albedo, normal, depth, view_layer;
-    std::string normal_space = "view", device = "auto";
+    std::string normal_space = "view", device = "auto", precision = "fp32";
     int version = 0;
     bool repair = false;
     std::optional<double> fstop, focal_length, sensor_width, focus_distance, clip_start;
@@ -188,6 +199,7 @@ Command add_denoise(CLI::App& app) {
                   "where the network runs: auto (CUDA when usable), cpu or cuda")
       ->capture_default_str()
       ->check(CLI::IsMember({"auto", "cpu", "cuda"}));
+  add_precision_option(cmd, &o->precision);
   cmd->add_flag("--repair-nonfinite", o->repair,
                 "set NaN/Inf input values to 0 (counted in the log) instead of refusing the frame");
   auto* files = cmd->add_option_group("separate passes",
@@ -240,7 +252,8 @@ Command add_denoise(CLI::App& app) {
                             "is an input (" + input +
                                 "); denoise writes a new file and never replaces its input");
         }
-        FrameDenoiser den(o->run, pick_device(o->device), o->checkpoint);
+        FrameDenoiser den(o->run, pick_device(o->device), o->checkpoint,
+                          parse_precision(o->precision, "--precision"));
         ForeignInputs fi;
         fi.input = o->in;
         fi.albedo = o->albedo;

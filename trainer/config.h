@@ -110,6 +110,9 @@ enum class Schedule {
 
 enum class BestBy { kValidation, kTraining };
 
+// Arithmetic of the network's convolutions (trainer/precision.h).
+enum class Precision { kFp32, kBf16 };
+
 struct OptimConfig {
   int epochs = 100;
   // 0 = one pass over the training sequences (their count when the run
@@ -135,6 +138,9 @@ struct OptimConfig {
   // train.h); 0 = auto: 2 when on the CPU with >= 2 intra-op threads and a
   // batch of >= 2, else 1. Changes the float summation order, not the step.
   int cpu_replicas = 0;
+  // bf16: the network's forward and backward under bfloat16 autocast on the
+  // CPU (training and validation); weights, Adam and the loss stay float32.
+  Precision precision = Precision::kFp32;
 };
 
 struct TrainConfig {

@@ -20,6 +20,7 @@
 #include "trainer/losses.h"
 #include "trainer/metrics.h"
 #include "trainer/model.h"
+#include "trainer/precision.h"
 #include "trainer/prefilter.h"
 #include "trainer/report.h"
 
@@ -29,8 +30,12 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 
 FrameDenoiser::FrameDenoiser(const fs::path& run_dir, torch::Device device,
-                             const std::string& checkpoint)
-    : run_(load_run(run_dir, device, checkpoint)), device_(device) {}
+                             const std::string& checkpoint, Precision precision)
+    : run_(load_run(run_dir, device, checkpoint)), device_(device), precision_(precision) {
+  if (precision != Precision::kFp32 && !autocast_applies(precision, device))
+    spdlog::warn("precision {} applies on the CPU only; on {} the network runs in fp32",
+                 precision_name(precision), device.str());
+}
 
 std::vector<std::pair<std::string, size_t>> non_finite_inputs(FrameBuffers& f, int version,
                                                               const TrainConfig& cfg,
@@ -103,8 +108,12 @@ std::vector<float> FrameDenoiser::denoise(const FrameBuffers& f, int version, do
   c10::InferenceMode inference;
   auto t0 = std::chrono::steady_clock::now();
   torch::Tensor x = torch::from_blob(input.data(), {1, c, f.height, f.width}).to(device_);
-  torch::Tensor y = run_.model->forward_frame(pad_to_multiple(x), state_);
-  y = y.narrow(2, 0, f.height).narrow(3, 0, f.width);
+  torch::Tensor y;
+  {
+    AutocastScope autocast(precision_, device_);
+    y = run_.model->forward_frame(pad_to_multiple(x), state_);
+  }
+  y = y.to(torch::kFloat).narrow(2, 0, f.height).narrow(3, 0, f.width);
   // Remodulation (inverse of make_target) on the device, as a renderer would.
   torch::Tensor a =
       torch::from_blob(const_cast<float*>(albedo), {1, 3, f.height, f.width}).to(device_);
@@ -215,7 +224,7 @@ std::string cell_g(double v) {
 
 EvalSummary evaluate(const EvalOptions& o) {
   const torch::Device device = pick_device("auto");
-  FrameDenoiser den(o.run_dir, device, o.checkpoint);
+  FrameDenoiser den(o.run_dir, device, o.checkpoint, o.precision);
   const LoadedRun& used = den.run();
   const TrainConfig& cfg = den.config();
   fs::create_directories(o.out_dir);

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "common/image.h"
+#include "trainer/config.h"
 #include "trainer/run_folder.h"
 
 namespace dofarm::trainer {
@@ -17,8 +18,10 @@ namespace dofarm::trainer {
 class FrameDenoiser {
  public:
   // `checkpoint`: "best", "last" or a checkpoint file (load_run).
+  // `precision`: the network under bf16 autocast on the CPU
+  // (trainer/precision.h); fp32 is the exact one.
   FrameDenoiser(const std::filesystem::path& run_dir, torch::Device device,
-                const std::string& checkpoint = "best");
+                const std::string& checkpoint = "best", Precision precision = Precision::kFp32);
   // Linear RGB (3, H, W) from noisy version `version` of `frame`.
   // `seconds` receives the time of network + remodulation (no IO, no input
   // preparation; with data.albedo_prefilter the prefilter too), synchronised
@@ -31,6 +34,7 @@ class FrameDenoiser {
  private:
   LoadedRun run_;
   torch::Device device_;
+  Precision precision_;
   std::vector<torch::Tensor> state_;
 };
 
@@ -49,6 +53,7 @@ struct EvalOptions {
   // one warm-up: "denoise_ms_at_size" in report.json. 0 = off.
   int time_side = 0;
   int time_reps = 3;
+  Precision precision = Precision::kFp32;  // the network's arithmetic (precision.h)
 };
 
 struct EvalSummary {

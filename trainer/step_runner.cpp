@@ -10,16 +10,23 @@
 
 #include "common/error.h"
 #include "trainer/losses.h"
+#include "trainer/precision.h"
 
 namespace dofarm::trainer {
 
 StepOutcome compute_gradients(Denoiser& model, const Batch& batch, const LossConfig& loss_cfg,
                               const torch::Tensor& kernel,
-                              const std::function<torch::Tensor(const torch::Tensor&)>& hook) {
+                              const std::function<torch::Tensor(const torch::Tensor&)>& hook,
+                              Precision precision) {
   // Gradients set, not added to zeros: no memset and no accumulation pass.
   model->zero_grad(/*set_to_none=*/true);
+  torch::Tensor y;
+  {
+    AutocastScope autocast(precision, batch.input.device());
+    y = model->forward(batch.input);
+  }
   torch::Tensor loss =
-      denoiser_loss(model->forward(batch.input), batch.target, loss_cfg, kernel, batch.coc).total;
+      denoiser_loss(y.to(torch::kFloat), batch.target, loss_cfg, kernel, batch.coc).total;
   if (hook) loss = hook(loss);
   StepOutcome r;
   r.loss = loss.item<double>();
@@ -91,13 +98,18 @@ struct StepRunner::Worker {
   std::thread thread_;  // last: started once the state above exists
 };
 
-int step_replicas(int configured, torch::Device device, int threads, int batch) {
+int step_replicas(int configured, torch::Device device, int threads, int batch,
+                  Precision precision) {
   if (!device.is_cpu()) return 1;
-  int r = configured > 0 ? configured : (threads >= 2 ? 2 : 1);
+  // Auto: under bf16 one model on all threads is faster than two 1-thread
+  // halves (its oneDNN kernels scale across threads; docs/trainer.md).
+  const bool split = threads >= 2 && !autocast_applies(precision, device);
+  int r = configured > 0 ? configured : (split ? 2 : 1);
   return std::max(1, std::min(r, batch));
 }
 
-StepRunner::StepRunner(Denoiser model, int replicas) : model_(std::move(model)) {
+StepRunner::StepRunner(Denoiser model, int replicas, Precision precision)
+    : model_(std::move(model)), precision_(precision) {
   DOFARM_CHECK(replicas >= 1);
   if (replicas == 1) return;
   saved_threads_ = at::get_num_threads();
@@ -120,7 +132,7 @@ StepRunner::~StepRunner() {
 
 StepOutcome StepRunner::run(const Batch& batch, const LossConfig& loss, const torch::Tensor& kernel,
                             const std::function<torch::Tensor(const torch::Tensor&)>& hook) {
-  if (copies_.empty()) return compute_gradients(model_, batch, loss, kernel, hook);
+  if (copies_.empty()) return compute_gradients(model_, batch, loss, kernel, hook, precision_);
   const int r = replicas();
   const int64_t b = batch.input.size(0);
   DOFARM_CHECK(b >= r);
@@ -148,12 +160,12 @@ StepOutcome StepRunner::run(const Batch& batch, const LossConfig& loss, const to
         std::vector<torch::Tensor> dst = copy->parameters();
         for (size_t i = 0; i < params.size(); ++i) dst[i].copy_(params[i]);
       }
-      out[size_t(k)] = compute_gradients(copy, part(k), loss, kernel, hook);
+      out[size_t(k)] = compute_gradients(copy, part(k), loss, kernel, hook, precision_);
     });
   }
   std::exception_ptr error;
   try {
-    out[0] = compute_gradients(model_, part(0), loss, kernel, hook);
+    out[0] = compute_gradients(model_, part(0), loss, kernel, hook, precision_);
   } catch (...) {
     error = std::current_exception();
   }

@@ -22,9 +22,12 @@ struct StepOutcome {
   double loss = 0;
   bool finite = false;
 };
+// `precision`: the network's forward (and so its backward) under that
+// autocast (trainer/precision.h); the loss is computed in float32.
 StepOutcome compute_gradients(Denoiser& model, const Batch& batch, const LossConfig& loss,
                               const torch::Tensor& kernel,
-                              const std::function<torch::Tensor(const torch::Tensor&)>& hook = {});
+                              const std::function<torch::Tensor(const torch::Tensor&)>& hook = {},
+                              Precision precision = Precision::kFp32);
 
 // Runs training steps, on the CPU split across model replicas (data
 // parallelism inside one process): the batch's sequences are divided into
@@ -43,7 +46,7 @@ class StepRunner {
  public:
   // Takes the process's intra-op threads down to threads / replicas for its
   // lifetime (restored by the destructor); replicas <= batch.
-  StepRunner(Denoiser model, int replicas);
+  StepRunner(Denoiser model, int replicas, Precision precision = Precision::kFp32);
   ~StepRunner();
   StepRunner(const StepRunner&) = delete;
   StepRunner& operator=(const StepRunner&) = delete;
@@ -59,10 +62,13 @@ class StepRunner {
   std::vector<Denoiser> copies_;
   std::vector<std::unique_ptr<Worker>> workers_;
   int saved_threads_ = 0;
+  Precision precision_;
 };
 
 // Replicas for train.cpu_replicas = `configured` (0 = auto, see OptimConfig)
-// on `device` with `threads` intra-op threads; never more than `batch`.
-int step_replicas(int configured, torch::Device device, int threads, int batch);
+// on `device` with `threads` intra-op threads at `precision`; never more
+// than `batch`.
+int step_replicas(int configured, torch::Device device, int threads, int batch,
+                  Precision precision = Precision::kFp32);
 
 }  // namespace dofarm::trainer

@@ -19,6 +19,7 @@
 #include "trainer/dataset.h"
 #include "trainer/losses.h"
 #include "trainer/metrics.h"
+#include "trainer/precision.h"
 #include "trainer/run_folder.h"
 
 namespace dofarm::trainer {
@@ -256,7 +257,13 @@ TrainResult train_in(const TrainOptions& opt_in) {
   Progress progress("train", std::max<int64_t>(0, total_steps - st.step), "steps");
   BatchPrefetcher batches(stream, cfg.train.batch, device, format);
   const int threads = at::get_num_threads();
-  StepRunner runner(model, step_replicas(cfg.train.cpu_replicas, device, threads, cfg.train.batch));
+  StepRunner runner(model,
+                    step_replicas(cfg.train.cpu_replicas, device, threads, cfg.train.batch,
+                                  cfg.train.precision),
+                    cfg.train.precision);
+  if (cfg.train.precision != Precision::kFp32 && !autocast_applies(cfg.train.precision, device))
+    spdlog::warn("train.precision = {} applies on the CPU only; on {} the network runs in fp32",
+                 precision_name(cfg.train.precision), device.str());
   if (runner.replicas() > 1)
     spdlog::info("training step split across {} model replicas, {} intra-op thread(s) each",
                  runner.replicas(), std::max(1, threads / runner.replicas()));
@@ -333,7 +340,12 @@ TrainResult train_in(const TrainOptions& opt_in) {
         std::vector<Sample> part(vs.begin() + i,
                                  vs.begin() + std::min(vs.size(), i + cfg.train.batch));
         Batch b = make_batch(part, device, format);
-        torch::Tensor y = model->forward(b.input);
+        torch::Tensor y;
+        {
+          AutocastScope autocast(cfg.train.precision, device);
+          y = model->forward(b.input);
+        }
+        y = y.to(torch::kFloat);
         sum += denoiser_loss(y, b.target, cfg.loss, kernel, b.coc).total.item<double>() *
                double(part.size());
         std::vector<torch::Tensor> albedo;

@@ -6,7 +6,12 @@
 // never asserts.
 //
 //   trainer_speed [--reps N] [--models all|dof] [--formats nchw,nhwc] [--no-infer]
-//                 [--replicas N] [--loop SHARD.h5 [--steps N] [--readers N] [--only-loop]]
+//                 [--precisions fp32,bf16] [--replicas N]
+//                 [--loop SHARD.h5 [--steps N] [--readers N] [--only-loop]]
+//
+// --precisions: each row again per precision (trainer/precision.h; bf16 =
+// bfloat16 autocast of the network on the CPU, as train.precision = "bf16"
+// and `denoise --precision bf16` run it).
 //
 // Training steps run as dofarm-train runs them, through StepRunner with
 // --replicas model copies (0, the default, = train.cpu_replicas's auto).
@@ -31,6 +36,7 @@
 #include "trainer/dataset.h"
 #include "trainer/losses.h"
 #include "trainer/model.h"
+#include "trainer/precision.h"
 #include "trainer/train.h"
 
 using namespace dofarm::trainer;
@@ -75,19 +81,20 @@ struct Options {
   bool kernels = true;  // false: the loop only
   std::vector<torch::MemoryFormat> formats = {torch::MemoryFormat::Contiguous,
                                               torch::MemoryFormat::ChannelsLast};
+  std::vector<Precision> precisions = {Precision::kFp32};
   std::string loop_shard;
   int steps = 20;
   int readers = 2;
   int replicas = 0;  // train.cpu_replicas
 };
 
-int replicas_for(const Options& o, torch::Device dev) {
-  return step_replicas(o.replicas, dev, torch::get_num_threads(), 4);
+int replicas_for(const Options& o, torch::Device dev, Precision prec) {
+  return step_replicas(o.replicas, dev, torch::get_num_threads(), 4, prec);
 }
 
 void kernels(const Options& o, torch::Device dev) {
   std::printf(
-      "| model | params | format | 256x256 ms | 512x512 ms | train step ms (4 x 7 x 64^2) | "
+      "| model | params | format, precision | 256x256 ms | 512x512 ms | train step ms (4 x 7 x 64^2) | "
       "fastest step ms |\n");
   std::printf("| --- | --- | --- | --- | --- | --- | --- |\n");
   struct Variant {
@@ -97,7 +104,8 @@ void kernels(const Options& o, torch::Device dev) {
       {"no DOF", false, false}, {"DOF (CoC input)", true, false}, {"DOF, recurrent", true, true}};
   for (const Variant& v : variants) {
     if (!o.all_models && !(v.dof && !v.recurrent)) continue;
-    for (torch::MemoryFormat fmt : o.formats) {
+    for (torch::MemoryFormat fmt : o.formats)
+    for (Precision prec : o.precisions) {
       ModelConfig mc;
       if (!v.dof) std::erase(mc.inputs, std::string("coc:log"));
       mc.recurrent = v.recurrent;
@@ -112,7 +120,10 @@ void kernels(const Options& o, torch::Device dev) {
         c10::InferenceMode inference;  // as FrameDenoiser::denoise
         torch::Tensor x = torch::rand({1, mc.input_channels(), sizes[k], sizes[k]}, dev);
         std::vector<torch::Tensor> state;
-        infer[k] = median_seconds(o.reps, dev, [&] { m->forward_frame(x, state); });
+        infer[k] = median_seconds(o.reps, dev, [&] {
+          AutocastScope autocast(prec, dev);
+          m->forward_frame(x, state);
+        });
       }
       m->train();
       LossConfig lc;
@@ -125,7 +136,7 @@ void kernels(const Options& o, torch::Device dev) {
                         .view({4, 7, mc.input_channels(), 64, 64});
       batch.target = torch::rand({28, 3, 64, 64}, dev).contiguous(fmt).view({4, 7, 3, 64, 64});
       double best = 0;
-      StepRunner runner(m, replicas_for(o, dev));
+      StepRunner runner(m, replicas_for(o, dev, prec), prec);
       double step = median_seconds(
           o.reps, dev,
           [&] {
@@ -133,8 +144,9 @@ void kernels(const Options& o, torch::Device dev) {
             opt.step();
           },
           &best);
-      std::printf("| %s | %lld | %s | %.1f | %.1f | %.0f | %.0f |\n", v.name,
-                  static_cast<long long>(parameter_count(*m)), format_name(fmt), infer[0] * 1e3,
+      std::printf("| %s | %lld | %s %s | %.1f | %.1f | %.0f | %.0f |\n", v.name,
+                  static_cast<long long>(parameter_count(*m)), format_name(fmt),
+                  precision_name(prec), infer[0] * 1e3,
                   infer[1] * 1e3, step * 1e3, best * 1e3);
     }
   }
@@ -149,8 +161,11 @@ void loop(const Options& o, torch::Device dev) {
       "\nfull training loop on %s: DOF model, 4 x 7 x 64^2, %d reader(s), mean of %d "
       "steps\n\n",
       o.loop_shard.c_str(), o.readers, o.steps);
-  std::printf("| format | ms/step | of which waiting for data, ms/step |\n| --- | --- | --- |\n");
-  for (torch::MemoryFormat fmt : o.formats) {
+  std::printf(
+      "| format, precision | ms/step | of which waiting for data, ms/step |\n| --- | --- | --- "
+      "|\n");
+  for (torch::MemoryFormat fmt : o.formats)
+  for (Precision prec : o.precisions) {
     TrainConfig cfg;
     cfg.data.val_fraction = 0;  // every frame trains, as in the Python loop
     cfg.data.readers = o.readers;
@@ -165,7 +180,7 @@ void loop(const Options& o, torch::Device dev) {
     torch::Tensor kernel = log_kernel(cfg.loss.log_sigma).to(dev);
     SequenceStream stream(dir / "data", dir / "run", cfg.data, cfg.model, cfg.train.seed);
     BatchPrefetcher batches(stream, cfg.train.batch, dev, fmt);
-    StepRunner runner(m, replicas_for(o, dev));
+    StepRunner runner(m, replicas_for(o, dev, prec), prec);
     auto step = [&] {
       Batch b = batches.next();
       runner.run(b, cfg.loss, kernel);
@@ -177,7 +192,8 @@ void loop(const Options& o, torch::Device dev) {
     for (int i = 0; i < o.steps; ++i) step();
     double per_step = (now() - t0) / o.steps;
     double waited = (batches.waited_seconds() - waited0) / o.steps;
-    std::printf("| %s | %.0f | %.1f |\n", format_name(fmt), per_step * 1e3, waited * 1e3);
+    std::printf("| %s %s | %.0f | %.1f |\n", format_name(fmt), precision_name(prec),
+                per_step * 1e3, waited * 1e3);
   }
   fs::remove_all(dir);
 }
@@ -209,6 +225,11 @@ int main(int argc, char** argv) {
       for (std::string f; std::getline(ss, f, ',');)
         o.formats.push_back(f == "nhwc" ? torch::MemoryFormat::ChannelsLast
                                         : torch::MemoryFormat::Contiguous);
+    } else if (k == "--precisions") {
+      o.precisions.clear();
+      std::stringstream ss(value());
+      for (std::string p; std::getline(ss, p, ',');)
+        o.precisions.push_back(parse_precision(p, "--precisions"));
     } else if (k == "--replicas") {
       o.replicas = std::max(0, std::atoi(value().c_str()));
     } else if (k == "--loop") {
@@ -220,7 +241,7 @@ int main(int argc, char** argv) {
     } else {
       std::fprintf(stderr,
                    "usage: trainer_speed [--reps N] [--models all|dof] [--formats nchw,nhwc] "
-                   "[--no-infer] [--replicas N] [--loop SHARD.h5 [--steps N] [--readers N] "
+                   "[--no-infer] [--precisions fp32,bf16] [--replicas N] [--loop SHARD.h5 [--steps N] [--readers N] "
                    "[--only-loop]]\n");
       return 2;
     }
@@ -229,8 +250,10 @@ int main(int argc, char** argv) {
   keep_freed_memory();  // as train() does
   const torch::Device dev = pick_device("auto");
   std::printf(
-      "device %s, %d intra-op threads, training steps on %d model replica(s), median of %d\n\n",
-      dev.str().c_str(), torch::get_num_threads(), replicas_for(o, dev), o.reps);
+      "device %s, %d intra-op threads, training steps on %d model replica(s) in fp32, %d in "
+      "bf16, median of %d\n\n",
+      dev.str().c_str(), torch::get_num_threads(), replicas_for(o, dev, Precision::kFp32),
+      replicas_for(o, dev, Precision::kBf16), o.reps);
   if (o.kernels) kernels(o, dev);
   if (!o.loop_shard.empty()) loop(o, dev);
   return 0;

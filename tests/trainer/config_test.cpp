@@ -63,6 +63,22 @@ TEST(TrainConfig, BadValueIsALocatedError) {
   EXPECT_THROW(parse_train_config("[train\n", "t.toml"), SpecError);
 }
 
+TEST(TrainConfig, PrecisionIsFp32OrBf16) {
+  EXPECT_EQ(TrainConfig{}.train.precision, Precision::kFp32);
+  TrainConfig c = parse_train_config("[train]\nprecision = \"bf16\"\n", "t.toml");
+  EXPECT_EQ(c.train.precision, Precision::kBf16);
+  EXPECT_EQ(parse_train_config(to_toml(c), "again.toml").train.precision, Precision::kBf16);
+  EXPECT_EQ(incompatible_reason(TrainConfig{}, c), "");  // a resumed run may change it
+  try {
+    parse_train_config("[train]\nprecision = \"fp16\"\n", "t.toml");
+    FAIL() << "no error";
+  } catch (const SpecError& e) {
+    EXPECT_EQ(e.key(), "train.precision");
+    EXPECT_EQ(e.loc().line, 2);
+    EXPECT_NE(std::string(e.what()).find("fp32 | bf16"), std::string::npos) << e.what();
+  }
+}
+
 // Errors from --set name the dotted key, as errors from the file do.
 TEST(TrainConfig, OverrideErrorsNameTheDottedKey) {
   try {

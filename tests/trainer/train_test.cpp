@@ -1,6 +1,7 @@
 #include "trainer/train.h"
 
 #include <ATen/Parallel.h>
+#include <ATen/autocast_mode.h>
 #include <gtest/gtest.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -17,6 +18,7 @@
 #include "tests/trainer/synthetic.h"
 #include "trainer/eval.h"
 #include "trainer/losses.h"
+#include "trainer/precision.h"
 #include "trainer/report.h"
 
 namespace dofarm::trainer {
@@ -152,6 +154,69 @@ TEST(StepRunner, ReplicaCountFollowsTheConfigDeviceThreadsAndBatch) {
   EXPECT_EQ(step_replicas(3, torch::kCPU, 1, 4), 3);   // as configured
   EXPECT_EQ(step_replicas(8, torch::kCPU, 8, 4), 4);
   EXPECT_EQ(step_replicas(0, torch::Device(torch::kCUDA, 0), 16, 4), 1);  // CPU only
+  // bf16: one model on all threads is faster (docs/trainer.md); as configured otherwise.
+  EXPECT_EQ(step_replicas(0, torch::kCPU, 2, 4, Precision::kBf16), 1);
+  EXPECT_EQ(step_replicas(2, torch::kCPU, 2, 4, Precision::kBf16), 2);
+}
+
+// bfloat16 autocast (trainer/precision.h): the step's loss and gradient stay
+// close to float32's, but are not float32's (autocast did act), the weights'
+// gradients are float32 and finite, and the thread's autocast state is as
+// before. Each replica thread runs under the same autocast: the split step
+// equals its two parts computed one by one in bf16 at the replicas' thread
+// count (a replica left in fp32 would differ at bf16's 3e-3 level).
+TEST(Precision, Bf16StepIsCloseToFp32InEveryReplica) {
+  const int threads_before = at::get_num_threads();
+  ModelConfig mc;
+  mc.channels = {8, 12, 12, 16, 16};
+  torch::manual_seed(5);
+  Denoiser m(mc);
+  m->set_memory_format(torch::MemoryFormat::ChannelsLast);
+  Batch batch;
+  batch.input = torch::rand({4 * 3, mc.input_channels(), 32, 32})
+                    .contiguous(torch::MemoryFormat::ChannelsLast)
+                    .view({4, 3, mc.input_channels(), 32, 32});
+  batch.target = torch::rand({4 * 3, 3, 32, 32})
+                     .contiguous(torch::MemoryFormat::ChannelsLast)
+                     .view({4, 3, 3, 32, 32});
+  LossConfig lc;
+  torch::Tensor kernel = log_kernel(lc.log_sigma);
+
+  StepOutcome f = compute_gradients(m, batch, lc, kernel);
+  torch::Tensor gf = flat_grads(m);
+  StepOutcome b = compute_gradients(m, batch, lc, kernel, {}, Precision::kBf16);
+  torch::Tensor gb = flat_grads(m);
+  EXPECT_FALSE(at::autocast::is_cpu_enabled());
+  ASSERT_TRUE(f.finite && b.finite);
+  for (const auto& p : m->parameters()) EXPECT_EQ(p.grad().scalar_type(), torch::kFloat);
+  EXPECT_NEAR(b.loss, f.loss, 0.02 * f.loss);
+  const double cosine = (gf * gb).sum().item<double>() / (gf.norm() * gb.norm()).item<double>();
+  EXPECT_GT(cosine, 0.99);
+  EXPECT_GT((gf - gb).abs().max().item<double>(), 1e-4 * gf.abs().max().item<double>());
+
+  // The split step against its parts, one by one at one thread each.
+  auto part = [&](int64_t start) {
+    Batch p;
+    p.input = batch.input.narrow(0, start, 2);
+    p.target = batch.target.narrow(0, start, 2);
+    return p;
+  };
+  at::set_num_threads(1);
+  compute_gradients(m, part(0), lc, kernel, {}, Precision::kBf16);
+  torch::Tensor g0 = flat_grads(m);
+  compute_gradients(m, part(2), lc, kernel, {}, Precision::kBf16);
+  torch::Tensor g1 = flat_grads(m);
+  at::set_num_threads(threads_before);
+  torch::Tensor parts = 0.5 * g0 + 0.5 * g1;
+  {
+    StepRunner runner(m, 2, Precision::kBf16);
+    ASSERT_TRUE(runner.run(batch, lc, kernel).finite);
+  }
+  torch::Tensor gs = flat_grads(m);
+  const double scale = gs.abs().max().item<double>();
+  EXPECT_LT((gs - parts).abs().max().item<double>() / scale, 1e-5);
+  EXPECT_GT((gs - gf).abs().max().item<double>() / scale, 1e-4);
+  EXPECT_EQ(at::get_num_threads(), threads_before);
 }
 
 TEST(Train, ResumeIsExactWithTheStepSplitAcrossReplicas) {
@@ -381,6 +446,22 @@ TEST(Denoise, ExrFrameGivesTheSameResultAsTheShardFrame) {
   ASSERT_EQ(direct.size(), size_t(3 * 48 * 40));
   EXPECT_EQ(direct, via_exr);
   for (float v : direct) ASSERT_TRUE(std::isfinite(v) && v >= 0.0f);
+}
+
+TEST(Precision, Bf16DenoiseIsCloseToFp32AndFinite) {
+  FrameBuffers fb = testing::synthetic_frame(3, 48, 40, 2, 9);
+  FrameDenoiser exact(trained_run(), torch::kCPU);
+  FrameDenoiser fast(trained_run(), torch::kCPU, "best", Precision::kBf16);
+  std::vector<float> a = exact.denoise(fb, 1), b = fast.denoise(fb, 1);
+  ASSERT_EQ(a.size(), b.size());
+  double num = 0, den = 0;
+  for (size_t i = 0; i < a.size(); ++i) {
+    ASSERT_TRUE(std::isfinite(b[i]) && b[i] >= 0.0f);
+    num += double(a[i] - b[i]) * (a[i] - b[i]);
+    den += double(a[i]) * a[i];
+  }
+  EXPECT_GT(num, 0.0);               // bf16 did act
+  EXPECT_LT(std::sqrt(num / den), 0.02);  // relative RMS difference
 }
 
 // The thesis preset end to end on the synthetic shard: an epoch is one pass
