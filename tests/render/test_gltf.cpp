@@ -472,6 +472,46 @@ TEST(GltfExtensions, NormalMapsAndTransparencyAreWarnedNamingTheMaterials) {
   EXPECT_NE(lines[1].find("core.gltf"), std::string::npos) << lines[1];
 }
 
+// KHR_materials_ior as written: IOR 1 (Blender's Principled IOR 1, an
+// interface that reflects nothing) is 1, not "unset"; a missing "ior" is the
+// extension's default 1.5; a value outside the schema is warned about,
+// naming the material, and falls back to 1.5.
+TEST(GltfMaterials, IorOneIsReadAsOne) {
+  TempDir dir("ior");
+  auto sink = std::make_shared<spdlog::sinks::ringbuffer_sink_mt>(16);
+  auto previous = spdlog::default_logger();
+  spdlog::set_default_logger(std::make_shared<spdlog::logger>("capture", sink));
+  struct Case {
+    const char* name;
+    Json ext;  // null: no extension
+    float ior;
+  } cases[] = {{"one", {{"ior", 1.0}}, 1.0f},
+               {"water", {{"ior", 1.33}}, 1.33f},
+               {"no_key", Json::object(), 1.5f},
+               {"none", nullptr, 1.5f},
+               {"below", {{"ior", 0.5}}, 1.5f}};
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    GltfQuad q = gltf_quad();
+    q.doc["materials"][0]["name"] = c.name;
+    if (!c.ext.is_null()) {
+      q.doc["materials"][0]["extensions"] = {{"KHR_materials_ior", c.ext}};
+      q.doc["extensionsUsed"] = {"KHR_materials_ior"};
+    }
+    write_gltf(dir.path / (std::string(c.name) + ".gltf"), q);
+    SceneData s = load_scene_data(dir.path / (std::string(c.name) + ".gltf"));
+    ASSERT_EQ(s.triangle_count(), 2u);
+    const Material& m = s.materials[s.tri_material[0]];
+    EXPECT_EQ(m.name, c.name);
+    EXPECT_FLOAT_EQ(m.ior, c.ior);
+  }
+  spdlog::set_default_logger(previous);
+  std::vector<std::string> lines = sink->last_formatted();
+  ASSERT_EQ(lines.size(), 1u);
+  EXPECT_NE(lines[0].find("\"below\""), std::string::npos) << lines[0];
+  EXPECT_NE(lines[0].find("KHR_materials_ior"), std::string::npos) << lines[0];
+}
+
 TEST(LoadSceneData, EmptyOrCameraOnlyGltfSaysWhy) {
   TempDir dir("empty");
   // What Blender 3.4 exports for an empty scene.

@@ -147,6 +147,10 @@ struct GltfMaterialInfo {
   GltfTextureInfo base_color, metal_rough, emission;
   bool normal_map = false;  // normalTexture: not applied
   bool not_opaque = false;  // alphaMode MASK or BLEND: rendered opaque
+  // KHR_materials_ior: present = the extension is there (its "ior" or the
+  // extension's default 1.5); ior < 1 or non-finite is outside the schema.
+  bool ior_present = false;
+  double ior = 1.5;
 };
 struct GltfInfo {
   std::vector<GltfMaterialInfo> materials;
@@ -226,6 +230,13 @@ GltfInfo read_gltf_info(const std::filesystem::path& path) {
         m["extensions"].contains("KHR_materials_emissive_strength")) {
       info.emissive_strength =
           number_or(m["extensions"]["KHR_materials_emissive_strength"], "emissiveStrength", 1.0f);
+    }
+    if (m.contains("extensions") && m["extensions"].is_object() &&
+        m["extensions"].contains("KHR_materials_ior")) {
+      const auto& ext = m["extensions"]["KHR_materials_ior"];
+      info.ior_present = true;
+      if (ext.is_object() && ext.contains("ior"))
+        info.ior = ext["ior"].is_number() ? ext["ior"].get<double>() : NAN;
     }
     if (m.contains("pbrMetallicRoughness") && m["pbrMetallicRoughness"].is_object()) {
       const auto& pbr = m["pbrMetallicRoughness"];
@@ -313,10 +324,21 @@ class Loader {
         }
         m.emission = to_vec3(color) * strength;
       }
-      // Exporters write IOR 1 (or 0) to mean "not set"; a dielectric of IOR 1
-      // would have no specular lobe at all, so those fall back to the default.
-      if (am->Get(AI_MATKEY_REFRACTI, value) == AI_SUCCESS && value > 1.0f &&
-          std::isfinite(value)) {
+      if (const GltfMaterialInfo* g = gltf_material(i, m.name); g && g->ior_present) {
+        // glTF: KHR_materials_ior as written. IOR 1 is a valid value (an
+        // interface that reflects nothing: F0 = 0, the base layer alone,
+        // docs/renderer.md); the schema's minimum is 1.
+        if (std::isfinite(g->ior) && g->ior >= 1.0 && g->ior <= 1e4) {
+          m.ior = float(g->ior);
+        } else {
+          spdlog::warn("{}: material \"{}\": KHR_materials_ior ior {} is outside [1, 1e4]; "
+                       "using the default 1.5",
+                       path_.string(), m.name, g->ior);
+        }
+      } else if (!g && am->Get(AI_MATKEY_REFRACTI, value) == AI_SUCCESS && value > 1.0f &&
+                 std::isfinite(value)) {
+        // Other formats (OBJ's Ni, FBX): their exporters write 1 (or 0) for
+        // "not set", so only a value above 1 counts there.
         m.ior = value;
       }
       m.base_color_tex = texture(am, {aiTextureType_BASE_COLOR, aiTextureType_DIFFUSE}, true);
