@@ -121,7 +121,8 @@ Command add_eval(CLI::App& app) {
   auto* cmd = app.add_subcommand("eval", "score the run on its validation frames (report)");
   struct Opts {
     std::string run, data, out, checkpoint = "best", precision = "fp32";
-    int frames = 0, images = 8, version = 0, time_size = 0, time_reps = 3;
+    int frames = 0, images = 8, version = 0, time_size = 0, time_reps = 3, crops = 2,
+        crop_size = 64;
     bool validation_only = false;
   };
   auto o = std::make_shared<Opts>();
@@ -149,6 +150,15 @@ Command add_eval(CLI::App& app) {
                   "to that size; 0 = off)")
       ->capture_default_str()
       ->check(CLI::Range(0, 16384));
+  cmd->add_option("--crops", o->crops,
+                  "side-by-side crops (noisy, denoised, reference) of the smallest- and "
+                  "largest-CoC windows of this many validation frames that have an out-of-focus "
+                  "window (crops/; 0 = none)")
+      ->capture_default_str()
+      ->check(CLI::Range(0, 10000));
+  cmd->add_option("--crop-size", o->crop_size, "crop window side in pixels (drawn 2x)")
+      ->capture_default_str()
+      ->check(CLI::Range(4, 4096));
   cmd->add_option("--time-reps", o->time_reps,
                   "timed runs at --time-size (median; after a warm-up)")
       ->capture_default_str()
@@ -159,6 +169,8 @@ Command add_eval(CLI::App& app) {
             e.time_side = o->time_size;
             e.time_reps = o->time_reps;
             e.precision = parse_precision(o->precision, "--precision");
+            e.crops = o->crops;
+            e.crop_side = o->crop_size;
             EvalSummary s = evaluate(e);
             std::printf(
                 "%d frames: SSIM %.4f  PSNR %.2f dB  relMSE %.4f  flicker %.4g  %.2f ms/frame\n",

@@ -240,6 +240,8 @@ EvalSummary evaluate(const EvalOptions& o) {
     std::string png;
   };
   std::vector<Strip> strips;
+  json crops = json::array();  // side-by-side crops (EvalOptions::crops)
+  int crop_frames = 0;
   Accumulator all, every;  // validation frames; all frames (thesis 5.1, table 5.1)
   std::map<std::string, Accumulator> by_scene, by_scene_every;  // table 5.1 has a row per scene
   json frames = json::array();
@@ -339,6 +341,33 @@ EvalSummary evaluate(const EvalOptions& o) {
       const double c = ceiling.add(fb, file, reader.info().frame_start + f);
       row["reference_ceiling_ssim"] = std::isfinite(c) ? json(c) : json();
       frames.push_back(row);
+      if (crop_frames < o.crops) {
+        const FocusCrops fc = choose_focus_crops(fb.coc, w, h, o.crop_side);
+        if (fc.out_of_focus.found) {
+          fs::create_directories(o.out_dir / "crops");
+          for (const auto& [region, win] : {std::pair<const char*, CropWindow>{"in_focus", fc.in_focus},
+                                            {"out_of_focus", fc.out_of_focus}}) {
+            if (!win.found) continue;
+            json entry = {{"index", crop_frames},     {"shard", file},
+                          {"scene", reader.info().scene_id},
+                          {"frame", reader.info().frame_start + f},
+                          {"region", region},         {"x", win.x},
+                          {"y", win.y},               {"side", win.side},
+                          {"zoom", 2},                {"mean_coc_px", win.mean_coc}};
+            for (const auto& [kind, img] :
+                 {std::pair<const char*, const std::vector<float>*>{"noisy", &noisy},
+                  {"denoised", &out},
+                  {"reference", &fb.reference}}) {
+              const std::string name = "crop-" + std::to_string(crop_frames) + "-" + region + "-" +
+                                       kind + ".png";
+              write_text_atomic(o.out_dir / "crops" / name, crop_png_bytes(*img, w, h, win, 2));
+              entry[kind] = "crops/" + name;
+            }
+            crops.push_back(entry);
+          }
+          ++crop_frames;
+        }
+      }
       if (images < o.max_images) {
         char name[64];
         std::snprintf(name, sizeof name, "frame-%03d.png", images);
@@ -436,6 +465,7 @@ EvalSummary evaluate(const EvalOptions& o) {
       {"summary", summary},
       {"denoise_ms_at_size", at_size},
       {"reference_ceiling", ceiling.to_json()},
+      {"crops", crops},
       {"scenes", scenes},
       {"all_frames",
        o.all_frames ? json{{"summary", every.summary()}, {"scenes", scenes_every}} : json()},
@@ -512,7 +542,21 @@ EvalSummary evaluate(const EvalOptions& o) {
      << "![loss per epoch](loss.svg)\n\n![loss per step](steps.svg)\n\n![learning rate](lr.svg)\n\n![validation SSIM and PSNR](quality.svg)\n\n"
      << "Comparison images (`frame-NNN.png`): noisy | denoised | reference | error "
         "(mean absolute sRGB difference, ×4, black-red-yellow-white; white = 0.25). "
-        "`report.html` shows all of this on one page.\n\n"
+        "`report.html` shows all of this on one page.\n\n";
+  if (!crops.empty()) {
+    md << "## Crops where the lens matters\n\nThe window of the smallest and of the largest "
+          "mean circle of confusion of a validation frame, drawn 2×.\n\n"
+          "| frame | region | noisy | denoised | reference |\n| --- | --- | --- | --- | --- |\n";
+    for (const json& c : crops)
+      md << "| " << c["shard"].get<std::string>() << " " << c["frame"].get<int>() << " | "
+         << c["region"].get<std::string>() << ", mean CoC " << cell(c["mean_coc_px"].get<double>(), 1)
+         << " px, " << c["side"].get<int>() << "² at (" << c["x"].get<int>() << ", "
+         << c["y"].get<int>() << ") | ![](" << c["noisy"].get<std::string>() << ") | ![]("
+         << c["denoised"].get<std::string>() << ") | ![](" << c["reference"].get<std::string>()
+         << ") |\n";
+    md << "\n";
+  }
+  md
      << "## Per frame\n\n| shard | frame | ms | SSIM | PSNR | relMSE |\n| --- | --- | --- | --- | "
         "--- | --- |\n";
   for (const json& r : frames) {

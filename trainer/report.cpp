@@ -33,6 +33,17 @@ void heat(float t, uint8_t* px) {
   px[2] = to_byte(t - 2.0f);
 }
 
+// 8-bit RGB rows as PNG file bytes.
+std::string png_bytes(const std::vector<uint8_t>& rgb, int w, int h) {
+  std::string out;
+  auto sink = [](void* ctx, void* data, int size) {
+    static_cast<std::string*>(ctx)->append(static_cast<const char*>(data), size_t(size));
+  };
+  if (!stbi_write_png_to_func(sink, &out, w, h, 3, rgb.data(), w * 3))
+    throw RuntimeError("cannot encode a PNG of " + std::to_string(w) + "x" + std::to_string(h));
+  return out;
+}
+
 // A tick value without trailing zeros: 0.05, 2, 1e-05.
 std::string fmt_number(double v) {
   if (v == 0) return "0";
@@ -72,14 +83,60 @@ std::vector<uint8_t> comparison_rgb(const std::vector<float>& noisy,
 
 std::string comparison_png_bytes(const std::vector<float>& noisy, const std::vector<float>& denoised,
                                  const std::vector<float>& reference, int w, int h) {
-  std::vector<uint8_t> rgb = comparison_rgb(noisy, denoised, reference, w, h);
-  std::string out;
-  auto sink = [](void* ctx, void* data, int size) {
-    static_cast<std::string*>(ctx)->append(static_cast<const char*>(data), size_t(size));
-  };
-  if (!stbi_write_png_to_func(sink, &out, 4 * w, h, 3, rgb.data(), 4 * w * 3))
-    throw RuntimeError("cannot encode the comparison PNG");
+  return png_bytes(comparison_rgb(noisy, denoised, reference, w, h), 4 * w, h);
+}
+
+FocusCrops choose_focus_crops(const std::vector<float>& coc, int w, int h, int side) {
+  FocusCrops out;
+  side = std::min({side, w, h});
+  if (side <= 0 || coc.size() < size_t(w) * h) return out;
+  // Summed-area table, (w + 1) x (h + 1), in double (no drift over a frame).
+  std::vector<double> sat(size_t(w + 1) * (h + 1), 0.0);
+  for (int y = 0; y < h; ++y) {
+    double row = 0;
+    for (int x = 0; x < w; ++x) {
+      const float c = coc[size_t(y) * w + x];
+      row += std::isfinite(c) ? double(c) : 0.0;
+      sat[size_t(y + 1) * (w + 1) + x + 1] = sat[size_t(y) * (w + 1) + x + 1] + row;
+    }
+  }
+  const int stride = std::max(1, side / 4);
+  const double area = double(side) * side;
+  double lo = INFINITY, hi = -INFINITY;
+  CropWindow lo_w, hi_w;
+  for (int y = 0; y + side <= h; y += stride)
+    for (int x = 0; x + side <= w; x += stride) {
+      auto at = [&](int xx, int yy) { return sat[size_t(yy) * (w + 1) + xx]; };
+      const double mean =
+          (at(x + side, y + side) - at(x, y + side) - at(x + side, y) + at(x, y)) / area;
+      if (mean < lo) {
+        lo = mean;
+        lo_w = {x, y, side, mean, true};
+      }
+      if (mean > hi) {
+        hi = mean;
+        hi_w = {x, y, side, mean, true};
+      }
+    }
+  if (lo_w.found && lo < 1.0) out.in_focus = lo_w;
+  if (hi_w.found && hi >= 2.0) out.out_of_focus = hi_w;
   return out;
+}
+
+std::string crop_png_bytes(const std::vector<float>& img, int w, int h, const CropWindow& c,
+                           int zoom) {
+  DOFARM_CHECK(c.side > 0 && c.x >= 0 && c.y >= 0 && c.x + c.side <= w && c.y + c.side <= h &&
+               zoom >= 1 && img.size() >= size_t(3) * w * h);
+  const size_t n = size_t(w) * h;
+  const int out_side = c.side * zoom;
+  std::vector<uint8_t> rgb(size_t(out_side) * out_side * 3);
+  for (int y = 0; y < out_side; ++y)
+    for (int x = 0; x < out_side; ++x) {
+      const size_t p = size_t(c.y + y / zoom) * w + size_t(c.x + x / zoom);
+      for (int ch = 0; ch < 3; ++ch)
+        rgb[(size_t(y) * out_side + x) * 3 + ch] = to_byte(srgb_encode_clamped(img[ch * n + p]));
+    }
+  return png_bytes(rgb, out_side, out_side);
 }
 
 std::string error_scale_svg() {

@@ -16,6 +16,27 @@ namespace dofarm::trainer {
 // All images (3, H, W) linear radiance.
 std::string comparison_png_bytes(const std::vector<float>& noisy, const std::vector<float>& denoised,
                                  const std::vector<float>& reference, int width, int height);
+// Side-by-side crops where depth of field matters: square windows of a
+// frame chosen by its circle of confusion (pixels), from a summed-area table
+// over windows at a stride of side / 4. in_focus: the window of the smallest
+// mean CoC, kept when that mean is below 1 px ("acceptably sharp",
+// DESIGN.md); out_of_focus: the window of the largest mean CoC, kept when it
+// is at least 2 px. Ties go to the first window in row order, so every
+// model evaluated on the same data gets the same windows.
+struct CropWindow {
+  int x = 0, y = 0, side = 0;
+  double mean_coc = 0;
+  bool found = false;
+};
+struct FocusCrops {
+  CropWindow in_focus, out_of_focus;
+};
+FocusCrops choose_focus_crops(const std::vector<float>& coc, int width, int height, int side);
+// The window of a linear (3, H, W) image as PNG bytes, sRGB-encoded and
+// clamped as the comparison strips, each pixel drawn zoom x zoom.
+std::string crop_png_bytes(const std::vector<float>& image, int width, int height,
+                           const CropWindow& window, int zoom);
+
 // The error panel's scale: display-space mean absolute error 0 .. 0.25 on the
 // heat ramp, as an SVG colour bar with tick values.
 std::string error_scale_svg();

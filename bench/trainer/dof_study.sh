@@ -16,7 +16,7 @@
 # the validation frames of the run's split (the same frames for every
 # configuration: the split is drawn from the shards' content).
 #
-#   bench/trainer/dof_study.sh [--steps N] [--out DIR] [--epochs E] [--time-size S]
+#   bench/trainer/dof_study.sh [--steps N] [--out DIR] [--epochs E] [--time-size S] [--crops K]
 #                              [--configs "thesis default ..."] [--set KEY=VALUE]... [DATA_DIR...]
 #
 # DATA_DIR: farm output folders (default: out/study/cornell out/study/courtyard,
@@ -24,6 +24,9 @@
 # OUT/data by symbolic links. --steps (default 4000) optimiser steps per
 # configuration, as --epochs (default 10) epochs of ceil(steps / epochs)
 # steps. --time-size (default 512) the frame side the denoise is timed at.
+# --crops (default 2): side-by-side crops of the sharpest and the most
+# blurred window of K validation frames (`eval --crops`), the same windows
+# for every configuration, gathered in OUT/crops/ and shown in results.md.
 # --set is passed to every configuration's `train` (e.g. smaller models for
 # a smoke run). Environment: DOFARM_TRAIN (default build/dofarm-train).
 #
@@ -42,6 +45,7 @@ STEPS=4000
 EPOCHS=10
 OUT=$ROOT/out/study/results
 TIME_SIZE=512
+CROPS=2
 CONFIGS="thesis thesis_nococ default thesis_focus thesis_prefilter thesis_recurrent"
 SETS=()
 DATA=()
@@ -53,6 +57,7 @@ while [ $# -gt 0 ]; do
     --epochs) EPOCHS=${2:?}; shift 2 ;;
     --out) OUT=${2:?}; shift 2 ;;
     --time-size) TIME_SIZE=${2:?}; shift 2 ;;
+    --crops) CROPS=${2:?}; shift 2 ;;
     --configs) CONFIGS=${2:?}; shift 2 ;;
     --set) SETS+=(--set "${2:?}"); shift 2 ;;
     -h|--help) usage; exit 0 ;;
@@ -63,6 +68,7 @@ done
 [[ $STEPS =~ ^[1-9][0-9]*$ ]] || die "--steps: expected a positive integer, got '$STEPS'"
 [[ $EPOCHS =~ ^[1-9][0-9]*$ ]] || die "--epochs: expected a positive integer, got '$EPOCHS'"
 [[ $TIME_SIZE =~ ^[1-9][0-9]*$ ]] || die "--time-size: expected a positive integer, got '$TIME_SIZE'"
+[[ $CROPS =~ ^[0-9]+$ ]] || die "--crops: expected a non-negative integer, got '$CROPS'"
 [ -x "$TRAIN" ] || die "$TRAIN not found; build dofarm-train or set DOFARM_TRAIN"
 command -v python3 > /dev/null || die "python3 is needed for the table and the plot"
 [ ${#DATA[@]} -gt 0 ] || DATA=("$ROOT/out/study/cornell" "$ROOT/out/study/courtyard")
@@ -149,7 +155,8 @@ for c in $CONFIGS; do
     # The last weights: every configuration after the same number of steps
     # (best.pt would pick each by its own criterion).
     "$TRAIN" --log-level warn eval --run "$run" --data "$DATA_DIR" --out "$report.tmp" \
-      --checkpoint last --images 4 --validation-only --time-size "$TIME_SIZE" > /dev/null
+      --checkpoint last --images 4 --validation-only --time-size "$TIME_SIZE" \
+      --crops "$CROPS" > /dev/null
     rm -rf "$report"
     mv "$report.tmp" "$report"
   fi
@@ -215,8 +222,35 @@ frames = sorted({r["frames"] for r in rows})
 note = (f"\nValidation frames: {', '.join(map(str, frames))}; weights after the last step. "
         "SSIM and PSNR on sRGB clamped to [0, 1]; relative MSE and flicker on linear HDR "
         "(docs/trainer.md, \"Evaluation\"). In focus: CoC < 1 px.\n")
+# Side-by-side crops: the windows eval chose from the data's CoC (the same
+# for every configuration), copied to OUT/crops/ so that results.md and its
+# pictures can be published together.
+crops_md = []
+first = json.load(open(os.path.join(out, "reports", configs[0], "report.json"))).get("crops", [])
+if first:
+    import shutil
+    os.makedirs(os.path.join(out, "crops"), exist_ok=True)
+    def copy(c, rel, name):
+        shutil.copyfile(os.path.join(out, "reports", c, rel), os.path.join(out, "crops", name))
+        return "crops/" + name
+    crops_md = ["", "Crops (2×) of the sharpest and the most blurred window of validation frames, "
+                "chosen from the circle of confusion; the same windows for every configuration:", "",
+                "| window | noisy | " + " | ".join(f"`{c}`" for c in configs) + " | reference |",
+                "| --- " * (len(configs) + 3) + "|"]
+    for k, w in enumerate(first):
+        stem = f"crop-{w['index']}-{w['region']}"
+        cells = [f"{w['scene']} frame {w['frame']}, {w['region'].replace('_', ' ')}, "
+                 f"mean CoC {w['mean_coc_px']:.1f} px",
+                 f"![]({copy(configs[0], w['noisy'], stem + '-noisy.png')})"]
+        for c in configs:
+            other = json.load(open(os.path.join(out, "reports", c, "report.json"))).get("crops", [])
+            same = [o for o in other if (o["shard"], o["frame"], o["region"], o["x"], o["y"]) ==
+                    (w["shard"], w["frame"], w["region"], w["x"], w["y"])]
+            cells.append(f"![]({copy(c, same[0]['denoised'], f'{stem}-{c}.png')})" if same else "–")
+        cells.append(f"![]({copy(configs[0], w['reference'], stem + '-reference.png')})")
+        crops_md.append("| " + " | ".join(cells) + " |")
 with open(os.path.join(out, "results.md.tmp"), "w") as f:
-    f.write("\n".join(md) + "\n" + note)
+    f.write("\n".join(md) + "\n" + note + "\n".join(crops_md) + "\n")
 os.replace(os.path.join(out, "results.md.tmp"), os.path.join(out, "results.md"))
 
 # Plot: 1 - SSIM (all pixels) against ms per frame, one labelled point each.

@@ -88,6 +88,15 @@ TEST(Study, OneCommandScoresEveryConfigurationAndResumes) {
   }
   const std::string md = read_all(out / "results.md");
   for (const std::string& c : configs) EXPECT_NE(md.find("`" + c + "`"), std::string::npos) << c;
+  // Side-by-side crops: one picture per configuration of the same window,
+  // beside the noisy input and the reference, gathered in OUT/crops.
+  for (const std::string& c : configs) {
+    const std::string pic = "crops/crop-0-out_of_focus-" + c + ".png";
+    EXPECT_NE(md.find("](" + pic + ")"), std::string::npos) << pic;
+    EXPECT_TRUE(fs::exists(out / pic)) << pic;
+  }
+  for (const char* kind : {"noisy", "reference"})
+    EXPECT_TRUE(fs::exists(out / (std::string("crops/crop-0-out_of_focus-") + kind + ".png")));
   const std::string svg = read_all(out / "results.svg");
   EXPECT_NE(svg.find("<svg"), std::string::npos);
   size_t points = 0;  // one dot on the plot and one in the legend per configuration

@@ -11,6 +11,7 @@
 #include <fstream>
 #include <limits>
 #include <nlohmann/json.hpp>
+#include <set>
 #include <sstream>
 
 #include "common/error.h"
@@ -18,6 +19,7 @@
 #include "tests/trainer/synthetic.h"
 #include "trainer/eval.h"
 #include "trainer/losses.h"
+#include "trainer/metrics.h"
 #include "trainer/precision.h"
 #include "trainer/report.h"
 
@@ -365,6 +367,74 @@ TEST(Eval, ReportHasEveryFrameAndBeatsTheNoisyInput) {
   EXPECT_GT(fl_noisy, fl_den);
   EXPECT_NEAR(s.flicker, fl_den, 1e-12);
   EXPECT_TRUE(j["denoise_ms_at_size"].is_null());  // not asked for
+}
+
+// Crops where the lens matters (report.h): on a CoC map with one sharp
+// square and one blurred square, the windows found are those squares.
+TEST(Crops, WindowsOfTheSmallestAndLargestCircleOfConfusion) {
+  const int w = 40, h = 24;
+  std::vector<float> coc(size_t(w) * h, 1.5f);  // neither sharp nor "out of focus"
+  for (int y = 4; y < 12; ++y)
+    for (int x = 6; x < 14; ++x) coc[size_t(y) * w + x] = 0.0f;
+  for (int y = 14; y < 22; ++y)
+    for (int x = 30; x < 38; ++x) coc[size_t(y) * w + x] = 20.0f;
+  FocusCrops c = choose_focus_crops(coc, w, h, 8);  // stride 2: both squares on the grid
+  ASSERT_TRUE(c.in_focus.found && c.out_of_focus.found);
+  EXPECT_EQ(c.in_focus.x, 6);
+  EXPECT_EQ(c.in_focus.y, 4);
+  EXPECT_DOUBLE_EQ(c.in_focus.mean_coc, 0.0);
+  EXPECT_EQ(c.out_of_focus.x, 30);
+  EXPECT_EQ(c.out_of_focus.y, 14);
+  EXPECT_DOUBLE_EQ(c.out_of_focus.mean_coc, 20.0);
+  // A frame that is all pinhole has no out-of-focus window, an all-blurred
+  // one no in-focus window.
+  EXPECT_FALSE(choose_focus_crops(std::vector<float>(size_t(w) * h, 0.0f), w, h, 8)
+                   .out_of_focus.found);
+  EXPECT_FALSE(
+      choose_focus_crops(std::vector<float>(size_t(w) * h, 9.0f), w, h, 8).in_focus.found);
+
+  // The crop PNG holds the window's pixels, sRGB-encoded, each drawn 2 x 2.
+  std::vector<float> img(size_t(3) * w * h);
+  for (size_t i = 0; i < img.size(); ++i) img[i] = float(i % 97) / 96.0f;
+  const std::string png = crop_png_bytes(img, w, h, c.out_of_focus, 2);
+  RgbImage back = decode_rgb_image(png.data(), png.size(), "crop", /*srgb=*/false);
+  ASSERT_EQ(back.width, 16);
+  ASSERT_EQ(back.height, 16);
+  const size_t n = size_t(w) * h;
+  for (int y = 0; y < 16; ++y)
+    for (int x = 0; x < 16; ++x)
+      for (int ch = 0; ch < 3; ++ch) {
+        const size_t p = size_t(14 + y / 2) * w + size_t(30 + x / 2);
+        ASSERT_NEAR(back.rgb[(size_t(y) * 16 + x) * 3 + ch],
+                    std::round(srgb_encode_clamped(img[ch * n + p]) * 255.0f) / 255.0f, 1e-6)
+            << x << "," << y;
+      }
+}
+
+// eval --crops: the same windows for any run on the same data (chosen from
+// the data's CoC), written as PNGs and listed in report.json and report.md.
+TEST(Eval, WritesCropsChosenByTheCircleOfConfusion) {
+  fs::path out = fresh_dir("eval_crops");
+  EvalOptions e{trained_run(), shared_data(), out, 0, 0, 0};
+  e.all_frames = false;
+  e.crops = 2;
+  e.crop_side = 8;
+  evaluate(e);
+  nlohmann::json j = nlohmann::json::parse(std::ifstream(out / "report.json"));
+  ASSERT_FALSE(j["crops"].empty());
+  std::set<int> frames;
+  for (const auto& c : j["crops"]) {
+    frames.insert(c["index"].get<int>());
+    for (const char* kind : {"noisy", "denoised", "reference"})
+      EXPECT_TRUE(fs::exists(out / c[kind].get<std::string>())) << c.dump();
+    const bool sharp = c["region"] == "in_focus";
+    EXPECT_TRUE(sharp ? c["mean_coc_px"] < 1.0 : c["mean_coc_px"] >= 2.0) << c.dump();
+    EXPECT_EQ(c["side"], 8);
+  }
+  EXPECT_EQ(frames.size(), 2u);  // e.crops frames
+  std::ifstream md(out / "report.md");
+  std::string text((std::istreambuf_iterator<char>(md)), std::istreambuf_iterator<char>());
+  EXPECT_NE(text.find(j["crops"][0]["denoised"].get<std::string>()), std::string::npos);
 }
 
 // `eval --time-size` times a frame of a size the data does not have: the
