@@ -9,6 +9,17 @@
 #   thesis_prefilter  (d) (a) + CoC-sized albedo prefilter (thesis 6.1)
 #   thesis_recurrent  (d) (a) + recurrent encoder blocks and the temporal loss
 #                         (Chaitanya 2017; thesis 6.3)
+# and, asked for by name (--configs "thesis abl_radiance ..." or --configs
+# ablation), the one-at-a-time ablation of the thesis preset against the
+# project's default: (a) with one key set to the project's value
+#   abl_radiance      radiance:log1p input and training space
+#   abl_normal        normal:as_stored ([-1, 1])
+#   abl_depth         depth:focal, z / (z + focal distance)
+#   abl_coc           coc:log, log1p(c) / ln 33
+#   abl_bottleneck    2 bottleneck convolutions
+#   abl_decoder       the project's decoder (activations, 3x3 output convolution)
+#   abl_gradloss      mean |dLoG| with a unit-L1 kernel instead of eq. 4.4
+#   abl_schedule      1e-3 after a linear warm-up, x 0.97 per epoch, instead of eq. 4.5
 # and write one table (OUT/results.md, OUT/results.csv) with, per
 # configuration, SSIM / PSNR / relative MSE over all, in-focus and
 # out-of-focus pixels, flicker, ms per 512² frame, training steps and wall
@@ -75,8 +86,16 @@ command -v python3 > /dev/null || die "python3 is needed for the table and the p
 for d in "${DATA[@]}"; do
   [ -d "$d" ] || die "no data folder $d (render the study set with bench/trainer/render_study.sh)"
 done
+ABLATION="thesis abl_radiance abl_normal abl_depth abl_coc abl_bottleneck abl_decoder abl_gradloss abl_schedule default"
+[ "$CONFIGS" = ablation ] && CONFIGS=$ABLATION
 # The thesis's inputs without the CoC (thesis 4.3.2 no-DOF network).
 NOCOC='["radiance:linear", "albedo", "normal:remap01", "depth:scene", "roughness"]'
+# The thesis's inputs with one encoding replaced by the project's (ablation).
+inputs_with() {
+  local r=radiance:linear n=normal:remap01 d=depth:scene c=coc:thesis
+  case $1 in radiance) r=$2 ;; normal) n=$2 ;; depth) d=$2 ;; coc) c=$2 ;; esac
+  echo "model.inputs=[\"$r\", \"albedo\", \"$n\", \"$d\", \"roughness\", \"$c\"]"
+}
 args_of() {
   case $1 in
     thesis) echo "--preset thesis" ;;
@@ -86,6 +105,22 @@ args_of() {
     thesis_prefilter) echo "--preset thesis --set data.albedo_prefilter=coc" ;;
     # RAE: recurrent blocks, temporal weight 0.1 (Chaitanya 2017, sec. 5: 0.8 / 0.1 / 0.1).
     thesis_recurrent) echo "--preset thesis --set model.recurrent=true --set loss.temporal=0.1" ;;
+    abl_*) echo "--preset thesis" ;;  # its one changed key: extra_of
+  esac
+}
+# Settings with spaces, one per line (passed as --set words by the loop).
+extra_of() {
+  case $1 in
+    thesis_nococ) echo "model.inputs=$NOCOC" ;;
+    default) echo "train.warmup_steps=$WARMUP" ;;
+    abl_radiance) inputs_with radiance radiance:log1p ;;
+    abl_normal) inputs_with normal normal:as_stored ;;
+    abl_depth) inputs_with depth depth:focal ;;
+    abl_coc) inputs_with coc coc:log ;;
+    abl_bottleneck) echo "model.bottleneck_convs=2" ;;
+    abl_decoder) echo "model.decoder=project" ;;
+    abl_gradloss) echo "loss.log_form=l1" ;;
+    abl_schedule) printf '%s\n' "train.schedule=warmup_decay" "train.warmup_steps=$WARMUP" ;;
   esac
 }
 describe() {
@@ -96,6 +131,14 @@ describe() {
     thesis_focus) echo "(d) (a) + focus-weighted loss" ;;
     thesis_prefilter) echo "(d) (a) + CoC albedo prefilter" ;;
     thesis_recurrent) echo "(d) (a) + recurrent + temporal loss" ;;
+    abl_radiance) echo "(a) with radiance:log1p" ;;
+    abl_normal) echo "(a) with normal:as_stored" ;;
+    abl_depth) echo "(a) with depth:focal" ;;
+    abl_coc) echo "(a) with coc:log" ;;
+    abl_bottleneck) echo "(a) with 2 bottleneck convolutions" ;;
+    abl_decoder) echo "(a) with the project's decoder" ;;
+    abl_gradloss) echo "(a) with the L1 LoG loss" ;;
+    abl_schedule) echo "(a) with warm-up + 0.97^epoch" ;;
   esac
 }
 for c in $CONFIGS; do
@@ -139,8 +182,9 @@ for c in $CONFIGS; do
     echo "dof_study.sh: $c: training ($(describe "$c")) -> $run"
     # shellcheck disable=SC2046  # args_of gives words
     extra=()
-    [ "$c" = thesis_nococ ] && extra=(--set "model.inputs=$NOCOC")
-    [ "$c" = default ] && extra=(--set "train.warmup_steps=$WARMUP")
+    while IFS= read -r kv; do
+      [ -n "$kv" ] && extra+=(--set "$kv")
+    done < <(extra_of "$c")
     "$TRAIN" --log-level warn train --data "$DATA_DIR" --run "$run" $(args_of "$c") \
       "${extra[@]}" --set "train.epochs=$EPOCHS" --set "train.steps_per_epoch=$PER_EPOCH" \
       "${SETS[@]}"

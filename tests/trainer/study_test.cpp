@@ -37,10 +37,12 @@ std::vector<std::string> split(const std::string& line, char sep) {
   return out;
 }
 
-int run_study(const fs::path& data, const fs::path& out, const fs::path& log) {
+int run_study(const fs::path& data, const fs::path& out, const fs::path& log,
+              const std::string& configs = "") {
   const std::string cmd =
       std::string("DOFARM_TRAIN=") + DOFARM_TRAIN_EXE + " bash " + DOFARM_SOURCE_DIR +
       "/bench/trainer/dof_study.sh --steps 2 --epochs 1 --time-size 64 --out " + out.string() +
+      (configs.empty() ? "" : " --configs '" + configs + "'") +
       " --set 'model.channels=[8, 8, 8, 8, 8]' --set data.crop=32 --set data.sequence=3"
       " --set data.val_fraction=0.25 --set data.readers=1 --set data.queue=4"
       " --set train.batch=2 --set train.val_sequences=1 --set train.device=cpu " +
@@ -117,6 +119,58 @@ TEST(Study, OneCommandScoresEveryConfigurationAndResumes) {
     EXPECT_EQ(fs::last_write_time(out / "runs" / c / "checkpoints" / "last.pt"), before[c]) << c;
   }
   EXPECT_EQ(read_all(out / "results.md"), md);  // the same table again
+}
+
+// "section.key" -> value of a run's config.toml (to_toml's flat layout).
+std::map<std::string, std::string> config_keys(const fs::path& toml) {
+  std::map<std::string, std::string> out;
+  std::istringstream in(read_all(toml));
+  std::string line, section;
+  while (std::getline(in, line)) {
+    if (line.empty() || line[0] == '#') continue;
+    if (line[0] == '[') {
+      section = line.substr(1, line.find(']') - 1);
+      continue;
+    }
+    const size_t eq = line.find(" = ");
+    if (eq != std::string::npos) out[section + "." + line.substr(0, eq)] = line.substr(eq + 3);
+  }
+  return out;
+}
+
+// --configs ablation: the thesis preset, each one-at-a-time ablation and the
+// project default; each ablation's config differs from the thesis run's in
+// exactly the keys its name says.
+TEST(Study, AblationChangesOnlyItsKeyOfTheThesisPreset) {
+  const fs::path dir = testing::scratch_dir("study_ablation");
+  fs::create_directories(dir / "data");
+  testing::write_synthetic_shard(dir / "data" / "shard-00000.h5", 12, 64, 64, 2, 5);
+  const fs::path out = dir / "out";
+  ASSERT_EQ(run_study(dir / "data", out, dir / "log", "ablation"), 0) << read_all(dir / "log");
+  const auto thesis = config_keys(out / "runs" / "thesis" / "config.toml");
+  const std::map<std::string, std::vector<std::string>> changed = {
+      {"abl_radiance", {"model.inputs"}},   {"abl_normal", {"model.inputs"}},
+      {"abl_depth", {"model.inputs"}},      {"abl_coc", {"model.inputs"}},
+      {"abl_bottleneck", {"model.bottleneck_convs"}},
+      {"abl_decoder", {"model.decoder"}},   {"abl_gradloss", {"loss.log_form"}},
+      {"abl_schedule", {"train.schedule", "train.warmup_steps"}}};
+  const std::map<std::string, std::string> input = {{"abl_radiance", "'radiance:log1p'"},
+                                                    {"abl_normal", "'normal:as_stored'"},
+                                                    {"abl_depth", "'depth:focal'"},
+                                                    {"abl_coc", "'coc:log'"}};
+  for (const auto& [name, keys] : changed) {
+    const auto cfg = config_keys(out / "runs" / name / "config.toml");
+    std::vector<std::string> differ;
+    for (const auto& [k, v] : cfg)
+      if (!thesis.count(k) || thesis.at(k) != v) differ.push_back(k);
+    EXPECT_EQ(differ, keys) << name;
+    if (input.count(name))
+      EXPECT_NE(cfg.at("model.inputs").find(input.at(name)), std::string::npos) << name;
+  }
+  const std::string md = read_all(out / "results.md");
+  for (const auto& [name, keys] : changed)
+    EXPECT_NE(md.find("`" + name + "`"), std::string::npos) << name;
+  EXPECT_NE(md.find("`default`"), std::string::npos);
 }
 
 }  // namespace
