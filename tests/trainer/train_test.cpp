@@ -86,6 +86,19 @@ TEST(Train, ResumedRunTakesTheSameStepsAsAnUninterruptedOne) {
   EXPECT_EQ(rows, 2);
 }
 
+// A random batch of `sequences` x `frames` frames of side x side pixels, laid
+// out as make_batch lays it out (channels-last frames).
+Batch random_batch(const ModelConfig& mc, int64_t sequences, int64_t frames, int64_t side) {
+  Batch b;
+  b.input = torch::rand({sequences * frames, mc.input_channels(), side, side})
+                .contiguous(torch::MemoryFormat::ChannelsLast)
+                .view({sequences, frames, mc.input_channels(), side, side});
+  b.target = torch::rand({sequences * frames, 3, side, side})
+                 .contiguous(torch::MemoryFormat::ChannelsLast)
+                 .view({sequences, frames, 3, side, side});
+  return b;
+}
+
 // Every parameter's gradient, flattened into one vector.
 torch::Tensor flat_grads(Denoiser& m) {
   std::vector<torch::Tensor> gs;
@@ -110,13 +123,7 @@ TEST(StepRunner, ReplicasGiveTheWholeBatchsLossAndGradient) {
       for (Denoiser* m : {&whole, &split})
         (*m)->set_memory_format(torch::MemoryFormat::ChannelsLast);
       // Batch of 5 sequences: unequal parts (2 + 3, or 1 + 2 + 2).
-      Batch batch;
-      batch.input = torch::rand({5 * 3, mc.input_channels(), 32, 32})
-                        .contiguous(torch::MemoryFormat::ChannelsLast)
-                        .view({5, 3, mc.input_channels(), 32, 32});
-      batch.target = torch::rand({5 * 3, 3, 32, 32})
-                         .contiguous(torch::MemoryFormat::ChannelsLast)
-                         .view({5, 3, 3, 32, 32});
+      Batch batch = random_batch(mc, 5, 3, 32);
       LossConfig lc;
       lc.temporal = 0.25f;  // a per-sequence term too
       torch::Tensor kernel = log_kernel(lc.log_sigma);
@@ -174,13 +181,7 @@ TEST(Precision, Bf16StepIsCloseToFp32InEveryReplica) {
   torch::manual_seed(5);
   Denoiser m(mc);
   m->set_memory_format(torch::MemoryFormat::ChannelsLast);
-  Batch batch;
-  batch.input = torch::rand({4 * 3, mc.input_channels(), 32, 32})
-                    .contiguous(torch::MemoryFormat::ChannelsLast)
-                    .view({4, 3, mc.input_channels(), 32, 32});
-  batch.target = torch::rand({4 * 3, 3, 32, 32})
-                     .contiguous(torch::MemoryFormat::ChannelsLast)
-                     .view({4, 3, 3, 32, 32});
+  Batch batch = random_batch(mc, 4, 3, 32);
   LossConfig lc;
   torch::Tensor kernel = log_kernel(lc.log_sigma);
 
