@@ -16,6 +16,21 @@ const float* FrameView::at(const std::string& buffer) const {
   return it->second;
 }
 
+void bind_demodulation_albedo(FrameView& view, const DataConfig& data, int width, int height,
+                              std::vector<float>& storage) {
+  const std::string name = demodulation_buffer(data);
+  const float* albedo = view.at(name);
+  if (data.albedo_prefilter == AlbedoPrefilter::kCoc) {
+    // Thesis 6.1: every use of the demodulation albedo sees it filtered.
+    storage.resize(3 * size_t(width) * size_t(height));
+    prefilter_by_coc(albedo, 3, view.at("coc"), width, height, data.albedo_prefilter_scale,
+                     storage.data());
+    albedo = storage.data();
+    view.buffers[name] = albedo;
+  }
+  view.albedo = albedo;
+}
+
 void make_input(const FrameView& f, const DataConfig& data,
                 const std::vector<ResolvedInput>& inputs, float* out) {
   EncodeArgs args;
@@ -139,7 +154,6 @@ Sample build_sample(const RawCrop& raw, const SequencePlan& plan, const DataConf
   DOFARM_CHECK_GE(raw.frames, plan.span);
   const std::vector<ResolvedInput> inputs = resolve_inputs(model, data);
   const RadianceSpace space = radiance_space(model);
-  const std::string albedo_name = demodulation_buffer(data);
   Sample out;
   out.frames = t;
   out.channels = model.input_channels();
@@ -163,16 +177,7 @@ Sample build_sample(const RawCrop& raw, const SequencePlan& plan, const DataConf
       DOFARM_CHECK_LE(at + planes, data_planes.size());
       view.buffers[name] = &data_planes[at];
     }
-    const float* albedo = view.at(albedo_name);
-    if (data.albedo_prefilter == AlbedoPrefilter::kCoc) {
-      // Thesis 6.1: every use of the demodulation albedo sees it filtered.
-      filtered.resize(3 * n);
-      prefilter_by_coc(albedo, 3, view.at("coc"), s, s, data.albedo_prefilter_scale,
-                       filtered.data());
-      albedo = filtered.data();
-      view.buffers[albedo_name] = albedo;
-    }
-    view.albedo = albedo;
+    bind_demodulation_albedo(view, data, s, s, filtered);
     view.focal_distance = raw.focal_distance[f];
     view.pixels = n;
     if (plan.quarter_turns)
@@ -184,8 +189,9 @@ Sample build_sample(const RawCrop& raw, const SequencePlan& plan, const DataConf
         }
     float* in = &out.input[size_t(i) * out.channels * n];
     make_input(view, data, inputs, in);
-    make_target(view.at("reference"), albedo, n, data, space, &out.target[size_t(i) * 3 * n]);
-    std::copy(albedo, albedo + 3 * n, &out.albedo[size_t(i) * 3 * n]);
+    make_target(view.at("reference"), view.albedo, n, data, space,
+                &out.target[size_t(i) * 3 * n]);
+    std::copy(view.albedo, view.albedo + 3 * n, &out.albedo[size_t(i) * 3 * n]);
     if (has_coc) std::copy(view.at("coc"), view.at("coc") + n, &out.coc[size_t(i) * n]);
     if (plan.quarter_turns) {
       if (has_coc) rotate_planes(&out.coc[size_t(i) * n], 1, s, plan.quarter_turns);

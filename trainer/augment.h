@@ -44,6 +44,14 @@ struct FrameView {
   const float* at(const std::string& buffer) const;
 };
 
+// Points view.albedo at the demodulation albedo (demodulation_buffer(data)),
+// replaced by its CoC-sized prefilter (prefilter.h) when data.albedo_prefilter
+// asks for one, stored in `storage`, so that every later read of that buffer
+// through `view` (inputs, target, remodulation) sees the filtered one: the
+// same in training, eval and denoise. width x height: the view's image.
+void bind_demodulation_albedo(FrameView& view, const DataConfig& data, int width, int height,
+                              std::vector<float>& storage);
+
 // Writes the model input of one frame (ModelConfig::input_channels() planes).
 void make_input(const FrameView& frame, const DataConfig& data,
                 const std::vector<ResolvedInput>& inputs, float* out);

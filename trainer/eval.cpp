@@ -85,21 +85,16 @@ std::vector<float> FrameDenoiser::denoise(const FrameBuffers& f, int version, do
                  begin = b.per_version ? size_t(version) * count : 0;
     if (data.size() >= begin + count) view.buffers[b.name] = data.data() + begin;
   }
-  const float* albedo = view.at(demodulation_buffer(cfg.data));
+  // As in training (augment.cpp); the prefilter, if any, is part of the
+  // denoiser: counted in `seconds`.
   std::vector<float> filtered;
-  double prefilter_seconds = 0;  // part of the denoiser: counted in `seconds`
-  if (cfg.data.albedo_prefilter == AlbedoPrefilter::kCoc) {
-    // As in training (augment.cpp): the filtered albedo everywhere.
-    const auto p0 = std::chrono::steady_clock::now();
-    filtered.resize(3 * n);
-    prefilter_by_coc(albedo, 3, view.at("coc"), f.width, f.height,
-                     cfg.data.albedo_prefilter_scale, filtered.data());
-    albedo = filtered.data();
-    view.buffers[demodulation_buffer(cfg.data)] = albedo;
-    prefilter_seconds =
-        std::chrono::duration<double>(std::chrono::steady_clock::now() - p0).count();
-  }
-  view.albedo = albedo;
+  const auto p0 = std::chrono::steady_clock::now();
+  bind_demodulation_albedo(view, cfg.data, f.width, f.height, filtered);
+  const double prefilter_seconds =
+      cfg.data.albedo_prefilter == AlbedoPrefilter::kCoc
+          ? std::chrono::duration<double>(std::chrono::steady_clock::now() - p0).count()
+          : 0.0;
+  const float* albedo = view.albedo;
   const int c = cfg.model.input_channels();
   std::vector<float> input(size_t(c) * n);
   make_input(view, cfg.data, resolve_inputs(cfg.model, cfg.data), input.data());
