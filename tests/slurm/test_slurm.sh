@@ -219,6 +219,34 @@ batch=$("$dofarm_slurm" submit "$T/job.toml" --workers 2 --out "$out" --dofarm "
   --train-partition debug --train-cpus-per-task 1 --train-sbatch-arg=--comment=dofarm-train-test) ||
   fail "dofarm-slurm submit failed"
 log "submitted batch $batch"
+
+# ------------------------------------------------------------- cancel a worker mid-task
+# A worker logs "task N: frame F tile ..." when it starts rendering; the
+# element whose last log line is that is in the middle of a task.
+victim=""
+for _ in $(seq 1 600); do
+  for f in "$out"/.dofarm-slurm/logs/worker-*.log; do
+    [ -f "$f" ] || continue
+    last=$(tail -n 1 "$f")
+    if [[ $last =~ \]\ task\ [0-9]+:\ frame\  ]]; then
+      victim=$(basename "$f" .log)
+      victim=${victim#worker-}
+      break 2
+    fi
+  done
+  sleep 0.1
+done
+[ -n "$victim" ] || fail "no worker element started a task within 60 s: $("$dofarm_slurm" status "$out")"
+log "worker element $victim: $(tail -n 1 "$out/.dofarm-slurm/logs/worker-$victim.log"); scancel $victim"
+scancel "$victim"
+for i in $(seq 1 80); do
+  [ -f "$out/.dofarm-slurm/elements/$victim.exit" ] && break
+  [ "$i" -lt 80 ] || fail "element $victim wrote no exit file within 20 s"
+  sleep 0.25
+done
+# The submission's records and status, checked after the victim is chosen:
+# on a loaded machine these checks took long enough that the whole batch
+# had rendered before the look for a task in progress began.
 state_json=$out/.dofarm-slurm/state.json
 [ -f "$state_json" ] || fail "no $state_json"
 coord_job=$(python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["coordinator_job"])' "$state_json")
@@ -237,29 +265,6 @@ listed=$(status_json | jq_py 'print(" ".join(sorted(set(j["array_job_id"] or j["
 [[ $listed == *"--me" ]] || fail "status did not ask squeue for this user's jobs only: $listed"
 scancel "$foreign"
 
-# ------------------------------------------------------------- cancel a worker mid-task
-# A worker logs "task N: frame F tile ..." when it starts rendering; the
-# element whose last log line is that is in the middle of a task.
-victim=""
-for _ in $(seq 1 600); do
-  for f in "$out"/.dofarm-slurm/logs/worker-*.log; do
-    [ -f "$f" ] || continue
-    if tail -n 1 "$f" | grep -q '\] task [0-9]*: frame '; then
-      victim=$(basename "$f" .log)
-      victim=${victim#worker-}
-      break 2
-    fi
-  done
-  sleep 0.1
-done
-[ -n "$victim" ] || fail "no worker element started a task within 60 s: $("$dofarm_slurm" status "$out")"
-log "worker element $victim: $(tail -n 1 "$out/.dofarm-slurm/logs/worker-$victim.log"); scancel $victim"
-scancel "$victim"
-for i in $(seq 1 80); do
-  [ -f "$out/.dofarm-slurm/elements/$victim.exit" ] && break
-  [ "$i" -lt 80 ] || fail "element $victim wrote no exit file within 20 s"
-  sleep 0.25
-done
 exit_line=$(cat "$out/.dofarm-slurm/elements/$victim.exit")
 log "element $victim: $exit_line"
 [[ $exit_line == "rc=0 reason=signal"* ]] || fail "element $victim: expected 'rc=0 reason=signal', got '$exit_line'"
