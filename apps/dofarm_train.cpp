@@ -50,11 +50,13 @@ using namespace dofarm::trainer;
 constexpr int kExitStopped = 3;
 
 void add_precision_option(CLI::App* cmd, std::string* which) {
+  std::vector<std::string> names;
+  for (const auto& [name, p] : precision_names()) names.push_back(name);
   cmd->add_option("--precision", *which,
                   "the network's arithmetic: fp32, or bf16 (bfloat16 autocast, CPU only; "
                   "docs/trainer.md)")
       ->capture_default_str()
-      ->check(CLI::IsMember({"fp32", "bf16"}));
+      ->check(CLI::IsMember(names));
 }
 
 void add_checkpoint_option(CLI::App* cmd, std::string* which) {

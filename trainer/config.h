@@ -11,6 +11,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace dofarm::trainer {
@@ -112,6 +113,12 @@ enum class BestBy { kValidation, kTraining };
 
 // Arithmetic of the network's convolutions (trainer/precision.h).
 enum class Precision { kFp32, kBf16 };
+// Its names, as train.precision, --precision and the benchmarks spell them.
+inline const std::vector<std::pair<std::string, Precision>>& precision_names() {
+  static const std::vector<std::pair<std::string, Precision>> names = {
+      {"fp32", Precision::kFp32}, {"bf16", Precision::kBf16}};
+  return names;
+}
 
 struct OptimConfig {
   int epochs = 100;

@@ -21,7 +21,6 @@
 #include "trainer/metrics.h"
 #include "trainer/model.h"
 #include "trainer/precision.h"
-#include "trainer/prefilter.h"
 #include "trainer/report.h"
 
 namespace dofarm::trainer {
@@ -32,9 +31,7 @@ using nlohmann::json;
 FrameDenoiser::FrameDenoiser(const fs::path& run_dir, torch::Device device,
                              const std::string& checkpoint, Precision precision)
     : run_(load_run(run_dir, device, checkpoint)), device_(device), precision_(precision) {
-  if (precision != Precision::kFp32 && !autocast_applies(precision, device))
-    spdlog::warn("precision {} applies on the CPU only; on {} the network runs in fp32",
-                 precision_name(precision), device.str());
+  warn_if_not_applied(precision, device, "--precision");
 }
 
 std::vector<std::pair<std::string, size_t>> non_finite_inputs(FrameBuffers& f, int version,
@@ -103,12 +100,9 @@ std::vector<float> FrameDenoiser::denoise(const FrameBuffers& f, int version, do
   c10::InferenceMode inference;
   auto t0 = std::chrono::steady_clock::now();
   torch::Tensor x = torch::from_blob(input.data(), {1, c, f.height, f.width}).to(device_);
-  torch::Tensor y;
-  {
-    AutocastScope autocast(precision_, device_);
-    y = run_.model->forward_frame(pad_to_multiple(x), state_);
-  }
-  y = y.to(torch::kFloat).narrow(2, 0, f.height).narrow(3, 0, f.width);
+  torch::Tensor y = float_output(precision_, device_, [&] {
+                      return run_.model->forward_frame(pad_to_multiple(x), state_);
+                    }).narrow(2, 0, f.height).narrow(3, 0, f.width);
   // Remodulation (inverse of make_target) on the device, as a renderer would.
   torch::Tensor a =
       torch::from_blob(const_cast<float*>(albedo), {1, 3, f.height, f.width}).to(device_);
@@ -213,6 +207,44 @@ std::string cell_g(double v) {
   char buf[32];
   std::snprintf(buf, sizeof buf, "%.3g", v);
   return buf;
+}
+
+constexpr int kCropZoom = 2;  // crop pixels drawn kCropZoom x kCropZoom
+
+// The side-by-side crops of one frame (EvalOptions::crops): when the frame
+// has an out-of-focus window, writes DIR/crops/crop-INDEX-REGION-KIND.png for
+// its windows (report.h, choose_focus_crops) and returns their report.json
+// entries, each `where` (shard, scene, frame) plus the window; else nothing.
+json write_focus_crops(const fs::path& dir, int index, int side, const FrameBuffers& fb,
+                       const std::vector<float>& noisy, const std::vector<float>& denoised,
+                       const json& where) {
+  json entries = json::array();
+  const FocusCrops fc = choose_focus_crops(fb.coc, fb.width, fb.height, side);
+  if (!fc.out_of_focus.found) return entries;
+  fs::create_directories(dir / "crops");
+  const std::pair<const char*, const std::vector<float>*> images[] = {
+      {"noisy", &noisy}, {"denoised", &denoised}, {"reference", &fb.reference}};
+  for (const auto& [region, win] : {std::pair<const char*, CropWindow>{"in_focus", fc.in_focus},
+                                    {"out_of_focus", fc.out_of_focus}}) {
+    if (!win.found) continue;
+    json entry = where;
+    entry.update({{"index", index},
+                  {"region", region},
+                  {"x", win.x},
+                  {"y", win.y},
+                  {"side", win.side},
+                  {"zoom", kCropZoom},
+                  {"mean_coc_px", win.mean_coc}});
+    for (const auto& [kind, img] : images) {
+      const std::string name =
+          "crop-" + std::to_string(index) + "-" + region + "-" + kind + ".png";
+      write_text_atomic(dir / "crops" / name,
+                        crop_png_bytes(*img, fb.width, fb.height, win, kCropZoom));
+      entry[kind] = "crops/" + name;
+    }
+    entries.push_back(entry);
+  }
+  return entries;
 }
 
 }  // namespace
@@ -337,29 +369,12 @@ EvalSummary evaluate(const EvalOptions& o) {
       row["reference_ceiling_ssim"] = std::isfinite(c) ? json(c) : json();
       frames.push_back(row);
       if (crop_frames < o.crops) {
-        const FocusCrops fc = choose_focus_crops(fb.coc, w, h, o.crop_side);
-        if (fc.out_of_focus.found) {
-          fs::create_directories(o.out_dir / "crops");
-          for (const auto& [region, win] : {std::pair<const char*, CropWindow>{"in_focus", fc.in_focus},
-                                            {"out_of_focus", fc.out_of_focus}}) {
-            if (!win.found) continue;
-            json entry = {{"index", crop_frames},     {"shard", file},
-                          {"scene", reader.info().scene_id},
-                          {"frame", reader.info().frame_start + f},
-                          {"region", region},         {"x", win.x},
-                          {"y", win.y},               {"side", win.side},
-                          {"zoom", 2},                {"mean_coc_px", win.mean_coc}};
-            for (const auto& [kind, img] :
-                 {std::pair<const char*, const std::vector<float>*>{"noisy", &noisy},
-                  {"denoised", &out},
-                  {"reference", &fb.reference}}) {
-              const std::string name = "crop-" + std::to_string(crop_frames) + "-" + region + "-" +
-                                       kind + ".png";
-              write_text_atomic(o.out_dir / "crops" / name, crop_png_bytes(*img, w, h, win, 2));
-              entry[kind] = "crops/" + name;
-            }
-            crops.push_back(entry);
-          }
+        const json written = write_focus_crops(o.out_dir, crop_frames, o.crop_side, fb, noisy, out,
+                                               {{"shard", file},
+                                                {"scene", reader.info().scene_id},
+                                                {"frame", reader.info().frame_start + f}});
+        if (!written.empty()) {
+          crops.insert(crops.end(), written.begin(), written.end());
           ++crop_frames;
         }
       }

@@ -1,21 +1,35 @@
 #include "trainer/precision.h"
 
 #include <ATen/autocast_mode.h>
+#include <spdlog/spdlog.h>
 
 #include "common/error.h"
 
 namespace dofarm::trainer {
 
 Precision parse_precision(const std::string& name, const std::string& key) {
-  if (name == "fp32") return Precision::kFp32;
-  if (name == "bf16") return Precision::kBf16;
-  throw SpecError(FileLoc{}, key, "expected fp32 or bf16, got \"" + name + "\"");
+  std::string allowed;
+  for (const auto& [n, p] : precision_names()) {
+    if (n == name) return p;
+    allowed += (allowed.empty() ? "" : " or ") + n;
+  }
+  throw SpecError(FileLoc{}, key, "expected " + allowed + ", got \"" + name + "\"");
 }
 
-const char* precision_name(Precision p) { return p == Precision::kBf16 ? "bf16" : "fp32"; }
+const char* precision_name(Precision p) {
+  for (const auto& [n, q] : precision_names())
+    if (q == p) return n.c_str();
+  return "?";
+}
 
 bool autocast_applies(Precision p, torch::Device device) {
   return p == Precision::kBf16 && device.is_cpu();
+}
+
+void warn_if_not_applied(Precision p, torch::Device device, const std::string& key) {
+  if (p != Precision::kFp32 && !autocast_applies(p, device))
+    spdlog::warn("{} = {} applies on the CPU only; on {} the network runs in fp32", key,
+                 precision_name(p), device.str());
 }
 
 AutocastScope::AutocastScope(Precision p, torch::Device device) {

@@ -22,6 +22,8 @@ const char* precision_name(Precision p);
 // Whether `p` changes anything on `device` (bf16 autocast is the CPU's only;
 // on CUDA the network runs in float32 and the caller says so once).
 bool autocast_applies(Precision p, torch::Device device);
+// Says once, naming `key`, that `p` is not applied on `device`.
+void warn_if_not_applied(Precision p, torch::Device device, const std::string& key);
 
 // Autocast on for this thread while the scope lives (autocast state is
 // per thread: each StepRunner replica opens its own), restored after, and
@@ -39,5 +41,17 @@ class AutocastScope {
   bool was_enabled_ = false;
   at::ScalarType was_dtype_ = at::kBFloat16;
 };
+
+// The network's output of `forward()` run under AutocastScope(p, device),
+// as float32 (what the loss, the scores and the remodulation read).
+template <typename Forward>
+torch::Tensor float_output(Precision p, torch::Device device, Forward&& forward) {
+  torch::Tensor y;
+  {
+    AutocastScope autocast(p, device);
+    y = forward();
+  }
+  return y.to(torch::kFloat);
+}
 
 }  // namespace dofarm::trainer

@@ -20,13 +20,9 @@ StepOutcome compute_gradients(Denoiser& model, const Batch& batch, const LossCon
                               Precision precision) {
   // Gradients set, not added to zeros: no memset and no accumulation pass.
   model->zero_grad(/*set_to_none=*/true);
-  torch::Tensor y;
-  {
-    AutocastScope autocast(precision, batch.input.device());
-    y = model->forward(batch.input);
-  }
-  torch::Tensor loss =
-      denoiser_loss(y.to(torch::kFloat), batch.target, loss_cfg, kernel, batch.coc).total;
+  torch::Tensor y = float_output(precision, batch.input.device(),
+                                 [&] { return model->forward(batch.input); });
+  torch::Tensor loss = denoiser_loss(y, batch.target, loss_cfg, kernel, batch.coc).total;
   if (hook) loss = hook(loss);
   StepOutcome r;
   r.loss = loss.item<double>();

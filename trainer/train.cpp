@@ -261,9 +261,7 @@ TrainResult train_in(const TrainOptions& opt_in) {
                     step_replicas(cfg.train.cpu_replicas, device, threads, cfg.train.batch,
                                   cfg.train.precision),
                     cfg.train.precision);
-  if (cfg.train.precision != Precision::kFp32 && !autocast_applies(cfg.train.precision, device))
-    spdlog::warn("train.precision = {} applies on the CPU only; on {} the network runs in fp32",
-                 precision_name(cfg.train.precision), device.str());
+  warn_if_not_applied(cfg.train.precision, device, "train.precision");
   if (runner.replicas() > 1)
     spdlog::info("training step split across {} model replicas, {} intra-op thread(s) each",
                  runner.replicas(), std::max(1, threads / runner.replicas()));
@@ -340,12 +338,8 @@ TrainResult train_in(const TrainOptions& opt_in) {
         std::vector<Sample> part(vs.begin() + i,
                                  vs.begin() + std::min(vs.size(), i + cfg.train.batch));
         Batch b = make_batch(part, device, format);
-        torch::Tensor y;
-        {
-          AutocastScope autocast(cfg.train.precision, device);
-          y = model->forward(b.input);
-        }
-        y = y.to(torch::kFloat);
+        torch::Tensor y =
+            float_output(cfg.train.precision, device, [&] { return model->forward(b.input); });
         sum += denoiser_loss(y, b.target, cfg.loss, kernel, b.coc).total.item<double>() *
                double(part.size());
         std::vector<torch::Tensor> albedo;
