@@ -14,16 +14,22 @@
 
 namespace dofarm::bench {
 
-inline std::shared_ptr<const render::Scene> load_bench_scene(const JobSpec& spec, bool lambert) {
-  if (!lambert) return render::load_scene(spec);
+// With area_lights, every triangle light is sampled by area
+// (Scene::set_solid_angle_lights(false)): the estimator before solid-angle
+// sampling, for comparisons in one run.
+inline std::shared_ptr<const render::Scene> load_bench_scene(const JobSpec& spec, bool lambert,
+                                                             bool area_lights = false) {
   render::SceneData data = render::load_scene_data(spec.scene);
-  for (render::Material& m : data.materials) {
-    m.metallic = 0.0f;
-    m.ior = 1.0f;
-  }
+  if (lambert)
+    for (render::Material& m : data.materials) {
+      m.metallic = 0.0f;
+      m.ior = 1.0f;
+    }
   std::unique_ptr<render::Environment> env;
   if (spec.environment) env = render::Environment::from_spec(*spec.environment);
-  return std::make_shared<const render::Scene>(std::move(data), std::move(env));
+  auto scene = std::make_shared<render::Scene>(std::move(data), std::move(env));
+  scene->set_solid_angle_lights(!area_lights);
+  return scene;
 }
 
 }  // namespace dofarm::bench

@@ -15,8 +15,9 @@
 //     0.25), G (glossy) or E (emitter));
 //   - the share carried by samples that survived roulette with weight > 2.
 // Usage: path_variance --job FILE [--frame F] [--tile X,Y,W,H] [--spp N]
-//                      [--seed S] [--threads 2] [--lambert] [--max-depth D]
+//                      [--seed S] [--threads 2] [--lambert] [--area-lights] [--max-depth D]
 //                      [--block 64] [--mark-box X0,Y0,Z0,X1,Y1,Z1]
+// --area-lights: every triangle light sampled by area (Scene::set_solid_angle_lights).
 // --mark-box: vertices inside the box are printed in lower case (d, g, e) in
 // the path kinds, to tell a region's share (e.g. the gap above a light).
 // --block B: the relative variance is also measured from the spread of the
@@ -141,7 +142,7 @@ const double kTailFactor[Totals::kTails] = {4, 16, 64, 256};
 void usage() {
   std::fprintf(stderr,
                "usage: path_variance --job FILE [--frame F] [--tile X,Y,W,H] [--spp N] "
-               "[--seed S] [--threads 2] [--lambert] [--max-depth D] [--block 64] [--mark-box X0,Y0,Z0,X1,Y1,Z1]\n");
+               "[--seed S] [--threads 2] [--lambert] [--area-lights] [--max-depth D] [--block 64] [--mark-box X0,Y0,Z0,X1,Y1,Z1]\n");
   std::exit(2);
 }
 
@@ -152,7 +153,7 @@ int main(int argc, char** argv) {
   int frame = -1, threads = 2, spp = 1024, max_depth = 0, block = 64;
   int tx = 0, ty = 0, tw = -1, th = -1;
   long long seed = -1;
-  bool lambert = false, has_box = false;
+  bool lambert = false, area_lights = false, has_box = false;
   float box[6] = {};
   for (int i = 1; i < argc; ++i) {
     auto value = [&]() -> std::string {
@@ -182,6 +183,8 @@ int main(int argc, char** argv) {
       max_depth = std::atoi(value().c_str());
     } else if (!std::strcmp(argv[i], "--lambert")) {
       lambert = true;
+    } else if (!std::strcmp(argv[i], "--area-lights")) {
+      area_lights = true;
     } else {
       usage();
     }
@@ -198,7 +201,7 @@ int main(int argc, char** argv) {
       th = spec.height;
     }
     const std::shared_ptr<const dofarm::render::Scene> scene =
-        dofarm::bench::load_bench_scene(spec, lambert);
+        dofarm::bench::load_bench_scene(spec, lambert, area_lights);
     const dofarm::render::Camera camera(dofarm::render::frame_camera(*scene, spec, frame),
                                         spec.width, spec.height);
 

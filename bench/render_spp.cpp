@@ -6,12 +6,14 @@
 //
 // Usage: render_spp --job FILE [--frame F] --spp 16,32,... [--seed S]
 //                   [--threads 2] [--out PREFIX] [--rr-start D] [--max-depth D]
-//                   [--lambert]
+//                   [--lambert] [--area-lights]
 // --lambert: every material of the scene becomes a pure Lambertian surface
 // with its base colour (metallic 0, IOR 1: no specular interface, bsdf.h),
 // emission kept. A glTF file cannot ask for that (dofarm reads IOR 1 as "not
 // set", scene_data.cpp), and the matched-material comparison with Cycles
 // needs it (bench/README.md, "cycles_vs_dofarm.sh").
+// --area-lights: every triangle light sampled by area, also close to it (the
+// estimator before solid-angle sampling, Scene::set_solid_angle_lights).
 // Writes PREFIX<N>.pfm (default PREFIX: dofarm_spp) and prints one line per
 // render: "spp N cpu_s C wall_s W paths P rays R". Scene loading and the BVH
 // build are not timed; one warm-up render at 1 spp runs first (untimed).
@@ -45,7 +47,7 @@ double cpu_seconds() {
 void usage() {
   std::fprintf(stderr,
                "usage: render_spp --job FILE [--frame F] --spp 16,32,64 [--seed S] "
-               "[--threads 2] [--out PREFIX] [--rr-start D] [--max-depth D] [--lambert]\n");
+               "[--threads 2] [--out PREFIX] [--rr-start D] [--max-depth D] [--lambert] [--area-lights]\n");
   std::exit(2);
 }
 
@@ -73,7 +75,7 @@ int main(int argc, char** argv) {
   std::vector<int> spps;
   int frame = -1, threads = 2, rr_start = 0, max_depth = 0;
   long long seed = -1;
-  bool lambert = false;
+  bool lambert = false, area_lights = false;
   for (int i = 1; i < argc; ++i) {
     auto value = [&]() -> std::string {
       if (i + 1 >= argc) usage();
@@ -98,6 +100,8 @@ int main(int argc, char** argv) {
       max_depth = std::atoi(value().c_str());
     } else if (!std::strcmp(argv[i], "--lambert")) {
       lambert = true;
+    } else if (!std::strcmp(argv[i], "--area-lights")) {
+      area_lights = true;
     } else {
       usage();
     }
@@ -117,7 +121,7 @@ int main(int argc, char** argv) {
     spec.albedo_ref_spp = 1;
     spec.reference_error = 0;
     const std::shared_ptr<const dofarm::render::Scene> scene =
-        dofarm::bench::load_bench_scene(spec, lambert);
+        dofarm::bench::load_bench_scene(spec, lambert, area_lights);
 
     dofarm::render::RenderOptions options;
     options.threads = threads;

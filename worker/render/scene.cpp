@@ -1,10 +1,12 @@
 #include "worker/render/scene.h"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <string>
 
 #include "common/error.h"
+#include "worker/render/spherical_triangle.h"
 
 namespace dofarm::render {
 
@@ -90,6 +92,14 @@ Scene::Scene(SceneData data, std::unique_ptr<Environment> environment)
     light_index_of_prim_[t] = int(light_tris_.size());
     light_tris_.push_back(t);
     light_tri_area_.push_back(area);
+    {
+      const uint32_t* idx = &data_.indices[size_t(t) * 3];
+      const Vec3 p0 = data_.positions[idx[0]], p1 = data_.positions[idx[1]],
+                 p2 = data_.positions[idx[2]];
+      light_tri_near_.push_back(
+          {(p0 + p1 + p2) / 3.0f,
+           std::max({length_squared(p1 - p0), length_squared(p2 - p1), length_squared(p0 - p2)})});
+    }
     power.push_back(p);
   }
   // Punctual lights by the power they send into the scene: 4 pi I for a
@@ -160,6 +170,12 @@ Scene::~Scene() {
   if (rtc_scene_) rtcReleaseScene(rtc_scene_);
   if (device_) rtcReleaseDevice(device_);
 }
+
+namespace {
+// Below this solid angle (a triangle seen nearly edge-on) sample_light()
+// gives no sample and light_pdf() says 0, the same rule on both sides.
+constexpr double kMinSolidAngle = 1e-12;
+}  // namespace
 
 Vec2 Scene::texcoord(const uint32_t* idx, float b0, float b1, float b2) const {
   if (data_.uvs.empty()) return {b1, b2};  // no texture coordinates: barycentrics
@@ -284,6 +300,26 @@ bool Scene::sample_light(Vec3 from, const LightChoice& choice, LightSample* out)
   const uint32_t t = light_tris_[i];
   const uint32_t* idx = &data_.indices[size_t(t) * 3];
   Vec3 p0 = data_.positions[idx[0]], p1 = data_.positions[idx[1]], p2 = data_.positions[idx[2]];
+  double solid_angle;
+  if (by_solid_angle(i, from, &solid_angle)) {
+    // Uniform over the triangle's solid angle (Arvo 1995), then the point
+    // where that direction meets the triangle's plane.
+    if (!(solid_angle > kMinSolidAngle)) return false;
+    Vec3 wi;
+    if (!sample_spherical_triangle(from, p0, p1, p2, solid_angle, u, &wi)) return false;
+    const Vec3 n = tri_normal_[t];
+    const double along = double(dot(n, wi));
+    const double dist = double(dot(n, p0 - from)) / along;
+    if (!(dist > 0) || !std::isfinite(dist)) return false;
+    const Material& m = data_.materials[data_.tri_material[t]];
+    Vec2 uv;
+    if (m.emission_tex >= 0) uv = texcoord_at(idx, from + wi * float(dist));
+    out->wi = wi;
+    out->distance = float(dist);
+    out->radiance = material_emission(m, uv);
+    out->pdf = float(double(pmf) / solid_angle);
+    return std::isfinite(out->pdf);
+  }
   float su = std::sqrt(u.x);  // uniform over the triangle (Turk 1990)
   float b0 = 1.0f - su, b1 = u.y * su, b2 = 1.0f - b0 - b1;
   Vec3 p = p0 * b0 + p1 * b1 + p2 * b2;
@@ -328,9 +364,46 @@ bool Scene::sample_punctual(const PunctualLight& light, Vec3 from, LightSample* 
   return is_finite(radiance);
 }
 
+bool Scene::by_solid_angle(size_t i, Vec3 from, double* solid_angle) const {
+  if (!solid_angle_lights_) return false;
+  if (length_squared(from - light_tri_near_[i].centroid) >= light_tri_near_[i].edge2) return false;
+  const uint32_t* idx = &data_.indices[size_t(light_tris_[i]) * 3];
+  const Vec3 p0 = data_.positions[idx[0]];
+  const float plane = dot(tri_normal_[light_tris_[i]], from - p0);
+  // A point in the triangle's plane within rounding (a point on the light
+  // itself, or on a coplanar neighbour) would see it as a whole hemisphere
+  // from the wrong side: no sample, and pdf 0 for MIS alike. The margin is
+  // offset_origin()'s.
+  if (std::fabs(plane) <= offset_scale_ * std::max(max_abs(from), 1e-3f * radius_)) {
+    *solid_angle = 0;
+    return true;
+  }
+  *solid_angle = spherical_triangle_solid_angle(from, p0, data_.positions[idx[1]],
+                                                data_.positions[idx[2]]);
+  return true;
+}
+
+Vec2 Scene::texcoord_at(const uint32_t* idx, Vec3 p) const {
+  // Barycentrics of p (in the triangle's plane) from the edge vectors.
+  const Vec3 p0 = data_.positions[idx[0]];
+  const Vec3 e1 = data_.positions[idx[1]] - p0, e2 = data_.positions[idx[2]] - p0, d = p - p0;
+  const float d11 = dot(e1, e1), d12 = dot(e1, e2), d22 = dot(e2, e2);
+  const float d1 = dot(d, e1), d2 = dot(d, e2);
+  const float det = d11 * d22 - d12 * d12;
+  if (!(det > 0)) return texcoord(idx, 1, 0, 0);
+  const float b1 = std::clamp((d22 * d1 - d12 * d2) / det, 0.0f, 1.0f);
+  const float b2 = std::clamp((d11 * d2 - d12 * d1) / det, 0.0f, 1.0f - b1);
+  return texcoord(idx, 1.0f - b1 - b2, b1, b2);
+}
+
 float Scene::light_pdf(Vec3 from, const SurfaceHit& hit) const {
   int i = light_index_of_prim_[hit.prim];
   if (i < 0) return 0;
+  double solid_angle;
+  if (by_solid_angle(size_t(i), from, &solid_angle))
+    return solid_angle > kMinSolidAngle
+               ? float(double(light_select_.pmf(size_t(i))) / solid_angle)
+               : 0.0f;
   Vec3 d = hit.p - from;
   float dist2 = length_squared(d);
   float cos_l = std::fabs(dot(hit.ng, d)) / std::sqrt(dist2);

@@ -108,6 +108,13 @@ class Scene {
   float radius() const { return radius_; }
   Vec3 center() const { return center_; }
 
+  // Triangle lights close to the receiver are sampled by solid angle (on by
+  // default; see by_solid_angle()). Off samples every triangle light by
+  // area, the estimator before solid-angle sampling, kept for benchmarks
+  // (render_spp --area-lights). Not to be changed while a render uses the
+  // scene.
+  void set_solid_angle_lights(bool on) { solid_angle_lights_ = on; }
+
   // Off (null) by default, then it costs one pointer test per ray. Not to be
   // changed while a render uses the scene.
   void set_ray_sink(RaySink* sink) { ray_sink_ = sink; }
@@ -118,8 +125,20 @@ class Scene {
   Vec3 material_emission(const Material& m, Vec2 uv) const;
   float triangle_area(uint32_t prim) const;
   bool sample_punctual(const PunctualLight& light, Vec3 from, LightSample* out) const;
+  // Whether sample_light() and light_pdf() treat light triangle i, seen
+  // from `from`, by its solid angle (worker/render/spherical_triangle.h)
+  // rather than by area: where `from` is closer to the triangle's centroid
+  // than its longest edge, the area pdf's r^2 / cos factor varies widely over
+  // the triangle and grows without bound near it. Farther away it is bounded
+  // and area sampling is cheaper (measured: bench/README.md, "Triangle
+  // lights by solid angle").
+  // Sets *solid_angle when true (0 where the triangle is seen edge-on, and
+  // for a point in its plane: then neither technique samples it there).
+  bool by_solid_angle(size_t i, Vec3 from, double* solid_angle) const;
   // Texture coordinates at barycentrics (b0, b1, b2) of the triangle `idx`.
   Vec2 texcoord(const uint32_t* idx, float b0, float b1, float b2) const;
+  // Texture coordinates at a point p in the plane of the triangle `idx`.
+  Vec2 texcoord_at(const uint32_t* idx, Vec3 p) const;
 
   SceneData data_;
   std::unique_ptr<Environment> environment_;
@@ -131,6 +150,12 @@ class Scene {
   std::vector<Vec3> tri_normal_;
   std::vector<uint32_t> light_tris_;
   std::vector<float> light_tri_area_;
+  struct NearLight {  // where a light triangle is sampled by solid angle
+    Vec3 centroid;
+    float edge2 = 0;  // its longest edge, squared
+  };
+  std::vector<NearLight> light_tri_near_;
+  bool solid_angle_lights_ = true;
   std::vector<int> light_index_of_prim_;  // -1 where not a light
   // Selection over light_tris_, then data_.lights, then (if sampled) the
   // environment.
