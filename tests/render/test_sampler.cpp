@@ -498,5 +498,109 @@ TEST(Sampler, SobolBeatsIndependentOnADiskIndicator) {
   }
 }
 
+// --- 4D points: pixel jitter and lens together ---------------------------------
+
+TEST(SobolBits, RecurrenceGivesDimension1AndTheJoeKuoDimensions2And3) {
+  // The recurrence on dimension 1's parameters (degree 1, m = 1) is the
+  // Pascal-matrix butterfly.
+  constexpr uint32_t kM1[] = {1};
+  constexpr SobolColumns dim1 = sobol_reversed_columns(1, 0, kM1);
+  for (uint32_t k = 0; k < 100000; ++k) {
+    const uint32_t i = k < 65536 ? k : uint32_t(mix64(k) >> 32);
+    ASSERT_EQ(sobol_apply(dim1, i), sobol_dim1_reversed(i)) << "index " << i;
+  }
+  // The first points of Joe and Kuo's dimensions 3 and 4 as their generator
+  // lists them (Gray-code order: point i is at index i ^ (i >> 1)).
+  constexpr float kDim2[] = {0, 0.5f, 0.25f, 0.75f, 0.625f, 0.125f, 0.875f, 0.375f};
+  constexpr float kDim3[] = {0, 0.5f, 0.25f, 0.75f, 0.875f, 0.375f, 0.625f, 0.125f};
+  for (uint32_t i = 0; i < 8; ++i) {
+    const uint32_t g = i ^ (i >> 1);
+    EXPECT_EQ(u32_to_unit_float(sobol_dim2(g)), kDim2[i]) << "point " << i;
+    EXPECT_EQ(u32_to_unit_float(sobol_dim3(g)), kDim3[i]) << "point " << i;
+  }
+  // Direction number k + 1 is m / 2^(k+1) with m odd: digit k + 1 set and
+  // no digit after it.
+  for (int k = 0; k < 32; ++k) {
+    for (uint32_t v : {kSobolDim2Reversed.v[k], kSobolDim3Reversed.v[k]}) {
+      const uint32_t fixed = reverse_bits32(v);
+      EXPECT_EQ((fixed >> (31 - k)) & 1u, 1u) << k;
+      EXPECT_EQ(fixed & uint32_t((uint64_t(1) << (31 - k)) - 1), 0u) << k;
+    }
+  }
+}
+
+TEST(Sampler, Get4dFirstPairIsGet2dAndEachPairIsANet) {
+  for (auto [px, py] : {std::pair{0, 0}, {17, 5}}) {
+    PixelSampler a(SamplerKind::kSobol, kSeed, 0, px, py, Stream::kTest);
+    PixelSampler b(SamplerKind::kSobol, kSeed, 0, px, py, Stream::kTest);
+    std::vector<Vec2> first(1u << 10), second(1u << 10);
+    for (uint32_t i = 0; i < first.size(); ++i) {
+      a.start_sample(i);
+      b.start_sample(i);
+      a.get4d(&first[i], &second[i]);
+      const Vec2 p = b.get2d();
+      b.skip(1);
+      ASSERT_EQ(first[i].x, p.x);
+      ASSERT_EQ(first[i].y, p.y);
+      // Both samplers are in the same slot afterwards.
+      ASSERT_EQ(a.get1d(), b.get1d());
+    }
+    for (int m = 1; m <= 10; ++m) {
+      EXPECT_TRUE(is_0m2_net(first, 0, m)) << "m " << m;
+      // Dimensions 2 and 3 are not a (0,2)-sequence together, but Owen
+      // scrambling keeps each coordinate stratified in 1D.
+      std::vector<Vec2> z(first.size()), w(first.size());
+      for (size_t i = 0; i < first.size(); ++i) {
+        z[i] = {second[i].x, 0.0f};
+        w[i] = {second[i].y, 0.0f};
+      }
+      EXPECT_TRUE(is_0m2_net(z, 0, 0) && is_0m2_net(w, 0, 0));
+    }
+  }
+}
+
+// RMSE over pixels of N-sample estimates of the integral of f(p, l) over
+// [0,1)^4, with (p, l) from get4d() or from two get2d() calls.
+template <typename F>
+double rmse_4d(bool joint, F f, double exact, uint32_t n) {
+  constexpr int kPixels = 256;
+  double se = 0;
+  for (int px = 0; px < kPixels; ++px) {
+    PixelSampler s(SamplerKind::kSobol, kSeed, 0, px % 16, px / 16, Stream::kTest);
+    double sum = 0;
+    for (uint32_t i = 0; i < n; ++i) {
+      s.start_sample(i);
+      Vec2 p, l;
+      if (joint) {
+        s.get4d(&p, &l);
+      } else {
+        p = s.get2d();
+        l = s.get2d();
+      }
+      sum += f(p, l);
+    }
+    se += (sum / n - exact) * (sum / n - exact);
+  }
+  return std::sqrt(se / kPixels);
+}
+
+TEST(Sampler, Get4dStratifiesAPixelAndLensEdgeJointly) {
+  // A defocused edge: a film point p and a lens point l see the emitter when
+  // (p.x - 1/2) + (l.x - 1/2) < 0, a half-space of [0,1)^4 (integral 1/2)
+  // whose boundary couples the two pairs. Two padded pairs stratify p and l
+  // each alone, and their sum converges like independent samples of the
+  // 1D distribution of p.x + l.x; one 4D point stratifies the sum.
+  // The same for a horizontal edge (dimensions 1 and 3). Measured joint /
+  // padded RMSE: vertical 0.60, 0.42, 0.26, 0.23 and horizontal 0.57, 0.61,
+  // 0.24, 0.24 at 64, 256, 1024 and 4096 samples.
+  auto vertical = [](Vec2 p, Vec2 l) { return p.x + l.x < 1.0f ? 1.0 : 0.0; };
+  auto horizontal = [](Vec2 p, Vec2 l) { return p.y + l.y < 1.0f ? 1.0 : 0.0; };
+  for (auto [n, bound] : {std::pair{256u, 0.75}, {1024u, 0.4}}) {
+    EXPECT_LT(rmse_4d(true, vertical, 0.5, n), bound * rmse_4d(false, vertical, 0.5, n)) << n;
+    EXPECT_LT(rmse_4d(true, horizontal, 0.5, n), bound * rmse_4d(false, horizontal, 0.5, n))
+        << n;
+  }
+}
+
 }  // namespace
 }  // namespace dofarm::render

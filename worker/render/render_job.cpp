@@ -162,12 +162,22 @@ class PixelRenderer {
   }
 
  private:
-  // Pixel jitter (box filter), then the lens only when there is one.
+  // Pixel jitter (box filter), then the lens only when there is one. With a
+  // lens, the jitter and the lens point are one 4D Sobol' point (get4d()):
+  // whether a ray sees a defocused edge depends on both together, and one
+  // 4D point stratifies them jointly where two padded 2D points stratify
+  // each alone (bench/README.md, "Pixel and lens as one 4D point"). The
+  // jitter is the same either way.
   Ray lens_ray(PixelSampler& s, int x, int y) const {
-    Vec2 j = s.get2d();
+    Vec2 j, lens;
+    if (camera_.has_lens()) {
+      s.get4d(&j, &lens);
+    } else {
+      j = s.get2d();
+    }
     Vec2 film(float(x) + j.x, float(y) + j.y);
     if (!camera_.has_lens()) return camera_.pinhole_ray(film);
-    return camera_.generate_ray(film, s.get2d());
+    return camera_.generate_ray(film, lens);
   }
 
   const Scene& scene_;

@@ -111,6 +111,49 @@ constexpr uint32_t sobol_dim1_reversed(uint32_t index) {
 constexpr uint32_t sobol_dim0(uint32_t index) { return reverse_bits32(index); }
 constexpr uint32_t sobol_dim1(uint32_t index) { return reverse_bits32(sobol_dim1_reversed(index)); }
 
+// Sobol' dimensions 2 and 3 (Joe and Kuo 2008, "Constructing Sobol'
+// sequences with better two-dimensional projections", their dimensions 3 and
+// 4: primitive polynomials x^2 + x + 1 with m = 1, 3 and x^3 + x + 1 with
+// m = 1, 3, 1). Their 32 direction numbers come from the Bratley-Fox
+// recurrence at compile time, stored with the digits reversed like
+// sobol_dim1_reversed() (entry k: the column of index bit k; bit j: digit j),
+// so that the Owen scramble applies to them directly.
+struct SobolColumns {
+  uint32_t v[32] = {};
+};
+
+constexpr SobolColumns sobol_reversed_columns(int degree, uint32_t a, const uint32_t* m_init) {
+  uint32_t m[33] = {};
+  for (int k = 1; k <= degree; ++k) m[k] = m_init[k - 1];
+  for (int k = degree + 1; k <= 32; ++k) {
+    uint32_t x = m[k - degree] ^ (m[k - degree] << degree);
+    for (int j = 1; j < degree; ++j)
+      if ((a >> (degree - 1 - j)) & 1u) x ^= m[k - j] << j;
+    m[k] = x;
+  }
+  SobolColumns c;
+  for (int k = 1; k <= 32; ++k) c.v[k - 1] = reverse_bits32(m[k] << (32 - k));
+  return c;
+}
+
+inline constexpr uint32_t kSobolM2[] = {1, 3};
+inline constexpr uint32_t kSobolM3[] = {1, 3, 1};
+inline constexpr SobolColumns kSobolDim2Reversed = sobol_reversed_columns(2, 1, kSobolM2);
+inline constexpr SobolColumns kSobolDim3Reversed = sobol_reversed_columns(3, 1, kSobolM3);
+
+// The digit-reversed Sobol' coordinate of `index` for generator columns c.
+constexpr uint32_t sobol_apply(const SobolColumns& c, uint32_t index) {
+  uint32_t r = 0;
+  for (; index; index &= index - 1) r ^= c.v[std::countr_zero(index)];
+  return r;
+}
+constexpr uint32_t sobol_dim2(uint32_t index) {
+  return reverse_bits32(sobol_apply(kSobolDim2Reversed, index));
+}
+constexpr uint32_t sobol_dim3(uint32_t index) {
+  return reverse_bits32(sobol_apply(kSobolDim3Reversed, index));
+}
+
 // ---------------------------------------------------------------------------
 
 class PixelSampler {
@@ -120,6 +163,14 @@ class PixelSampler {
   void start_sample(uint32_t index);
   float get1d();  // in [0, 1); the first coordinate of get2d() in this slot
   Vec2 get2d();   // in [0, 1)^2
+  // Two 2D points from one 4D Sobol' point (dimensions 0-3 at one shuffled
+  // index, each coordinate Owen-scrambled with its own seed), consuming two
+  // slots: `first` is exactly what get2d() would give in the first slot.
+  // For integrands that couple two 2D inputs, such as the pixel jitter and
+  // the lens of a defocused edge, the pair is stratified jointly, where two
+  // get2d() calls are independently shuffled ("padded") and stratify each
+  // only on its own. kIndependent: two get2d() calls.
+  void get4d(Vec2* first, Vec2* second);
   // Consumes `slots` slots as get1d()/get2d() would, without computing their
   // values (for numbers a path turns out not to need): the later slots are
   // the same either way.
@@ -185,6 +236,28 @@ inline Vec2 PixelSampler::get2d() {
   const uint32_t x = reverse_bits32(laine_karras_permutation(s, uint32_t(h >> 32)));
   const uint32_t y = reverse_bits32(laine_karras_permutation(sobol_dim1_reversed(s), seed_y));
   return {u32_to_unit_float(x), u32_to_unit_float(y)};
+}
+
+inline void PixelSampler::get4d(Vec2* first, Vec2* second) {
+  if (kind_ == SamplerKind::kIndependent) {
+    *first = get2d();
+    *second = get2d();
+    return;
+  }
+  const uint32_t slot = dim_;
+  dim_ += 2;
+  const uint64_t h = slot_hash(slot, 0);
+  const uint32_t seed_y = uint32_t(slot_hash(slot, 1));
+  const uint64_t h2 = slot_hash(slot + 1, 0);
+  const uint32_t s = shuffled_index(reversed_index_, uint32_t(h));
+  const uint32_t x = reverse_bits32(laine_karras_permutation(s, uint32_t(h >> 32)));
+  const uint32_t y = reverse_bits32(laine_karras_permutation(sobol_dim1_reversed(s), seed_y));
+  const uint32_t z =
+      reverse_bits32(laine_karras_permutation(sobol_apply(kSobolDim2Reversed, s), uint32_t(h2)));
+  const uint32_t w = reverse_bits32(
+      laine_karras_permutation(sobol_apply(kSobolDim3Reversed, s), uint32_t(h2 >> 32)));
+  *first = {u32_to_unit_float(x), u32_to_unit_float(y)};
+  *second = {u32_to_unit_float(z), u32_to_unit_float(w)};
 }
 
 }  // namespace dofarm::render
