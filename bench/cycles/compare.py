@@ -21,6 +21,10 @@
 # variance the same in both, E[(x - r)^2] = Var(x) (1 + N / REF), so the
 # printed error is the measured one divided by sqrt(1 + N / REF).
 #
+# Also printed: the share of the squared error carried by the largest 0.1%
+# of the squared differences, per image (how much a few pixels decide the
+# relative RMSE).
+#
 # Time to an error level e: log(time) interpolated linearly in log(error)
 # between the renderer's measured points; beyond its range, extrapolated from
 # the nearest point with error ~ time^(-1/2) (Monte Carlo). The error levels
@@ -163,6 +167,28 @@ def main():
         print("### %s\n" % metric)
         report(folder, spps, ref_spp, metric, error)
         print()
+    tail(folder, spps, ref_spp)
+
+
+def tail(folder, spps, ref_spp, fraction=0.001):
+    """How concentrated the squared error is: the share carried by the
+    largest 0.1% of the per-value squared differences (a few hundred values
+    of a 256x256 RGB image). A share near 1 means a handful of pixels
+    (fireflies, a badly sampled edge) decide the relative RMSE."""
+    print("### share of the squared error in the largest %.1f%% of values\n" % (100 * fraction))
+    print("| renderer | " + " | ".join("%d spp" % n for n in spps) + " |")
+    print("| --- | " + " | ".join("---" for _ in spps) + " |")
+    for name in ("cycles", "dofarm"):
+        (_, r) = read_pfm(os.path.join(folder, "%s_ref%d.pfm" % (name, ref_spp)))
+        shares = []
+        for n in spps:
+            (_, a) = read_pfm(os.path.join(folder, "%s_%d.pfm" % (name, n)))
+            se = sorted(((x - y) * (x - y) for x, y in zip(a, r)), reverse=True)
+            k = max(1, int(len(se) * fraction))
+            total = sum(se)
+            shares.append(sum(se[:k]) / total if total > 0 else 0.0)
+        print("| %s | " % name + " | ".join("%.2f" % v for v in shares) + " |")
+    print()
 
 
 def report(folder, spps, ref_spp, metric, error):
