@@ -2,6 +2,8 @@
 // bit-for-bit the same.
 #include <gtest/gtest.h>
 
+#include <algorithm>
+
 #include "tests/render/render_fixtures.h"
 
 namespace dofarm::render {
@@ -56,6 +58,32 @@ TEST(Determinism, AnotherSeedGivesOtherNoise) {
   JobSpec b = a;
   b.seed = a.seed + 1;
   EXPECT_FALSE(testing::same_bytes(render_frame(*scene, a, 0), render_frame(*scene, b, 0)));
+}
+
+TEST(Determinism, ReferenceOnlyGivesTheSameReferenceAndNothingElse) {
+  // bench/render_spp renders the reference alone: its bytes must be those
+  // of a full render, and the buffers it skips stay zero.
+  auto scene = make_scene(testing::small_room());
+  JobSpec spec = make_spec(20, 14, Vec3(0.2f, 1, 3), Vec3(0, 0.9f, 0), 45, 3.0f, 0.05f);
+  spec.versions = 2;
+  spec.reference_spp = 8;
+  const FrameBuffers full = render_frame(*scene, spec, 0);
+  RenderOptions options;
+  options.reference_only = true;
+  RenderStats stats;
+  options.stats = &stats;
+  const FrameBuffers ref = render_frame(*scene, spec, 0, std::nullopt, options);
+  EXPECT_EQ(ref.reference, full.reference);
+  EXPECT_EQ(ref.reference_half, full.reference_half);
+  EXPECT_EQ(ref.reference_var, full.reference_var);
+  auto zero = [](const std::vector<float>& v) {
+    return std::all_of(v.begin(), v.end(), [](float x) { return x == 0.0f; });
+  };
+  EXPECT_FALSE(zero(full.noisy));
+  EXPECT_TRUE(zero(ref.noisy));
+  EXPECT_TRUE(zero(ref.albedo_ref));
+  EXPECT_TRUE(zero(ref.depth));
+  EXPECT_EQ(stats.paths, uint64_t(20 * 14 * 8));  // the reference's paths only
 }
 
 }  // namespace

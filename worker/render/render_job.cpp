@@ -52,27 +52,37 @@ struct PixelAccumulator {
 
 class PixelRenderer {
  public:
-  PixelRenderer(const Scene& scene, const JobSpec& spec, const Camera& camera, int frame)
-      : scene_(scene), spec_(spec), camera_(camera), frame_(frame) {
+  PixelRenderer(const Scene& scene, const JobSpec& spec, const Camera& camera, int frame,
+                bool reference_only)
+      : scene_(scene), spec_(spec), camera_(camera), frame_(frame), reference_only_(reference_only) {
     settings_.max_depth = spec.max_depth;
     settings_.rr_start_depth = spec.rr_start_depth;
   }
 
   // Exact for a fixed reference spp; for an error target, the cap.
   uint64_t paths_per_pixel_hint() const {
-    return uint64_t(spec_.versions) +
+    return (reference_only_ ? 0 : uint64_t(spec_.versions)) +
            uint64_t(spec_.reference_error > 0 ? spec_.reference_max_spp : spec_.reference_spp);
   }
 
   void render(int x, int y, FrameBuffers& out, size_t plane_index) const {
-    const size_t plane = out.plane();
-    const size_t i = plane_index;
-    auto put3 = [&](std::vector<float>& buf, size_t base, Vec3 v) {
-      buf[base + i] = v.x;
-      buf[base + plane + i] = v.y;
-      buf[base + 2 * plane + i] = v.z;
-    };
+    if (!reference_only_) render_inputs(x, y, out, plane_index);
+    render_reference(x, y, out, plane_index);
+  }
 
+ private:
+  static void put3(std::vector<float>& buf, size_t base, size_t plane, size_t i, Vec3 v) {
+    buf[base + i] = v.x;
+    buf[base + plane + i] = v.y;
+    buf[base + 2 * plane + i] = v.z;
+  }
+
+  // The aux buffers, the noisy versions with their albedo, and albedo_ref.
+  void render_inputs(int x, int y, FrameBuffers& out, size_t i) const {
+    const size_t plane = out.plane();
+    auto put3 = [&](std::vector<float>& buf, size_t base, Vec3 v) {
+      PixelRenderer::put3(buf, base, plane, i, v);
+    };
     // Aux buffers: the pinhole ray through the pixel centre.
     Ray center = camera_.pinhole_ray(Vec2(float(x) + 0.5f, float(y) + 0.5f));
     SurfaceHit hit;
@@ -110,6 +120,13 @@ class PixelRenderer {
     put3(out.albedo_ref, 0,
          Vec3(to_buffer(albedo_sum.x / n_alb), to_buffer(albedo_sum.y / n_alb),
               to_buffer(albedo_sum.z / n_alb)));
+  }
+
+  void render_reference(int x, int y, FrameBuffers& out, size_t i) const {
+    const size_t plane = out.plane();
+    auto put3 = [&](std::vector<float>& buf, size_t base, Vec3 v) {
+      PixelRenderer::put3(buf, base, plane, i, v);
+    };
 
     // Reference: a fixed sample count, or batches until the relative standard
     // error of the pixel's mean luminance meets the target. The stopping rule
@@ -161,7 +178,6 @@ class PixelRenderer {
     out.reference_var[i] = to_buffer(acc.variance_of_mean());
   }
 
- private:
   // Pixel jitter (box filter), then the lens only when there is one. With a
   // lens, the jitter and the lens point are one 4D Sobol' point (get4d()):
   // whether a ray sees a defocused edge depends on both together, and one
@@ -184,6 +200,7 @@ class PixelRenderer {
   const JobSpec& spec_;
   const Camera& camera_;
   int frame_;
+  bool reference_only_;
   IntegratorSettings settings_;
 };
 
@@ -228,7 +245,7 @@ FrameBuffers render_frame(const Scene& scene, const JobSpec& spec, int frame,
   out.rect = rect;
   out.camera = frame_camera(scene, spec, frame);
   const Camera camera(out.camera, spec.width, spec.height);
-  const PixelRenderer pixels(scene, spec, camera, frame);
+  const PixelRenderer pixels(scene, spec, camera, frame, options.reference_only);
 
   // Blocks of block_size^2 pixels handed out to a pool of threads; each pixel
   // writes only its own slots, so the result is the same for any schedule.

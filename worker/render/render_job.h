@@ -29,6 +29,13 @@ struct RenderOptions {
   // Checked between blocks: when it becomes true, render_frame() throws
   // Cancelled (a worker told to stop hands its task back).
   const std::atomic<bool>* cancel = nullptr;
+  // Render the reference buffer (and reference_half, reference_var) alone;
+  // every other buffer stays zero. For benchmarks that compare the path
+  // tracer's image with another renderer's (bench/render_spp): Cycles
+  // renders its combined pass alone, and a farm frame's noisy versions,
+  // albedo and aux rays are not part of that image. The reference's bytes
+  // are those of a full render (its sample stream is its own).
+  bool reference_only = false;
 };
 
 class Cancelled : public std::runtime_error {
