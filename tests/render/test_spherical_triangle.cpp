@@ -220,6 +220,53 @@ TEST(SphericalTriangle, NeeUnderACloseLightMatchesLambertsFormulaWithBoundedWeig
   }
 }
 
+TEST(SphericalTriangle, TexturedLightGivesTheRadianceOfTheSampledPoint) {
+  // An emission texture varying along the light (4 x 1 texels, bilinear):
+  // NEE's estimate of the irradiance at a point must equal an independent
+  // one, cosine-weighted directions traced to the light, whose hits read
+  // the texture through Scene::intersect; near the light (solid angle,
+  // where the sampled point's texture coordinates come from its
+  // barycentrics) and far from it (area).
+  for (Vec3 from : {Vec3(0.1f, 0, 0.05f), Vec3(0.3f, -2.5f, 0.2f)}) {
+    SceneData d;
+    d.source = "light.gltf";
+    Texture t;
+    t.width = 4;
+    t.height = 1;
+    t.rgb = {0.2f, 0.2f, 0.2f, 1, 1, 1, 3, 3, 3, 0.5f, 0.5f, 0.5f};
+    d.textures.push_back(t);
+    Material m = testing::emitter(Vec3(1));
+    m.emission_tex = 0;
+    add_quad(d, Vec3(-0.5f, 0.02f, -0.5f), Vec3(0.5f, 0.02f, -0.5f), Vec3(0.5f, 0.02f, 0.5f),
+             Vec3(-0.5f, 0.02f, 0.5f), m);
+    auto scene = make_scene(std::move(d));
+    const int n = 200000;
+    std::mt19937 rng(11);
+    std::uniform_real_distribution<float> uni(0.0f, 1.0f);
+    double nee = 0, nee2 = 0, cosine = 0, cosine2 = 0;
+    for (int s = 0; s < n; ++s) {
+      LightSample ls;
+      double w = 0;
+      if (scene->sample_light(from, uni(rng), Vec2(uni(rng), uni(rng)), &ls) && ls.wi.y > 0)
+        w = ls.radiance.x * ls.wi.y / ls.pdf;
+      nee += w;
+      nee2 += w * w;
+      // Cosine-weighted about +y: E = pi * E[L].
+      const float r = std::sqrt(uni(rng)), phi = 2 * kPi * uni(rng);
+      const Vec3 dir(r * std::cos(phi), std::sqrt(std::max(0.0f, 1 - r * r)), r * std::sin(phi));
+      SurfaceHit hit;
+      const double c = scene->intersect({from, dir}, &hit) ? M_PI * hit.emission.x : 0.0;
+      cosine += c;
+      cosine2 += c * c;
+    }
+    const double mn = nee / n, mc = cosine / n;
+    const double se = std::sqrt((nee2 / n - mn * mn) / n + (cosine2 / n - mc * mc) / n);
+    EXPECT_GT(mn, 0.0);
+    EXPECT_NEAR(mn, mc, 4 * se) << "from y " << from.y;
+    EXPECT_LT(se, 0.02 * mc) << "from y " << from.y;  // enough power to see a wrong texel
+  }
+}
+
 TEST(SphericalTriangle, ALightDoesNotLightItself) {
   // A tilted emitter with a white Lambertian base, alone in the scene: every
   // path that reaches it must return its emission exactly, since nothing can
