@@ -20,7 +20,7 @@
 // spends outside ray queries (sampling, BSDFs, lights, buffers) on exactly
 // its own workload.
 //
-// Usage: render_throughput [--size W] [--rays N] [--threads T] [--repeats R]
+// Usage: render_throughput [--size W] [--rays N] [--threads T] [--repeats R] [--area-lights]
 // Prints figures; asserts nothing.
 #include <algorithm>
 #include <atomic>
@@ -59,6 +59,7 @@ struct Args {
   int64_t rays = 2'000'000;
   int threads = 0;  // 0 = all hardware threads, as the renderer's default
   int repeats = 2;  // the best of R timings is reported (shared machines)
+  bool area_lights = false;  // every triangle light by area (Scene::set_solid_angle_lights)
 };
 
 Args parse_args(int argc, char** argv) {
@@ -77,12 +78,14 @@ Args parse_args(int argc, char** argv) {
       a.rays = value("--rays");
     } else if (!std::strcmp(argv[i], "--threads")) {
       a.threads = int(value("--threads"));
+    } else if (!std::strcmp(argv[i], "--area-lights")) {
+      a.area_lights = true;
     } else if (!std::strcmp(argv[i], "--repeats")) {
       a.repeats = int(value("--repeats"));
     } else {
       std::fprintf(stderr,
                    "usage: render_throughput [--size 256] [--rays 2000000] [--threads 0] "
-                   "[--repeats 2]\n");
+                   "[--repeats 2] [--area-lights]\n");
       std::exit(2);
     }
   }
@@ -196,6 +199,7 @@ void run_scene(const char* name, const char* job, int frame, const Args& args) {
   if (spec.environment) env = dofarm::render::Environment::from_spec(*spec.environment);
   auto scene =
       std::make_shared<Scene>(dofarm::render::load_scene_data(spec.scene), std::move(env));
+  scene->set_solid_angle_lights(!args.area_lights);
   const double load_s = seconds_since(t0);
   const int threads =
       args.threads > 0 ? args.threads : int(std::max(1u, std::thread::hardware_concurrency()));
