@@ -23,10 +23,10 @@ const std::vector<BufferInfo>& buffer_infos() {
   return infos;
 }
 
-const BufferInfo& buffer_info(const std::string& name) {
+const BufferInfo& buffer_info(std::string_view name) {
   for (const BufferInfo& b : buffer_infos())
     if (name == b.name) return b;
-  throw RuntimeError("unknown buffer name '" + name + "'");
+  throw RuntimeError("unknown buffer name '" + std::string(name) + "'");
 }
 
 std::string channel_name(const BufferInfo& b, int c) {
@@ -37,11 +37,11 @@ std::string channel_name(const BufferInfo& b, int c) {
   return names.substr(begin, names.find(',', begin) - begin);
 }
 
-std::vector<float>& buffer_data(FrameBuffers& fb, const std::string& name) {
+std::vector<float>& buffer_data(FrameBuffers& fb, std::string_view name) {
   return fb.*(buffer_info(name).data);
 }
 
-const std::vector<float>& buffer_data(const FrameBuffers& fb, const std::string& name) {
+const std::vector<float>& buffer_data(const FrameBuffers& fb, std::string_view name) {
   return buffer_data(const_cast<FrameBuffers&>(fb), name);
 }
 

@@ -4,6 +4,7 @@
 
 #include <cstdint>
 #include <string>
+#include <string_view>
 #include <vector>
 
 namespace dofarm {
@@ -66,10 +67,13 @@ struct BufferInfo {
 };
 const std::vector<BufferInfo>& buffer_infos();
 // The row named `name`; throws RuntimeError for an unknown name.
-const BufferInfo& buffer_info(const std::string& name);
+const BufferInfo& buffer_info(std::string_view name);
 // Channel suffix `c` of a buffer ("R", "X", "Y", ...).
 std::string channel_name(const BufferInfo& b, int c);
-std::vector<float>& buffer_data(FrameBuffers& fb, const std::string& name);
-const std::vector<float>& buffer_data(const FrameBuffers& fb, const std::string& name);
+// The names are string_views, not const std::string&: a BufferInfo's
+// const char* name then binds no temporary, which GCC 13's
+// -Wdangling-reference took for a reference into that temporary.
+std::vector<float>& buffer_data(FrameBuffers& fb, std::string_view name);
+const std::vector<float>& buffer_data(const FrameBuffers& fb, std::string_view name);
 
 }  // namespace dofarm

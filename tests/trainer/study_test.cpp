@@ -81,12 +81,24 @@ TEST(Study, OneCommandScoresEveryConfigurationAndResumes) {
     EXPECT_EQ(r[16], "2") << c;  // steps
     // The configuration is what its name says.
     const std::string cfg = read_all(out / "runs" / c / "config.toml");
-    if (c == "thesis_nococ") EXPECT_EQ(cfg.find("coc:thesis"), std::string::npos);
-    if (c == "thesis") EXPECT_NE(cfg.find("coc:thesis"), std::string::npos);
-    if (c == "thesis_focus") EXPECT_NE(cfg.find("focus_weight = 4"), std::string::npos);
-    if (c == "thesis_prefilter") EXPECT_NE(cfg.find("albedo_prefilter = 'coc'"), std::string::npos);
-    if (c == "thesis_recurrent") EXPECT_NE(cfg.find("recurrent = true"), std::string::npos);
-    if (c == "default") EXPECT_NE(cfg.find("coc:log"), std::string::npos);
+    if (c == "thesis_nococ") {
+      EXPECT_EQ(cfg.find("coc:thesis"), std::string::npos);
+    }
+    if (c == "thesis") {
+      EXPECT_NE(cfg.find("coc:thesis"), std::string::npos);
+    }
+    if (c == "thesis_focus") {
+      EXPECT_NE(cfg.find("focus_weight = 4"), std::string::npos);
+    }
+    if (c == "thesis_prefilter") {
+      EXPECT_NE(cfg.find("albedo_prefilter = 'coc'"), std::string::npos);
+    }
+    if (c == "thesis_recurrent") {
+      EXPECT_NE(cfg.find("recurrent = true"), std::string::npos);
+    }
+    if (c == "default") {
+      EXPECT_NE(cfg.find("coc:log"), std::string::npos);
+    }
   }
   const std::string md = read_all(out / "results.md");
   for (const std::string& c : configs) EXPECT_NE(md.find("`" + c + "`"), std::string::npos) << c;
@@ -164,8 +176,9 @@ TEST(Study, AblationChangesOnlyItsKeyOfTheThesisPreset) {
     for (const auto& [k, v] : cfg)
       if (!thesis.count(k) || thesis.at(k) != v) differ.push_back(k);
     EXPECT_EQ(differ, keys) << name;
-    if (input.count(name))
+    if (input.count(name)) {
       EXPECT_NE(cfg.at("model.inputs").find(input.at(name)), std::string::npos) << name;
+    }
   }
   const std::string md = read_all(out / "results.md");
   for (const auto& [name, keys] : changed)
