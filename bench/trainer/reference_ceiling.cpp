@@ -3,9 +3,8 @@
 // between the two independent half-sample references (trainer/ceiling.h),
 // the median and 99th percentile of the reference's per-pixel relative
 // standard error (sqrt(reference_var) / luminance), the render time an EXR
-// records and the largest circle of confusion (px). bench/trainer/reference_quality.sh drives it;
-// bench/README.md
-// ("Reference ceiling") holds the figures.
+// records and the largest circle of confusion (px). bench/README.md
+// ("reference_ceiling") holds the figures and the commands that made them.
 //
 // Usage: reference_ceiling FILE.exr|FILE.h5 ...
 //        reference_ceiling --pair A.exr B.exr
