@@ -80,25 +80,19 @@ TEST(Study, OneCommandScoresEveryConfigurationAndResumes) {
       EXPECT_TRUE(std::isfinite(std::stod(r[i]))) << c << " " << header[i] << " = " << r[i];
     EXPECT_EQ(r[16], "2") << c;  // steps
     // The configuration is what its name says.
+    // (configuration, text its config.toml holds or, for the no-CoC
+    // network, must not hold)
+    const std::map<std::string, std::pair<std::string, bool>> says = {
+        {"thesis_nococ", {"coc:thesis", false}},
+        {"thesis", {"coc:thesis", true}},
+        {"thesis_focus", {"focus_weight = 4", true}},
+        {"thesis_prefilter", {"albedo_prefilter = 'coc'", true}},
+        {"thesis_recurrent", {"recurrent = true", true}},
+        {"default", {"coc:log", true}},
+    };
     const std::string cfg = read_all(out / "runs" / c / "config.toml");
-    if (c == "thesis_nococ") {
-      EXPECT_EQ(cfg.find("coc:thesis"), std::string::npos);
-    }
-    if (c == "thesis") {
-      EXPECT_NE(cfg.find("coc:thesis"), std::string::npos);
-    }
-    if (c == "thesis_focus") {
-      EXPECT_NE(cfg.find("focus_weight = 4"), std::string::npos);
-    }
-    if (c == "thesis_prefilter") {
-      EXPECT_NE(cfg.find("albedo_prefilter = 'coc'"), std::string::npos);
-    }
-    if (c == "thesis_recurrent") {
-      EXPECT_NE(cfg.find("recurrent = true"), std::string::npos);
-    }
-    if (c == "default") {
-      EXPECT_NE(cfg.find("coc:log"), std::string::npos);
-    }
+    const auto& [text, present] = says.at(c);
+    EXPECT_EQ(cfg.find(text) != std::string::npos, present) << c << ": " << text;
   }
   const std::string md = read_all(out / "results.md");
   for (const std::string& c : configs) EXPECT_NE(md.find("`" + c + "`"), std::string::npos) << c;

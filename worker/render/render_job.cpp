@@ -66,28 +66,30 @@ class PixelRenderer {
   }
 
   void render(int x, int y, FrameBuffers& out, size_t plane_index) const {
-    if (!reference_only_) render_inputs(x, y, out, plane_index);
-    render_reference(x, y, out, plane_index);
+    const Slot px{plane_index, out.plane()};
+    if (!reference_only_) render_inputs(x, y, out, px);
+    render_reference(x, y, out, px);
   }
 
  private:
-  static void put3(std::vector<float>& buf, size_t base, size_t plane, size_t i, Vec3 v) {
-    buf[base + i] = v.x;
-    buf[base + plane + i] = v.y;
-    buf[base + 2 * plane + i] = v.z;
-  }
+  // The pixel's index in each plane of the output buffers.
+  struct Slot {
+    size_t i, plane;
+    void put3(std::vector<float>& buf, size_t base, Vec3 v) const {
+      buf[base + i] = v.x;
+      buf[base + plane + i] = v.y;
+      buf[base + 2 * plane + i] = v.z;
+    }
+  };
 
   // The aux buffers, the noisy versions with their albedo, and albedo_ref.
-  void render_inputs(int x, int y, FrameBuffers& out, size_t i) const {
-    const size_t plane = out.plane();
-    auto put3 = [&](std::vector<float>& buf, size_t base, Vec3 v) {
-      PixelRenderer::put3(buf, base, plane, i, v);
-    };
+  void render_inputs(int x, int y, FrameBuffers& out, const Slot& px) const {
+    const size_t i = px.i;
     // Aux buffers: the pinhole ray through the pixel centre.
     Ray center = camera_.pinhole_ray(Vec2(float(x) + 0.5f, float(y) + 0.5f));
     SurfaceHit hit;
     if (scene_.intersect(center, &hit)) {
-      put3(out.normal, 0, normalize(camera_.to_view(hit.ns)));
+      px.put3(out.normal, 0, normalize(camera_.to_view(hit.ns)));
       float z = camera_.view_depth(hit.p);
       out.depth[i] = z;
       out.roughness[i] = hit.roughness;
@@ -102,9 +104,9 @@ class PixelRenderer {
       noisy.start_sample(uint32_t(v));
       Vec3 albedo;
       Vec3 L = trace_path(scene_, lens_ray(noisy, x, y), noisy, settings_, &albedo);
-      size_t base = size_t(v) * 3 * plane;
-      put3(out.noisy, base, L);
-      put3(out.albedo, base, albedo);
+      size_t base = size_t(v) * 3 * px.plane;
+      px.put3(out.noisy, base, L);
+      px.put3(out.albedo, base, albedo);
     }
 
     // Albedo at N samples through the lens: the primary hit only.
@@ -117,16 +119,12 @@ class PixelRenderer {
       albedo_sum += primary_albedo(found ? &h : nullptr);
     }
     const float n_alb = float(spec_.albedo_ref_spp);
-    put3(out.albedo_ref, 0,
+    px.put3(out.albedo_ref, 0,
          Vec3(to_buffer(albedo_sum.x / n_alb), to_buffer(albedo_sum.y / n_alb),
               to_buffer(albedo_sum.z / n_alb)));
   }
 
-  void render_reference(int x, int y, FrameBuffers& out, size_t i) const {
-    const size_t plane = out.plane();
-    auto put3 = [&](std::vector<float>& buf, size_t base, Vec3 v) {
-      PixelRenderer::put3(buf, base, plane, i, v);
-    };
+  void render_reference(int x, int y, FrameBuffers& out, const Slot& px) const {
 
     // Reference: a fixed sample count, or batches until the relative standard
     // error of the pixel's mean luminance meets the target. The stopping rule
@@ -171,11 +169,11 @@ class PixelRenderer {
     }
     Vec3 mean(to_buffer(acc.sum[0] / acc.n), to_buffer(acc.sum[1] / acc.n),
               to_buffer(acc.sum[2] / acc.n));
-    put3(out.reference, 0, mean);
-    put3(out.reference_half, 0,
+    px.put3(out.reference, 0, mean);
+    px.put3(out.reference_half, 0,
          Vec3(to_buffer(half_sum[0] / half_n), to_buffer(half_sum[1] / half_n),
               to_buffer(half_sum[2] / half_n)));
-    out.reference_var[i] = to_buffer(acc.variance_of_mean());
+    out.reference_var[px.i] = to_buffer(acc.variance_of_mean());
   }
 
   // Pixel jitter (box filter), then the lens only when there is one. With a
@@ -185,15 +183,11 @@ class PixelRenderer {
   // each alone (bench/README.md, "Pixel and lens as one 4D point"). The
   // jitter is the same either way.
   Ray lens_ray(PixelSampler& s, int x, int y) const {
-    Vec2 j, lens;
-    if (camera_.has_lens()) {
-      s.get4d(&j, &lens);
-    } else {
-      j = s.get2d();
-    }
-    Vec2 film(float(x) + j.x, float(y) + j.y);
-    if (!camera_.has_lens()) return camera_.pinhole_ray(film);
-    return camera_.generate_ray(film, lens);
+    const Vec2 pixel{float(x), float(y)};
+    if (!camera_.has_lens()) return camera_.pinhole_ray(pixel + s.get2d());
+    Vec2 jitter, lens;
+    s.get4d(&jitter, &lens);
+    return camera_.generate_ray(pixel + jitter, lens);
   }
 
   const Scene& scene_;

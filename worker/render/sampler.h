@@ -188,6 +188,10 @@ class PixelSampler {
   static uint32_t shuffled_index(uint32_t reversed_index, uint32_t seed) {
     return reverse_bits32(laine_karras_permutation(reversed_index, seed));
   }
+  // kSobol: Sobol' dimensions 0 and 1 of slot `slot`, Owen-scrambled, at
+  // the slot's shuffled index, which is also returned in *shuffled (get4d()
+  // continues with dimensions 2 and 3 at the same index).
+  Vec2 sobol_pair(uint32_t slot, uint32_t* shuffled) const;
 
   SamplerKind kind_;
   uint64_t pixel_seed_;  // hash of (seed, frame, pixel, stream)
@@ -230,11 +234,17 @@ inline Vec2 PixelSampler::get2d() {
     const uint64_t h = mix64(sample_seed_ + kGoldenGamma * (uint64_t(slot) + 1));
     return {u32_to_unit_float(uint32_t(h >> 32)), u32_to_unit_float(uint32_t(h))};
   }
+  uint32_t unused;
+  return sobol_pair(slot, &unused);
+}
+
+inline Vec2 PixelSampler::sobol_pair(uint32_t slot, uint32_t* shuffled) const {
   const uint64_t h = slot_hash(slot, 0);
   const uint32_t seed_y = uint32_t(slot_hash(slot, 1));
   const uint32_t s = shuffled_index(reversed_index_, uint32_t(h));
   const uint32_t x = reverse_bits32(laine_karras_permutation(s, uint32_t(h >> 32)));
   const uint32_t y = reverse_bits32(laine_karras_permutation(sobol_dim1_reversed(s), seed_y));
+  *shuffled = s;
   return {u32_to_unit_float(x), u32_to_unit_float(y)};
 }
 
@@ -246,17 +256,15 @@ inline void PixelSampler::get4d(Vec2* first, Vec2* second) {
   }
   const uint32_t slot = dim_;
   dim_ += 2;
-  const uint64_t h = slot_hash(slot, 0);
-  const uint32_t seed_y = uint32_t(slot_hash(slot, 1));
+  uint32_t s;
+  *first = sobol_pair(slot, &s);
+  // Dimensions 2 and 3 at the same index, scrambled with the seeds of the
+  // second slot (which get4d() consumes).
   const uint64_t h2 = slot_hash(slot + 1, 0);
-  const uint32_t s = shuffled_index(reversed_index_, uint32_t(h));
-  const uint32_t x = reverse_bits32(laine_karras_permutation(s, uint32_t(h >> 32)));
-  const uint32_t y = reverse_bits32(laine_karras_permutation(sobol_dim1_reversed(s), seed_y));
   const uint32_t z =
       reverse_bits32(laine_karras_permutation(sobol_apply(kSobolDim2Reversed, s), uint32_t(h2)));
   const uint32_t w = reverse_bits32(
       laine_karras_permutation(sobol_apply(kSobolDim3Reversed, s), uint32_t(h2 >> 32)));
-  *first = {u32_to_unit_float(x), u32_to_unit_float(y)};
   *second = {u32_to_unit_float(z), u32_to_unit_float(w)};
 }
 
