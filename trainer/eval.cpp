@@ -211,41 +211,94 @@ std::string cell_g(double v) {
 
 constexpr int kCropZoom = 2;  // crop pixels drawn kCropZoom x kCropZoom
 
-// The side-by-side crops of one frame (EvalOptions::crops): when the frame
-// has an out-of-focus window, writes DIR/crops/crop-INDEX-REGION-KIND.png for
-// its windows (report.h, choose_focus_crops) and returns their report.json
-// entries, each `where` (shard, scene, frame) plus the window; else nothing.
-json write_focus_crops(const fs::path& dir, int index, int side, const FrameBuffers& fb,
-                       const std::vector<float>& noisy, const std::vector<float>& denoised,
-                       const json& where) {
+// The side-by-side crops of one frame (EvalOptions::crops): its windows
+// (report.h, choose_focus_crops), encoded once as PNG, and their report.json
+// entries, each `where` (shard, scene, frame) plus the window. Empty when
+// the frame has no out-of-focus window.
+struct FrameCrops {
+  double blur = 0;  // the out-of-focus window's mean CoC: what ranks frames
+  std::vector<std::pair<std::string, std::string>> files;  // name suffix, PNG bytes
   json entries = json::array();
+};
+
+FrameCrops focus_crops_of(int side, const FrameBuffers& fb, const std::vector<float>& noisy,
+                          const std::vector<float>& denoised, const json& where) {
+  FrameCrops fc_out;
   const FocusCrops fc = choose_focus_crops(fb.coc, fb.width, fb.height, side);
-  if (!fc.out_of_focus.found) return entries;
-  fs::create_directories(dir / "crops");
+  if (!fc.out_of_focus.found) return fc_out;
+  fc_out.blur = fc.out_of_focus.mean_coc;
   const std::pair<const char*, const std::vector<float>*> images[] = {
       {"noisy", &noisy}, {"denoised", &denoised}, {"reference", &fb.reference}};
   for (const auto& [region, win] : {std::pair<const char*, CropWindow>{"in_focus", fc.in_focus},
                                     {"out_of_focus", fc.out_of_focus}}) {
     if (!win.found) continue;
     json entry = where;
-    entry.update({{"index", index},
-                  {"region", region},
+    entry.update({{"region", region},
                   {"x", win.x},
                   {"y", win.y},
                   {"side", win.side},
                   {"zoom", kCropZoom},
                   {"mean_coc_px", win.mean_coc}});
     for (const auto& [kind, img] : images) {
-      const std::string name =
-          "crop-" + std::to_string(index) + "-" + region + "-" + kind + ".png";
-      write_text_atomic(dir / "crops" / name,
-                        crop_png_bytes(*img, fb.width, fb.height, win, kCropZoom));
-      entry[kind] = "crops/" + name;
+      const std::string suffix = std::string(region) + "-" + kind + ".png";
+      fc_out.files.emplace_back(suffix,
+                                crop_png_bytes(*img, fb.width, fb.height, win, kCropZoom));
+      entry[kind] = suffix;  // completed with the crop's index when it is chosen
     }
-    entries.push_back(entry);
+    fc_out.entries.push_back(entry);
   }
-  return entries;
+  return fc_out;
 }
+
+// Which frames the crops show (spread_by_blur in report.h): the most blurred
+// validation frames, spread over the shards. Keeps at most `k` frames per
+// shard, so memory is bounded by k x shards crops, not by the frames scored.
+class CropPicker {
+ public:
+  explicit CropPicker(int k) : k_(k) {}
+  bool wanted() const { return k_ > 0; }
+  void offer(const std::string& shard, FrameCrops c) {
+    if (k_ <= 0 || c.entries.empty()) return;
+    auto& kept = by_shard_[shard];
+    // Stable: of equally blurred frames the earlier one stays first.
+    auto at = std::upper_bound(kept.begin(), kept.end(), c.blur,
+                               [](double b, const FrameCrops& x) { return b > x.blur; });
+    kept.insert(at, std::move(c));
+    if (int(kept.size()) > k_) kept.pop_back();
+  }
+  // Writes DIR/crops/crop-INDEX-REGION-KIND.png for the chosen frames and
+  // returns their report.json entries.
+  json write(const fs::path& dir) const {
+    std::vector<const std::vector<FrameCrops>*> shards;
+    std::vector<std::vector<double>> blurs;
+    for (const auto& [name, kept] : by_shard_) {
+      shards.push_back(&kept);
+      blurs.emplace_back();
+      for (const FrameCrops& c : kept) blurs.back().push_back(c.blur);
+    }
+    json out = json::array();
+    int index = 0;
+    for (const auto& [shard, rank] : spread_by_blur(blurs, k_)) {
+      const FrameCrops& c = (*shards[shard])[rank];
+      fs::create_directories(dir / "crops");
+      const std::string prefix = "crop-" + std::to_string(index) + "-";
+      for (const auto& [suffix, png] : c.files)
+        write_text_atomic(dir / "crops" / (prefix + suffix), png);
+      for (json e : c.entries) {
+        e["index"] = index;
+        for (const char* kind : {"noisy", "denoised", "reference"})
+          e[kind] = "crops/" + prefix + e[kind].get<std::string>();
+        out.push_back(e);
+      }
+      ++index;
+    }
+    return out;
+  }
+
+ private:
+  int k_;
+  std::map<std::string, std::vector<FrameCrops>> by_shard_;
+};
 
 }  // namespace
 
@@ -267,8 +320,7 @@ EvalSummary evaluate(const EvalOptions& o) {
     std::string png;
   };
   std::vector<Strip> strips;
-  json crops = json::array();  // side-by-side crops (EvalOptions::crops)
-  int crop_frames = 0;
+  CropPicker crop_picker(o.crops);  // side-by-side crops (EvalOptions::crops)
   Accumulator all, every;  // validation frames; all frames (thesis 5.1, table 5.1)
   std::map<std::string, Accumulator> by_scene, by_scene_every;  // table 5.1 has a row per scene
   json frames = json::array();
@@ -368,16 +420,11 @@ EvalSummary evaluate(const EvalOptions& o) {
       const double c = ceiling.add(fb, file, reader.info().frame_start + f);
       row["reference_ceiling_ssim"] = std::isfinite(c) ? json(c) : json();
       frames.push_back(row);
-      if (crop_frames < o.crops) {
-        const json written = write_focus_crops(o.out_dir, crop_frames, o.crop_side, fb, noisy, out,
+      if (crop_picker.wanted())
+        crop_picker.offer(file, focus_crops_of(o.crop_side, fb, noisy, out,
                                                {{"shard", file},
                                                 {"scene", reader.info().scene_id},
-                                                {"frame", reader.info().frame_start + f}});
-        if (!written.empty()) {
-          crops.insert(crops.end(), written.begin(), written.end());
-          ++crop_frames;
-        }
-      }
+                                                {"frame", reader.info().frame_start + f}}));
       if (images < o.max_images) {
         char name[64];
         std::snprintf(name, sizeof name, "frame-%03d.png", images);
@@ -397,6 +444,7 @@ EvalSummary evaluate(const EvalOptions& o) {
   if (done == 0)
     throw SpecError(FileLoc{o.data_dir.string()}, "",
                     "no validation frames (check the data folder and the run's split.json)");
+  const json crops = crop_picker.write(o.out_dir);
 
   // Time at a fixed size (e.g. 512^2), so runs on data of any size compare.
   json at_size;
@@ -555,7 +603,8 @@ EvalSummary evaluate(const EvalOptions& o) {
         "`report.html` shows all of this on one page.\n\n";
   if (!crops.empty()) {
     md << "## Crops where the lens matters\n\nThe window of the smallest and of the largest "
-          "mean circle of confusion of a validation frame, drawn 2×.\n\n"
+          "mean circle of confusion of the most blurred validation frames (one per shard "
+          "before a second of any), drawn 2×.\n\n"
           "| frame | region | noisy | denoised | reference |\n| --- | --- | --- | --- | --- |\n";
     for (const json& c : crops)
       md << "| " << c["shard"].get<std::string>() << " " << c["frame"].get<int>() << " | "

@@ -369,4 +369,24 @@ std::string svg_plot(const PlotSpec& p) {
   return os.str();
 }
 
+std::vector<std::pair<size_t, size_t>> spread_by_blur(
+    const std::vector<std::vector<double>>& blur, int k) {
+  std::vector<size_t> order(blur.size());
+  for (size_t i = 0; i < order.size(); ++i) order[i] = i;
+  auto best = [&](size_t s) { return blur[s].empty() ? -1.0 : blur[s].front(); };
+  std::stable_sort(order.begin(), order.end(),
+                   [&](size_t a, size_t b) { return best(a) > best(b); });
+  std::vector<std::pair<size_t, size_t>> picks;
+  for (size_t rank = 0; int(picks.size()) < k; ++rank) {
+    bool any = false;
+    for (size_t s : order) {
+      if (rank >= blur[s].size() || int(picks.size()) >= k) continue;
+      any = true;
+      picks.emplace_back(s, rank);
+    }
+    if (!any) break;
+  }
+  return picks;
+}
+
 }  // namespace dofarm::trainer

@@ -5,6 +5,7 @@
 
 #include <filesystem>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace dofarm::trainer {
@@ -32,6 +33,14 @@ struct FocusCrops {
   CropWindow in_focus, out_of_focus;
 };
 FocusCrops choose_focus_crops(const std::vector<float>& coc, int width, int height, int side);
+// Which frames `eval --crops` shows: given each shard's candidate frames
+// ranked by blur (the out-of-focus window's mean CoC, descending), up to `k`
+// (shard, rank) picks: every shard's most blurred frame first, the most
+// blurred shard first, then every shard's second, and so on. A lens
+// animation's first validation frames are often its least blurred, and
+// neighbouring frames of one shard look alike.
+std::vector<std::pair<size_t, size_t>> spread_by_blur(
+    const std::vector<std::vector<double>>& blur, int k);
 // The window of a linear (3, H, W) image as PNG bytes, sRGB-encoded and
 // clamped as the comparison strips, each pixel drawn zoom x zoom.
 std::string crop_png_bytes(const std::vector<float>& image, int width, int height,

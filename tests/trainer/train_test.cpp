@@ -438,6 +438,19 @@ TEST(Eval, WritesCropsChosenByTheCircleOfConfusion) {
   EXPECT_NE(text.find(j["crops"][0]["denoised"].get<std::string>()), std::string::npos);
 }
 
+// Which frames the crops show: the most blurred, every shard's best before
+// any shard's second, the most blurred shard first; ties keep their order.
+TEST(Eval, CropsShowTheMostBlurredFramesSpreadOverShards) {
+  using Picks = std::vector<std::pair<size_t, size_t>>;
+  const std::vector<std::vector<double>> blur = {{3.0, 2.9, 1.0}, {40.0, 39.0}, {}, {12.0}};
+  EXPECT_EQ(spread_by_blur(blur, 2), (Picks{{1, 0}, {3, 0}}));
+  EXPECT_EQ(spread_by_blur(blur, 4), (Picks{{1, 0}, {3, 0}, {0, 0}, {1, 1}}));
+  EXPECT_EQ(spread_by_blur(blur, 9), (Picks{{1, 0}, {3, 0}, {0, 0}, {1, 1}, {0, 1}, {0, 2}}));
+  EXPECT_EQ(spread_by_blur({{5.0}, {5.0}}, 2), (Picks{{0, 0}, {1, 0}}));
+  EXPECT_TRUE(spread_by_blur(blur, 0).empty());
+  EXPECT_TRUE(spread_by_blur({}, 3).empty());
+}
+
 // `eval --time-size` times a frame of a size the data does not have: the
 // first validation frame repeated periodically.
 TEST(Eval, TimesTheDenoiseAtARequestedSize) {
