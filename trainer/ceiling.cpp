@@ -37,6 +37,15 @@ double reference_ceiling_ssim(const FrameBuffers& frame) {
   return ssim({da.data(), 3, h, w}, {db.data(), 3, h, w});
 }
 
+double exact_denoiser_ssim(const FrameBuffers& frame) {
+  const std::vector<float> b = second_reference_half(frame);
+  if (b.empty()) return kNaN;
+  const int w = frame.width, h = frame.height;
+  const std::vector<float> da = display_encode({frame.reference_half.data(), 3, h, w});
+  const std::vector<float> db = display_encode({b.data(), 3, h, w});
+  return ssim_of_truth_against_mean({da.data(), 3, h, w}, {db.data(), 3, h, w});
+}
+
 double ReferenceCeiling::add(const FrameBuffers& frame, const std::string& shard, int frame_index) {
   const double s = reference_ceiling_ssim(frame);
   if (!std::isfinite(s)) return s;
@@ -45,6 +54,7 @@ double ReferenceCeiling::add(const FrameBuffers& frame, const std::string& shard
     min_frame_ = frame_index;
   }
   ssim_.push_back(s);
+  exact_.push_back(exact_denoiser_ssim(frame));
   return s;
 }
 
@@ -53,6 +63,13 @@ double ReferenceCeiling::mean() const {
   double sum = 0;
   for (double s : ssim_) sum += s;
   return sum / double(ssim_.size());
+}
+
+double ReferenceCeiling::exact_mean() const {
+  if (exact_.empty()) return kNaN;
+  double sum = 0;
+  for (double s : exact_) sum += s;
+  return sum / double(exact_.size());
 }
 
 double ReferenceCeiling::min() const {
@@ -71,7 +88,11 @@ nlohmann::json ReferenceCeiling::to_json() const {
        "clamped like the scores; a lower bound on the reference's own SSIM"},
       {"frames", frames()},
       {"mean_ssim", num(mean())},
-      {"min_ssim", num(min())}};
+      {"min_ssim", num(min())},
+      {"exact_denoiser_mean_ssim", num(exact_mean())},
+      {"exact_denoiser_method",
+       "the SSIM of the noise-free image against the reference, estimated per window from the "
+       "halves: contrast-structure (2 cov(A,B) + C2) / (2 cov(A,B) + var(A-B)/4 + C2)"}};
   if (frames() > 0) {
     j["min_shard"] = min_shard_;
     j["min_frame"] = min_frame_;
@@ -86,8 +107,10 @@ std::string ReferenceCeiling::markdown() const {
          " worst frame (" + min_shard_ + " frame " + std::to_string(min_frame_) + "), over " +
          std::to_string(frames()) +
          " frames: SSIM between two independent half-sample references (the first and "
-         "the second half of the samples) of the same frame. No denoiser can be judged above about "
-         "this score against these references.";
+         "the second half of the samples) of the same frame. An exact denoiser (the noise-free "
+         "image) would score about " + fixed(exact_mean(), 4) +
+         " against these references (estimated from the halves): no denoiser can be judged "
+         "above that.";
 }
 
 }  // namespace dofarm::trainer

@@ -419,6 +419,7 @@ EvalSummary evaluate(const EvalOptions& o) {
       if (!want_val) continue;
       const double c = ceiling.add(fb, file, reader.info().frame_start + f);
       row["reference_ceiling_ssim"] = std::isfinite(c) ? json(c) : json();
+      row["exact_denoiser_ssim"] = std::isfinite(c) ? json(ceiling.last_exact()) : json();
       frames.push_back(row);
       if (crop_picker.wanted())
         crop_picker.offer(file, focus_crops_of(o.crop_side, fb, noisy, out,

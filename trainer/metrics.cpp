@@ -116,6 +116,37 @@ double ssim(ImageView a, ImageView b, const uint8_t* mask) {
   return count ? total / double(count) : std::numeric_limits<double>::quiet_NaN();
 }
 
+double ssim_of_truth_against_mean(ImageView a, ImageView b) {
+  check_same_shape(a, b);
+  const int h = a.height, w = a.width;
+  if (h <= 2 * kRadius || w <= 2 * kRadius) return std::numeric_limits<double>::quiet_NaN();
+  const double c1 = 0.01 * 0.01, c2 = 0.03 * 0.03;  // as ssim()
+  double total = 0;
+  size_t count = 0;
+  std::vector<double> x(size_t(h) * w), y(x.size()), xy(x.size()), dd(x.size());
+  for (int c = 0; c < a.channels; ++c) {
+    const float* pa = a.data + size_t(c) * a.plane();
+    const float* pb = b.data + size_t(c) * b.plane();
+    for (size_t i = 0; i < x.size(); ++i) {
+      x[i] = pa[i];
+      y[i] = pb[i];
+      xy[i] = x[i] * y[i];
+      dd[i] = (x[i] - y[i]) * (x[i] - y[i]);
+    }
+    auto mx = filter_valid(x, h, w), my = filter_valid(y, h, w);
+    auto mxy = filter_valid(xy, h, w), mdd = filter_valid(dd, h, w);
+    for (size_t k = 0; k < mx.size(); ++k) {
+      const double cov = std::max(0.0, mxy[k] - mx[k] * my[k]);
+      const double md = mx[k] - my[k];
+      const double noise = std::max(0.0, mdd[k] - md * md) / 4.0;  // var(a - b) / 4
+      total += (2 * mx[k] * my[k] + c1) / (mx[k] * mx[k] + my[k] * my[k] + c1) *
+               (2 * cov + c2) / (2 * cov + noise + c2);
+      ++count;
+    }
+  }
+  return count ? total / double(count) : std::numeric_limits<double>::quiet_NaN();
+}
+
 double psnr(ImageView a, ImageView b, const uint8_t* mask) {
   check_same_shape(a, b);
   const double mse = masked_mean(a, mask, [&](size_t i) {

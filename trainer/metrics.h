@@ -34,6 +34,17 @@ std::vector<float> display_encode(ImageView linear);
 // averaged over the valid pixels whose centre is masked in; NaN when none is.
 double ssim(ImageView a, ImageView b, const uint8_t* mask = nullptr);
 
+// The SSIM that the noise-free image T would score against R = (a + b) / 2,
+// estimated from two independent, unbiased estimates a and b of T (e.g. the
+// two halves of a reference's samples), with ssim()'s window and constants.
+// Per window: cov(T, R) = var(T) is estimated by cov(a, b), the variance R's
+// noise adds to var(R) by var(a - b) / 4, so the contrast-structure term is
+// (2 cov(a, b) + C2) / (2 cov(a, b) + var(a - b) / 4 + C2) (cov(a, b)
+// clamped at 0), and the luminance term is taken from the means of a and b.
+// This is the score an exact denoiser gets against R, the reference's own
+// cap on every score; ssim(a, b) is lower, each half having twice R's noise.
+double ssim_of_truth_against_mean(ImageView a, ImageView b);
+
 // Peak signal-to-noise ratio for data range 1, in dB, capped at kPsnrCap for
 // identical images so that no infinity reaches a report. NaN for an empty mask.
 inline constexpr double kPsnrCap = 100.0;
