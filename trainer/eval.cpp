@@ -216,7 +216,10 @@ constexpr int kCropZoom = 2;  // crop pixels drawn kCropZoom x kCropZoom
 // entries, each `where` (shard, scene, frame) plus the window. Empty when
 // the frame has no out-of-focus window.
 struct FrameCrops {
-  double blur = 0;  // the out-of-focus window's mean CoC: what ranks frames
+  // What ranks frames (spread_by_blur): the out-of-focus window's mean CoC,
+  // plus kShowsBoth when the frame also has a sharp window, so that frames
+  // showing both sides of the focus come first (no CoC reaches kShowsBoth).
+  double blur = 0;
   std::vector<std::pair<std::string, std::string>> files;  // name suffix, PNG bytes
   json entries = json::array();
 };
@@ -226,7 +229,8 @@ FrameCrops focus_crops_of(int side, const FrameBuffers& fb, const std::vector<fl
   FrameCrops fc_out;
   const FocusCrops fc = choose_focus_crops(fb.coc, fb.width, fb.height, side);
   if (!fc.out_of_focus.found) return fc_out;
-  fc_out.blur = fc.out_of_focus.mean_coc;
+  constexpr double kShowsBoth = 1e6;
+  fc_out.blur = fc.out_of_focus.mean_coc + (fc.in_focus.found ? kShowsBoth : 0.0);
   const std::pair<const char*, const std::vector<float>*> images[] = {
       {"noisy", &noisy}, {"denoised", &denoised}, {"reference", &fb.reference}};
   for (const auto& [region, win] : {std::pair<const char*, CropWindow>{"in_focus", fc.in_focus},
@@ -251,7 +255,8 @@ FrameCrops focus_crops_of(int side, const FrameBuffers& fb, const std::vector<fl
 }
 
 // Which frames the crops show (spread_by_blur in report.h): the most blurred
-// validation frames, spread over the shards. Keeps at most `k` frames per
+// validation frames, those with a sharp window too first, spread over the
+// shards. Keeps at most `k` frames per
 // shard, so memory is bounded by k x shards crops, not by the frames scored.
 class CropPicker {
  public:
@@ -604,8 +609,8 @@ EvalSummary evaluate(const EvalOptions& o) {
         "`report.html` shows all of this on one page.\n\n";
   if (!crops.empty()) {
     md << "## Crops where the lens matters\n\nThe window of the smallest and of the largest "
-          "mean circle of confusion of the most blurred validation frames (one per shard "
-          "before a second of any), drawn 2×.\n\n"
+          "mean circle of confusion of the most blurred validation frames (those with a sharp "
+          "window first; one per shard before a second of any), drawn 2×.\n\n"
           "| frame | region | noisy | denoised | reference |\n| --- | --- | --- | --- | --- |\n";
     for (const json& c : crops)
       md << "| " << c["shard"].get<std::string>() << " " << c["frame"].get<int>() << " | "

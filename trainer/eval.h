@@ -55,8 +55,9 @@ struct EvalOptions {
   int time_reps = 3;
   Precision precision = Precision::kFp32;  // the network's arithmetic (precision.h)
   // Side-by-side crops (report.h, choose_focus_crops) of the `crops` most
-  // blurred validation frames (the out-of-focus window's mean CoC; every
-  // shard's most blurred frame before any shard's second): crops/crop-K-REGION-
+  // blurred validation frames (the out-of-focus window's mean CoC; frames
+  // with a sharp window too first; every shard's best frame before any
+  // shard's second): crops/crop-K-REGION-
   // {noisy,denoised,reference}.png, `crop_side` px windows drawn 2x, listed
   // in report.md and report.json ("crops"). 0 = none.
   int crops = 0;
