@@ -28,22 +28,25 @@ std::vector<float> second_reference_half(const FrameBuffers& frame) {
   return b;
 }
 
-double reference_ceiling_ssim(const FrameBuffers& frame) {
+namespace {
+// score(A, B) on the display-encoded halves; NaN without reference_half.
+template <class Score>
+double on_encoded_halves(const FrameBuffers& frame, Score score) {
   const std::vector<float> b = second_reference_half(frame);
   if (b.empty()) return kNaN;
   const int w = frame.width, h = frame.height;
   const std::vector<float> da = display_encode({frame.reference_half.data(), 3, h, w});
   const std::vector<float> db = display_encode({b.data(), 3, h, w});
-  return ssim({da.data(), 3, h, w}, {db.data(), 3, h, w});
+  return score(ImageView{da.data(), 3, h, w}, ImageView{db.data(), 3, h, w});
+}
+}  // namespace
+
+double reference_ceiling_ssim(const FrameBuffers& frame) {
+  return on_encoded_halves(frame, [](ImageView a, ImageView b) { return ssim(a, b); });
 }
 
 double exact_denoiser_ssim(const FrameBuffers& frame) {
-  const std::vector<float> b = second_reference_half(frame);
-  if (b.empty()) return kNaN;
-  const int w = frame.width, h = frame.height;
-  const std::vector<float> da = display_encode({frame.reference_half.data(), 3, h, w});
-  const std::vector<float> db = display_encode({b.data(), 3, h, w});
-  return ssim_of_truth_against_mean({da.data(), 3, h, w}, {db.data(), 3, h, w});
+  return on_encoded_halves(frame, ssim_of_truth_against_mean);
 }
 
 double ReferenceCeiling::add(const FrameBuffers& frame, const std::string& shard, int frame_index) {

@@ -81,11 +81,18 @@ std::vector<double> filter_valid(const std::vector<double>& src, int h, int w) {
 
 }  // namespace
 
-double ssim(ImageView a, ImageView b, const uint8_t* mask) {
+namespace {
+
+constexpr double kC1 = 0.01 * 0.01, kC2 = 0.03 * 0.03;  // SSIM's (K L)^2 with L = 1
+
+// The mean over channels and valid windows (those whose centre `mask` keeps)
+// of term(mx, my, vx, vy, cxy): the Gaussian-weighted means, variances and
+// covariance of a and b in the window. NaN when no window counts.
+template <class Term>
+double mean_over_windows(ImageView a, ImageView b, const uint8_t* mask, Term term) {
   check_same_shape(a, b);
   const int h = a.height, w = a.width;
   if (h <= 2 * kRadius || w <= 2 * kRadius) return std::numeric_limits<double>::quiet_NaN();
-  const double c1 = 0.01 * 0.01, c2 = 0.03 * 0.03;  // (K L)^2 with L = 1
   const int vh = h - 2 * kRadius, vw = w - 2 * kRadius;
   double total = 0;
   size_t count = 0;
@@ -108,43 +115,29 @@ double ssim(ImageView a, ImageView b, const uint8_t* mask) {
         size_t k = size_t(j) * vw + i;
         double vx = mxx[k] - mx[k] * mx[k], vy = myy[k] - my[k] * my[k];
         double cxy = mxy[k] - mx[k] * my[k];
-        total += (2 * mx[k] * my[k] + c1) * (2 * cxy + c2) /
-                 ((mx[k] * mx[k] + my[k] * my[k] + c1) * (vx + vy + c2));
+        total += term(mx[k], my[k], vx, vy, cxy);
         ++count;
       }
   }
   return count ? total / double(count) : std::numeric_limits<double>::quiet_NaN();
 }
 
+}  // namespace
+
+double ssim(ImageView a, ImageView b, const uint8_t* mask) {
+  return mean_over_windows(a, b, mask, [](double mx, double my, double vx, double vy, double cxy) {
+    return (2 * mx * my + kC1) * (2 * cxy + kC2) / ((mx * mx + my * my + kC1) * (vx + vy + kC2));
+  });
+}
+
 double ssim_of_truth_against_mean(ImageView a, ImageView b) {
-  check_same_shape(a, b);
-  const int h = a.height, w = a.width;
-  if (h <= 2 * kRadius || w <= 2 * kRadius) return std::numeric_limits<double>::quiet_NaN();
-  const double c1 = 0.01 * 0.01, c2 = 0.03 * 0.03;  // as ssim()
-  double total = 0;
-  size_t count = 0;
-  std::vector<double> x(size_t(h) * w), y(x.size()), xy(x.size()), dd(x.size());
-  for (int c = 0; c < a.channels; ++c) {
-    const float* pa = a.data + size_t(c) * a.plane();
-    const float* pb = b.data + size_t(c) * b.plane();
-    for (size_t i = 0; i < x.size(); ++i) {
-      x[i] = pa[i];
-      y[i] = pb[i];
-      xy[i] = x[i] * y[i];
-      dd[i] = (x[i] - y[i]) * (x[i] - y[i]);
-    }
-    auto mx = filter_valid(x, h, w), my = filter_valid(y, h, w);
-    auto mxy = filter_valid(xy, h, w), mdd = filter_valid(dd, h, w);
-    for (size_t k = 0; k < mx.size(); ++k) {
-      const double cov = std::max(0.0, mxy[k] - mx[k] * my[k]);
-      const double md = mx[k] - my[k];
-      const double noise = std::max(0.0, mdd[k] - md * md) / 4.0;  // var(a - b) / 4
-      total += (2 * mx[k] * my[k] + c1) / (mx[k] * mx[k] + my[k] * my[k] + c1) *
-               (2 * cov + c2) / (2 * cov + noise + c2);
-      ++count;
-    }
-  }
-  return count ? total / double(count) : std::numeric_limits<double>::quiet_NaN();
+  return mean_over_windows(a, b, nullptr, [](double mx, double my, double vx, double vy,
+                                             double cxy) {
+    const double cov = std::max(0.0, cxy);
+    const double noise = std::max(0.0, vx + vy - 2 * cxy) / 4.0;  // var(a - b) / 4
+    return (2 * mx * my + kC1) / (mx * mx + my * my + kC1) * (2 * cov + kC2) /
+           (2 * cov + noise + kC2);
+  });
 }
 
 double psnr(ImageView a, ImageView b, const uint8_t* mask) {
