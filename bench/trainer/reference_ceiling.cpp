@@ -1,7 +1,8 @@
 // The reference ceiling of rendered frames (issue 13, item 2): for each frame
 // of the EXR files (`dofarm render`) or shards (`dofarm run`) given, the SSIM
 // between the two independent half-sample references (trainer/ceiling.h),
-// the median and 99th percentile of the reference's per-pixel relative
+// the exact-denoiser score (the noise-free image's SSIM against the
+// reference, estimated from the halves: the cap on a denoiser's score), the median and 99th percentile of the reference's per-pixel relative
 // standard error (sqrt(reference_var) / luminance), the render time an EXR
 // records and the largest circle of confusion (px). bench/README.md
 // ("reference_ceiling") holds the figures and the commands that made them.
@@ -27,7 +28,7 @@
 namespace {
 
 struct Row {
-  double ssim, median_rel, p99_rel, seconds, coc_max;
+  double ssim, exact, median_rel, p99_rel, seconds, coc_max;
 };
 
 // Per-pixel relative standard error of the reference's luminance, as the
@@ -48,7 +49,8 @@ Row measure(const dofarm::FrameBuffers& fb, double seconds) {
   auto [med, p99] = relative_error_quantiles(fb);
   double coc_max = 0;
   for (float c : fb.coc) coc_max = std::max(coc_max, double(c));
-  return {dofarm::trainer::reference_ceiling_ssim(fb), med, p99, seconds, coc_max};
+  return {dofarm::trainer::reference_ceiling_ssim(fb), dofarm::trainer::exact_denoiser_ssim(fb), med,
+          p99, seconds, coc_max};
 }
 
 }  // namespace
@@ -79,8 +81,8 @@ int main(int argc, char** argv) {
     return 0;
   }
   std::vector<Row> rows;
-  std::printf("%-40s %6s %9s %9s %9s %9s %8s\n", "file", "frame", "ceiling", "rel_med", "rel_p99",
-              "render_s", "coc_max");
+  std::printf("%-40s %6s %9s %9s %9s %9s %9s %8s\n", "file", "frame", "ceiling", "exact", "rel_med",
+              "rel_p99", "render_s", "coc_max");
   for (int a = 1; a < argc; ++a) {
     const std::string path = argv[a];
     try {
@@ -88,8 +90,9 @@ int main(int argc, char** argv) {
         dofarm::ShardReader reader(path);
         for (int f = 0; f < reader.frame_count(); ++f) {
           rows.push_back(measure(reader.read_frame(f), NAN));
-          std::printf("%-40s %6d %9.5f %9.4f %9.4f %9s %8.1f\n", path.c_str(),
-                      reader.info().frame_start + f, rows.back().ssim, rows.back().median_rel,
+          std::printf("%-40s %6d %9.5f %9.5f %9.4f %9.4f %9s %8.1f\n", path.c_str(),
+                      reader.info().frame_start + f, rows.back().ssim, rows.back().exact,
+                      rows.back().median_rel,
                       rows.back().p99_rel, "-", rows.back().coc_max);
         }
       } else {
@@ -97,8 +100,9 @@ int main(int argc, char** argv) {
         auto it = exr.attributes.find("dofarm.render_seconds");
         double sec = it == exr.attributes.end() ? NAN : std::stod(it->second);
         rows.push_back(measure(exr.buffers, sec));
-        std::printf("%-40s %6d %9.5f %9.4f %9.4f %9.1f %8.1f\n", path.c_str(),
-                    exr.buffers.camera.frame, rows.back().ssim, rows.back().median_rel,
+        std::printf("%-40s %6d %9.5f %9.5f %9.4f %9.4f %9.1f %8.1f\n", path.c_str(),
+                    exr.buffers.camera.frame, rows.back().ssim, rows.back().exact,
+                    rows.back().median_rel,
                     rows.back().p99_rel, sec, rows.back().coc_max);
       }
     } catch (const std::exception& e) {
@@ -106,13 +110,16 @@ int main(int argc, char** argv) {
       return 1;
     }
   }
-  double sum = 0, worst = 1, secs = 0;
+  double sum = 0, worst = 1, secs = 0, exact = 0;
   for (const Row& r : rows) {
     sum += r.ssim;
+    exact += r.exact;
     worst = std::min(worst, r.ssim);
     if (std::isfinite(r.seconds)) secs += r.seconds;
   }
-  std::printf("summary: %zu frames, ceiling SSIM mean %.5f min %.5f, render %.1f s\n", rows.size(),
-              sum / double(rows.size()), worst, secs);
+  std::printf(
+      "summary: %zu frames, ceiling SSIM mean %.5f min %.5f, exact-denoiser SSIM mean %.5f, "
+      "render %.1f s\n",
+      rows.size(), sum / double(rows.size()), worst, exact / double(rows.size()), secs);
   return 0;
 }
