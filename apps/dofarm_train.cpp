@@ -154,8 +154,9 @@ Command add_eval(CLI::App& app) {
       ->check(CLI::Range(0, 16384));
   cmd->add_option("--crops", o->crops,
                   "side-by-side crops (noisy, denoised, reference) of the smallest- and "
-                  "largest-CoC windows of this many most blurred validation frames, every "
-                  "shard's most blurred first (crops/; 0 = none)")
+                  "largest-CoC windows of this many most blurred validation frames (those with "
+                  "a sharp window first; every shard's best before any shard's second; crops/; "
+                  "0 = none)")
       ->capture_default_str()
       ->check(CLI::Range(0, 10000));
   cmd->add_option("--crop-size", o->crop_size, "crop window side in pixels (drawn 2x)")

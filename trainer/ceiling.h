@@ -52,9 +52,9 @@ class ReferenceCeiling {
   int frames() const { return int(ssim_.size()); }
   double mean() const;  // NaN when no frame was scored
   double min() const;   // NaN when no frame was scored
-  double exact_mean() const;
+  double exact_mean() const;  // mean exact_denoiser_ssim; NaN when no frame was scored
   // exact_denoiser_ssim of the frame add() last counted.
-  double last_exact() const { return exact_.empty() ? std::nan("") : exact_.back(); }  // mean exact_denoiser_ssim; NaN when no frame was scored
+  double last_exact() const { return exact_.empty() ? std::nan("") : exact_.back(); }
   // {"method", "frames", "mean_ssim", "min_ssim", "min_shard", "min_frame",
   //  "exact_denoiser_mean_ssim"}.
   nlohmann::json to_json() const;

@@ -164,15 +164,6 @@ json to_json(const Scores& s) {
           {"flicker", j(s.flicker)}};
 }
 
-// Mean over frames of finite values (a frame without in-focus pixels has none).
-double mean_of(const std::vector<double>& v) {
-  double s = 0;
-  int n = 0;
-  for (double x : v)
-    if (std::isfinite(x)) s += x, ++n;
-  return n ? s / n : NAN;
-}
-
 // Per-frame scores, kept as lists so means skip frames without a region.
 struct Accumulator {
   // [noisy, denoised][all, in, out][ssim, psnr, rel_mse, flicker]
@@ -186,9 +177,9 @@ struct Accumulator {
     for (int k = 0; k < 2; ++k)
       for (int r = 0; r < 3; ++r)
         j[who[k]][region[r]] =
-            to_json(Scores{mean_of(v[k][r][0]), mean_of(v[k][r][1]), mean_of(v[k][r][2]),
-                           mean_of(v[k][r][3])});
-    j["denoise_ms_mean"] = mean_of(ms);
+            to_json(Scores{finite_mean(v[k][r][0]), finite_mean(v[k][r][1]), finite_mean(v[k][r][2]),
+                           finite_mean(v[k][r][3])});
+    j["denoise_ms_mean"] = finite_mean(ms);
     j["frames"] = frames;
     return j;
   }
@@ -256,8 +247,8 @@ FrameCrops focus_crops_of(int side, const FrameBuffers& fb, const std::vector<fl
 
 // Which frames the crops show (spread_by_blur in report.h): the most blurred
 // validation frames, those with a sharp window too first, spread over the
-// shards. Keeps at most `k` frames per
-// shard, so memory is bounded by k x shards crops, not by the frames scored.
+// shards. Keeps at most `k` frames per shard, so memory is bounded by
+// k x shards crops, not by the frames scored.
 class CropPicker {
  public:
   explicit CropPicker(int k) : k_(k) {}
@@ -282,10 +273,11 @@ class CropPicker {
       for (const FrameCrops& c : kept) blurs.back().push_back(c.blur);
     }
     json out = json::array();
+    const auto picks = spread_by_blur(blurs, k_);
+    if (!picks.empty()) fs::create_directories(dir / "crops");
     int index = 0;
-    for (const auto& [shard, rank] : spread_by_blur(blurs, k_)) {
+    for (const auto& [shard, rank] : picks) {
       const FrameCrops& c = (*shards[shard])[rank];
-      fs::create_directories(dir / "crops");
       const std::string prefix = "crop-" + std::to_string(index) + "-";
       for (const auto& [suffix, png] : c.files)
         write_text_atomic(dir / "crops" / (prefix + suffix), png);
@@ -470,13 +462,13 @@ EvalSummary evaluate(const EvalOptions& o) {
   EvalSummary sum;
   if (!at_size.is_null()) sum.ms_at_size = at_size["ms"].get<double>();
   sum.frames = done;
-  sum.ssim = mean_of(all.v[1][0][0]);
-  sum.psnr = mean_of(all.v[1][0][1]);
-  sum.rel_mse = mean_of(all.v[1][0][2]);
-  sum.ms = mean_of(all.ms);
-  sum.flicker = mean_of(all.v[1][0][3]);
+  sum.ssim = finite_mean(all.v[1][0][0]);
+  sum.psnr = finite_mean(all.v[1][0][1]);
+  sum.rel_mse = finite_mean(all.v[1][0][2]);
+  sum.ms = finite_mean(all.ms);
+  sum.flicker = finite_mean(all.v[1][0][3]);
   sum.frames_all = every.frames;
-  sum.ssim_all = mean_of(every.v[1][0][0]);
+  sum.ssim_all = finite_mean(every.v[1][0][0]);
 
   // Plots (SVG, with text): loss per epoch and per step, learning rate.
   const LossCurve epochs = read_loss_csv(o.run_dir / "loss.csv");
@@ -569,9 +561,9 @@ EvalSummary evaluate(const EvalOptions& o) {
                                       k == 0 ? "noisy (1 spp)" : "denoised"};
       for (int m = 0; m < 4; ++m)
         for (int r = 0; r < 3; ++r)
-          row.push_back(m == 3 ? cell_g(mean_of(a.v[k][r][m]))
-                               : cell(mean_of(a.v[k][r][m]), m == 1 ? 2 : 4));
-      row.push_back(k == 1 ? cell(mean_of(a.ms), 2) : std::string("–"));
+          row.push_back(m == 3 ? cell_g(finite_mean(a.v[k][r][m]))
+                               : cell(finite_mean(a.v[k][r][m]), m == 1 ? 2 : 4));
+      row.push_back(k == 1 ? cell(finite_mean(a.ms), 2) : std::string("–"));
       summary_rows.push_back(std::move(row));
     }
   };

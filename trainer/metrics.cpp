@@ -140,6 +140,14 @@ double ssim_of_truth_against_mean(ImageView a, ImageView b) {
   });
 }
 
+double finite_mean(const std::vector<double>& v) {
+  double s = 0;
+  int n = 0;
+  for (double x : v)
+    if (std::isfinite(x)) s += x, ++n;
+  return n ? s / n : std::numeric_limits<double>::quiet_NaN();
+}
+
 double psnr(ImageView a, ImageView b, const uint8_t* mask) {
   check_same_shape(a, b);
   const double mse = masked_mean(a, mask, [&](size_t i) {

@@ -45,6 +45,10 @@ double ssim(ImageView a, ImageView b, const uint8_t* mask = nullptr);
 // cap on every score; ssim(a, b) is lower, each half having twice R's noise.
 double ssim_of_truth_against_mean(ImageView a, ImageView b);
 
+// The mean of the finite values of v, e.g. per-frame scores where a frame
+// without in-focus pixels has none; NaN when there are none.
+double finite_mean(const std::vector<double>& v);
+
 // Peak signal-to-noise ratio for data range 1, in dB, capped at kPsnrCap for
 // identical images so that no infinity reaches a report. NaN for an empty mask.
 inline constexpr double kPsnrCap = 100.0;

@@ -2,7 +2,8 @@
 // of the EXR files (`dofarm render`) or shards (`dofarm run`) given, the SSIM
 // between the two independent half-sample references (trainer/ceiling.h),
 // the exact-denoiser score (the noise-free image's SSIM against the
-// reference, estimated from the halves: the cap on a denoiser's score), the median and 99th percentile of the reference's per-pixel relative
+// reference, estimated from the halves: the cap on a denoiser's score),
+// the median and 99th percentile of the reference's per-pixel relative
 // standard error (sqrt(reference_var) / luminance), the render time an EXR
 // records and the largest circle of confusion (px). bench/README.md
 // ("reference_ceiling") holds the figures and the commands that made them.
@@ -49,8 +50,12 @@ Row measure(const dofarm::FrameBuffers& fb, double seconds) {
   auto [med, p99] = relative_error_quantiles(fb);
   double coc_max = 0;
   for (float c : fb.coc) coc_max = std::max(coc_max, double(c));
-  return {dofarm::trainer::reference_ceiling_ssim(fb), dofarm::trainer::exact_denoiser_ssim(fb), med,
-          p99, seconds, coc_max};
+  return {dofarm::trainer::reference_ceiling_ssim(fb),
+          dofarm::trainer::exact_denoiser_ssim(fb),
+          med,
+          p99,
+          seconds,
+          coc_max};
 }
 
 }  // namespace
@@ -92,8 +97,7 @@ int main(int argc, char** argv) {
           rows.push_back(measure(reader.read_frame(f), NAN));
           std::printf("%-40s %6d %9.5f %9.5f %9.4f %9.4f %9s %8.1f\n", path.c_str(),
                       reader.info().frame_start + f, rows.back().ssim, rows.back().exact,
-                      rows.back().median_rel,
-                      rows.back().p99_rel, "-", rows.back().coc_max);
+                      rows.back().median_rel, rows.back().p99_rel, "-", rows.back().coc_max);
         }
       } else {
         dofarm::ExrFrame exr = dofarm::read_frame_exr(path);
@@ -102,8 +106,7 @@ int main(int argc, char** argv) {
         rows.push_back(measure(exr.buffers, sec));
         std::printf("%-40s %6d %9.5f %9.5f %9.4f %9.4f %9.1f %8.1f\n", path.c_str(),
                     exr.buffers.camera.frame, rows.back().ssim, rows.back().exact,
-                    rows.back().median_rel,
-                    rows.back().p99_rel, sec, rows.back().coc_max);
+                    rows.back().median_rel, rows.back().p99_rel, sec, rows.back().coc_max);
       }
     } catch (const std::exception& e) {
       std::fprintf(stderr, "%s: %s\n", path.c_str(), e.what());
