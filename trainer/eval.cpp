@@ -166,19 +166,22 @@ json to_json(const Scores& s) {
 
 // Per-frame scores, kept as lists so means skip frames without a region.
 struct Accumulator {
-  // [noisy, denoised][all, in, out][ssim, psnr, rel_mse, flicker]
-  std::vector<double> v[2][3][4];
+  // [noisy, denoised][kFocusRegions][ssim, psnr, rel_mse, flicker]
+  std::vector<double> v[2][kRegionCount][4];
   std::vector<double> ms;
   int frames = 0;
+  // Per region: pixels in it, over all frames (a band's share of the data).
+  double pixels[kRegionCount] = {};
   json summary() const {
     const char* who[2] = {"noisy", "denoised"};
-    const char* region[3] = {"all", "in_focus", "out_of_focus"};
     json j;
     for (int k = 0; k < 2; ++k)
-      for (int r = 0; r < 3; ++r)
-        j[who[k]][region[r]] =
-            to_json(Scores{finite_mean(v[k][r][0]), finite_mean(v[k][r][1]), finite_mean(v[k][r][2]),
-                           finite_mean(v[k][r][3])});
+      for (int r = 0; r < kRegionCount; ++r)
+        j[who[k]][kFocusRegions[r].name] =
+            to_json(Scores{finite_mean(v[k][r][0]), finite_mean(v[k][r][1]),
+                           finite_mean(v[k][r][2]), finite_mean(v[k][r][3])});
+    for (int r = 0; r < kRegionCount; ++r)
+      j["pixel_share"][kFocusRegions[r].name] = pixels[0] > 0 ? pixels[r] / pixels[0] : 0.0;
     j["denoise_ms_mean"] = finite_mean(ms);
     j["frames"] = frames;
     return j;
@@ -198,6 +201,38 @@ std::string cell_g(double v) {
   char buf[32];
   std::snprintf(buf, sizeof buf, "%.3g", v);
   return buf;
+}
+
+// The regions' table (report.md "By circle of confusion", report.html
+// #by_coc): per region the CoC range, its share of the pixels, and the
+// noisy and denoised scores, means over the frames that have pixels there.
+const char* const kCocBandMdHeader =
+    "| region | CoC (px) | pixels | frames | SSIM noisy | SSIM denoised | PSNR noisy | "
+    "PSNR denoised | relMSE denoised | flicker denoised |\n"
+    "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n";
+const char* const kCocBandHtmlHeader =
+    "<tr><th>region</th><th>CoC (px)</th><th>pixels</th><th>frames</th><th>SSIM noisy</th>"
+    "<th>SSIM denoised</th><th>PSNR noisy</th><th>PSNR denoised</th><th>relMSE denoised</th>"
+    "<th>flicker denoised</th></tr>";
+
+std::vector<std::vector<std::string>> coc_band_rows(const Accumulator& a) {
+  std::vector<std::vector<std::string>> rows;
+  for (int r = 1; r < kRegionCount; ++r) {
+    const FocusRegion& g = kFocusRegions[r];
+    auto bound = [](float v) { return std::isfinite(v) ? cell(v, 0) : std::string(); };
+    const std::string range = !std::isfinite(g.lo)   ? "< " + bound(g.hi)
+                              : !std::isfinite(g.hi) ? "≥ " + bound(g.lo)
+                                                     : bound(g.lo) + "–" + bound(g.hi);
+    size_t scored = 0;
+    for (double v : a.v[1][r][0]) scored += std::isfinite(v);
+    rows.push_back({g.name, range,
+                    cell(a.pixels[0] > 0 ? 100.0 * a.pixels[r] / a.pixels[0] : 0.0, 1) + "%",
+                    std::to_string(scored), cell(finite_mean(a.v[0][r][0]), 4),
+                    cell(finite_mean(a.v[1][r][0]), 4), cell(finite_mean(a.v[0][r][1]), 2),
+                    cell(finite_mean(a.v[1][r][1]), 2), cell(finite_mean(a.v[1][r][2]), 4),
+                    cell_g(finite_mean(a.v[1][r][3]))});
+  }
+  return rows;
 }
 
 constexpr int kCropZoom = 2;  // crop pixels drawn kCropZoom x kCropZoom
@@ -360,11 +395,19 @@ EvalSummary evaluate(const EvalOptions& o) {
       std::vector<float> out = den.denoise(fb, o.version, &sec);
       std::vector<float> noisy(fb.noisy.begin() + size_t(o.version) * 3 * n,
                                fb.noisy.begin() + size_t(o.version + 1) * 3 * n);
-      // "Acceptably sharp" is a CoC below one pixel (DESIGN.md).
-      std::vector<uint8_t> in_focus(n), out_focus(n);
-      for (size_t p = 0; p < n; ++p) {
-        in_focus[p] = fb.coc[p] < 1.0f;
-        out_focus[p] = !in_focus[p];
+      // One mask per region (kFocusRegions; "all" needs none).
+      std::vector<std::vector<uint8_t>> region_mask(kRegionCount);
+      const uint8_t* masks[kRegionCount] = {};
+      size_t region_pixels[kRegionCount] = {};
+      for (int r = 0; r < kRegionCount; ++r) {
+        const FocusRegion& g = kFocusRegions[r];
+        std::vector<uint8_t>& m = region_mask[r];
+        m.resize(n);
+        for (size_t p = 0; p < n; ++p) {
+          m[p] = fb.coc[p] >= g.lo && fb.coc[p] < g.hi;
+          region_pixels[r] += m[p];
+        }
+        masks[r] = r == 0 ? nullptr : m.data();
       }
       std::vector<Accumulator*> to;
       if (want_val) to.insert(to.end(), {&all, &scene});
@@ -373,8 +416,6 @@ EvalSummary evaluate(const EvalOptions& o) {
                   {"scene", reader.info().scene_id},
                   {"frame", reader.info().frame_start + f},
                   {"denoise_ms", sec * 1e3}};
-      const uint8_t* masks[3] = {nullptr, in_focus.data(), out_focus.data()};
-      const char* region[3] = {"all", "in_focus", "out_of_focus"};
       // Flicker needs the frame before, scored in the same pass: it counts
       // for the validation table when both frames are validation frames.
       const bool pair = prev_f >= 0 && prev_f == f - 1;
@@ -382,10 +423,11 @@ EvalSummary evaluate(const EvalOptions& o) {
       if (pair && want_val && prev_val) to_flicker.insert(to_flicker.end(), {&all, &scene});
       if (pair && want_every) to_flicker.insert(to_flicker.end(), {&every, &scene_every});
       for (int k = 0; k < 2; ++k)
-        for (int r = 0; r < 3; ++r) {
+        for (int r = 0; r < kRegionCount; ++r) {
           const std::vector<float>& img = k == 0 ? noisy : out;
-          Scores s = score(img, fb.reference, w, h, masks[r]);
-          if (pair) {
+          // A region without a pixel in this frame has no score (not 0).
+          Scores s = region_pixels[r] > 0 ? score(img, fb.reference, w, h, masks[r]) : Scores{};
+          if (pair && region_pixels[r] > 0) {
             const std::vector<float>& before = k == 0 ? prev_noisy : prev_out;
             s.flicker = temporal_relative_mse({before.data(), 3, h, w}, {img.data(), 3, h, w},
                                               {prev_ref.data(), 3, h, w},
@@ -401,7 +443,7 @@ EvalSummary evaluate(const EvalOptions& o) {
           // frame before is a validation frame too.
           Scores shown = s;
           if (!(pair && want_val && prev_val)) shown.flicker = NAN;
-          row[k == 0 ? "noisy" : "denoised"][region[r]] = to_json(shown);
+          row[k == 0 ? "noisy" : "denoised"][kFocusRegions[r].name] = to_json(shown);
         }
       prev_f = f;
       prev_val = want_val;
@@ -411,6 +453,7 @@ EvalSummary evaluate(const EvalOptions& o) {
       for (Accumulator* a : to) {
         a->ms.push_back(sec * 1e3);
         ++a->frames;
+        for (int r = 0; r < kRegionCount; ++r) a->pixels[r] += double(region_pixels[r]);
       }
       done_every += want_every;
       if (!want_val) continue;
@@ -582,6 +625,11 @@ EvalSummary evaluate(const EvalOptions& o) {
     }
   };
   md_rows(summary_rows);
+  const Rows coc_rows = coc_band_rows(all);
+  md << "\n**By circle of confusion** (validation frames; a frame counts in a band where it "
+        "has pixels there):\n\n"
+     << kCocBandMdHeader;
+  md_rows(coc_rows);
   if (o.all_frames) {
     md << "\n**All frames** (training and validation frames, as thesis table 5.1 scores "
           "its scenes; the training frames flatter the model):\n\n"
@@ -659,6 +707,9 @@ EvalSummary evaluate(const EvalOptions& o) {
     }
   };
   html_rows(summary_rows);
+  html << "</table><p>By circle of confusion (validation frames):</p><table id=\"by_coc\">"
+       << kCocBandHtmlHeader;
+  html_rows(coc_rows);
   html << "</table><p id=\"reference-ceiling\">" << html_escape(ceiling.markdown()) << "</p>";
   if (o.all_frames) {
     html << "<p>All frames (training and validation frames, as thesis table 5.1 scores its "

@@ -5,6 +5,7 @@
 
 #include <cmath>
 #include <filesystem>
+#include <iterator>
 #include <vector>
 
 #include "common/image.h"
@@ -83,6 +84,22 @@ std::vector<std::pair<std::string, size_t>> non_finite_inputs(FrameBuffers& fram
 // `frame` repeated periodically (x mod width, y mod height) to w x h: every
 // buffer, the camera kept. For timing at a size the data does not have.
 FrameBuffers tile_frame(const FrameBuffers& frame, int w, int h);
+
+// The pixel regions every score is taken over, by circle of confusion in
+// pixels, lo <= CoC < hi: all pixels, in focus ("acceptably sharp", CoC < 1
+// px, DESIGN.md), out of focus, and the out-of-focus pixels in three bands
+// of blur, each 4x the last, so that what an input does for the blurred
+// pixels can be seen by how blurred they are (report.json: the region's
+// name under "summary", "frames", "scenes"; report.md: "By circle of
+// confusion"). The first three are the report's main table.
+struct FocusRegion {
+  const char* name;
+  float lo, hi;
+};
+inline constexpr FocusRegion kFocusRegions[] = {
+    {"all", -INFINITY, INFINITY}, {"in_focus", -INFINITY, 1.0f}, {"out_of_focus", 1.0f, INFINITY},
+    {"coc_1_4", 1.0f, 4.0f},      {"coc_4_16", 4.0f, 16.0f},     {"coc_16_up", 16.0f, INFINITY}};
+inline constexpr int kRegionCount = int(std::size(kFocusRegions));
 
 // Writes OUT/report.md, OUT/report.json, OUT/frame-*.png, OUT/loss.png.
 EvalSummary evaluate(const EvalOptions& options);

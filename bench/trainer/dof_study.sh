@@ -199,7 +199,10 @@ for c in $CONFIGS; do
     echo "steps $TOTAL" > "$run/study.done.tmp"
     mv "$run/study.done.tmp" "$run/study.done"
   fi
-  if [ -f "$report/report.json" ] && [ "$report/report.json" -nt "$run/checkpoints/last.pt" ]; then
+  # A report is made again when its run has trained since, or when it is from
+  # before the scores by circle of confusion (no "pixel_share").
+  if [ -f "$report/report.json" ] && [ "$report/report.json" -nt "$run/checkpoints/last.pt" ] &&
+    grep -q '"pixel_share"' "$report/report.json"; then
     echo "dof_study.sh: $c: evaluated, not evaluated again"
   else
     echo "dof_study.sh: $c: evaluating -> $report"
@@ -226,7 +229,11 @@ configs = list(label)
 cols = ["config", "description", "frames",
         "ssim_all", "ssim_in", "ssim_out", "psnr_all", "psnr_in", "psnr_out",
         "relmse_all", "relmse_in", "relmse_out", "flicker_all", "flicker_in", "flicker_out",
+        "ssim_coc_1_4", "ssim_coc_4_16", "ssim_coc_16_up",
         f"ms_per_{side}px_frame", "steps", "train_seconds"]
+# The CoC bands of the report (trainer/eval.h, kFocusRegions) beyond in/out.
+bands = (("in_focus", "< 1 px"), ("coc_1_4", "1–4 px"), ("coc_4_16", "4–16 px"),
+         ("coc_16_up", "≥ 16 px"))
 rows = []
 for c in configs:
     rep = json.load(open(os.path.join(out, "reports", c, "report.json")))
@@ -241,6 +248,10 @@ for c in configs:
         for region, short in (("all", "all"), ("in_focus", "in"), ("out_of_focus", "out")):
             v = d[region][key]
             row[f"{m}_{short}"] = float("nan") if v is None else float(v)
+    for region, _ in bands[1:]:
+        v = d.get(region, {}).get("ssim")
+        row[f"ssim_{region}"] = float("nan") if v is None else float(v)
+    row["share"] = rep["summary"].get("pixel_share", {})
     t = rep.get("denoise_ms_at_size") or {}
     row[f"ms_per_{side}px_frame"] = float(t.get("ms", float("nan")))
     row["steps"] = steps
@@ -274,6 +285,25 @@ frames = sorted({r["frames"] for r in rows})
 note = (f"\nValidation frames: {', '.join(map(str, frames))}; weights after the last step. "
         "SSIM and PSNR on sRGB clamped to [0, 1]; relative MSE and flicker on linear HDR "
         "(docs/trainer.md, \"Evaluation\"). In focus: CoC < 1 px.\n")
+# SSIM by circle of confusion, and what the CoC input adds in each band where
+# a configuration and its copy without the CoC input were both run.
+by = {r["config"]: r for r in rows}
+share = next((r["share"] for r in rows if r["share"]), {})
+def band_ssim(r, region):
+    return r["ssim_in"] if region == "in_focus" else r[f"ssim_{region}"]
+coc_md = ["", "SSIM by circle of confusion (validation pixels in each band: " +
+          ", ".join(f"{name} {100 * share.get(region, 0):.1f}%" for region, name in bands) + "):", "",
+          "| configuration | " + " | ".join(name for _, name in bands) + " |",
+          "| --- " * (len(bands) + 1) + "|"]
+for r in rows:
+    coc_md.append(f"| `{r['config']}` | " +
+                  " | ".join(fmt(band_ssim(r, region), ".4f") for region, _ in bands) + " |")
+for c in configs:
+    if c + "_nococ" in by:
+        a, b = by[c], by[c + "_nococ"]
+        coc_md.append(f"| CoC input: `{c}` − `{c}_nococ` | " +
+                      " | ".join(fmt(band_ssim(a, region) - band_ssim(b, region), "+.4f")
+                                 for region, _ in bands) + " |")
 # Side-by-side crops: the windows eval chose from the data's CoC (the same
 # for every configuration), copied to OUT/crops/ so that results.md and its
 # pictures can be published together.
@@ -302,7 +332,7 @@ if first:
         cells.append(f"![]({copy(configs[0], w['reference'], stem + '-reference.png')})")
         crops_md.append("| " + " | ".join(cells) + " |")
 with open(os.path.join(out, "results.md.tmp"), "w") as f:
-    f.write("\n".join(md) + "\n" + note + "\n".join(crops_md) + "\n")
+    f.write("\n".join(md) + "\n" + note + "\n".join(coc_md) + "\n" + "\n".join(crops_md) + "\n")
 os.replace(os.path.join(out, "results.md.tmp"), os.path.join(out, "results.md"))
 
 # Plot: 1 - SSIM (all pixels) against ms per frame, one labelled point each.
@@ -342,6 +372,6 @@ svg.append("</svg>")
 with open(os.path.join(out, "results.svg.tmp"), "w") as f:
     f.write("\n".join(svg) + "\n")
 os.replace(os.path.join(out, "results.svg.tmp"), os.path.join(out, "results.svg"))
-print("\n".join(md) + "\n" + note)
+print("\n".join(md) + "\n" + note + "\n".join(coc_md) + "\n")
 print(f"dof_study.sh: {out}/results.md, results.csv, results.svg")
 PY

@@ -65,8 +65,10 @@ TEST(Study, OneCommandScoresEveryConfigurationAndResumes) {
   std::string line;
   ASSERT_TRUE(std::getline(csv, line));
   const std::vector<std::string> header = split(line, ',');
-  ASSERT_EQ(header.size(), 18u) << line;
-  EXPECT_EQ(header[15], "ms_per_64px_frame");
+  ASSERT_EQ(header.size(), 21u) << line;
+  EXPECT_EQ(header[15], "ssim_coc_1_4");
+  EXPECT_EQ(header[17], "ssim_coc_16_up");
+  EXPECT_EQ(header[18], "ms_per_64px_frame");
   std::map<std::string, std::vector<std::string>> rows;
   while (std::getline(csv, line))
     if (!line.empty()) rows[split(line, ',')[0]] = split(line, ',');
@@ -76,9 +78,12 @@ TEST(Study, OneCommandScoresEveryConfigurationAndResumes) {
     const std::vector<std::string>& r = rows[c];
     ASSERT_EQ(r.size(), header.size()) << c;
     EXPECT_EQ(r[2], "3") << c;  // validation frames
+    // Every score is finite but that of the CoC band no pixel falls in (the
+    // synthetic CoC stays below 8 px): none, not 0.
     for (size_t i = 3; i < r.size(); ++i)
-      EXPECT_TRUE(std::isfinite(std::stod(r[i]))) << c << " " << header[i] << " = " << r[i];
-    EXPECT_EQ(r[16], "2") << c;  // steps
+      EXPECT_EQ(std::isfinite(std::stod(r[i])), header[i] != "ssim_coc_16_up")
+          << c << " " << header[i] << " = " << r[i];
+    EXPECT_EQ(r[19], "2") << c;  // steps
     // The configuration is what its name says.
     // (configuration, text its config.toml holds or, for the no-CoC
     // network, must not hold)
@@ -96,6 +101,11 @@ TEST(Study, OneCommandScoresEveryConfigurationAndResumes) {
   }
   const std::string md = read_all(out / "results.md");
   for (const std::string& c : configs) EXPECT_NE(md.find("`" + c + "`"), std::string::npos) << c;
+  // SSIM by circle of confusion, and the CoC input's gain per band for the
+  // pair that was run with and without it (thesis, thesis_nococ).
+  EXPECT_NE(md.find("SSIM by circle of confusion"), std::string::npos) << md;
+  EXPECT_NE(md.find("| CoC input: `thesis` − `thesis_nococ` | "), std::string::npos) << md;
+  EXPECT_EQ(md.find("CoC input: `default`"), std::string::npos) << md;  // no default_nococ run
   // Side-by-side crops: one picture per configuration of the same window,
   // beside the noisy input and the reference, gathered in OUT/crops.
   for (const std::string& c : configs) {

@@ -16,6 +16,7 @@
 
 #include "common/error.h"
 #include "common/exr_io.h"
+#include "common/shard.h"
 #include "tests/trainer/synthetic.h"
 #include "trainer/eval.h"
 #include "trainer/losses.h"
@@ -368,6 +369,47 @@ TEST(Eval, ReportHasEveryFrameAndBeatsTheNoisyInput) {
   EXPECT_GT(fl_noisy, fl_den);
   EXPECT_NEAR(s.flicker, fl_den, 1e-12);
   EXPECT_TRUE(j["denoise_ms_at_size"].is_null());  // not asked for
+}
+
+// Scores by circle of confusion (kFocusRegions): each region's score is the
+// metric over exactly its pixels, the shares add up, and a band without
+// pixels has no score. The synthetic CoC runs from 0 to 8 px.
+TEST(Eval, ScoresEveryBandOfTheCircleOfConfusion) {
+  fs::path out = fresh_dir("eval_bands");
+  EvalOptions e{trained_run(), shared_data(), out, 0, 0, 0};
+  evaluate(e);
+  std::ifstream in(out / "report.json");
+  const nlohmann::json j = nlohmann::json::parse(in);
+  const nlohmann::json& share = j["summary"]["pixel_share"];
+  EXPECT_DOUBLE_EQ(share["all"].get<double>(), 1.0);
+  EXPECT_NEAR(share["in_focus"].get<double>() + share["out_of_focus"].get<double>(), 1.0, 1e-12);
+  EXPECT_NEAR(share["coc_1_4"].get<double>() + share["coc_4_16"].get<double>() +
+                  share["coc_16_up"].get<double>(),
+              share["out_of_focus"].get<double>(), 1e-12);
+  EXPECT_GT(share["coc_1_4"].get<double>(), 0.2);
+  EXPECT_GT(share["coc_4_16"].get<double>(), 0.2);
+  EXPECT_EQ(share["coc_16_up"].get<double>(), 0.0);
+  EXPECT_TRUE(j["summary"]["denoised"]["coc_16_up"]["ssim"].is_null());
+  EXPECT_TRUE(j["frames"][0]["noisy"]["coc_16_up"]["ssim"].is_null());
+  // Frame 0's noisy input over the 4-16 px band, scored here independently.
+  const nlohmann::json& row = j["frames"][0];
+  ShardReader reader(shared_data() / row["shard"].get<std::string>());
+  const FrameBuffers fb = reader.read_frame(row["frame"].get<int>() - reader.info().frame_start);
+  const size_t n = fb.plane();
+  std::vector<uint8_t> band(n);
+  for (size_t p = 0; p < n; ++p) band[p] = fb.coc[p] >= 4.0f && fb.coc[p] < 16.0f;
+  const std::vector<float> noisy(fb.noisy.begin(), fb.noisy.begin() + 3 * n);
+  const std::vector<float> a = display_encode({noisy.data(), 3, fb.height, fb.width}),
+                           b = display_encode({fb.reference.data(), 3, fb.height, fb.width});
+  const double want =
+      ssim({a.data(), 3, fb.height, fb.width}, {b.data(), 3, fb.height, fb.width}, band.data());
+  EXPECT_NEAR(row["noisy"]["coc_4_16"]["ssim"].get<double>(), want, 1e-12);
+  EXPECT_NE(row["noisy"]["coc_4_16"]["ssim"].get<double>(),
+            row["noisy"]["coc_1_4"]["ssim"].get<double>());
+  std::ifstream md_in(out / "report.md");
+  const std::string md((std::istreambuf_iterator<char>(md_in)), std::istreambuf_iterator<char>());
+  EXPECT_NE(md.find("By circle of confusion"), std::string::npos);
+  EXPECT_NE(md.find("| coc_4_16 | 4–16 |"), std::string::npos);
 }
 
 // Crops where the lens matters (report.h): on a CoC map with one sharp
