@@ -18,6 +18,7 @@
 
 #include <CLI/CLI.hpp>
 #include <atomic>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <functional>
@@ -126,6 +127,7 @@ Command add_eval(CLI::App& app) {
     int frames = 0, images = 8, version = 0, time_size = 0, time_reps = 3, crops = 2,
         crop_size = 64;
     bool validation_only = false;
+    float coc_override = NAN;
   };
   auto o = std::make_shared<Opts>();
   cmd->add_option("--run", o->run, "run folder")->required()->check(CLI::ExistingDirectory);
@@ -166,8 +168,14 @@ Command add_eval(CLI::App& app) {
                   "timed runs at --time-size (median; after a warm-up)")
       ->capture_default_str()
       ->check(CLI::Range(1, 1000));
+  cmd->add_option("--coc-override", o->coc_override,
+                  "probe the CoC input: feed the network this circle of confusion (pixels) at "
+                  "every pixel instead of the frame's own (0 = all in focus); the in-focus and "
+                  "out-of-focus regions still come from the frame's own CoC")
+      ->check(CLI::Range(0.0f, 1e4f));
   return {cmd, [o] {
             EvalOptions e{o->run, o->data, o->out, o->frames, o->images, o->version, o->checkpoint};
+            e.coc_override = o->coc_override;
             e.all_frames = !o->validation_only;
             e.time_side = o->time_size;
             e.time_reps = o->time_reps;

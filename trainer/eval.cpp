@@ -392,7 +392,14 @@ EvalSummary evaluate(const EvalOptions& o) {
       const int w = fb.width, h = fb.height;
       const size_t n = fb.plane();
       double sec = 0;
-      std::vector<float> out = den.denoise(fb, o.version, &sec);
+      std::vector<float> out;
+      if (std::isfinite(o.coc_override)) {
+        FrameBuffers probe = fb;
+        std::fill(probe.coc.begin(), probe.coc.end(), o.coc_override);
+        out = den.denoise(probe, o.version, &sec);
+      } else {
+        out = den.denoise(fb, o.version, &sec);
+      }
       std::vector<float> noisy(fb.noisy.begin() + size_t(o.version) * 3 * n,
                                fb.noisy.begin() + size_t(o.version + 1) * 3 * n);
       // One mask per region (kFocusRegions; "all" needs none).
@@ -562,6 +569,7 @@ EvalSummary evaluate(const EvalOptions& o) {
        "((d_t-d_t-1)-(r_t-r_t-1))^2/(m^2+0.01), m = (r_t+r_t-1)/2, over consecutive frames "
        "(null on a sequence's first frame); in focus = CoC < 1 px"},
       {"summary", summary},
+      {"coc_override", std::isfinite(o.coc_override) ? json(o.coc_override) : json()},
       {"denoise_ms_at_size", at_size},
       {"reference_ceiling", ceiling.to_json()},
       {"crops", crops},
@@ -595,6 +603,12 @@ EvalSummary evaluate(const EvalOptions& o) {
         "of the frame-to-frame differences, ((d_t - d_t-1) - (r_t - r_t-1))^2 / (m^2 + 0.01) "
         "with m the mean of r_t and r_t-1, over consecutive frames (Chaitanya et al. 2017, "
         "eq. 4). In focus: CoC < 1 pixel. Time: network + remodulation per frame, no IO.\n\n"
+     << (std::isfinite(o.coc_override)
+             ? "**CoC probe** (`--coc-override " + cell(o.coc_override, 2) +
+                   "`): the network was fed a circle of confusion of " + cell(o.coc_override, 2) +
+                   " px at every pixel instead of the frame's own; the regions are still those "
+                   "of the frame's own CoC.\n\n"
+             : std::string())
      << md_header;
   // The tables' cells, one row per (scene, input), for report.md and report.html.
   using Rows = std::vector<std::vector<std::string>>;

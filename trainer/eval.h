@@ -63,6 +63,12 @@ struct EvalOptions {
   // in report.md and report.json ("crops"). 0 = none.
   int crops = 0;
   int crop_side = 64;
+  // A probe of whether the model uses its CoC input: when finite, the
+  // network is fed this circle of confusion (pixels) at every pixel instead
+  // of the frame's own (0: everything in focus). The regions scored
+  // (kFocusRegions) still come from the frame's own CoC. Recorded in the
+  // report ("coc_override"). NaN = off.
+  float coc_override = NAN;
 };
 
 struct EvalSummary {

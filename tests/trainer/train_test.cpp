@@ -412,6 +412,40 @@ TEST(Eval, ScoresEveryBandOfTheCircleOfConfusion) {
   EXPECT_NE(md.find("| coc_4_16 | 4–16 |"), std::string::npos);
 }
 
+// The CoC probe (--coc-override): a model with a CoC input denoises
+// differently when fed a false CoC, while the noisy row and the regions
+// (from the frame's own CoC) stay; a model without the input is unmoved,
+// to the last bit.
+TEST(Eval, CocOverrideMovesOnlyAModelThatReadsTheCoc) {
+  auto scores = [](const fs::path& run, const char* name, float coc) {
+    fs::path out = fresh_dir(name);
+    EvalOptions e{run, shared_data(), out, 0, 0, 0};
+    e.all_frames = false;
+    e.coc_override = coc;
+    evaluate(e);
+    std::ifstream in(out / "report.json");
+    return nlohmann::json::parse(in);
+  };
+  const nlohmann::json own = scores(trained_run(), "probe_own", NAN),
+                       zero = scores(trained_run(), "probe_zero", 0.0f);
+  EXPECT_TRUE(own["coc_override"].is_null());
+  EXPECT_EQ(zero["coc_override"].get<double>(), 0.0);
+  EXPECT_EQ(zero["summary"]["noisy"], own["summary"]["noisy"]);
+  EXPECT_EQ(zero["summary"]["pixel_share"], own["summary"]["pixel_share"]);
+  EXPECT_NE(zero["summary"]["denoised"]["out_of_focus"]["ssim"].get<double>(),
+            own["summary"]["denoised"]["out_of_focus"]["ssim"].get<double>());
+
+  fs::path nococ = fresh_dir("run_nococ");
+  TrainOptions o{shared_data(), nococ, tiny_config()};
+  std::erase(o.config.model.inputs, std::string("coc:log"));
+  o.config.train.epochs = 1;
+  o.config.train.steps_per_epoch = 2;
+  train(o);
+  const nlohmann::json a = scores(nococ, "probe_nococ_own", NAN),
+                       b = scores(nococ, "probe_nococ_big", 50.0f);
+  EXPECT_EQ(a["summary"]["denoised"], b["summary"]["denoised"]);
+}
+
 // Crops where the lens matters (report.h): on a CoC map with one sharp
 // square and one blurred square, the windows found are those squares.
 TEST(Crops, WindowsOfTheSmallestAndLargestCircleOfConfusion) {
