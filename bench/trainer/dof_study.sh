@@ -215,6 +215,20 @@ for c in $CONFIGS; do
     rm -rf "$report"
     mv "$report.tmp" "$report"
   fi
+  # The CoC probe (eval --coc-override 0): the same weights fed "everything
+  # is sharp"; how much each band loses says how much the model uses its CoC.
+  probe=$OUT/reports/$c-coc0
+  case $c in *_nococ) continue ;; esac
+  if [ -f "$probe/report.json" ] && [ "$probe/report.json" -nt "$report/report.json" ]; then
+    echo "dof_study.sh: $c: CoC probe done, not made again"
+  else
+    echo "dof_study.sh: $c: CoC probe (fed CoC 0) -> $probe"
+    rm -rf "$probe.tmp"
+    "$TRAIN" --log-level warn eval --run "$run" --data "$DATA_DIR" --out "$probe.tmp" \
+      --checkpoint last --images 0 --validation-only --crops 0 --coc-override 0 > /dev/null
+    rm -rf "$probe"
+    mv "$probe.tmp" "$probe"
+  fi
 done
 
 # The table and the plot.
@@ -304,6 +318,25 @@ for c in configs:
         coc_md.append(f"| CoC input: `{c}` − `{c}_nococ` | " +
                       " | ".join(fmt(band_ssim(a, region) - band_ssim(b, region), "+.4f")
                                  for region, _ in bands) + " |")
+# The CoC probe: SSIM when fed CoC 0 everywhere, minus SSIM with the frame's own.
+probe_rows = []
+for r in rows:
+    path = os.path.join(out, "reports", r["config"] + "-coc0", "report.json")
+    if not os.path.exists(path):
+        continue
+    pd = json.load(open(path))["summary"]["denoised"]
+    def probe_ssim(region):
+        v = pd.get(region, {}).get("ssim")
+        return float("nan") if v is None else float(v)
+    probe_rows.append(f"| `{r['config']}` fed CoC 0 | " +
+                      " | ".join(fmt(probe_ssim(region) - band_ssim(r, region), "+.4f")
+                                 for region, _ in bands) + " |")
+if probe_rows:
+    coc_md += ["", "The CoC probe (`eval --coc-override 0`): SSIM when the network is fed a CoC of "
+               "0 px everywhere (\"all sharp\"), minus SSIM with the frame's own CoC, by the "
+               "frame's own CoC band (a model that ignores its CoC input scores +0 everywhere):", "",
+               "| configuration | " + " | ".join(name for _, name in bands) + " |",
+               "| --- " * (len(bands) + 1) + "|"] + probe_rows
 # Side-by-side crops: the windows eval chose from the data's CoC (the same
 # for every configuration), copied to OUT/crops/ so that results.md and its
 # pictures can be published together.

@@ -106,6 +106,13 @@ TEST(Study, OneCommandScoresEveryConfigurationAndResumes) {
   EXPECT_NE(md.find("SSIM by circle of confusion"), std::string::npos) << md;
   EXPECT_NE(md.find("| CoC input: `thesis` − `thesis_nococ` | "), std::string::npos) << md;
   EXPECT_EQ(md.find("CoC input: `default`"), std::string::npos) << md;  // no default_nococ run
+  // The CoC probe: every configuration with a CoC input, fed CoC 0.
+  EXPECT_NE(md.find("The CoC probe"), std::string::npos) << md;
+  for (const std::string& c : configs) {
+    const bool reads_coc = c != "thesis_nococ";
+    EXPECT_EQ(md.find("| `" + c + "` fed CoC 0 | ") != std::string::npos, reads_coc) << c;
+    EXPECT_EQ(fs::exists(out / "reports" / (c + "-coc0") / "report.json"), reads_coc) << c;
+  }
   // Side-by-side crops: one picture per configuration of the same window,
   // beside the noisy input and the reference, gathered in OUT/crops.
   for (const std::string& c : configs) {
@@ -132,6 +139,8 @@ TEST(Study, OneCommandScoresEveryConfigurationAndResumes) {
     EXPECT_NE(second.find(c + ": trained (2 steps), not trained again"), std::string::npos)
         << second;
     EXPECT_NE(second.find(c + ": evaluated, not evaluated again"), std::string::npos) << second;
+    if (c != "thesis_nococ")
+      EXPECT_NE(second.find(c + ": CoC probe done, not made again"), std::string::npos) << second;
     EXPECT_EQ(fs::last_write_time(out / "runs" / c / "checkpoints" / "last.pt"), before[c]) << c;
   }
   EXPECT_EQ(read_all(out / "results.md"), md);  // the same table again
