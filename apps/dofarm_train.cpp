@@ -20,6 +20,7 @@
 #include <atomic>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <functional>
 #include <map>
@@ -172,6 +173,14 @@ Command add_eval(CLI::App& app) {
                   "probe the CoC input: feed the network this circle of confusion (pixels) at "
                   "every pixel instead of the frame's own (0 = all in focus); the in-focus and "
                   "out-of-focus regions still come from the frame's own CoC")
+      ->check(CLI::Validator(
+          [](std::string& v) {
+            // Range passes NaN (no comparison holds); NaN would mean "off".
+            char* end = nullptr;
+            const float x = std::strtof(v.c_str(), &end);
+            return std::isfinite(x) ? std::string() : "expected a finite number, got " + v;
+          },
+          "PX"))
       ->check(CLI::Range(0.0f, 1e4f));
   return {cmd, [o] {
             EvalOptions e{o->run, o->data, o->out, o->frames, o->images, o->version, o->checkpoint};

@@ -444,6 +444,19 @@ TEST(Eval, CocOverrideMovesOnlyAModelThatReadsTheCoc) {
   const nlohmann::json a = scores(nococ, "probe_nococ_own", NAN),
                        b = scores(nococ, "probe_nococ_big", 50.0f);
   EXPECT_EQ(a["summary"]["denoised"], b["summary"]["denoised"]);
+
+  // The command refuses a CoC that is not a finite number of pixels >= 0
+  // (NaN would silently mean "no probe"), before writing anything.
+  const fs::path refused = fresh_dir("probe_refused") / "report";
+  for (const char* bad : {"nan", "inf", "-1"}) {
+    const std::string cmd = std::string(DOFARM_TRAIN_EXE) + " eval --run " +
+                            trained_run().string() + " --data " + shared_data().string() +
+                            " --out " + refused.string() + " --coc-override " + bad +
+                            " >/dev/null 2>&1";
+    const int rc = std::system(cmd.c_str());
+    EXPECT_TRUE(WIFEXITED(rc) && WEXITSTATUS(rc) == 2) << bad;
+    EXPECT_FALSE(fs::exists(refused)) << bad;
+  }
 }
 
 // Crops where the lens matters (report.h): on a CoC map with one sharp
