@@ -31,7 +31,15 @@
 # configuration: the split is drawn from the shards' content).
 #
 #   bench/trainer/dof_study.sh [--steps N] [--out DIR] [--epochs E] [--time-size S] [--crops K]
-#                              [--configs "thesis default ..."] [--set KEY=VALUE]... [DATA_DIR...]
+#                              [--configs "thesis default ..."] [--seeds "1 2 3"]
+#                              [--set KEY=VALUE]... [DATA_DIR...]
+#
+# --seeds: run the whole study once per training seed, each a study of its
+# own in OUT/seed-S (with --set train.seed=S; its own table), and write the
+# tables across seeds in OUT/results.md and OUT/results.csv: per
+# configuration the mean and the range over the seeds, SSIM by CoC band, the
+# CoC input's gain per band seed by seed, and the CoC probe. One seed
+# cannot tell a difference from where a run happens to stop.
 #
 # DATA_DIR: farm output folders (default: out/study/cornell out/study/courtyard,
 # rendered by bench/trainer/render_study.sh). Several folders are joined in
@@ -63,20 +71,23 @@ CROPS=2
 CONFIGS="thesis thesis_nococ default thesis_focus thesis_prefilter thesis_recurrent"
 SETS=()
 DATA=()
+SEEDS=""
+PASS=()  # the arguments each seed's study gets (all but --seeds and --out)
 usage() { sed -n '2,54p' "$0" | sed 's/^# \{0,1\}//'; }
 die() { echo "dof_study.sh: $*" >&2; exit 2; }
 while [ $# -gt 0 ]; do
   case $1 in
-    --steps) STEPS=${2:?}; shift 2 ;;
-    --epochs) EPOCHS=${2:?}; shift 2 ;;
+    --steps) STEPS=${2:?}; PASS+=("$1" "$2"); shift 2 ;;
+    --epochs) EPOCHS=${2:?}; PASS+=("$1" "$2"); shift 2 ;;
     --out) OUT=${2:?}; shift 2 ;;
-    --time-size) TIME_SIZE=${2:?}; shift 2 ;;
-    --crops) CROPS=${2:?}; shift 2 ;;
-    --configs) CONFIGS=${2:?}; shift 2 ;;
-    --set) SETS+=(--set "${2:?}"); shift 2 ;;
+    --time-size) TIME_SIZE=${2:?}; PASS+=("$1" "$2"); shift 2 ;;
+    --crops) CROPS=${2:?}; PASS+=("$1" "$2"); shift 2 ;;
+    --configs) CONFIGS=${2:?}; PASS+=("$1" "$2"); shift 2 ;;
+    --seeds) SEEDS=${2?}; shift 2 ;;
+    --set) SETS+=(--set "${2:?}"); PASS+=("$1" "$2"); shift 2 ;;
     -h|--help) usage; exit 0 ;;
     -*) die "unknown option $1 (see --help)" ;;
-    *) DATA+=("$1"); shift ;;
+    *) DATA+=("$1"); PASS+=("$1"); shift ;;
   esac
 done
 [[ $STEPS =~ ^[1-9][0-9]*$ ]] || die "--steps: expected a positive integer, got '$STEPS'"
@@ -90,6 +101,14 @@ for d in "${DATA[@]}"; do
   [ -d "$d" ] || die "no data folder $d (render the study set with bench/trainer/render_study.sh)"
 done
 ABLATION="thesis abl_radiance abl_normal abl_depth abl_coc abl_bottleneck abl_decoder abl_gradloss abl_schedule default"
+for s in $SEEDS; do
+  [[ $s =~ ^[0-9]+$ ]] || die "--seeds: expected non-negative integers, got '$s'"
+done
+[ -z "$SEEDS" ] || [ "$(printf '%s\n' $SEEDS | sort -u | wc -l)" -eq "$(printf '%s\n' $SEEDS | wc -l)" ] ||
+  die "--seeds: a seed is named twice in '$SEEDS'"
+for kv in "${SETS[@]}"; do
+  [ -z "$SEEDS" ] || [[ $kv != train.seed=* ]] || die "--seeds and --set train.seed=... exclude each other"
+done
 [ "$CONFIGS" = ablation ] && CONFIGS=$ABLATION
 [ "$CONFIGS" = coc ] && CONFIGS="default default_nococ"
 # The thesis's inputs without the CoC (thesis 4.3.2 no-DOF network).
@@ -152,6 +171,114 @@ describe() {
 for c in $CONFIGS; do
   [ -n "$(describe "$c")" ] || die "--configs: unknown configuration '$c'"
 done
+
+if [ -n "$SEEDS" ]; then
+  # One study per seed, then the tables across seeds.
+  for s in $SEEDS; do
+    echo "dof_study.sh: seed $s -> $OUT/seed-$s"
+    bash "${BASH_SOURCE[0]}" "${PASS[@]}" --out "$OUT/seed-$s" --set "train.seed=$s"
+  done
+  described=()
+  for c in $CONFIGS; do described+=("$c=$(describe "$c")"); done
+  python3 - "$OUT" "$TIME_SIZE" "$SEEDS" "${described[@]}" <<'PY'
+import csv, json, math, os, sys
+
+out, side, seeds = sys.argv[1], int(sys.argv[2]), sys.argv[3].split()
+label = dict(arg.split("=", 1) for arg in sys.argv[4:])
+configs = list(label)
+bands = (("in_focus", "< 1 px"), ("coc_1_4", "1–4 px"), ("coc_4_16", "4–16 px"),
+         ("coc_16_up", "≥ 16 px"))
+def num(v):
+    return float("nan") if v is None or v == "" else float(v)
+# Per seed: its results.csv rows and, per configuration, the summary of its
+# report and of its CoC probe.
+per = {}  # (config, seed) -> {"csv": row, "denoised": ..., "probe": ... or None}
+for s in seeds:
+    d = os.path.join(out, f"seed-{s}")
+    with open(os.path.join(d, "results.csv")) as f:
+        rows = {r["config"]: r for r in csv.DictReader(f)}
+    for c in configs:
+        rep = json.load(open(os.path.join(d, "reports", c, "report.json")))["summary"]["denoised"]
+        p = os.path.join(d, "reports", c + "-coc0", "report.json")
+        probe = json.load(open(p))["summary"]["denoised"] if os.path.exists(p) else None
+        per[(c, s)] = {"csv": rows[c], "denoised": rep, "probe": probe}
+def ssim(summary, region):
+    return num((summary or {}).get(region, {}).get("ssim"))
+def finite(vals):
+    return [v for v in vals if math.isfinite(v)]
+def mean_range(vals, spec):
+    v = finite(vals)
+    if not v:
+        return "–"
+    m = sum(v) / len(v)
+    if len(v) == 1:
+        return format(m, spec)
+    return f"{format(m, spec)} ({format(min(v), spec)} … {format(max(v), spec)})"
+def mean(vals):
+    v = finite(vals)
+    return sum(v) / len(v) if v else float("nan")
+
+cols = [("ssim_all", "SSIM all", ".4f"), ("ssim_in", "SSIM in focus", ".4f"),
+        ("ssim_out", "SSIM out of focus", ".4f"), ("psnr_all", "PSNR all (dB)", ".2f"),
+        ("relmse_all", "relMSE all", ".4f"), ("flicker_all", "flicker all", ".3g"),
+        (f"ms_per_{side}px_frame", f"ms / {side}² frame", ".0f")]
+md = [f"Across seeds {', '.join(seeds)}: the mean, and in brackets the lowest and the highest "
+      "seed (each seed's own tables: seed-S/results.md).", "",
+      "| configuration | " + " | ".join(name for _, name, _ in cols) + " |",
+      "| --- " * (len(cols) + 1) + "|"]
+for c in configs:
+    md.append(f"| `{c}` {label[c]} | " + " | ".join(
+        mean_range([num(per[(c, s)]["csv"][k]) for s in seeds], spec) for k, _, spec in cols) + " |")
+md += ["", "SSIM by circle of confusion, mean (lowest … highest seed):", "",
+       "| configuration | " + " | ".join(name for _, name in bands) + " |",
+       "| --- " * (len(bands) + 1) + "|"]
+for c in configs:
+    md.append(f"| `{c}` | " + " | ".join(
+        mean_range([ssim(per[(c, s)]["denoised"], r) for s in seeds], ".4f") for r, _ in bands) + " |")
+pairs = [c for c in configs if c + "_nococ" in label]
+if pairs:
+    md += ["", "The CoC input's gain (SSIM with it − without it), by CoC band: the mean, then "
+           "seed by seed (" + ", ".join(seeds) + "):", "",
+           "| pair | " + " | ".join(name for _, name in bands) + " |",
+           "| --- " * (len(bands) + 1) + "|"]
+    for c in pairs:
+        cells = []
+        for r, _ in bands:
+            g = [ssim(per[(c, s)]["denoised"], r) - ssim(per[(c + "_nococ", s)]["denoised"], r)
+                 for s in seeds]
+            cells.append(format(mean(g), "+.4f") + " (" + ", ".join(format(x, "+.4f") for x in g) + ")")
+        md.append(f"| `{c}` − `{c}_nococ` | " + " | ".join(cells) + " |")
+probed = [c for c in configs if all(per[(c, s)]["probe"] for s in seeds)]
+if probed:
+    md += ["", "The CoC probe (`eval --coc-override 0`, the network told that everything is "
+           "sharp): SSIM change by the frame's own CoC band, the mean, then seed by seed:", "",
+           "| configuration | " + " | ".join(name for _, name in bands) + " |",
+           "| --- " * (len(bands) + 1) + "|"]
+    for c in probed:
+        cells = []
+        for r, _ in bands:
+            g = [ssim(per[(c, s)]["probe"], r) - ssim(per[(c, s)]["denoised"], r) for s in seeds]
+            cells.append(format(mean(g), "+.4f") + " (" + ", ".join(format(x, "+.4f") for x in g) + ")")
+        md.append(f"| `{c}` fed CoC 0 | " + " | ".join(cells) + " |")
+with open(os.path.join(out, "results.md.tmp"), "w") as f:
+    f.write("\n".join(md) + "\n")
+os.replace(os.path.join(out, "results.md.tmp"), os.path.join(out, "results.md"))
+# Every seed's rows in one CSV, the seed first.
+with open(os.path.join(out, "results.csv.tmp"), "w", newline="") as f:
+    w = None
+    for s in seeds:
+        for c in configs:
+            row = per[(c, s)]["csv"]
+            if w is None:
+                w = csv.writer(f)
+                w.writerow(["seed"] + list(row))
+            w.writerow([s] + list(row.values()))
+os.replace(os.path.join(out, "results.csv.tmp"), os.path.join(out, "results.csv"))
+print("\n".join(md))
+print(f"dof_study.sh: {out}/results.md, results.csv (across seeds)")
+PY
+  exit 0
+fi
 
 [ "$EPOCHS" -le "$STEPS" ] || EPOCHS=$STEPS
 PER_EPOCH=$(( (STEPS + EPOCHS - 1) / EPOCHS ))

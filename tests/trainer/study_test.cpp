@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 #include <sys/stat.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
@@ -38,11 +39,11 @@ std::vector<std::string> split(const std::string& line, char sep) {
 }
 
 int run_study(const fs::path& data, const fs::path& out, const fs::path& log,
-              const std::string& configs = "") {
+              const std::string& configs = "", const std::string& extra = "") {
   const std::string cmd =
       std::string("DOFARM_TRAIN=") + DOFARM_TRAIN_EXE + " bash " + DOFARM_SOURCE_DIR +
       "/bench/trainer/dof_study.sh --steps 2 --epochs 1 --time-size 64 --out " + out.string() +
-      (configs.empty() ? "" : " --configs '" + configs + "'") +
+      (configs.empty() ? "" : " --configs '" + configs + "'") + extra +
       " --set 'model.channels=[8, 8, 8, 8, 8]' --set data.crop=32 --set data.sequence=3"
       " --set data.val_fraction=0.25 --set data.readers=1 --set data.queue=4"
       " --set train.batch=2 --set train.val_sequences=1 --set train.device=cpu " +
@@ -144,6 +145,51 @@ TEST(Study, OneCommandScoresEveryConfigurationAndResumes) {
     EXPECT_EQ(fs::last_write_time(out / "runs" / c / "checkpoints" / "last.pt"), before[c]) << c;
   }
   EXPECT_EQ(read_all(out / "results.md"), md);  // the same table again
+}
+
+// --seeds: one study per seed in OUT/seed-S, trained with that seed, and the
+// tables across seeds: every configuration's mean and range, the CoC input's
+// gain per band seed by seed, the probe; bad seed lists are refused.
+TEST(Study, SeedsRunOneStudyEachAndTabulateAcrossThem) {
+  const fs::path dir = testing::scratch_dir("study_seeds");
+  fs::create_directories(dir / "data");
+  testing::write_synthetic_shard(dir / "data" / "shard-00000.h5", 12, 64, 64, 2, 5);
+  const fs::path out = dir / "out";
+  const std::string configs = "default default_nococ";
+  ASSERT_EQ(run_study(dir / "data", out, dir / "seeds.log", configs, " --crops 0 --seeds '3 4'"), 0)
+      << read_all(dir / "seeds.log");
+  for (const char* s : {"3", "4"}) {
+    const fs::path one = out / (std::string("seed-") + s);
+    EXPECT_TRUE(fs::exists(one / "results.md")) << s;
+    for (const char* c : {"default", "default_nococ"})
+      EXPECT_NE(read_all(one / "runs" / c / "config.toml").find(std::string("seed = ") + s),
+                std::string::npos)
+          << s << " " << c;
+  }
+  const std::string md = read_all(out / "results.md");
+  EXPECT_NE(md.find("Across seeds 3, 4"), std::string::npos) << md;
+  EXPECT_NE(md.find("| `default` (c) project default | "), std::string::npos) << md;
+  // The gain row: the mean, then one value per seed.
+  const size_t gain = md.find("| `default` − `default_nococ` | ");
+  ASSERT_NE(gain, std::string::npos) << md;
+  const std::string row = md.substr(gain, md.find('\n', gain) - gain);
+  EXPECT_EQ(std::count(row.begin(), row.end(), ','), 4) << row;  // 4 bands x (a, b)
+  EXPECT_NE(md.find("| `default` fed CoC 0 | "), std::string::npos) << md;
+  EXPECT_EQ(md.find("| `default_nococ` fed CoC 0"), std::string::npos) << md;
+  // The CSV: every seed's rows, the seed first.
+  std::ifstream csv(out / "results.csv");
+  std::string line;
+  std::vector<std::string> seeds;
+  ASSERT_TRUE(std::getline(csv, line));
+  EXPECT_EQ(line.rfind("seed,config,", 0), 0u) << line;
+  while (std::getline(csv, line))
+    if (!line.empty()) seeds.push_back(split(line, ',')[0] + " " + split(line, ',')[1]);
+  EXPECT_EQ(seeds, (std::vector<std::string>{"3 default", "3 default_nococ", "4 default",
+                                             "4 default_nococ"}));
+
+  for (const char* bad : {" --seeds '3 3'", " --seeds x", " --seeds 3 --set train.seed=2"})
+    EXPECT_EQ(run_study(dir / "data", dir / "bad", dir / "bad.log", configs, bad), 2) << bad;
+  EXPECT_FALSE(fs::exists(dir / "bad"));
 }
 
 // "section.key" -> value of a run's config.toml (to_toml's flat layout).
