@@ -277,6 +277,7 @@ std::vector<Field> fields(TrainConfig& c) {
   f.push_back(number_field("train.val_sequences", &o.val_sequences, 0, 1000000, false));
   f.push_back(device_field("train.device", &o.device));
   f.push_back(number_field("train.max_bad_steps", &o.max_bad_steps, 1, 1000000, false));
+  f.push_back(number_field("train.grad_clip", &o.grad_clip, 0.0, 1e9, false));
   f.push_back(number_field("train.rollback_lr_factor", &o.rollback_lr_factor, 0.01, 1.0, false));
   f.push_back(number_field("train.cpu_replicas", &o.cpu_replicas, 0, 256, false));
   f.push_back(enum_field("train.precision", &o.precision, precision_names(), false));

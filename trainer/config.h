@@ -140,6 +140,10 @@ struct OptimConfig {
   int val_sequences = 32;       // drawn deterministically each epoch
   std::string device = "auto";  // auto | cpu | cuda
   int max_bad_steps = 3;        // consecutive non-finite steps before a rollback
+  // Gradients whose global L2 norm exceeds this are scaled down to it before
+  // the Adam step (clip_gradients in step_runner.h); 0 = off. Every step's
+  // norm before clipping is in RUN/steps.csv.
+  float grad_clip = 0.0f;
   float rollback_lr_factor = 0.5f;
   // Model copies a CPU step is split across, one thread each (StepRunner in
   // train.h); 0 = auto: 2 when on the CPU with >= 2 intra-op threads and a

@@ -211,6 +211,7 @@ StepCurve read_steps_csv(const std::filesystem::path& csv) {
     c.step.push_back(num(f[0]));
     c.loss.push_back(num(f[1]));
     c.lr.push_back(num(f[2]));
+    c.grad_norm.push_back(f.size() > 3 ? num(f[3]) : NAN);
   }
   return c;
 }

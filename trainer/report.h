@@ -57,9 +57,11 @@ struct LossCurve {
 // Reads RUN/loss.csv (empty curve when absent).
 LossCurve read_loss_csv(const std::filesystem::path& csv);
 struct StepCurve {
-  std::vector<double> step, loss, lr;  // loss NaN for a skipped step
+  // loss and grad_norm NaN for a skipped step; grad_norm NaN in rows written
+  // before the column existed.
+  std::vector<double> step, loss, lr, grad_norm;
 };
-// Reads RUN/steps.csv (step,loss,lr; empty curve when absent).
+// Reads RUN/steps.csv (step,loss,lr,grad_norm; empty curve when absent).
 StepCurve read_steps_csv(const std::filesystem::path& csv);
 
 struct PlotSeries {

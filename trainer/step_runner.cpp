@@ -14,6 +14,20 @@
 
 namespace dofarm::trainer {
 
+double clip_gradients(const std::vector<torch::Tensor>& params, double max_norm) {
+  double sum_sq = 0;
+  for (const torch::Tensor& p : params)
+    if (p.grad().defined()) sum_sq += p.grad().to(torch::kDouble).pow(2).sum().item<double>();
+  const double norm = std::sqrt(sum_sq);
+  if (max_norm > 0 && norm > max_norm) {
+    torch::NoGradGuard no_grad;
+    const double scale = max_norm / norm;
+    for (const torch::Tensor& p : params)
+      if (p.grad().defined()) p.grad().mul_(scale);
+  }
+  return norm;
+}
+
 StepOutcome compute_gradients(Denoiser& model, const Batch& batch, const LossConfig& loss_cfg,
                               const torch::Tensor& kernel,
                               const std::function<torch::Tensor(const torch::Tensor&)>& hook,

@@ -65,6 +65,14 @@ class StepRunner {
   Precision precision_;
 };
 
+// The global L2 norm of the gradients of `params` (all of them as one
+// vector, accumulated in double) and, when max_norm > 0 and the norm exceeds
+// it, the gradients scaled by max_norm / norm so that their norm becomes
+// max_norm (gradient-norm clipping, Pascanu et al. 2013, sec. 3.2). Below
+// the bound, or with max_norm = 0, the gradients are untouched, bit for bit.
+// Returns the norm before clipping (0 without gradients).
+double clip_gradients(const std::vector<torch::Tensor>& params, double max_norm);
+
 // Replicas for train.cpu_replicas = `configured` (0 = auto, see OptimConfig)
 // on `device` with `threads` intra-op threads at `precision`; never more
 // than `batch`.

@@ -246,7 +246,7 @@ TrainResult train_in(const TrainOptions& opt_in) {
     std::getline(in, line);
     while (std::getline(in, line))
       if (!line.empty() && std::stoll(line.substr(0, line.find(','))) <= st.step) keep.push_back(line);
-    std::string text = "step,loss,lr\n";
+    std::string text = "step,loss,lr,grad_norm\n";
     for (const std::string& l : keep) text += l + "\n";
     write_text_atomic(run / "steps.csv", text);
   }
@@ -269,7 +269,7 @@ TrainResult train_in(const TrainOptions& opt_in) {
     auto t0 = std::chrono::steady_clock::now();
     model->train();
     double loss_sum = 0;
-    int good = 0, skipped = 0;
+    int good = 0, skipped = 0, clipped = 0;
     double lr = 0;
     // Counted from the step, so an epoch interrupted mid-way resumes where it was.
     while (st.step < (st.epoch + 1) * steps_per_epoch) {
@@ -286,10 +286,14 @@ TrainResult train_in(const TrainOptions& opt_in) {
       const StepOutcome outcome = runner.run(batch, cfg.loss, kernel, hook);
       const double loss_value = outcome.loss;
       const bool ok = outcome.finite;
+      // The gradients are finite here when ok (compute_gradients checked).
+      const double grad_norm = ok ? clip_gradients(model->parameters(), cfg.train.grad_clip) : NAN;
+      if (ok && cfg.train.grad_clip > 0 && grad_norm > cfg.train.grad_clip) ++clipped;
       ++st.step;
       progress.advance();
       steps_csv << st.step << "," << (ok ? fmt::format("{:.6g}", loss_value) : "") << ","
-                << fmt::format("{:.6g}", lr) << "\n";
+                << fmt::format("{:.6g}", lr) << "," << (ok ? fmt::format("{:.6g}", grad_norm) : "")
+                << "\n";
       if (ok) {
         adam.step();
         loss_sum += loss_value;
@@ -365,6 +369,9 @@ TrainResult train_in(const TrainOptions& opt_in) {
     steps_csv.flush();
     spdlog::info("epoch {}/{}: train {:.5f} val {:.5f} lr {:.3g} ({:.1f} s)", st.epoch,
                  cfg.train.epochs, train_loss, val, lr, seconds);
+    if (clipped > 0)
+      log(spdlog::level::info, "epoch {}: {} of {} steps clipped to gradient norm {}", st.epoch,
+          clipped, good, cfg.train.grad_clip);
     // Best by validation loss, or by training loss (train.best_by; thesis
     // 5.1), and always by training loss when there is no validation set.
     // A non-finite loss never makes a model "best".

@@ -6,6 +6,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <fstream>
@@ -23,6 +24,7 @@
 #include "trainer/metrics.h"
 #include "trainer/precision.h"
 #include "trainer/report.h"
+#include "trainer/step_runner.h"
 
 namespace dofarm::trainer {
 namespace {
@@ -157,6 +159,32 @@ TEST(StepRunner, ReplicasGiveTheWholeBatchsLossAndGradient) {
   EXPECT_EQ(at::get_num_threads(), threads_before);  // restored by ~StepRunner
 }
 
+// Gradient-norm clipping by hand: gradients (3) and (4, 0) have norm 5.
+TEST(StepRunner, ClipGradientsScalesToTheBoundAndOnlyAbove) {
+  auto params = [] {
+    torch::Tensor a = torch::zeros({1}, torch::requires_grad()),
+                  b = torch::zeros({2}, torch::requires_grad()),
+                  c = torch::zeros({3}, torch::requires_grad());  // no gradient: ignored
+    a.mutable_grad() = torch::tensor({3.0f});
+    b.mutable_grad() = torch::tensor({4.0f, 0.0f});
+    return std::vector<torch::Tensor>{a, b, c};
+  };
+  for (double bound : {0.0, 5.0, 10.0}) {
+    std::vector<torch::Tensor> p = params();
+    EXPECT_DOUBLE_EQ(clip_gradients(p, bound), 5.0) << bound;
+    EXPECT_EQ(p[0].grad().item<float>(), 3.0f) << bound;  // untouched, bit for bit
+    EXPECT_EQ(p[1].grad()[0].item<float>(), 4.0f) << bound;
+  }
+  std::vector<torch::Tensor> p = params();
+  EXPECT_DOUBLE_EQ(clip_gradients(p, 1.0), 5.0);  // the norm before clipping
+  EXPECT_NEAR(p[0].grad().item<float>(), 0.6f, 1e-7);
+  EXPECT_NEAR(p[1].grad()[0].item<float>(), 0.8f, 1e-7);
+  EXPECT_EQ(p[1].grad()[1].item<float>(), 0.0f);
+  EXPECT_NEAR(clip_gradients(p, 0.0), 1.0, 1e-7);
+  EXPECT_FALSE(p[2].grad().defined());
+  EXPECT_DOUBLE_EQ(clip_gradients({torch::zeros({2})}, 1.0), 0.0);
+}
+
 TEST(StepRunner, ReplicaCountFollowsTheConfigDeviceThreadsAndBatch) {
   EXPECT_EQ(step_replicas(0, torch::kCPU, 2, 4), 2);   // auto, 2 threads
   EXPECT_EQ(step_replicas(0, torch::kCPU, 1, 4), 1);   // auto, 1 thread
@@ -263,6 +291,48 @@ TEST(Train, NonFiniteLossIsSkippedThenRolledBackWithLowerLr) {
   std::ifstream csv(run / "loss.csv");
   std::string all((std::istreambuf_iterator<char>(csv)), std::istreambuf_iterator<char>());
   EXPECT_EQ(all.find("nan"), std::string::npos) << all;
+}
+
+// train.grad_clip: every step's norm before clipping is in steps.csv, the
+// epochs' events count exactly the steps above the bound, and a bound no
+// step reaches changes nothing, bit for bit.
+TEST(Train, GradClipRecordsTheNormAndClipsOnlyAboveTheBound) {
+  fs::path plain = fresh_dir("run_noclip");
+  TrainOptions o{shared_data(), plain, tiny_config()};
+  train(o);
+  const StepCurve norms = read_steps_csv(plain / "steps.csv");
+  ASSERT_EQ(norms.grad_norm.size(), 6u);
+  for (double n : norms.grad_norm) EXPECT_TRUE(std::isfinite(n) && n > 0) << n;
+
+  fs::path loose = fresh_dir("run_clip_loose");
+  TrainOptions ol{shared_data(), loose, tiny_config()};
+  ol.config.train.grad_clip = 1e9f;
+  train(ol);
+  EXPECT_TRUE(torch::equal(flat_params(plain), flat_params(loose)));
+
+  // A bound between the smallest and the largest norm clips some steps.
+  std::vector<double> sorted = norms.grad_norm;
+  std::sort(sorted.begin(), sorted.end());
+  ASSERT_LT(sorted.front(), sorted.back());
+  const float bound = float(0.5 * (sorted.front() + sorted.back()));
+  fs::path tight = fresh_dir("run_clip_tight");
+  TrainOptions ot{shared_data(), tight, tiny_config()};
+  ot.config.train.grad_clip = bound;
+  train(ot);
+  EXPECT_FALSE(torch::equal(flat_params(plain), flat_params(tight)));
+  const StepCurve t = read_steps_csv(tight / "steps.csv");
+  int above = 0;
+  for (double n : t.grad_norm) above += n > bound;
+  ASSERT_GT(above, 0);
+  std::ifstream ev(tight / "events.log");
+  const std::string events((std::istreambuf_iterator<char>(ev)), std::istreambuf_iterator<char>());
+  int logged = 0;
+  for (size_t at = events.find(" steps clipped"); at != std::string::npos;
+       at = events.find(" steps clipped", at + 1)) {
+    const size_t of = events.rfind(" of ", at), start = events.rfind(": ", of);
+    logged += std::stoi(events.substr(start + 2, of - start - 2));
+  }
+  EXPECT_EQ(logged, above) << events;
 }
 
 TEST(Train, IncompatibleConfigIsRefusedWithTheReason) {
