@@ -275,6 +275,7 @@ std::vector<Field> fields(TrainConfig& c) {
   f.push_back(number_field("train.lr_min", &o.lr_min, 0.0, 1.0, false));
   f.push_back(number_field("train.seed", &o.seed, 0, 9.0e15, true));
   f.push_back(number_field("train.val_sequences", &o.val_sequences, 0, 1000000, false));
+  f.push_back(number_field("train.val_frames", &o.val_frames, 0, 1000000, false));
   f.push_back(device_field("train.device", &o.device));
   f.push_back(number_field("train.max_bad_steps", &o.max_bad_steps, 1, 1000000, false));
   f.push_back(number_field("train.grad_clip", &o.grad_clip, 0.0, 1e9, false));

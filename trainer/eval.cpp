@@ -67,7 +67,16 @@ std::vector<std::pair<std::string, size_t>> non_finite_inputs(FrameBuffers& f, i
 }
 
 std::vector<float> FrameDenoiser::denoise(const FrameBuffers& f, int version, double* seconds) {
-  const TrainConfig& cfg = run_.config;
+  try {
+    return denoise_frame(run_.model, run_.config, device_, precision_, state_, f, version, seconds);
+  } catch (const RuntimeError& e) {
+    throw RuntimeError(std::string(e.what()) + " (checkpoint " + run_.checkpoint.string() + ")");
+  }
+}
+
+std::vector<float> denoise_frame(Denoiser& model, const TrainConfig& cfg, torch::Device device,
+                                 Precision precision, std::vector<torch::Tensor>& state,
+                                 const FrameBuffers& f, int version, double* seconds) {
   if (version < 0 || version >= f.versions)
     throw SpecError(FileLoc{}, "version",
                     "the frame has " + std::to_string(f.versions) + " noisy versions");
@@ -99,16 +108,17 @@ std::vector<float> FrameDenoiser::denoise(const FrameBuffers& f, int version, do
   // Inference only: no autograd bookkeeping, no version counters.
   c10::InferenceMode inference;
   auto t0 = std::chrono::steady_clock::now();
-  torch::Tensor x = torch::from_blob(input.data(), {1, c, f.height, f.width}).to(device_);
-  torch::Tensor y = float_output(precision_, device_, [&] {
-                      return run_.model->forward_frame(pad_to_multiple(x), state_);
-                    }).narrow(2, 0, f.height).narrow(3, 0, f.width);
+  torch::Tensor x = torch::from_blob(input.data(), {1, c, f.height, f.width}).to(device);
+  torch::Tensor y = float_output(precision, device,
+                                 [&] { return model->forward_frame(pad_to_multiple(x), state); })
+                        .narrow(2, 0, f.height)
+                        .narrow(3, 0, f.width);
   // Remodulation (inverse of make_target) on the device, as a renderer would.
   torch::Tensor a =
-      torch::from_blob(const_cast<float*>(albedo), {1, 3, f.height, f.width}).to(device_);
+      torch::from_blob(const_cast<float*>(albedo), {1, 3, f.height, f.width}).to(device);
   torch::Tensor out = radiance_inverse(y, radiance_space(cfg.model)) * (a + cfg.data.demod_eps);
   out = out.to(torch::kCPU).contiguous();
-  if (device_.is_cuda()) torch::cuda::synchronize();
+  if (device.is_cuda()) torch::cuda::synchronize();
   if (seconds)
     *seconds = prefilter_seconds +
                std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -116,9 +126,34 @@ std::vector<float> FrameDenoiser::denoise(const FrameBuffers& f, int version, do
   // never hand out a non-finite pixel.
   const int64_t bad = (~torch::isfinite(out)).sum().item<int64_t>();
   if (bad > 0)
-    throw RuntimeError("the network produced " + std::to_string(bad) +
-                       " non-finite output values (checkpoint " + run_.checkpoint.string() + ")");
+    throw RuntimeError("the network produced " + std::to_string(bad) + " non-finite output values");
   return std::vector<float>(out.data_ptr<float>(), out.data_ptr<float>() + 3 * n);
+}
+
+double full_frame_ssim(Denoiser& model, const TrainConfig& cfg, torch::Device device,
+                       const fs::path& data_dir, const std::vector<ShardSplit>& splits, int count) {
+  std::vector<std::pair<std::string, int>> frames;  // (shard file, frame index)
+  for (const ShardSplit& s : splits)
+    for (int f = s.val_begin; f < s.val_end; ++f) frames.emplace_back(s.file, f);
+  if (frames.empty() || count <= 0) return NAN;
+  const size_t n = frames.size(), k = std::min(n, size_t(count));
+  std::vector<double> scores;
+  for (size_t i = 0; i < k; ++i) {
+    const auto& [file, f] = frames[(2 * i + 1) * n / (2 * k)];  // evenly spread
+    const FrameBuffers fb = ShardReader(data_dir / file).read_frame(f);
+    std::vector<torch::Tensor> state;
+    std::vector<float> out;
+    try {
+      out = denoise_frame(model, cfg, device, cfg.train.precision, state, fb, 0);
+    } catch (const RuntimeError&) {
+      return NAN;  // a non-finite output: the caller reports it
+    }
+    const int w = fb.width, h = fb.height;
+    const std::vector<float> a = display_encode({out.data(), 3, h, w}),
+                             b = display_encode({fb.reference.data(), 3, h, w});
+    scores.push_back(ssim({a.data(), 3, h, w}, {b.data(), 3, h, w}));
+  }
+  return finite_mean(scores);
 }
 
 FrameBuffers tile_frame(const FrameBuffers& f, int w, int h) {
@@ -534,8 +569,12 @@ EvalSummary evaluate(const EvalOptions& o) {
     lr_plot = PlotSpec{"Learning rate", "epoch", "learning rate", true,
                        {{"Adam step size (last step of the epoch)", "#2ca02c", epochs.epoch,
                          epochs.lr}}};
-  PlotSpec ssim_plot{"Validation SSIM per epoch", "epoch", "SSIM (sRGB, 0..1)", false,
-                     {{"validation frames (64 px crops)", "#9467bd", epochs.epoch, epochs.val_ssim}}};
+  PlotSpec ssim_plot{"Validation SSIM per epoch",
+                     "epoch",
+                     "SSIM (sRGB, 0..1)",
+                     false,
+                     {{"validation frames (64 px crops)", "#9467bd", epochs.epoch, epochs.val_ssim},
+                      {"whole validation frames", "#17becf", epochs.epoch, epochs.val_frame_ssim}}};
   PlotSpec psnr_plot{"Validation PSNR per epoch", "epoch", "PSNR (dB)", false,
                      {{"validation frames (64 px crops)", "#8c564b", epochs.epoch, epochs.val_psnr}}};
   const std::string loss_svg = svg_plot(loss_plot), step_svg = svg_plot(step_plot),

@@ -10,6 +10,8 @@
 
 #include "common/image.h"
 #include "trainer/config.h"
+#include "trainer/dataset.h"
+#include "trainer/model.h"
 #include "trainer/run_folder.h"
 
 namespace dofarm::trainer {
@@ -38,6 +40,27 @@ class FrameDenoiser {
   Precision precision_;
   std::vector<torch::Tensor> state_;
 };
+
+// Denoises noisy version `version` of `frame` with `model` (configured by
+// `cfg`): FrameDenoiser::denoise without a run folder, for a model in
+// memory (the trainer's full-frame validation). `state`: the recurrent
+// state, carried from the previous frame of the sequence (empty = none).
+// Throws RuntimeError when the network's output is not finite.
+std::vector<float> denoise_frame(Denoiser& model, const TrainConfig& cfg, torch::Device device,
+                                 Precision precision, std::vector<torch::Tensor>& state,
+                                 const FrameBuffers& frame, int version, double* seconds = nullptr);
+
+// The trainer's full-frame validation (train.val_frames): `count` whole
+// validation frames, spread evenly over the validation frames of `splits`
+// (in their order), read from `data_dir`, each denoised alone (no recurrent
+// state) at noisy version 0 and scored by SSIM against its reference as
+// eval scores (sRGB, clamped). Returns the mean; NaN when there is no
+// validation frame or an output was not finite. Networks trained on crops
+// meet whole frames only here: a model can score well on crops and fail on
+// whole frames (docs/trainer.md, "Full-frame validation").
+double full_frame_ssim(Denoiser& model, const TrainConfig& cfg, torch::Device device,
+                       const std::filesystem::path& data_dir, const std::vector<ShardSplit>& splits,
+                       int count);
 
 struct EvalOptions {
   std::filesystem::path run_dir, data_dir, out_dir;

@@ -200,6 +200,7 @@ LossCurve read_loss_csv(const std::filesystem::path& csv) {
     c.lr.push_back(num(f[4]));
     c.val_ssim.push_back(f.size() > 7 ? num(f[7]) : NAN);
     c.val_psnr.push_back(f.size() > 8 ? num(f[8]) : NAN);
+    c.val_frame_ssim.push_back(f.size() > 9 ? num(f[9]) : NAN);
   }
   return c;
 }

@@ -53,6 +53,7 @@ std::string error_scale_svg();
 struct LossCurve {
   std::vector<double> epoch, train, val, lr;  // val may hold NaN (no validation set)
   std::vector<double> val_ssim, val_psnr;     // NaN where not recorded
+  std::vector<double> val_frame_ssim;         // whole validation frames; NaN where not recorded
 };
 // Reads RUN/loss.csv (empty curve when absent).
 LossCurve read_loss_csv(const std::filesystem::path& csv);

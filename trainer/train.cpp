@@ -17,12 +17,19 @@
 #include "common/error.h"
 #include "common/progress.h"
 #include "trainer/dataset.h"
+#include "trainer/eval.h"
 #include "trainer/losses.h"
 #include "trainer/metrics.h"
 #include "trainer/precision.h"
 #include "trainer/run_folder.h"
 
 namespace dofarm::trainer {
+
+namespace {
+// Whole validation frames scoring this much SSIM below the validation crops
+// are reported in events.log (a warning, not a stop).
+constexpr double kWholeFrameGap = 0.2;
+}  // namespace
 
 namespace fs = std::filesystem;
 
@@ -236,7 +243,8 @@ TrainResult train_in(const TrainOptions& opt_in) {
   const torch::Tensor kernel = log_kernel(cfg.loss.log_sigma).to(device);
   const bool new_csv = !fs::exists(run / "loss.csv");
   std::ofstream csv(run / "loss.csv", std::ios::app);
-  if (new_csv) csv << "epoch,step,train_loss,val_loss,lr,skipped,seconds,val_ssim,val_psnr\n";
+  if (new_csv)
+    csv << "epoch,step,train_loss,val_loss,lr,skipped,seconds,val_ssim,val_psnr,val_frame_ssim\n";
   // One row per step (the report's per-step curves). Rows past the checkpoint
   // (a process killed before it could save) are dropped: those steps run again.
   {
@@ -356,6 +364,22 @@ TrainResult train_in(const TrainOptions& opt_in) {
       val_ssim = scores.ssim();
       val_psnr = scores.psnr();
     }
+    // Whole validation frames (the network saw only crops): a model can
+    // score well on crops and fail on whole frames.
+    double val_frame_ssim = NAN;
+    if (cfg.train.val_frames > 0 && !vs.empty()) {
+      model->eval();
+      val_frame_ssim = full_frame_ssim(model, cfg, device, opt_in.data_dir, stream.splits(),
+                                       cfg.train.val_frames);
+      if (!std::isfinite(val_frame_ssim))
+        log(spdlog::level::warn, "epoch {}: whole validation frames: non-finite output",
+            st.epoch + 1);
+      else if (val_frame_ssim < val_ssim - kWholeFrameGap)
+        log(spdlog::level::warn,
+            "epoch {}: whole validation frames score SSIM {:.3f} against {:.3f} on the "
+            "validation crops: the network does not carry over from crops to whole frames",
+            st.epoch + 1, val_frame_ssim, val_ssim);
+    }
     double train_loss = good ? loss_sum / good : NAN;
     double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     ++st.epoch;
@@ -364,7 +388,8 @@ TrainResult train_in(const TrainOptions& opt_in) {
         << (std::isfinite(val) ? fmt::format("{:.6g}", val) : "") << ","
         << fmt::format("{:.6g}", lr) << "," << skipped << "," << fmt::format("{:.3f}", seconds)
         << "," << (std::isfinite(val_ssim) ? fmt::format("{:.6g}", val_ssim) : "") << ","
-        << (std::isfinite(val_psnr) ? fmt::format("{:.6g}", val_psnr) : "") << "\n";
+        << (std::isfinite(val_psnr) ? fmt::format("{:.6g}", val_psnr) : "") << ","
+        << (std::isfinite(val_frame_ssim) ? fmt::format("{:.6g}", val_frame_ssim) : "") << "\n";
     csv.flush();
     steps_csv.flush();
     spdlog::info("epoch {}/{}: train {:.5f} val {:.5f} lr {:.3g} ({:.1f} s)", st.epoch,

@@ -83,7 +83,8 @@ TEST(Train, ResumedRunTakesTheSameStepsAsAnUninterruptedOne) {
   std::ifstream csv(a / "loss.csv");
   std::string header, row;
   std::getline(csv, header);
-  EXPECT_EQ(header, "epoch,step,train_loss,val_loss,lr,skipped,seconds,val_ssim,val_psnr");
+  EXPECT_EQ(header,
+            "epoch,step,train_loss,val_loss,lr,skipped,seconds,val_ssim,val_psnr,val_frame_ssim");
   int rows = 0;
   while (std::getline(csv, row)) ++rows;
   EXPECT_EQ(rows, 2);
@@ -439,6 +440,33 @@ TEST(Eval, ReportHasEveryFrameAndBeatsTheNoisyInput) {
   EXPECT_GT(fl_noisy, fl_den);
   EXPECT_NEAR(s.flicker, fl_den, 1e-12);
   EXPECT_TRUE(j["denoise_ms_at_size"].is_null());  // not asked for
+}
+
+// Full-frame validation (train.val_frames): each epoch's val_frame_ssim is
+// in (0, 1], and full_frame_ssim over all validation frames equals what eval
+// scores on them with the same weights.
+TEST(Eval, FullFrameValidationScoresAsEvalDoes) {
+  const LossCurve c = read_loss_csv(trained_run() / "loss.csv");
+  ASSERT_EQ(c.val_frame_ssim.size(), 6u);
+  for (double v : c.val_frame_ssim) EXPECT_TRUE(v > 0 && v <= 1) << v;
+
+  LoadedRun run = load_run(trained_run(), torch::kCPU, "last");
+  run.model->eval();
+  const std::vector<ShardSplit> splits = load_split_file(trained_run());
+  int frames = 0;
+  for (const ShardSplit& s : splits) frames += s.val_end - s.val_begin;
+  ASSERT_EQ(frames, 3);
+  // The last epoch's figure: the default 2 frames, to the CSV's 6 digits.
+  EXPECT_NEAR(full_frame_ssim(run.model, run.config, torch::kCPU, shared_data(), splits, 2),
+              c.val_frame_ssim.back(), 1e-5);
+  const double whole =
+      full_frame_ssim(run.model, run.config, torch::kCPU, shared_data(), splits, frames);
+  fs::path out = fresh_dir("eval_whole");
+  EvalOptions e{trained_run(), shared_data(), out, 0, 0, 0, "last"};
+  e.all_frames = false;
+  EXPECT_NEAR(evaluate(e).ssim, whole, 1e-9);
+  EXPECT_TRUE(
+      std::isnan(full_frame_ssim(run.model, run.config, torch::kCPU, shared_data(), {}, 2)));
 }
 
 // Scores by circle of confusion (kFocusRegions): each region's score is the
