@@ -156,7 +156,12 @@ double full_frame_ssim(Denoiser& model, const TrainConfig& cfg, torch::Device de
   return finite_mean(scores);
 }
 
-FrameBuffers tile_frame(const FrameBuffers& f, int w, int h) {
+namespace {
+
+// A w x h frame whose pixel (x, y) is f's pixel source(x, y) (an index into
+// f's planes), in every buffer; the camera kept.
+template <typename Source>
+FrameBuffers remap_frame(const FrameBuffers& f, int w, int h, Source source) {
   FrameBuffers out;
   out.allocate(w, h, f.versions);
   out.rect = Rect{0, 0, w, h};
@@ -169,11 +174,25 @@ FrameBuffers tile_frame(const FrameBuffers& f, int w, int h) {
     dst.assign(planes * m, 0.0f);
     for (size_t k = 0; k < planes; ++k)
       for (int y = 0; y < h; ++y)
-        for (int x = 0; x < w; ++x)
-          dst[k * m + size_t(y) * w + x] =
-              src[k * n + size_t(y % f.height) * f.width + x % f.width];
+        for (int x = 0; x < w; ++x) dst[k * m + size_t(y) * w + x] = src[k * n + source(x, y)];
   }
   return out;
+}
+
+}  // namespace
+
+FrameBuffers tile_frame(const FrameBuffers& f, int w, int h) {
+  return remap_frame(f, w, h,
+                     [&](int x, int y) { return size_t(y % f.height) * f.width + x % f.width; });
+}
+
+FrameBuffers crop_frame(const FrameBuffers& f, int x0, int y0, int w, int h) {
+  if (x0 < 0 || y0 < 0 || w <= 0 || h <= 0 || x0 + w > f.width || y0 + h > f.height)
+    throw SpecError(FileLoc{}, "crop",
+                    "window outside the " + std::to_string(f.width) + "x" +
+                        std::to_string(f.height) + " frame");
+  return remap_frame(f, w, h,
+                     [&](int x, int y) { return size_t(y0 + y) * f.width + size_t(x0 + x); });
 }
 
 namespace {

@@ -113,6 +113,9 @@ std::vector<std::pair<std::string, size_t>> non_finite_inputs(FrameBuffers& fram
 // `frame` repeated periodically (x mod width, y mod height) to w x h: every
 // buffer, the camera kept. For timing at a size the data does not have.
 FrameBuffers tile_frame(const FrameBuffers& frame, int w, int h);
+// The w x h window at (x0, y0) of `frame`, every buffer, the camera kept
+// (a CoC in pixels stays right: the window keeps the frame's scale).
+FrameBuffers crop_frame(const FrameBuffers& frame, int x0, int y0, int w, int h);
 
 // The pixel regions every score is taken over, by circle of confusion in
 // pixels, lo <= CoC < hi: all pixels, in focus ("acceptably sharp", CoC < 1

@@ -1,0 +1,127 @@
+// Whole frames against tiles (docs/results.md, "Longer training"): a
+// network trained and validated on 64-px crops can score well on crops and
+// fail on whole frames. For each validation frame of a run's split, the
+// SSIM of the whole frame denoised at once, and of the same frame denoised
+// as independent T x T tiles put back together, for each tile side T. When
+// the tiles score far above the whole frame, what fails is the frame's
+// extent (pixels further from every border than any crop had them), not
+// the content. Tiles have seams, so a sound model scores its tiles a little
+// below its whole frames.
+//
+// Usage: crop_vs_frame --run RUN --data DIR [--checkpoint best|last|PATH]
+//                      [--tiles 64,128] [--frames N]
+// Prints one line per frame and the means; asserts nothing.
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "common/shard.h"
+#include "trainer/dataset.h"
+#include "trainer/eval.h"
+#include "trainer/metrics.h"
+
+namespace fs = std::filesystem;
+using namespace dofarm;
+using namespace dofarm::trainer;
+
+namespace {
+
+double frame_ssim(const std::vector<float>& img, const FrameBuffers& fb) {
+  const int w = fb.width, h = fb.height;
+  const std::vector<float> a = display_encode({img.data(), 3, h, w}),
+                           b = display_encode({fb.reference.data(), 3, h, w});
+  return ssim({a.data(), 3, h, w}, {b.data(), 3, h, w});
+}
+
+int usage() {
+  std::fprintf(stderr,
+               "usage: crop_vs_frame --run RUN --data DIR [--checkpoint best|last|PATH] "
+               "[--tiles 64,128] [--frames N]\n");
+  return 2;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  fs::path run, data;
+  std::string checkpoint = "best", tiles_arg = "64,128";
+  int max_frames = 0;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    if (i + 1 >= argc) return usage();
+    if (a == "--run")
+      run = argv[++i];
+    else if (a == "--data")
+      data = argv[++i];
+    else if (a == "--checkpoint")
+      checkpoint = argv[++i];
+    else if (a == "--tiles")
+      tiles_arg = argv[++i];
+    else if (a == "--frames")
+      max_frames = std::atoi(argv[++i]);
+    else
+      return usage();
+  }
+  if (run.empty() || data.empty()) return usage();
+  std::vector<int> tiles;
+  std::stringstream ss(tiles_arg);
+  for (std::string t; std::getline(ss, t, ',');) {
+    const int v = std::atoi(t.c_str());
+    if (v < 8) return usage();
+    tiles.push_back(v);
+  }
+
+  FrameDenoiser den(run, torch::kCPU, checkpoint);
+  std::printf("run %s, checkpoint %s (step %lld)\n", run.c_str(), den.run().checkpoint.c_str(),
+              static_cast<long long>(den.run().state.step));
+  std::printf("%-28s %6s %9s", "frame", "size", "whole");
+  for (int t : tiles) std::printf("  tiles %-4d", t);
+  std::printf("\n");
+  std::vector<double> sum(tiles.size() + 1, 0.0);
+  int frames = 0;
+  for (const ShardSplit& sp : load_split_file(run)) {
+    if (!fs::exists(data / sp.file)) continue;
+    ShardReader reader(data / sp.file);
+    for (int f = sp.val_begin; f < sp.val_end; ++f) {
+      if (max_frames > 0 && frames >= max_frames) break;
+      const FrameBuffers fb = reader.read_frame(f);
+      den.reset_sequence();
+      const double whole = frame_ssim(den.denoise(fb, 0), fb);
+      std::printf("%-22s %5d %4dx%-4d %7.4f", sp.file.c_str(), reader.info().frame_start + f,
+                  fb.width, fb.height, whole);
+      sum[0] += whole;
+      for (size_t k = 0; k < tiles.size(); ++k) {
+        const int t = tiles[k];
+        const size_t n = fb.plane();
+        std::vector<float> joined(3 * n, 0.0f);
+        for (int y0 = 0; y0 < fb.height; y0 += t)
+          for (int x0 = 0; x0 < fb.width; x0 += t) {
+            const int w = std::min(t, fb.width - x0), h = std::min(t, fb.height - y0);
+            den.reset_sequence();
+            const std::vector<float> part = den.denoise(crop_frame(fb, x0, y0, w, h), 0);
+            for (int c = 0; c < 3; ++c)
+              for (int y = 0; y < h; ++y)
+                for (int x = 0; x < w; ++x)
+                  joined[size_t(c) * n + size_t(y0 + y) * fb.width + size_t(x0 + x)] =
+                      part[(size_t(c) * h + y) * w + x];
+          }
+        const double s = frame_ssim(joined, fb);
+        sum[k + 1] += s;
+        std::printf("  %10.4f", s);
+      }
+      std::printf("\n");
+      ++frames;
+    }
+  }
+  if (frames == 0) {
+    std::fprintf(stderr, "crop_vs_frame: no validation frame found in %s\n", data.c_str());
+    return 1;
+  }
+  std::printf("%-28s %6s %9.4f", "mean", "", sum[0] / frames);
+  for (size_t k = 0; k < tiles.size(); ++k) std::printf("  %10.4f", sum[k + 1] / frames);
+  std::printf("\n");
+  return 0;
+}
