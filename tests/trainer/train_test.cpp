@@ -640,6 +640,26 @@ TEST(Eval, CropsShowTheMostBlurredFramesSpreadOverShards) {
 
 // `eval --time-size` times a frame of a size the data does not have: the
 // first validation frame repeated periodically.
+// crop_frame: the window's pixels in every buffer (per-version planes too),
+// the camera kept; a window outside the frame is refused.
+TEST(Eval, CropFrameTakesTheWindowOfEveryBuffer) {
+  const FrameBuffers f = testing::synthetic_frame(3, 16, 12, 2, 9);
+  const FrameBuffers c = crop_frame(f, 5, 4, 6, 3);
+  ASSERT_EQ(c.width, 6);
+  ASSERT_EQ(c.height, 3);
+  EXPECT_EQ(c.camera.focal_distance, f.camera.focal_distance);
+  const size_t n = f.plane(), m = c.plane();
+  for (int y = 0; y < 3; ++y)
+    for (int x = 0; x < 6; ++x) {
+      const size_t s = size_t(4 + y) * 16 + size_t(5 + x), d = size_t(y) * 6 + size_t(x);
+      EXPECT_EQ(c.coc[d], f.coc[s]);
+      EXPECT_EQ(c.reference[2 * m + d], f.reference[2 * n + s]);
+      EXPECT_EQ(c.noisy[5 * m + d], f.noisy[5 * n + s]);  // version 1, blue
+    }
+  EXPECT_THROW(crop_frame(f, 12, 0, 6, 3), SpecError);
+  EXPECT_THROW(crop_frame(f, -1, 0, 6, 3), SpecError);
+}
+
 TEST(Eval, TimesTheDenoiseAtARequestedSize) {
   const FrameBuffers f = testing::synthetic_frame(1, 5, 3, 2, 4);
   const FrameBuffers t = tile_frame(f, 12, 7);
