@@ -264,7 +264,9 @@ std::vector<Field> fields(TrainConfig& c) {
                          {{"warmup_decay", Schedule::kWarmupDecay}, {"thesis", Schedule::kThesis}},
                          false));
   f.push_back(enum_field("train.best_by", &o.best_by,
-                         {{"validation", BestBy::kValidation}, {"training", BestBy::kTraining}},
+                         {{"validation", BestBy::kValidation},
+                          {"training", BestBy::kTraining},
+                          {"frames", BestBy::kFrames}},
                          false));
   f.push_back(number_field("train.batch", &o.batch, 1, 4096, false));
   f.push_back(number_field("train.lr", &o.lr, 1e-9, 1.0, false));
@@ -352,6 +354,10 @@ void check_consistency(const TrainConfig& c, const FileLoc& loc) {
     throw SpecError(loc, "model.channels",
                     "expected 5 encoder widths, got " + std::to_string(c.model.channels.size()));
   if (c.train.lr_min > c.train.lr) throw SpecError(loc, "train.lr_min", "must not exceed train.lr");
+  if (c.train.best_by == BestBy::kFrames && c.train.val_frames <= 0)
+    throw SpecError(loc, "train.best_by",
+                    "\"frames\" picks best.pt by the whole validation frames: it needs "
+                    "train.val_frames > 0");
   int radiance = 0;
   for (const std::string& e : c.model.inputs) radiance += e.rfind("radiance:", 0) == 0;
   if (radiance != 1)

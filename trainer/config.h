@@ -109,7 +109,7 @@ enum class Schedule {
   kThesis,       // eq. 4.5 with E = passes over the training sequences
 };
 
-enum class BestBy { kValidation, kTraining };
+enum class BestBy { kValidation, kTraining, kFrames };
 
 // Arithmetic of the network's convolutions (trainer/precision.h).
 enum class Precision { kFp32, kBf16 };

@@ -402,7 +402,11 @@ TrainResult train_in(const TrainOptions& opt_in) {
     // A non-finite loss never makes a model "best".
     if (!vs.empty() && !std::isfinite(val))
       log(spdlog::level::warn, "epoch {}: non-finite validation loss", st.epoch);
+    // "frames": 1 - SSIM of the whole validation frames (lower is better, as
+    // a loss), so that best.pt is never a model that fails on whole frames
+    // (train.val_frames > 0 is checked with the config).
     double score = vs.empty() || cfg.train.best_by == BestBy::kTraining ? train_loss : val;
+    if (!vs.empty() && cfg.train.best_by == BestBy::kFrames) score = 1.0 - val_frame_ssim;
     bool improved = std::isfinite(score) && score < st.best;
     if (improved) st.best = score;
     save_checkpoint(last, model, adam, st, cfg);

@@ -336,6 +336,33 @@ TEST(Train, GradClipRecordsTheNormAndClipsOnlyAboveTheBound) {
   EXPECT_EQ(logged, above) << events;
 }
 
+// train.best_by = "frames": best.pt is the epoch whose whole validation
+// frames scored best, its recorded score 1 - that SSIM; without whole-frame
+// validation the setting is refused.
+TEST(Train, BestByFramesPicksTheEpochWithTheBestWholeFrames) {
+  fs::path run = fresh_dir("run_best_frames");
+  TrainOptions o{shared_data(), run, tiny_config()};
+  o.config.data.val_fraction = 0.25f;
+  o.config.train.epochs = 4;
+  o.config.train.best_by = BestBy::kFrames;
+  train(o);
+  const LossCurve c = read_loss_csv(run / "loss.csv");
+  ASSERT_EQ(c.val_frame_ssim.size(), 4u);
+  size_t best = 0;
+  for (size_t i = 1; i < 4; ++i)
+    if (c.val_frame_ssim[i] > c.val_frame_ssim[best]) best = i;
+  const LoadedRun b = load_run(run, torch::kCPU, "best");
+  EXPECT_EQ(b.state.epoch, int64_t(best) + 1);
+  EXPECT_NEAR(b.state.best, 1.0 - c.val_frame_ssim[best], 1e-5);  // CSV: 6 digits
+
+  try {
+    load_train_config("", {"train.best_by=\"frames\"", "train.val_frames=0"});
+    ADD_FAILURE() << "best_by = frames without whole-frame validation was accepted";
+  } catch (const SpecError& e) {
+    EXPECT_NE(std::string(e.what()).find("train.best_by"), std::string::npos) << e.what();
+  }
+}
+
 TEST(Train, IncompatibleConfigIsRefusedWithTheReason) {
   fs::path run = fresh_dir("run_incompatible");
   TrainOptions o{shared_data(), run, tiny_config()};
