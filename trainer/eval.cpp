@@ -3,12 +3,13 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <fstream>
 #include <map>
-#include <optional>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <sstream>
 
 #include "common/error.h"
@@ -149,9 +150,7 @@ double full_frame_ssim(Denoiser& model, const TrainConfig& cfg, torch::Device de
       return NAN;  // a non-finite output: the caller reports it
     }
     const int w = fb.width, h = fb.height;
-    const std::vector<float> a = display_encode({out.data(), 3, h, w}),
-                             b = display_encode({fb.reference.data(), 3, h, w});
-    scores.push_back(ssim({a.data(), 3, h, w}, {b.data(), 3, h, w}));
+    scores.push_back(display_ssim({out.data(), 3, h, w}, {fb.reference.data(), 3, h, w}));
   }
   return finite_mean(scores);
 }
@@ -202,12 +201,25 @@ struct Scores {
   double flicker = NAN;  // against the previous frame (none for a sequence's first)
 };
 
-Scores score(const std::vector<float>& img, const std::vector<float>& ref, int w, int h,
-             const uint8_t* mask) {
+// The scores of `img` against the reference `ref` (linear; `display_ref` its
+// display encoding) over every region: masks[r] (null: all pixels) holding
+// pixels[r] pixels. The image is encoded once and SSIM's windows filtered
+// once for all regions; a region without a pixel has no score (not 0).
+std::array<Scores, kRegionCount> score_regions(const std::vector<float>& img,
+                                               const std::vector<float>& ref,
+                                               const std::vector<float>& display_ref, int w, int h,
+                                               const uint8_t* const* masks, const size_t* pixels) {
   ImageView vi{img.data(), 3, h, w}, vr{ref.data(), 3, h, w};
-  std::vector<float> di = display_encode(vi), dr = display_encode(vr);
-  ImageView ddi{di.data(), 3, h, w}, ddr{dr.data(), 3, h, w};
-  return {ssim(ddi, ddr, mask), psnr(ddi, ddr, mask), relative_mse(vi, vr, mask)};
+  const std::vector<float> di = display_encode(vi);
+  ImageView ddi{di.data(), 3, h, w}, ddr{display_ref.data(), 3, h, w};
+  std::vector<const uint8_t*> scored;
+  for (int r = 0; r < kRegionCount; ++r)
+    if (pixels[r] > 0) scored.push_back(masks[r]);
+  const std::vector<double> s = ssim_per_mask(ddi, ddr, scored);
+  std::array<Scores, kRegionCount> out;
+  for (int r = 0, i = 0; r < kRegionCount; ++r)
+    if (pixels[r] > 0) out[r] = {s[i++], psnr(ddi, ddr, masks[r]), relative_mse(vi, vr, masks[r])};
+  return out;
 }
 
 json to_json(const Scores& s) {
@@ -483,11 +495,13 @@ EvalSummary evaluate(const EvalOptions& o) {
       std::vector<Accumulator*> to_flicker;
       if (pair && want_val && prev_val) to_flicker.insert(to_flicker.end(), {&all, &scene});
       if (pair && want_every) to_flicker.insert(to_flicker.end(), {&every, &scene_every});
-      for (int k = 0; k < 2; ++k)
+      const std::vector<float> display_ref = display_encode({fb.reference.data(), 3, h, w});
+      for (int k = 0; k < 2; ++k) {
+        const std::vector<float>& img = k == 0 ? noisy : out;
+        const std::array<Scores, kRegionCount> scores =
+            score_regions(img, fb.reference, display_ref, w, h, masks, region_pixels);
         for (int r = 0; r < kRegionCount; ++r) {
-          const std::vector<float>& img = k == 0 ? noisy : out;
-          // A region without a pixel in this frame has no score (not 0).
-          Scores s = region_pixels[r] > 0 ? score(img, fb.reference, w, h, masks[r]) : Scores{};
+          Scores s = scores[r];
           if (pair && region_pixels[r] > 0) {
             const std::vector<float>& before = k == 0 ? prev_noisy : prev_out;
             s.flicker = temporal_relative_mse({before.data(), 3, h, w}, {img.data(), 3, h, w},
@@ -506,6 +520,7 @@ EvalSummary evaluate(const EvalOptions& o) {
           if (!(pair && want_val && prev_val)) shown.flicker = NAN;
           row[k == 0 ? "noisy" : "denoised"][kFocusRegions[r].name] = to_json(shown);
         }
+      }
       prev_f = f;
       prev_val = want_val;
       prev_out = out;

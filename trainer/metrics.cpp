@@ -85,17 +85,20 @@ namespace {
 
 constexpr double kC1 = 0.01 * 0.01, kC2 = 0.03 * 0.03;  // SSIM's (K L)^2 with L = 1
 
-// The mean over channels and valid windows (those whose centre `mask` keeps)
-// of term(mx, my, vx, vy, cxy): the Gaussian-weighted means, variances and
-// covariance of a and b in the window. NaN when no window counts.
+// For each mask (null: every window), the mean over channels and valid
+// windows whose centre the mask keeps of term(mx, my, vx, vy, cxy): the
+// Gaussian-weighted means, variances and covariance of a and b in the
+// window, filtered once for all masks. NaN where no window counts.
 template <class Term>
-double mean_over_windows(ImageView a, ImageView b, const uint8_t* mask, Term term) {
+std::vector<double> mean_over_windows(ImageView a, ImageView b,
+                                      const std::vector<const uint8_t*>& masks, Term term) {
   check_same_shape(a, b);
   const int h = a.height, w = a.width;
-  if (h <= 2 * kRadius || w <= 2 * kRadius) return std::numeric_limits<double>::quiet_NaN();
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  if (h <= 2 * kRadius || w <= 2 * kRadius) return std::vector<double>(masks.size(), nan);
   const int vh = h - 2 * kRadius, vw = w - 2 * kRadius;
-  double total = 0;
-  size_t count = 0;
+  std::vector<double> total(masks.size(), 0.0);
+  std::vector<size_t> count(masks.size(), 0);
   std::vector<double> x(size_t(h) * w), y(x.size()), xx(x.size()), yy(x.size()), xy(x.size());
   for (int c = 0; c < a.channels; ++c) {
     const float* pa = a.data + size_t(c) * a.plane();
@@ -111,33 +114,55 @@ double mean_over_windows(ImageView a, ImageView b, const uint8_t* mask, Term ter
     auto mxx = filter_valid(xx, h, w), myy = filter_valid(yy, h, w), mxy = filter_valid(xy, h, w);
     for (int j = 0; j < vh; ++j)
       for (int i = 0; i < vw; ++i) {
-        if (mask && !mask[size_t(j + kRadius) * w + i + kRadius]) continue;
-        size_t k = size_t(j) * vw + i;
-        double vx = mxx[k] - mx[k] * mx[k], vy = myy[k] - my[k] * my[k];
-        double cxy = mxy[k] - mx[k] * my[k];
-        total += term(mx[k], my[k], vx, vy, cxy);
-        ++count;
+        const size_t centre = size_t(j + kRadius) * w + i + kRadius;
+        const size_t k = size_t(j) * vw + i;
+        double value = 0;
+        bool computed = false;  // for the first mask that keeps the window
+        for (size_t m = 0; m < masks.size(); ++m) {
+          if (masks[m] && !masks[m][centre]) continue;
+          if (!computed) {
+            double vx = mxx[k] - mx[k] * mx[k], vy = myy[k] - my[k] * my[k];
+            double cxy = mxy[k] - mx[k] * my[k];
+            value = term(mx[k], my[k], vx, vy, cxy);
+            computed = true;
+          }
+          total[m] += value;
+          ++count[m];
+        }
       }
   }
-  return count ? total / double(count) : std::numeric_limits<double>::quiet_NaN();
+  std::vector<double> out(masks.size());
+  for (size_t m = 0; m < masks.size(); ++m) out[m] = count[m] ? total[m] / double(count[m]) : nan;
+  return out;
 }
 
 }  // namespace
 
-double ssim(ImageView a, ImageView b, const uint8_t* mask) {
-  return mean_over_windows(a, b, mask, [](double mx, double my, double vx, double vy, double cxy) {
+std::vector<double> ssim_per_mask(ImageView a, ImageView b,
+                                  const std::vector<const uint8_t*>& masks) {
+  return mean_over_windows(a, b, masks, [](double mx, double my, double vx, double vy, double cxy) {
     return (2 * mx * my + kC1) * (2 * cxy + kC2) / ((mx * mx + my * my + kC1) * (vx + vy + kC2));
   });
 }
 
+double ssim(ImageView a, ImageView b, const uint8_t* mask) {
+  return ssim_per_mask(a, b, {mask})[0];
+}
+
+double display_ssim(ImageView linear_a, ImageView linear_b) {
+  const std::vector<float> a = display_encode(linear_a), b = display_encode(linear_b);
+  return ssim({a.data(), linear_a.channels, linear_a.height, linear_a.width},
+              {b.data(), linear_b.channels, linear_b.height, linear_b.width});
+}
+
 double ssim_of_truth_against_mean(ImageView a, ImageView b) {
-  return mean_over_windows(a, b, nullptr, [](double mx, double my, double vx, double vy,
-                                             double cxy) {
-    const double cov = std::max(0.0, cxy);
-    const double noise = std::max(0.0, vx + vy - 2 * cxy) / 4.0;  // var(a - b) / 4
-    return (2 * mx * my + kC1) / (mx * mx + my * my + kC1) * (2 * cov + kC2) /
-           (2 * cov + noise + kC2);
-  });
+  return mean_over_windows(
+      a, b, {nullptr}, [](double mx, double my, double vx, double vy, double cxy) {
+        const double cov = std::max(0.0, cxy);
+        const double noise = std::max(0.0, vx + vy - 2 * cxy) / 4.0;  // var(a - b) / 4
+        return (2 * mx * my + kC1) / (mx * mx + my * my + kC1) * (2 * cov + kC2) /
+               (2 * cov + noise + kC2);
+      })[0];
 }
 
 double finite_mean(const std::vector<double>& v) {

@@ -33,6 +33,13 @@ std::vector<float> display_encode(ImageView linear);
 // use_sample_covariance=False, data_range=1). With a mask, the SSIM map is
 // averaged over the valid pixels whose centre is masked in; NaN when none is.
 double ssim(ImageView a, ImageView b, const uint8_t* mask = nullptr);
+// ssim(a, b, masks[k]) for every k (null: no mask), with the windows'
+// filtered means computed once for all of them: the same numbers, bit for
+// bit, at the cost of one ssim() (the evaluation scores several regions).
+std::vector<double> ssim_per_mask(ImageView a, ImageView b,
+                                  const std::vector<const uint8_t*>& masks);
+// ssim() of the display encodings of two linear images.
+double display_ssim(ImageView linear_a, ImageView linear_b);
 
 // The SSIM that the noise-free image T would score against R = (a + b) / 2,
 // estimated from two independent, unbiased estimates a and b of T (e.g. the

@@ -70,7 +70,10 @@ class StepRunner {
 // it, the gradients scaled by max_norm / norm so that their norm becomes
 // max_norm (gradient-norm clipping, Pascanu et al. 2013, sec. 3.2). Below
 // the bound, or with max_norm = 0, the gradients are untouched, bit for bit.
-// Returns the norm before clipping (0 without gradients).
+// Returns the norm before clipping (0 without gradients). Not libtorch's
+// clip_grad_norm_: that one sums in float, scales by max_norm / (norm +
+// 1e-6) (never exactly to the bound) and rescales every step, clipped or
+// not.
 double clip_gradients(const std::vector<torch::Tensor>& params, double max_norm);
 
 // Replicas for train.cpu_replicas = `configured` (0 = auto, see OptimConfig)

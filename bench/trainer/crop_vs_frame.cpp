@@ -30,10 +30,8 @@ using namespace dofarm::trainer;
 namespace {
 
 double frame_ssim(const std::vector<float>& img, const FrameBuffers& fb) {
-  const int w = fb.width, h = fb.height;
-  const std::vector<float> a = display_encode({img.data(), 3, h, w}),
-                           b = display_encode({fb.reference.data(), 3, h, w});
-  return ssim({a.data(), 3, h, w}, {b.data(), 3, h, w});
+  return display_ssim({img.data(), 3, fb.height, fb.width},
+                      {fb.reference.data(), 3, fb.height, fb.width});
 }
 
 int usage() {

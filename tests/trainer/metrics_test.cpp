@@ -75,6 +75,26 @@ TEST(Ssim, MaskSelectsPixelsAndEmptyMaskIsNaN) {
   EXPECT_NE(l, r);
 }
 
+// Several masks in one pass give each mask's own SSIM, bit for bit, and NaN
+// for an empty one, whatever the order and overlap of the masks.
+TEST(Ssim, PerMaskEqualsOneCallPerMask) {
+  Fixture f;
+  std::vector<uint8_t> left(kH * kW, 0), ring(kH * kW, 0), none(kH * kW, 0);
+  for (int y = 0; y < kH; ++y)
+    for (int x = 0; x < kW; ++x) {
+      left[y * kW + x] = x < kW / 2;
+      ring[y * kW + x] = (x + y) % 3 == 0;
+    }
+  const std::vector<const uint8_t*> masks = {ring.data(), nullptr, none.data(), left.data()};
+  const std::vector<double> s = ssim_per_mask(f.view(f.a), f.view(f.b), masks);
+  ASSERT_EQ(s.size(), 4u);
+  EXPECT_EQ(s[0], ssim(f.view(f.a), f.view(f.b), ring.data()));
+  EXPECT_EQ(s[1], ssim(f.view(f.a), f.view(f.b)));
+  EXPECT_TRUE(std::isnan(s[2]));
+  EXPECT_EQ(s[3], ssim(f.view(f.a), f.view(f.b), left.data()));
+  EXPECT_NE(s[0], s[3]);
+}
+
 TEST(Psnr, KnownValueAndCapForIdenticalImages) {
   std::vector<float> a(3 * 4 * 4, 0.5f), b(a.size(), 0.6f);
   ImageView va{a.data(), 3, 4, 4}, vb{b.data(), 3, 4, 4};
