@@ -139,7 +139,7 @@ struct OptimConfig {
   uint64_t seed = 1;
   int val_sequences = 32;       // drawn deterministically each epoch
   // Whole validation frames denoised and scored (SSIM) after each epoch,
-  // spread over the validation frames (full_frame_ssim in eval.h); 0 = off.
+  // spread over the validation frames (full_frame_ssim in inference.h); 0 = off.
   int val_frames = 2;
   std::string device = "auto";  // auto | cpu | cuda
   int max_bad_steps = 3;        // consecutive non-finite steps before a rollback

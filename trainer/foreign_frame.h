@@ -1,6 +1,6 @@
 // Frames to denoise, from any renderer, as the FrameBuffers that
 // read_frame_exr() gives for dofarm's own EXRs (common/image.h): the network's
-// input is then built from them exactly as for a dofarm frame (eval.h,
+// input is then built from them exactly as for a dofarm frame (inference.h,
 // FrameDenoiser). Three sources (docs/trainer.md, "Denoising other renderers'
 // frames"):
 //

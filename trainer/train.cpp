@@ -17,7 +17,7 @@
 #include "common/error.h"
 #include "common/progress.h"
 #include "trainer/dataset.h"
-#include "trainer/eval.h"
+#include "trainer/inference.h"
 #include "trainer/losses.h"
 #include "trainer/metrics.h"
 #include "trainer/precision.h"

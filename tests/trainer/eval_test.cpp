@@ -1,0 +1,348 @@
+// The evaluation report and whole-frame inference: scores by region and CoC
+// band, the CoC probe, full-frame validation, crops, timing, the report page.
+#include "trainer/eval.h"
+
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+
+#include <cmath>
+#include <cstdlib>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "common/error.h"
+#include "common/exr_io.h"
+#include "common/shard.h"
+#include "tests/trainer/synthetic.h"
+#include "tests/trainer/train_fixtures.h"
+#include "trainer/dataset.h"
+#include "trainer/metrics.h"
+#include "trainer/report.h"
+#include "trainer/train.h"
+
+namespace dofarm::trainer {
+namespace {
+
+using namespace fixtures;
+
+TEST(Eval, ReportHasEveryFrameAndBeatsTheNoisyInput) {
+  fs::path out = fresh_dir("eval_report");
+  EvalOptions e{trained_run(), shared_data(), out, 0, 1, 0};
+  EvalSummary s = evaluate(e);
+  EXPECT_EQ(s.frames, 3);
+  for (const char* f : {"report.md", "report.json", "report.html", "loss.svg", "steps.svg",
+                        "lr.svg", "frame-000.png"})
+    EXPECT_TRUE(fs::exists(out / f)) << f;
+  EXPECT_FALSE(fs::exists(out / "frame-001.png"));  // max_images = 1
+  std::ifstream in(out / "report.json");
+  nlohmann::json j = nlohmann::json::parse(in);
+  EXPECT_EQ(j["frames"].size(), 3u);
+  double noisy = j["summary"]["noisy"]["all"]["ssim"],
+         den = j["summary"]["denoised"]["all"]["ssim"];
+  EXPECT_GT(den, noisy);
+  EXPECT_TRUE(std::isfinite(s.psnr));
+  EXPECT_GT(s.ms, 0.0);
+  // Synthetic references are converged (reference_half == reference): the
+  // ceiling is exactly 1 on every frame (trainer/ceiling.h).
+  EXPECT_EQ(j["reference_ceiling"]["frames"], 3);
+  EXPECT_DOUBLE_EQ(j["reference_ceiling"]["mean_ssim"].get<double>(), 1.0);
+  EXPECT_DOUBLE_EQ(j["frames"][0]["reference_ceiling_ssim"].get<double>(), 1.0);
+  // Flicker: none for a sequence's first frame, then per pair of frames; the
+  // noisy input (fresh noise every frame) flickers more than the output.
+  EXPECT_TRUE(j["frames"][0]["denoised"]["all"]["flicker"].is_null());
+  EXPECT_TRUE(j["frames"][1]["denoised"]["all"]["flicker"].is_number());
+  const double fl_noisy = j["summary"]["noisy"]["all"]["flicker"],
+               fl_den = j["summary"]["denoised"]["all"]["flicker"];
+  EXPECT_GT(fl_noisy, fl_den);
+  EXPECT_NEAR(s.flicker, fl_den, 1e-12);
+  EXPECT_TRUE(j["denoise_ms_at_size"].is_null());  // not asked for
+}
+
+// Full-frame validation (train.val_frames): each epoch's val_frame_ssim is
+// in (0, 1], and full_frame_ssim over all validation frames equals what eval
+// scores on them with the same weights.
+TEST(Eval, FullFrameValidationScoresAsEvalDoes) {
+  const LossCurve c = read_loss_csv(trained_run() / "loss.csv");
+  ASSERT_EQ(c.val_frame_ssim.size(), 6u);
+  for (double v : c.val_frame_ssim) EXPECT_TRUE(v > 0 && v <= 1) << v;
+
+  LoadedRun run = load_run(trained_run(), torch::kCPU, "last");
+  run.model->eval();
+  const std::vector<ShardSplit> splits = load_split_file(trained_run());
+  int frames = 0;
+  for (const ShardSplit& s : splits) frames += s.val_end - s.val_begin;
+  ASSERT_EQ(frames, 3);
+  // The last epoch's figure: the default 2 frames, to the CSV's 6 digits.
+  EXPECT_NEAR(full_frame_ssim(run.model, run.config, torch::kCPU, shared_data(), splits, 2),
+              c.val_frame_ssim.back(), 1e-5);
+  const double whole =
+      full_frame_ssim(run.model, run.config, torch::kCPU, shared_data(), splits, frames);
+  fs::path out = fresh_dir("eval_whole");
+  EvalOptions e{trained_run(), shared_data(), out, 0, 0, 0, "last"};
+  e.all_frames = false;
+  EXPECT_NEAR(evaluate(e).ssim, whole, 1e-9);
+  EXPECT_TRUE(
+      std::isnan(full_frame_ssim(run.model, run.config, torch::kCPU, shared_data(), {}, 2)));
+}
+
+// Scores by circle of confusion (kFocusRegions): each region's score is the
+// metric over exactly its pixels, the shares add up, and a band without
+// pixels has no score. The synthetic CoC runs from 0 to 8 px.
+TEST(Eval, ScoresEveryBandOfTheCircleOfConfusion) {
+  fs::path out = fresh_dir("eval_bands");
+  EvalOptions e{trained_run(), shared_data(), out, 0, 0, 0};
+  evaluate(e);
+  std::ifstream in(out / "report.json");
+  const nlohmann::json j = nlohmann::json::parse(in);
+  const nlohmann::json& share = j["summary"]["pixel_share"];
+  EXPECT_DOUBLE_EQ(share["all"].get<double>(), 1.0);
+  EXPECT_NEAR(share["in_focus"].get<double>() + share["out_of_focus"].get<double>(), 1.0, 1e-12);
+  EXPECT_NEAR(share["coc_1_4"].get<double>() + share["coc_4_16"].get<double>() +
+                  share["coc_16_up"].get<double>(),
+              share["out_of_focus"].get<double>(), 1e-12);
+  EXPECT_GT(share["coc_1_4"].get<double>(), 0.2);
+  EXPECT_GT(share["coc_4_16"].get<double>(), 0.2);
+  EXPECT_EQ(share["coc_16_up"].get<double>(), 0.0);
+  EXPECT_TRUE(j["summary"]["denoised"]["coc_16_up"]["ssim"].is_null());
+  EXPECT_TRUE(j["frames"][0]["noisy"]["coc_16_up"]["ssim"].is_null());
+  // Frame 0's noisy input over the 4-16 px band, scored here independently.
+  const nlohmann::json& row = j["frames"][0];
+  ShardReader reader(shared_data() / row["shard"].get<std::string>());
+  const FrameBuffers fb = reader.read_frame(row["frame"].get<int>() - reader.info().frame_start);
+  const size_t n = fb.plane();
+  std::vector<uint8_t> band(n);
+  for (size_t p = 0; p < n; ++p) band[p] = fb.coc[p] >= 4.0f && fb.coc[p] < 16.0f;
+  const std::vector<float> noisy(fb.noisy.begin(), fb.noisy.begin() + 3 * n);
+  const std::vector<float> a = display_encode({noisy.data(), 3, fb.height, fb.width}),
+                           b = display_encode({fb.reference.data(), 3, fb.height, fb.width});
+  const double want =
+      ssim({a.data(), 3, fb.height, fb.width}, {b.data(), 3, fb.height, fb.width}, band.data());
+  EXPECT_NEAR(row["noisy"]["coc_4_16"]["ssim"].get<double>(), want, 1e-12);
+  EXPECT_NE(row["noisy"]["coc_4_16"]["ssim"].get<double>(),
+            row["noisy"]["coc_1_4"]["ssim"].get<double>());
+  std::ifstream md_in(out / "report.md");
+  const std::string md((std::istreambuf_iterator<char>(md_in)), std::istreambuf_iterator<char>());
+  EXPECT_NE(md.find("By circle of confusion"), std::string::npos);
+  EXPECT_NE(md.find("| coc_4_16 | 4–16 |"), std::string::npos);
+}
+
+// The CoC probe (--coc-override): a model with a CoC input denoises
+// differently when fed a false CoC, while the noisy row and the regions
+// (from the frame's own CoC) stay; a model without the input is unmoved,
+// to the last bit.
+TEST(Eval, CocOverrideMovesOnlyAModelThatReadsTheCoc) {
+  auto scores = [](const fs::path& run, const char* name, float coc) {
+    fs::path out = fresh_dir(name);
+    EvalOptions e{run, shared_data(), out, 0, 0, 0};
+    e.all_frames = false;
+    e.coc_override = coc;
+    evaluate(e);
+    std::ifstream in(out / "report.json");
+    return nlohmann::json::parse(in);
+  };
+  const nlohmann::json own = scores(trained_run(), "probe_own", NAN),
+                       zero = scores(trained_run(), "probe_zero", 0.0f);
+  EXPECT_TRUE(own["coc_override"].is_null());
+  EXPECT_EQ(zero["coc_override"].get<double>(), 0.0);
+  EXPECT_EQ(zero["summary"]["noisy"], own["summary"]["noisy"]);
+  EXPECT_EQ(zero["summary"]["pixel_share"], own["summary"]["pixel_share"]);
+  EXPECT_NE(zero["summary"]["denoised"]["out_of_focus"]["ssim"].get<double>(),
+            own["summary"]["denoised"]["out_of_focus"]["ssim"].get<double>());
+
+  fs::path nococ = fresh_dir("run_nococ");
+  TrainOptions o{shared_data(), nococ, tiny_config()};
+  std::erase(o.config.model.inputs, std::string("coc:log"));
+  o.config.train.epochs = 1;
+  o.config.train.steps_per_epoch = 2;
+  train(o);
+  const nlohmann::json a = scores(nococ, "probe_nococ_own", NAN),
+                       b = scores(nococ, "probe_nococ_big", 50.0f);
+  EXPECT_EQ(a["summary"]["denoised"], b["summary"]["denoised"]);
+
+  // The command refuses a CoC that is not a finite number of pixels >= 0
+  // (NaN would silently mean "no probe"), before writing anything.
+  const fs::path refused = fresh_dir("probe_refused") / "report";
+  for (const char* bad : {"nan", "inf", "-1"}) {
+    const std::string cmd = std::string(DOFARM_TRAIN_EXE) + " eval --run " +
+                            trained_run().string() + " --data " + shared_data().string() +
+                            " --out " + refused.string() + " --coc-override " + bad +
+                            " >/dev/null 2>&1";
+    const int rc = std::system(cmd.c_str());
+    EXPECT_TRUE(WIFEXITED(rc) && WEXITSTATUS(rc) == 2) << bad;
+    EXPECT_FALSE(fs::exists(refused)) << bad;
+  }
+}
+
+// Crops where the lens matters (report.h): on a CoC map with one sharp
+// square and one blurred square, the windows found are those squares.
+TEST(Crops, WindowsOfTheSmallestAndLargestCircleOfConfusion) {
+  const int w = 40, h = 24;
+  std::vector<float> coc(size_t(w) * h, 1.5f);  // neither sharp nor "out of focus"
+  for (int y = 4; y < 12; ++y)
+    for (int x = 6; x < 14; ++x) coc[size_t(y) * w + x] = 0.0f;
+  for (int y = 14; y < 22; ++y)
+    for (int x = 30; x < 38; ++x) coc[size_t(y) * w + x] = 20.0f;
+  FocusCrops c = choose_focus_crops(coc, w, h, 8);  // stride 2: both squares on the grid
+  ASSERT_TRUE(c.in_focus.found && c.out_of_focus.found);
+  EXPECT_EQ(c.in_focus.x, 6);
+  EXPECT_EQ(c.in_focus.y, 4);
+  EXPECT_DOUBLE_EQ(c.in_focus.mean_coc, 0.0);
+  EXPECT_EQ(c.out_of_focus.x, 30);
+  EXPECT_EQ(c.out_of_focus.y, 14);
+  EXPECT_DOUBLE_EQ(c.out_of_focus.mean_coc, 20.0);
+  // A frame that is all pinhole has no out-of-focus window, an all-blurred
+  // one no in-focus window.
+  EXPECT_FALSE(
+      choose_focus_crops(std::vector<float>(size_t(w) * h, 0.0f), w, h, 8).out_of_focus.found);
+  EXPECT_FALSE(choose_focus_crops(std::vector<float>(size_t(w) * h, 9.0f), w, h, 8).in_focus.found);
+
+  // The crop PNG holds the window's pixels, sRGB-encoded, each drawn 2 x 2.
+  std::vector<float> img(size_t(3) * w * h);
+  for (size_t i = 0; i < img.size(); ++i) img[i] = float(i % 97) / 96.0f;
+  const std::string png = crop_png_bytes(img, w, h, c.out_of_focus, 2);
+  RgbImage back = decode_rgb_image(png.data(), png.size(), "crop", /*srgb=*/false);
+  ASSERT_EQ(back.width, 16);
+  ASSERT_EQ(back.height, 16);
+  const size_t n = size_t(w) * h;
+  for (int y = 0; y < 16; ++y)
+    for (int x = 0; x < 16; ++x)
+      for (int ch = 0; ch < 3; ++ch) {
+        const size_t p = size_t(14 + y / 2) * w + size_t(30 + x / 2);
+        ASSERT_NEAR(back.rgb[(size_t(y) * 16 + x) * 3 + ch],
+                    std::round(srgb_encode_clamped(img[ch * n + p]) * 255.0f) / 255.0f, 1e-6)
+            << x << "," << y;
+      }
+}
+
+// eval --crops: the same windows for any run on the same data (chosen from
+// the data's CoC), written as PNGs and listed in report.json and report.md.
+TEST(Eval, WritesCropsChosenByTheCircleOfConfusion) {
+  fs::path out = fresh_dir("eval_crops");
+  EvalOptions e{trained_run(), shared_data(), out, 0, 0, 0};
+  e.all_frames = false;
+  e.crops = 2;
+  e.crop_side = 8;
+  evaluate(e);
+  nlohmann::json j = nlohmann::json::parse(std::ifstream(out / "report.json"));
+  ASSERT_FALSE(j["crops"].empty());
+  std::set<int> frames;
+  for (const auto& c : j["crops"]) {
+    frames.insert(c["index"].get<int>());
+    for (const char* kind : {"noisy", "denoised", "reference"})
+      EXPECT_TRUE(fs::exists(out / c[kind].get<std::string>())) << c.dump();
+    const bool sharp = c["region"] == "in_focus";
+    EXPECT_TRUE(sharp ? c["mean_coc_px"] < 1.0 : c["mean_coc_px"] >= 2.0) << c.dump();
+    EXPECT_EQ(c["side"], 8);
+  }
+  EXPECT_EQ(frames.size(), 2u);  // e.crops frames
+  std::ifstream md(out / "report.md");
+  std::string text((std::istreambuf_iterator<char>(md)), std::istreambuf_iterator<char>());
+  EXPECT_NE(text.find(j["crops"][0]["denoised"].get<std::string>()), std::string::npos);
+}
+
+// Which frames the crops show: the most blurred, every shard's best before
+// any shard's second, the most blurred shard first; ties keep their order.
+TEST(Eval, CropsShowTheMostBlurredFramesSpreadOverShards) {
+  using Picks = std::vector<std::pair<size_t, size_t>>;
+  const std::vector<std::vector<double>> blur = {{3.0, 2.9, 1.0}, {40.0, 39.0}, {}, {12.0}};
+  EXPECT_EQ(spread_by_blur(blur, 2), (Picks{{1, 0}, {3, 0}}));
+  EXPECT_EQ(spread_by_blur(blur, 4), (Picks{{1, 0}, {3, 0}, {0, 0}, {1, 1}}));
+  EXPECT_EQ(spread_by_blur(blur, 9), (Picks{{1, 0}, {3, 0}, {0, 0}, {1, 1}, {0, 1}, {0, 2}}));
+  EXPECT_EQ(spread_by_blur({{5.0}, {5.0}}, 2), (Picks{{0, 0}, {1, 0}}));
+  EXPECT_TRUE(spread_by_blur(blur, 0).empty());
+  EXPECT_TRUE(spread_by_blur({}, 3).empty());
+}
+
+// `eval --time-size` times a frame of a size the data does not have: the
+// first validation frame repeated periodically.
+// crop_frame: the window's pixels in every buffer (per-version planes too),
+// the camera kept; a window outside the frame is refused.
+TEST(Eval, CropFrameTakesTheWindowOfEveryBuffer) {
+  const FrameBuffers f = testing::synthetic_frame(3, 16, 12, 2, 9);
+  const FrameBuffers c = crop_frame(f, 5, 4, 6, 3);
+  ASSERT_EQ(c.width, 6);
+  ASSERT_EQ(c.height, 3);
+  EXPECT_EQ(c.camera.focal_distance, f.camera.focal_distance);
+  const size_t n = f.plane(), m = c.plane();
+  for (int y = 0; y < 3; ++y)
+    for (int x = 0; x < 6; ++x) {
+      const size_t s = size_t(4 + y) * 16 + size_t(5 + x), d = size_t(y) * 6 + size_t(x);
+      EXPECT_EQ(c.coc[d], f.coc[s]);
+      EXPECT_EQ(c.reference[2 * m + d], f.reference[2 * n + s]);
+      EXPECT_EQ(c.noisy[5 * m + d], f.noisy[5 * n + s]);  // version 1, blue
+    }
+  EXPECT_THROW(crop_frame(f, 12, 0, 6, 3), SpecError);
+  EXPECT_THROW(crop_frame(f, -1, 0, 6, 3), SpecError);
+}
+
+TEST(Eval, TimesTheDenoiseAtARequestedSize) {
+  const FrameBuffers f = testing::synthetic_frame(1, 5, 3, 2, 4);
+  const FrameBuffers t = tile_frame(f, 12, 7);
+  ASSERT_EQ(t.width, 12);
+  ASSERT_EQ(t.versions, 2);
+  for (int y = 0; y < 7; ++y)
+    for (int x = 0; x < 12; ++x) {
+      ASSERT_EQ(t.coc[size_t(y) * 12 + x], f.coc[size_t(y % 3) * 5 + x % 5]);
+      // Version 1's blue plane.
+      ASSERT_EQ(t.noisy[(3 + 2) * 84 + size_t(y) * 12 + x],
+                f.noisy[(3 + 2) * 15 + size_t(y % 3) * 5 + x % 5]);
+    }
+  fs::path out = fresh_dir("eval_time");
+  EvalOptions e{trained_run(), shared_data(), out, 1, 0, 0};
+  e.all_frames = false;
+  e.time_side = 96;
+  e.time_reps = 2;
+  EvalSummary s = evaluate(e);
+  EXPECT_GT(s.ms_at_size, 0.0);
+  nlohmann::json j = nlohmann::json::parse(std::ifstream(out / "report.json"));
+  EXPECT_EQ(j["denoise_ms_at_size"]["side"], 96);
+  EXPECT_EQ(j["denoise_ms_at_size"]["reps"], 2);
+  EXPECT_DOUBLE_EQ(j["denoise_ms_at_size"]["ms"].get<double>(), s.ms_at_size);
+}
+
+// The page as a reader sees it: opened by a real browser (Debian's
+// chromium, headless), its script run, its plots and images decoded, its
+// numbers those of report.json.
+TEST(Eval, ReportPageLoadsInABrowserWithItsPlotsAndNumbers) {
+  const char* browsers[] = {"/usr/bin/chromium", "/usr/bin/chromium-browser"};
+  std::string browser;
+  for (const char* b : browsers)
+    if (fs::exists(b)) browser = b;
+  if (browser.empty()) GTEST_SKIP() << "no chromium (scripts/install-deps.sh installs it)";
+  fs::path out = fresh_dir("eval_html");
+  EvalOptions e{trained_run(), shared_data(), out, 0, 2, 0};
+  evaluate(e);
+  const fs::path dom = out / "dom.html";
+  const std::string cmd = browser +
+                          " --headless --no-sandbox --disable-gpu --disable-dev-shm-usage "
+                          "--no-first-run --user-data-dir=" +
+                          (out / "profile").string() +
+                          " --virtual-time-budget=5000 --dump-dom file://" +
+                          (out / "report.html").string() + " > " + dom.string() + " 2>/dev/null";
+  ASSERT_EQ(std::system(cmd.c_str()), 0) << cmd;
+  std::ifstream in(dom);
+  const std::string page((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  // The script ran: 5 plots + the error scale; both strips decoded.
+  EXPECT_NE(page.find("data-svgs=\"6\""), std::string::npos) << page.substr(0, 2000);
+  EXPECT_NE(page.find("data-images=\"2\""), std::string::npos);
+  // Plots with axis titles, tick values and legends.
+  for (const char* text :
+       {"Loss per epoch", ">epoch<", ">optimizer step<", "learning rate", "class=\"ytick\"",
+        "class=\"xtick\"", ">validation<", ">training (mean over the epoch)<", ">noisy (1 spp)<",
+        ">error ×4<", "Validation SSIM per epoch", "PSNR (dB)",
+        "mean |denoised - reference| per pixel"})
+    EXPECT_NE(page.find(text), std::string::npos) << text;
+  // The numbers are report.json's.
+  std::ifstream js(out / "report.json");
+  nlohmann::json j = nlohmann::json::parse(js);
+  char ssim[32];
+  std::snprintf(ssim, sizeof ssim, "<td>%.4f</td>",
+                j["summary"]["denoised"]["all"]["ssim"].get<double>());
+  EXPECT_NE(page.find(ssim), std::string::npos) << ssim;
+  EXPECT_NE(page.find(j["checkpoint"]["file"].get<std::string>()), std::string::npos);
+}
+
+}  // namespace
+}  // namespace dofarm::trainer
