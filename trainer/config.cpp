@@ -222,6 +222,9 @@ std::vector<Field> fields(TrainConfig& c) {
   f.push_back(enum_field("model.decoder", &m.decoder,
                          {{"project", DecoderForm::kProject}, {"thesis", DecoderForm::kThesis}},
                          true));
+  f.push_back(enum_field("model.padding", &m.padding,
+                         {{"zeros", PaddingMode::kZeros}, {"replicate", PaddingMode::kReplicate}},
+                         true));
   f.push_back(bool_field("model.recurrent", &m.recurrent, true));
   f.push_back(number_field("model.leaky_slope", &m.leaky_slope, 0.0, 1.0, true));
   auto& d = c.data;

@@ -41,6 +41,18 @@ enum class DecoderForm {
   kThesis,
 };
 
+// What a 3x3 convolution sees beyond a crop's or frame's border.
+enum class PaddingMode {
+  // Zeros (the thesis and Chaitanya 2017). The deepest levels of a network
+  // trained on 64-px crops always see this border; on whole frames their
+  // interior never does, and a network can come to depend on it
+  // (docs/results.md, "Where whole frames fail").
+  kZeros,
+  // The nearest value repeated: a border looks like a smooth continuation,
+  // not a drop to zero.
+  kReplicate,
+};
+
 struct ModelConfig {
   // Input channels in order, "name:encoding" (trainer/inputs.h has the
   // table); the old `model.dof = false` removes the coc entry.
@@ -50,6 +62,7 @@ struct ModelConfig {
   int bottleneck = 0;         // 0 = same as the last encoder width
   int bottleneck_convs = 2;   // thesis 4.3.1: 3, like the encoder blocks
   DecoderForm decoder = DecoderForm::kProject;
+  PaddingMode padding = PaddingMode::kZeros;
   bool recurrent = false;    // Chaitanya 2017 recurrent encoder blocks
   float leaky_slope = 0.1f;  // LeakyReLU negative slope (thesis 4.2)
 

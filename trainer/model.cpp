@@ -66,8 +66,9 @@ DenoiserImpl::Conv DenoiserImpl::add_conv(const std::string& name, int in, int o
   Conv c;
   c.name = name;
   c.activate = activate;
-  c.conv =
-      register_module(name, torch::nn::Conv2d(torch::nn::Conv2dOptions(in, out, 3).padding(1)));
+  auto options = torch::nn::Conv2dOptions(in, out, 3).padding(1);
+  if (cfg_.padding == PaddingMode::kReplicate) options.padding_mode(torch::kReplicate);
+  c.conv = register_module(name, torch::nn::Conv2d(options));
   // He initialisation for leaky ReLU keeps activations at unit scale through
   // the 24 convolutions.
   torch::nn::init::kaiming_normal_(c.conv->weight, cfg_.leaky_slope, torch::kFanIn,
@@ -146,8 +147,11 @@ void DenoiserImpl::export_torchscript(const std::filesystem::path& path,
   };
   std::ostringstream src;
   auto conv = [&](const Conv& c, const std::string& x, bool activate) {
-    std::string e =
-        "torch.conv2d(" + x + ", self." + c.name + "_w, self." + c.name + "_b, [1, 1], [1, 1])";
+    std::string e = cfg_.padding == PaddingMode::kReplicate
+                        ? "torch.conv2d(torch.replication_pad2d(" + x + ", [1, 1, 1, 1]), self." +
+                              c.name + "_w, self." + c.name + "_b, [1, 1], [0, 0])"
+                        : "torch.conv2d(" + x + ", self." + c.name + "_w, self." + c.name +
+                              "_b, [1, 1], [1, 1])";
     std::ostringstream slope;
     slope.precision(9);
     slope << double(cfg_.leaky_slope);

@@ -8,8 +8,15 @@
 // the content. Tiles have seams, so a sound model scores its tiles a little
 // below its whole frames.
 //
+// --rings W also scores each image by distance to the frame's nearest
+// border, in rings W pixels wide (the last ring takes the rest of the
+// interior). The frame's content differs from ring to ring, so read the
+// whole frame against the tiles ring by ring: a network that leans on the
+// borders of the crops it was trained on falls behind its own tiles in the
+// interior, further from every border than any crop reached.
+//
 // Usage: crop_vs_frame --run RUN --data DIR [--checkpoint best|last|PATH]
-//                      [--tiles 64,128] [--frames N]
+//                      [--tiles 64,128] [--frames N] [--rings W]
 // Prints one line per frame and the means; asserts nothing.
 #include <cmath>
 #include <cstdio>
@@ -34,10 +41,22 @@ double frame_ssim(const std::vector<float>& img, const FrameBuffers& fb) {
                       {fb.reference.data(), 3, fb.height, fb.width});
 }
 
+// Masks of the rings: pixels whose distance to the nearest border, in
+// pixels, lies in [k W, (k + 1) W), the last ring open-ended.
+std::vector<std::vector<uint8_t>> ring_masks(int width, int height, int ring, int rings) {
+  std::vector<std::vector<uint8_t>> masks(rings, std::vector<uint8_t>(size_t(width) * height, 0));
+  for (int y = 0; y < height; ++y)
+    for (int x = 0; x < width; ++x) {
+      const int d = std::min(std::min(x, width - 1 - x), std::min(y, height - 1 - y));
+      masks[std::min(d / ring, rings - 1)][size_t(y) * width + x] = 1;
+    }
+  return masks;
+}
+
 int usage() {
   std::fprintf(stderr,
                "usage: crop_vs_frame --run RUN --data DIR [--checkpoint best|last|PATH] "
-               "[--tiles 64,128] [--frames N]\n");
+               "[--tiles 64,128] [--frames N] [--rings W]\n");
   return 2;
 }
 
@@ -46,7 +65,7 @@ int usage() {
 int main(int argc, char** argv) {
   fs::path run, data;
   std::string checkpoint = "best", tiles_arg = "64,128";
-  int max_frames = 0;
+  int max_frames = 0, ring = 0;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     if (i + 1 >= argc) return usage();
@@ -60,10 +79,12 @@ int main(int argc, char** argv) {
       tiles_arg = argv[++i];
     else if (a == "--frames")
       max_frames = std::atoi(argv[++i]);
+    else if (a == "--rings")
+      ring = std::atoi(argv[++i]);
     else
       return usage();
   }
-  if (run.empty() || data.empty()) return usage();
+  if (run.empty() || data.empty() || ring < 0) return usage();
   std::vector<int> tiles;
   std::stringstream ss(tiles_arg);
   for (std::string t; std::getline(ss, t, ',');) {
@@ -79,6 +100,31 @@ int main(int argc, char** argv) {
   for (int t : tiles) std::printf("  tiles %-4d", t);
   std::printf("\n");
   std::vector<double> sum(tiles.size() + 1, 0.0);
+  // Per image kind (whole, then each tile side) and ring: the sum of the
+  // frames' finite scores and their count.
+  std::vector<std::vector<double>> ring_sum;
+  std::vector<std::vector<int>> ring_count;
+  int rings = 0;
+  const auto score_rings = [&](size_t kind, const std::vector<float>& img, const FrameBuffers& fb) {
+    if (ring == 0) return;
+    if (rings == 0) {
+      rings = std::max(1, (std::min(fb.width, fb.height) / 2 + ring - 1) / ring);
+      ring_sum.assign(tiles.size() + 1, std::vector<double>(rings, 0.0));
+      ring_count.assign(tiles.size() + 1, std::vector<int>(rings, 0));
+    }
+    const auto masks = ring_masks(fb.width, fb.height, ring, rings);
+    std::vector<const uint8_t*> ptrs;
+    for (const auto& m : masks) ptrs.push_back(m.data());
+    const std::vector<float> a = display_encode({img.data(), 3, fb.height, fb.width});
+    const std::vector<float> b = display_encode({fb.reference.data(), 3, fb.height, fb.width});
+    const std::vector<double> s =
+        ssim_per_mask({a.data(), 3, fb.height, fb.width}, {b.data(), 3, fb.height, fb.width}, ptrs);
+    for (int k = 0; k < rings; ++k)
+      if (std::isfinite(s[k])) {
+        ring_sum[kind][k] += s[k];
+        ++ring_count[kind][k];
+      }
+  };
   int frames = 0;
   for (const ShardSplit& sp : load_split_file(run)) {
     if (!fs::exists(data / sp.file)) continue;
@@ -87,7 +133,9 @@ int main(int argc, char** argv) {
       if (max_frames > 0 && frames >= max_frames) break;
       const FrameBuffers fb = reader.read_frame(f);
       den.reset_sequence();
-      const double whole = frame_ssim(den.denoise(fb, 0), fb);
+      const std::vector<float> whole_img = den.denoise(fb, 0);
+      const double whole = frame_ssim(whole_img, fb);
+      score_rings(0, whole_img, fb);
       std::printf("%-22s %5d %4dx%-4d %7.4f", sp.file.c_str(), reader.info().frame_start + f,
                   fb.width, fb.height, whole);
       sum[0] += whole;
@@ -107,6 +155,7 @@ int main(int argc, char** argv) {
                       part[(size_t(c) * h + y) * w + x];
           }
         const double s = frame_ssim(joined, fb);
+        score_rings(k + 1, joined, fb);
         sum[k + 1] += s;
         std::printf("  %10.4f", s);
       }
@@ -121,5 +170,22 @@ int main(int argc, char** argv) {
   std::printf("%-28s %6s %9.4f", "mean", "", sum[0] / frames);
   for (size_t k = 0; k < tiles.size(); ++k) std::printf("  %10.4f", sum[k + 1] / frames);
   std::printf("\n");
+  if (rings > 0) {
+    std::printf("\nSSIM by distance to the nearest border (mean over frames):\n%-14s %9s", "pixels",
+                "whole");
+    for (int t : tiles) std::printf("  tiles %-4d", t);
+    std::printf("\n");
+    for (int k = 0; k < rings; ++k) {
+      const std::string hi = k + 1 < rings ? std::to_string((k + 1) * ring) : "";
+      std::printf("%4d-%-9s", k * ring, hi.c_str());
+      for (size_t kind = 0; kind < ring_sum.size(); ++kind) {
+        if (ring_count[kind][k] > 0)
+          std::printf(kind == 0 ? " %9.4f" : "  %10.4f", ring_sum[kind][k] / ring_count[kind][k]);
+        else
+          std::printf(kind == 0 ? " %9s" : "  %10s", "n/a");
+      }
+      std::printf("\n");
+    }
+  }
   return 0;
 }

@@ -331,13 +331,43 @@ TEST(Denoiser, OverfitsOneBatch) {
   EXPECT_LE(last * 10.0f, first) << "first " << first << " last " << last;
 }
 
+// A constant image stays constant through every layer when the border is
+// its nearest value repeated (convolution, pooling and upsampling of a
+// constant are constant), so the output is the same at every pixel, at any
+// size: no pixel can tell how far it lies from a border. With zeros the
+// border pixels differ, which is what a network trained on small crops can
+// come to lean on (docs/results.md, "Where whole frames fail").
+TEST(Denoiser, ReplicatePaddingGivesNoPixelItsDistanceToTheBorder) {
+  torch::NoGradGuard ng;
+  const torch::Tensor x = torch::full({1, 12, 64, 96}, 0.37f);
+  for (PaddingMode mode : {PaddingMode::kZeros, PaddingMode::kReplicate}) {
+    torch::manual_seed(5);
+    ModelConfig cfg = tiny();
+    cfg.padding = mode;
+    Denoiser m(cfg);
+    std::vector<torch::Tensor> none;
+    const torch::Tensor y = m->forward_frame(x, none);
+    // Per channel: the spread over pixels against the channel's size.
+    const torch::Tensor flat = y.reshape({3, -1});
+    const float spread = (flat.amax(1) - flat.amin(1)).max().item<float>();
+    const float scale = flat.abs().mean().item<float>() + 1e-3f;
+    if (mode == PaddingMode::kReplicate)
+      EXPECT_LT(spread, 1e-4f * scale) << "replicate: the output varies over a constant input";
+    else
+      EXPECT_GT(spread, 1e-2f * scale) << "zeros: the border should show";
+  }
+}
+
 TEST(Denoiser, TorchScriptExportComputesTheSame) {
-  for (bool recurrent : {false, true}) {
+  for (int variant = 0; variant < 3; ++variant) {
+    const bool recurrent = variant == 1;
     torch::manual_seed(3);
-    Denoiser m(tiny(recurrent));
+    ModelConfig cfg = tiny(recurrent);
+    if (variant == 2) cfg.padding = PaddingMode::kReplicate;
+    Denoiser m(cfg);
     auto path =
         std::filesystem::temp_directory_path() /
-        ("dofarm_export_" + std::to_string(::getpid()) + "_" + std::to_string(recurrent) + ".pt");
+        ("dofarm_export_" + std::to_string(::getpid()) + "_" + std::to_string(variant) + ".pt");
     m->export_torchscript(path);
     torch::jit::Module loaded = torch::jit::load(path.string());
     torch::NoGradGuard ng;
