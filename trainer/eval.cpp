@@ -438,12 +438,14 @@ EvalSummary evaluate(const EvalOptions& o) {
     lr_plot = PlotSpec{"Learning rate", "epoch", "learning rate", true,
                        {{"Adam step size (last step of the epoch)", "#2ca02c", epochs.epoch,
                          epochs.lr}}};
-  PlotSpec ssim_plot{"Validation SSIM per epoch",
-                     "epoch",
-                     "SSIM (sRGB, 0..1)",
-                     false,
-                     {{"validation frames (64 px crops)", "#9467bd", epochs.epoch, epochs.val_ssim},
-                      {"whole validation frames", "#17becf", epochs.epoch, epochs.val_frame_ssim}}};
+  PlotSpec ssim_plot{
+      "Validation SSIM per epoch",
+      "epoch",
+      "SSIM (sRGB, 0..1)",
+      false,
+      {{"validation frames (64 px crops)", "#9467bd", epochs.epoch, epochs.val_ssim},
+       {"whole validation frames", "#17becf", epochs.epoch, epochs.val_frame_ssim},
+       {"the same frames as crop-sized tiles", "#bcbd22", epochs.epoch, epochs.val_tile_ssim}}};
   PlotSpec psnr_plot{"Validation PSNR per epoch", "epoch", "PSNR (dB)", false,
                      {{"validation frames (64 px crops)", "#8c564b", epochs.epoch, epochs.val_psnr}}};
   const std::string loss_svg = svg_plot(loss_plot), step_svg = svg_plot(step_plot),

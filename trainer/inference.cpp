@@ -119,26 +119,59 @@ std::vector<float> denoise_frame(Denoiser& model, const TrainConfig& cfg, torch:
 
 double full_frame_ssim(Denoiser& model, const TrainConfig& cfg, torch::Device device,
                        const fs::path& data_dir, const std::vector<ShardSplit>& splits, int count) {
+  return full_frame_scores(model, cfg, device, data_dir, splits, count, 0).whole;
+}
+
+FrameScores full_frame_scores(Denoiser& model, const TrainConfig& cfg, torch::Device device,
+                              const fs::path& data_dir, const std::vector<ShardSplit>& splits,
+                              int count, int tile) {
   std::vector<std::pair<std::string, int>> frames;  // (shard file, frame index)
   for (const ShardSplit& s : splits)
     for (int f = s.val_begin; f < s.val_end; ++f) frames.emplace_back(s.file, f);
-  if (frames.empty() || count <= 0) return NAN;
+  if (frames.empty() || count <= 0) return {};
   const size_t n = frames.size(), k = std::min(n, size_t(count));
-  std::vector<double> scores;
+  std::vector<double> whole, tiles;
+  const auto denoise = [&](const FrameBuffers& fb) {
+    std::vector<torch::Tensor> state;  // each frame and each tile alone
+    return denoise_frame(model, cfg, device, cfg.train.precision, state, fb, 0);
+  };
   for (size_t i = 0; i < k; ++i) {
     const auto& [file, f] = frames[(2 * i + 1) * n / (2 * k)];  // evenly spread
     const FrameBuffers fb = ShardReader(data_dir / file).read_frame(f);
-    std::vector<torch::Tensor> state;
-    std::vector<float> out;
-    try {
-      out = denoise_frame(model, cfg, device, cfg.train.precision, state, fb, 0);
-    } catch (const RuntimeError&) {
-      return NAN;  // a non-finite output: the caller reports it
-    }
     const int w = fb.width, h = fb.height;
-    scores.push_back(display_ssim({out.data(), 3, h, w}, {fb.reference.data(), 3, h, w}));
+    const auto score = [&](const std::vector<float>& out) {
+      return display_ssim({out.data(), 3, h, w}, {fb.reference.data(), 3, h, w});
+    };
+    try {
+      whole.push_back(score(denoise(fb)));
+      if (tile > 0) tiles.push_back(score(denoise_in_tiles(fb, tile, denoise)));
+    } catch (const RuntimeError&) {
+      return {};  // a non-finite output: the caller reports it
+    }
   }
-  return finite_mean(scores);
+  return {finite_mean(whole), tile > 0 ? finite_mean(tiles) : NAN};
+}
+
+std::vector<float> denoise_in_tiles(
+    const FrameBuffers& frame, int tile,
+    const std::function<std::vector<float>(const FrameBuffers&)>& denoise) {
+  if (tile <= 0)
+    throw SpecError(FileLoc{}, "tile", "a tile side must be positive, got " + std::to_string(tile));
+  const size_t n = frame.plane();
+  std::vector<float> joined(3 * n, 0.0f);
+  for (int y0 = 0; y0 < frame.height; y0 += tile)
+    for (int x0 = 0; x0 < frame.width; x0 += tile) {
+      const int w = std::min(tile, frame.width - x0), h = std::min(tile, frame.height - y0);
+      const std::vector<float> part = denoise(crop_frame(frame, x0, y0, w, h));
+      if (part.size() != 3 * size_t(w) * h)
+        throw RuntimeError("denoise_in_tiles: a tile's output has " + std::to_string(part.size()) +
+                           " values, not " + std::to_string(3 * size_t(w) * h));
+      for (int c = 0; c < 3; ++c)
+        for (int y = 0; y < h; ++y)
+          std::copy_n(part.data() + (size_t(c) * h + y) * w, w,
+                      joined.data() + size_t(c) * n + size_t(y0 + y) * frame.width + x0);
+    }
+  return joined;
 }
 
 namespace {

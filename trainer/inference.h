@@ -5,7 +5,9 @@
 
 #include <torch/torch.h>
 
+#include <cmath>
 #include <filesystem>
+#include <functional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -63,6 +65,28 @@ std::vector<float> denoise_frame(Denoiser& model, const TrainConfig& cfg, torch:
 double full_frame_ssim(Denoiser& model, const TrainConfig& cfg, torch::Device device,
                        const std::filesystem::path& data_dir, const std::vector<ShardSplit>& splits,
                        int count);
+
+// The same frames scored whole and also denoised as independent tile x tile
+// windows put back together (denoise_in_tiles). A sound model scores its
+// whole frames a little above its tiles (the tiles have seams); one that
+// depends on the borders of the crops it was trained on scores them below,
+// losing its pixels far from the frame's border (docs/results.md, "Where
+// whole frames fail"). tile = 0: whole frames only (tiles NaN).
+struct FrameScores {
+  double whole = NAN;
+  double tiles = NAN;
+};
+FrameScores full_frame_scores(Denoiser& model, const TrainConfig& cfg, torch::Device device,
+                              const std::filesystem::path& data_dir,
+                              const std::vector<ShardSplit>& splits, int count, int tile);
+
+// `frame` cut into tile x tile windows from its top-left corner (narrower at
+// the right and bottom where its sides are not multiples of tile), each
+// denoised alone by `denoise` (3 planes of the window's pixels), and joined
+// into one 3-plane image of the frame's size.
+std::vector<float> denoise_in_tiles(
+    const FrameBuffers& frame, int tile,
+    const std::function<std::vector<float>(const FrameBuffers&)>& denoise);
 
 // The buffers denoise() reads for noisy version `version` with `cfg`, and how
 // many non-finite values each holds: {layer name, count} for every layer

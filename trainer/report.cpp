@@ -201,6 +201,7 @@ LossCurve read_loss_csv(const std::filesystem::path& csv) {
     c.val_ssim.push_back(f.size() > 7 ? num(f[7]) : NAN);
     c.val_psnr.push_back(f.size() > 8 ? num(f[8]) : NAN);
     c.val_frame_ssim.push_back(f.size() > 9 ? num(f[9]) : NAN);
+    c.val_tile_ssim.push_back(f.size() > 10 ? num(f[10]) : NAN);
   }
   return c;
 }

@@ -54,6 +54,7 @@ struct LossCurve {
   std::vector<double> epoch, train, val, lr;  // val may hold NaN (no validation set)
   std::vector<double> val_ssim, val_psnr;     // NaN where not recorded
   std::vector<double> val_frame_ssim;         // whole validation frames; NaN where not recorded
+  std::vector<double> val_tile_ssim;  // the same frames as crop-sized tiles; NaN where not recorded
 };
 // Reads RUN/loss.csv (empty curve when absent).
 LossCurve read_loss_csv(const std::filesystem::path& csv);

@@ -140,20 +140,11 @@ int main(int argc, char** argv) {
                   fb.width, fb.height, whole);
       sum[0] += whole;
       for (size_t k = 0; k < tiles.size(); ++k) {
-        const int t = tiles[k];
-        const size_t n = fb.plane();
-        std::vector<float> joined(3 * n, 0.0f);
-        for (int y0 = 0; y0 < fb.height; y0 += t)
-          for (int x0 = 0; x0 < fb.width; x0 += t) {
-            const int w = std::min(t, fb.width - x0), h = std::min(t, fb.height - y0);
-            den.reset_sequence();
-            const std::vector<float> part = den.denoise(crop_frame(fb, x0, y0, w, h), 0);
-            for (int c = 0; c < 3; ++c)
-              for (int y = 0; y < h; ++y)
-                for (int x = 0; x < w; ++x)
-                  joined[size_t(c) * n + size_t(y0 + y) * fb.width + size_t(x0 + x)] =
-                      part[(size_t(c) * h + y) * w + x];
-          }
+        const std::vector<float> joined =
+            denoise_in_tiles(fb, tiles[k], [&](const FrameBuffers& part) {
+              den.reset_sequence();
+              return den.denoise(part, 0);
+            });
         const double s = frame_ssim(joined, fb);
         score_rings(k + 1, joined, fb);
         sum[k + 1] += s;

@@ -60,13 +60,16 @@ TEST(Eval, ReportHasEveryFrameAndBeatsTheNoisyInput) {
   EXPECT_TRUE(j["denoise_ms_at_size"].is_null());  // not asked for
 }
 
-// Full-frame validation (train.val_frames): each epoch's val_frame_ssim is
-// in (0, 1], and full_frame_ssim over all validation frames equals what eval
-// scores on them with the same weights.
+// Full-frame validation (train.val_frames): each epoch's val_frame_ssim and
+// val_tile_ssim are in (0, 1], full_frame_ssim over all validation frames
+// equals what eval scores on them with the same weights, and the tiles'
+// figure is that of the frames cut into data.crop-sized tiles.
 TEST(Eval, FullFrameValidationScoresAsEvalDoes) {
   const LossCurve c = read_loss_csv(trained_run() / "loss.csv");
   ASSERT_EQ(c.val_frame_ssim.size(), 6u);
   for (double v : c.val_frame_ssim) EXPECT_TRUE(v > 0 && v <= 1) << v;
+  ASSERT_EQ(c.val_tile_ssim.size(), 6u);
+  for (double v : c.val_tile_ssim) EXPECT_TRUE(v > 0 && v <= 1) << v;
 
   LoadedRun run = load_run(trained_run(), torch::kCPU, "last");
   run.model->eval();
@@ -77,6 +80,14 @@ TEST(Eval, FullFrameValidationScoresAsEvalDoes) {
   // The last epoch's figure: the default 2 frames, to the CSV's 6 digits.
   EXPECT_NEAR(full_frame_ssim(run.model, run.config, torch::kCPU, shared_data(), splits, 2),
               c.val_frame_ssim.back(), 1e-5);
+  const FrameScores two = full_frame_scores(run.model, run.config, torch::kCPU, shared_data(),
+                                            splits, 2, run.config.data.crop);
+  EXPECT_NEAR(two.whole, c.val_frame_ssim.back(), 1e-5);
+  EXPECT_NEAR(two.tiles, c.val_tile_ssim.back(), 1e-5);
+  // The frames are larger than a crop, so the tiles are a different image.
+  EXPECT_NE(two.tiles, two.whole);
+  EXPECT_TRUE(std::isnan(
+      full_frame_scores(run.model, run.config, torch::kCPU, shared_data(), splits, 2, 0).tiles));
   const double whole =
       full_frame_ssim(run.model, run.config, torch::kCPU, shared_data(), splits, frames);
   fs::path out = fresh_dir("eval_whole");
@@ -275,6 +286,29 @@ TEST(Eval, CropFrameTakesTheWindowOfEveryBuffer) {
     }
   EXPECT_THROW(crop_frame(f, 12, 0, 6, 3), SpecError);
   EXPECT_THROW(crop_frame(f, -1, 0, 6, 3), SpecError);
+}
+
+// denoise_in_tiles: every tile is the window crop_frame cuts (narrower at
+// the right and bottom), and the joined image puts each tile's output back
+// where the window was: a "denoiser" that returns its window's reference
+// rebuilds the frame's reference exactly.
+TEST(Eval, DenoiseInTilesJoinsTheWindowsBack) {
+  const FrameBuffers f = testing::synthetic_frame(3, 16, 12, 2, 9);
+  std::vector<std::pair<int, int>> sizes;
+  const std::vector<float> joined = denoise_in_tiles(f, 5, [&](const FrameBuffers& part) {
+    sizes.emplace_back(part.width, part.height);
+    return part.reference;
+  });
+  EXPECT_EQ(joined, f.reference);
+  ASSERT_EQ(sizes.size(), 12u);  // 4 columns (5, 5, 5, 1) x 3 rows (5, 5, 2)
+  EXPECT_EQ(sizes[0], std::make_pair(5, 5));
+  EXPECT_EQ(sizes[3], std::make_pair(1, 5));
+  EXPECT_EQ(sizes[11], std::make_pair(1, 2));
+  // A wrong-sized output is an error, not a silently shifted image.
+  EXPECT_THROW(denoise_in_tiles(f, 5, [](const FrameBuffers&) { return std::vector<float>(3); }),
+               RuntimeError);
+  EXPECT_THROW(denoise_in_tiles(f, 0, [](const FrameBuffers& p) { return p.reference; }),
+               SpecError);
 }
 
 TEST(Eval, TimesTheDenoiseAtARequestedSize) {

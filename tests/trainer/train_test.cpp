@@ -57,7 +57,8 @@ TEST(Train, ResumedRunTakesTheSameStepsAsAnUninterruptedOne) {
   std::string header, row;
   std::getline(csv, header);
   EXPECT_EQ(header,
-            "epoch,step,train_loss,val_loss,lr,skipped,seconds,val_ssim,val_psnr,val_frame_ssim");
+            "epoch,step,train_loss,val_loss,lr,skipped,seconds,val_ssim,val_psnr,val_frame_ssim,"
+            "val_tile_ssim");
   int rows = 0;
   while (std::getline(csv, row)) ++rows;
   EXPECT_EQ(rows, 2);
