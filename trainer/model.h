@@ -70,6 +70,8 @@ class DenoiserImpl : public torch::nn::Module {
     bool activate = true;  // LeakyReLU after it
   };
   Conv add_conv(const std::string& name, int in, int out, bool activate = true);
+  // c's convolution of h, padded as model.padding says.
+  torch::Tensor conv(Conv& c, const torch::Tensor& h);
   torch::Tensor act(torch::Tensor x) const;  // on a convolution output, in place
 
   ModelConfig cfg_;
@@ -90,6 +92,10 @@ torch::MemoryFormat preferred_memory_format(torch::Device device);
 // Pads [.., H, W] with edge replication on the bottom and right to multiples
 // of kSizeMultiple; crop back with narrow().
 torch::Tensor pad_to_multiple(const torch::Tensor& x);
+// One pixel of edge replication on each side of an N x C x H x W tensor
+// (model.padding = "replicate"): the values and the gradient of
+// replication_pad2d(x, {1, 1, 1, 1}), at a fraction of its CPU backward's cost.
+torch::Tensor replicate_pad1(const torch::Tensor& x);
 
 // Number of trainable parameters.
 int64_t parameter_count(const torch::nn::Module& m);

@@ -6,9 +6,10 @@
 // never asserts.
 //
 //   trainer_speed [--reps N] [--models all|dof] [--formats nchw,nhwc] [--no-infer]
-//                 [--precisions fp32,bf16] [--replicas N]
+//                 [--precisions fp32,bf16] [--padding zeros,replicate] [--replicas N]
 //                 [--loop SHARD.h5 [--steps N] [--readers N] [--only-loop]]
 //
+// --padding: each row again per model.padding (default: zeros only).
 // --precisions: each row again per precision (trainer/precision.h; bf16 =
 // bfloat16 autocast of the network on the CPU, as train.precision = "bf16"
 // and `denoise --precision bf16` run it).
@@ -82,6 +83,7 @@ struct Options {
   std::vector<torch::MemoryFormat> formats = {torch::MemoryFormat::Contiguous,
                                               torch::MemoryFormat::ChannelsLast};
   std::vector<Precision> precisions = {Precision::kFp32};
+  std::vector<PaddingMode> paddings = {PaddingMode::kZeros};
   std::string loop_shard;
   int steps = 20;
   int readers = 2;
@@ -94,7 +96,8 @@ int replicas_for(const Options& o, torch::Device dev, Precision prec) {
 
 void kernels(const Options& o, torch::Device dev) {
   std::printf(
-      "| model | params | format, precision | 256x256 ms | 512x512 ms | train step ms (4 x 7 x 64^2) | "
+      "| model | params | format, precision, padding | 256x256 ms | 512x512 ms | train step ms (4 "
+      "x 7 x 64^2) | "
       "fastest step ms |\n");
   std::printf("| --- | --- | --- | --- | --- | --- | --- |\n");
   struct Variant {
@@ -105,50 +108,53 @@ void kernels(const Options& o, torch::Device dev) {
   for (const Variant& v : variants) {
     if (!o.all_models && !(v.dof && !v.recurrent)) continue;
     for (torch::MemoryFormat fmt : o.formats)
-    for (Precision prec : o.precisions) {
-      ModelConfig mc;
-      if (!v.dof) std::erase(mc.inputs, std::string("coc:log"));
-      mc.recurrent = v.recurrent;
-      torch::manual_seed(0);
-      Denoiser m(mc);
-      m->to(dev);
-      m->set_memory_format(fmt);
-      double infer[2] = {0, 0};
-      int sizes[2] = {256, 512};
-      for (int k = 0; o.infer && k < 2; ++k) {
-        m->eval();
-        c10::InferenceMode inference;  // as FrameDenoiser::denoise
-        torch::Tensor x = torch::rand({1, mc.input_channels(), sizes[k], sizes[k]}, dev);
-        std::vector<torch::Tensor> state;
-        infer[k] = median_seconds(o.reps, dev, [&] {
-          AutocastScope autocast(prec, dev);
-          m->forward_frame(x, state);
-        });
-      }
-      m->train();
-      LossConfig lc;
-      torch::Tensor kernel = log_kernel(lc.log_sigma).to(dev);
-      torch::optim::Adam opt(m->parameters(), torch::optim::AdamOptions(1e-4).betas({0.9, 0.99}));
-      // Inputs as make_batch lays them out: [B*T, C, S, S] frames in `fmt`.
-      Batch batch;
-      batch.input = torch::rand({28, mc.input_channels(), 64, 64}, dev)
-                        .contiguous(fmt)
-                        .view({4, 7, mc.input_channels(), 64, 64});
-      batch.target = torch::rand({28, 3, 64, 64}, dev).contiguous(fmt).view({4, 7, 3, 64, 64});
-      double best = 0;
-      StepRunner runner(m, replicas_for(o, dev, prec), prec);
-      double step = median_seconds(
-          o.reps, dev,
-          [&] {
-            runner.run(batch, lc, kernel);
-            opt.step();
-          },
-          &best);
-      std::printf("| %s | %lld | %s %s | %.1f | %.1f | %.0f | %.0f |\n", v.name,
-                  static_cast<long long>(parameter_count(*m)), format_name(fmt),
-                  precision_name(prec), infer[0] * 1e3,
-                  infer[1] * 1e3, step * 1e3, best * 1e3);
-    }
+      for (Precision prec : o.precisions)
+        for (PaddingMode pad : o.paddings) {
+          ModelConfig mc;
+          if (!v.dof) std::erase(mc.inputs, std::string("coc:log"));
+          mc.recurrent = v.recurrent;
+          mc.padding = pad;
+          torch::manual_seed(0);
+          Denoiser m(mc);
+          m->to(dev);
+          m->set_memory_format(fmt);
+          double infer[2] = {0, 0};
+          int sizes[2] = {256, 512};
+          for (int k = 0; o.infer && k < 2; ++k) {
+            m->eval();
+            c10::InferenceMode inference;  // as FrameDenoiser::denoise
+            torch::Tensor x = torch::rand({1, mc.input_channels(), sizes[k], sizes[k]}, dev);
+            std::vector<torch::Tensor> state;
+            infer[k] = median_seconds(o.reps, dev, [&] {
+              AutocastScope autocast(prec, dev);
+              m->forward_frame(x, state);
+            });
+          }
+          m->train();
+          LossConfig lc;
+          torch::Tensor kernel = log_kernel(lc.log_sigma).to(dev);
+          torch::optim::Adam opt(m->parameters(),
+                                 torch::optim::AdamOptions(1e-4).betas({0.9, 0.99}));
+          // Inputs as make_batch lays them out: [B*T, C, S, S] frames in `fmt`.
+          Batch batch;
+          batch.input = torch::rand({28, mc.input_channels(), 64, 64}, dev)
+                            .contiguous(fmt)
+                            .view({4, 7, mc.input_channels(), 64, 64});
+          batch.target = torch::rand({28, 3, 64, 64}, dev).contiguous(fmt).view({4, 7, 3, 64, 64});
+          double best = 0;
+          StepRunner runner(m, replicas_for(o, dev, prec), prec);
+          double step = median_seconds(
+              o.reps, dev,
+              [&] {
+                runner.run(batch, lc, kernel);
+                opt.step();
+              },
+              &best);
+          std::printf("| %s | %lld | %s %s %s | %.1f | %.1f | %.0f | %.0f |\n", v.name,
+                      static_cast<long long>(parameter_count(*m)), format_name(fmt),
+                      precision_name(prec), pad == PaddingMode::kZeros ? "zeros" : "replicate",
+                      infer[0] * 1e3, infer[1] * 1e3, step * 1e3, best * 1e3);
+        }
   }
 }
 
@@ -230,6 +236,16 @@ int main(int argc, char** argv) {
       std::stringstream ss(value());
       for (std::string p; std::getline(ss, p, ',');)
         o.precisions.push_back(parse_precision(p, "--precisions"));
+    } else if (k == "--padding") {
+      o.paddings.clear();
+      std::stringstream ss(value());
+      for (std::string p; std::getline(ss, p, ',');) {
+        if (p != "zeros" && p != "replicate") {
+          std::fprintf(stderr, "trainer_speed: --padding: zeros or replicate, got %s\n", p.c_str());
+          return 2;
+        }
+        o.paddings.push_back(p == "zeros" ? PaddingMode::kZeros : PaddingMode::kReplicate);
+      }
     } else if (k == "--replicas") {
       o.replicas = std::max(0, std::atoi(value().c_str()));
     } else if (k == "--loop") {
@@ -241,7 +257,8 @@ int main(int argc, char** argv) {
     } else {
       std::fprintf(stderr,
                    "usage: trainer_speed [--reps N] [--models all|dof] [--formats nchw,nhwc] "
-                   "[--no-infer] [--precisions fp32,bf16] [--replicas N] [--loop SHARD.h5 [--steps N] [--readers N] "
+                   "[--no-infer] [--precisions fp32,bf16] [--padding zeros,replicate] [--replicas "
+                   "N] [--loop SHARD.h5 [--steps N] [--readers N] "
                    "[--only-loop]]\n");
       return 2;
     }

@@ -358,6 +358,26 @@ TEST(Denoiser, ReplicatePaddingGivesNoPixelItsDistanceToTheBorder) {
   }
 }
 
+// replicate_pad1 against ATen's replication_pad2d: the same values and the
+// same gradient for a random upstream gradient, in both memory layouts.
+TEST(Denoiser, ReplicatePad1EqualsReplicationPad2d) {
+  for (bool channels_last : {false, true}) {
+    torch::manual_seed(11);
+    torch::Tensor x = torch::randn({2, 5, 6, 7});
+    if (channels_last) x = x.contiguous(torch::MemoryFormat::ChannelsLast);
+    const torch::Tensor a = x.clone().requires_grad_(true), b = x.clone().requires_grad_(true);
+    const torch::Tensor ya = replicate_pad1(a), yb = torch::replication_pad2d(b, {1, 1, 1, 1});
+    ASSERT_EQ(ya.sizes(), yb.sizes());
+    EXPECT_TRUE(torch::equal(ya, yb));
+    const torch::Tensor g = torch::randn(ya.sizes());
+    ya.backward(g);
+    yb.backward(g);
+    EXPECT_LT((a.grad() - b.grad()).abs().max().item<float>(), 1e-5f);
+    // The corner pixel gathers four padded values' gradients and its own.
+    EXPECT_GT((a.grad() - g.narrow(2, 1, 6).narrow(3, 1, 7)).abs().max().item<float>(), 0.1f);
+  }
+}
+
 TEST(Denoiser, TorchScriptExportComputesTheSame) {
   for (int variant = 0; variant < 3; ++variant) {
     const bool recurrent = variant == 1;
