@@ -393,8 +393,8 @@ TrainResult train_in(const TrainOptions& opt_in) {
         log(spdlog::level::warn,
             "epoch {}: whole validation frames score SSIM {:.3f} against {:.3f} for the same "
             "frames denoised as {}-px tiles: the network fails far from the borders of its "
-            "crops (docs/results.md, \"Where whole frames fail\"; model.padding = "
-            "\"replicate\", larger data.crop)",
+            "crops (docs/results.md, \"Where whole frames fail\"; train.best_by = \"frames\" "
+            "keeps such epochs out of best.pt)",
             st.epoch + 1, val_frame_ssim, val_tile_ssim, cfg.data.crop);
     }
     double train_loss = good ? loss_sum / good : NAN;
