@@ -36,11 +36,6 @@ using namespace dofarm::trainer;
 
 namespace {
 
-double frame_ssim(const std::vector<float>& img, const FrameBuffers& fb) {
-  return display_ssim({img.data(), 3, fb.height, fb.width},
-                      {fb.reference.data(), 3, fb.height, fb.width});
-}
-
 // Masks of the rings: pixels whose distance to the nearest border, in
 // pixels, lies in [k W, (k + 1) W), the last ring open-ended.
 std::vector<std::vector<uint8_t>> ring_masks(int width, int height, int ring, int rings) {
@@ -105,26 +100,6 @@ int main(int argc, char** argv) {
   std::vector<std::vector<double>> ring_sum;
   std::vector<std::vector<int>> ring_count;
   int rings = 0;
-  const auto score_rings = [&](size_t kind, const std::vector<float>& img, const FrameBuffers& fb) {
-    if (ring == 0) return;
-    if (rings == 0) {
-      rings = std::max(1, (std::min(fb.width, fb.height) / 2 + ring - 1) / ring);
-      ring_sum.assign(tiles.size() + 1, std::vector<double>(rings, 0.0));
-      ring_count.assign(tiles.size() + 1, std::vector<int>(rings, 0));
-    }
-    const auto masks = ring_masks(fb.width, fb.height, ring, rings);
-    std::vector<const uint8_t*> ptrs;
-    for (const auto& m : masks) ptrs.push_back(m.data());
-    const std::vector<float> a = display_encode({img.data(), 3, fb.height, fb.width});
-    const std::vector<float> b = display_encode({fb.reference.data(), 3, fb.height, fb.width});
-    const std::vector<double> s =
-        ssim_per_mask({a.data(), 3, fb.height, fb.width}, {b.data(), 3, fb.height, fb.width}, ptrs);
-    for (int k = 0; k < rings; ++k)
-      if (std::isfinite(s[k])) {
-        ring_sum[kind][k] += s[k];
-        ++ring_count[kind][k];
-      }
-  };
   int frames = 0;
   for (const ShardSplit& sp : load_split_file(run)) {
     if (!fs::exists(data / sp.file)) continue;
@@ -132,10 +107,32 @@ int main(int argc, char** argv) {
     for (int f = sp.val_begin; f < sp.val_end; ++f) {
       if (max_frames > 0 && frames >= max_frames) break;
       const FrameBuffers fb = reader.read_frame(f);
+      const int w = fb.width, h = fb.height;
+      if (ring > 0 && rings == 0) {
+        rings = std::max(1, (std::min(w, h) / 2 + ring - 1) / ring);
+        ring_sum.assign(tiles.size() + 1, std::vector<double>(rings, 0.0));
+        ring_count.assign(tiles.size() + 1, std::vector<int>(rings, 0));
+      }
+      // One SSIM pass per image: the whole image (no mask), then each ring.
+      const auto masks =
+          ring > 0 ? ring_masks(w, h, ring, rings) : std::vector<std::vector<uint8_t>>{};
+      std::vector<const uint8_t*> regions{nullptr};
+      for (const auto& m : masks) regions.push_back(m.data());
+      const std::vector<float> reference = display_encode({fb.reference.data(), 3, h, w});
+      // The image's SSIM; its rings' scores added to those of image kind `kind`.
+      const auto score = [&](size_t kind, const std::vector<float>& img) {
+        const std::vector<float> shown = display_encode({img.data(), 3, h, w});
+        const std::vector<double> s =
+            ssim_per_mask({shown.data(), 3, h, w}, {reference.data(), 3, h, w}, regions);
+        for (int k = 0; k < int(masks.size()); ++k)
+          if (std::isfinite(s[k + 1])) {
+            ring_sum[kind][k] += s[k + 1];
+            ++ring_count[kind][k];
+          }
+        return s[0];
+      };
       den.reset_sequence();
-      const std::vector<float> whole_img = den.denoise(fb, 0);
-      const double whole = frame_ssim(whole_img, fb);
-      score_rings(0, whole_img, fb);
+      const double whole = score(0, den.denoise(fb, 0));
       std::printf("%-22s %5d %4dx%-4d %7.4f", sp.file.c_str(), reader.info().frame_start + f,
                   fb.width, fb.height, whole);
       sum[0] += whole;
@@ -145,8 +142,7 @@ int main(int argc, char** argv) {
               den.reset_sequence();
               return den.denoise(part, 0);
             });
-        const double s = frame_ssim(joined, fb);
-        score_rings(k + 1, joined, fb);
+        const double s = score(k + 1, joined);
         sum[k + 1] += s;
         std::printf("  %10.4f", s);
       }
