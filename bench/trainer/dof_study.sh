@@ -23,6 +23,11 @@
 # and the CoC ablation of the project's default (the thesis presets' eq. 4.5
 # schedule starves on a small data set, so (a) against (b) can be mute):
 #   default_nococ     (c) without the CoC input (--configs coc: default default_nococ)
+# and the same pair with a depth input that carries no focus information
+# (depth:focal is 0.5 on the focal plane, so with it the CoC is known up to
+# one factor per frame; --configs sdepth: default_sdepth default_sdepth_nococ):
+#   default_sdepth        (c) with depth:scene, z / 5
+#   default_sdepth_nococ  (c) with depth:scene and without the CoC input
 # and write one table (OUT/results.md, OUT/results.csv) with, per
 # configuration, SSIM / PSNR / relative MSE over all, in-focus and
 # out-of-focus pixels, flicker, ms per 512² frame, training steps and wall
@@ -111,10 +116,14 @@ for kv in "${SETS[@]}"; do
 done
 [ "$CONFIGS" = ablation ] && CONFIGS=$ABLATION
 [ "$CONFIGS" = coc ] && CONFIGS="default default_nococ"
+[ "$CONFIGS" = sdepth ] && CONFIGS="default_sdepth default_sdepth_nococ"
 # The thesis's inputs without the CoC (thesis 4.3.2 no-DOF network).
 NOCOC='["radiance:linear", "albedo", "normal:remap01", "depth:scene", "roughness"]'
 # The project default's inputs without the CoC.
 DEFAULT_NOCOC='["radiance:log1p", "albedo:as_stored", "normal:as_stored", "depth:focal", "roughness:as_stored"]'
+# The project default's inputs with the thesis's scene depth, with and without the CoC.
+SDEPTH='["radiance:log1p", "albedo:as_stored", "normal:as_stored", "depth:scene", "roughness:as_stored", "coc:log"]'
+SDEPTH_NOCOC='["radiance:log1p", "albedo:as_stored", "normal:as_stored", "depth:scene", "roughness:as_stored"]'
 # The thesis's inputs with one encoding replaced by the project's (ablation).
 inputs_with() {
   local r=radiance:linear n=normal:remap01 d=depth:scene c=coc:thesis
@@ -125,7 +134,7 @@ args_of() {
   case $1 in
     thesis) echo "--preset thesis" ;;
     thesis_nococ) echo "--preset thesis" ;;
-    default|default_nococ) echo "--preset default" ;;
+    default|default_nococ|default_sdepth|default_sdepth_nococ) echo "--preset default" ;;
     thesis_focus) echo "--preset thesis --set loss.focus_weight=4 --set loss.focus_coc_px=1" ;;
     thesis_prefilter) echo "--preset thesis --set data.albedo_prefilter=coc" ;;
     # RAE: recurrent blocks, temporal weight 0.1 (Chaitanya 2017, sec. 5: 0.8 / 0.1 / 0.1).
@@ -139,6 +148,8 @@ extra_of() {
     thesis_nococ) echo "model.inputs=$NOCOC" ;;
     default) echo "train.warmup_steps=$WARMUP" ;;
     default_nococ) printf '%s\n' "train.warmup_steps=$WARMUP" "model.inputs=$DEFAULT_NOCOC" ;;
+    default_sdepth) printf '%s\n' "train.warmup_steps=$WARMUP" "model.inputs=$SDEPTH" ;;
+    default_sdepth_nococ) printf '%s\n' "train.warmup_steps=$WARMUP" "model.inputs=$SDEPTH_NOCOC" ;;
     abl_radiance) inputs_with radiance radiance:log1p ;;
     abl_normal) inputs_with normal normal:as_stored ;;
     abl_depth) inputs_with depth depth:focal ;;
@@ -155,6 +166,8 @@ describe() {
     thesis_nococ) echo "(b) thesis-exact without CoC input" ;;
     default) echo "(c) project default" ;;
     default_nococ) echo "(c) without CoC input" ;;
+    default_sdepth) echo "(c) with depth:scene" ;;
+    default_sdepth_nococ) echo "(c) with depth:scene, without CoC input" ;;
     thesis_focus) echo "(d) (a) + focus-weighted loss" ;;
     thesis_prefilter) echo "(d) (a) + CoC albedo prefilter" ;;
     thesis_recurrent) echo "(d) (a) + recurrent + temporal loss" ;;

@@ -140,8 +140,9 @@ TEST(Study, OneCommandScoresEveryConfigurationAndResumes) {
     EXPECT_NE(second.find(c + ": trained (2 steps), not trained again"), std::string::npos)
         << second;
     EXPECT_NE(second.find(c + ": evaluated, not evaluated again"), std::string::npos) << second;
-    if (c != "thesis_nococ")
+    if (c != "thesis_nococ") {
       EXPECT_NE(second.find(c + ": CoC probe done, not made again"), std::string::npos) << second;
+    }
     EXPECT_EQ(fs::last_write_time(out / "runs" / c / "checkpoints" / "last.pt"), before[c]) << c;
   }
   EXPECT_EQ(read_all(out / "results.md"), md);  // the same table again
@@ -243,6 +244,52 @@ TEST(Study, AblationChangesOnlyItsKeyOfTheThesisPreset) {
   for (const auto& [name, keys] : changed)
     EXPECT_NE(md.find("`" + name + "`"), std::string::npos) << name;
   EXPECT_NE(md.find("`default`"), std::string::npos);
+}
+
+// The project default with the thesis's scene depth, with and without the
+// CoC (--configs sdepth): each differs from the default only in its inputs,
+// which hold depth:scene in place of depth:focal and, for the _nococ twin, no
+// CoC; the table has the CoC input's gain for both pairs.
+TEST(Study, SceneDepthPairDiffersFromTheDefaultOnlyInItsInputs) {
+  const fs::path dir = testing::scratch_dir("study_sdepth");
+  fs::create_directories(dir / "data");
+  testing::write_synthetic_shard(dir / "data" / "shard-00000.h5", 12, 64, 64, 2, 5);
+  const fs::path out = dir / "out";
+  ASSERT_EQ(run_study(dir / "data", out, dir / "log",
+                      "default default_nococ default_sdepth default_sdepth_nococ", " --crops 0"),
+            0)
+      << read_all(dir / "log");
+  const auto base = config_keys(out / "runs" / "default" / "config.toml");
+  const std::map<std::string, std::pair<std::string, bool>> inputs = {
+      {"default", {"'depth:focal'", true}},
+      {"default_nococ", {"'depth:focal'", false}},
+      {"default_sdepth", {"'depth:scene'", true}},
+      {"default_sdepth_nococ", {"'depth:scene'", false}}};
+  for (const auto& [name, want] : inputs) {
+    const auto cfg = config_keys(out / "runs" / name / "config.toml");
+    std::vector<std::string> differ;
+    for (const auto& [k, v] : cfg)
+      if (!base.count(k) || base.at(k) != v) differ.push_back(k);
+    EXPECT_EQ(differ, name == "default" ? std::vector<std::string>{}
+                                        : std::vector<std::string>{"model.inputs"})
+        << name;
+    const std::string& in = cfg.at("model.inputs");
+    EXPECT_NE(in.find(want.first), std::string::npos) << name << ": " << in;
+    EXPECT_EQ(in.find("coc:log") != std::string::npos, want.second) << name << ": " << in;
+  }
+  const std::string md = read_all(out / "results.md");
+  EXPECT_NE(md.find("| CoC input: `default` − `default_nococ` | "), std::string::npos) << md;
+  EXPECT_NE(md.find("| CoC input: `default_sdepth` − `default_sdepth_nococ` | "), std::string::npos)
+      << md;
+  // The shorthand names the same pair: run with it, nothing is trained again.
+  ASSERT_EQ(run_study(dir / "data", out, dir / "again.log", "sdepth", " --crops 0"), 0)
+      << read_all(dir / "again.log");
+  const std::string again = read_all(dir / "again.log");
+  for (const char* c : {"default_sdepth", "default_sdepth_nococ"})
+    EXPECT_NE(again.find(std::string(c) + ": trained (2 steps), not trained again"),
+              std::string::npos)
+        << again;
+  EXPECT_EQ(again.find("default_nococ:"), std::string::npos) << again;
 }
 
 }  // namespace
