@@ -22,6 +22,7 @@
 #include "worker/render/bsdf.h"
 #include "worker/render/microfacet.h"
 
+using dofarm::kInvPi;
 using dofarm::kPi;
 using dofarm::Vec2;
 using dofarm::Vec3;
@@ -40,6 +41,7 @@ struct Material {
   float metallic;
   float roughness;
   Vec3 base_color;
+  dofarm::render::SpecularLayer specular = {};  // KHR_materials_specular
 };
 
 // Roughness 0.1 / 0.5 / 1 and metallic 0 / 0.5 / 1, coloured so that the
@@ -61,6 +63,11 @@ const Material kMaterials[] = {
     // A smooth coat over a diffuse base: the mirror is a delta lobe, so only
     // the diffuse part has a pdf and every delta sample is missing mass.
     {"plastic_r0", 0.0f, 0.0f, Vec3(0.6f, 0.6f, 0.6f)},
+    // KHR_materials_specular: a tinted, weakened coat (F0 per channel, the
+    // base's share per channel), and Blender's Specular 0 (F0 = 0: a lobe
+    // that only rises at grazing angles).
+    {"plastic_spec_tint", 0.0f, 0.3f, Vec3(0.5f, 0.6f, 0.7f), {0.7f, Vec3(1.5f, 0.8f, 0.2f)}},
+    {"plastic_spec0", 0.0f, 0.5f, Vec3(0.8f, 0.8f, 0.8f), {1.0f, Vec3(0.0f)}},
 };
 const double kAngles[] = {0, 45, 80, 89};
 
@@ -82,7 +89,7 @@ Vec3 incident(double theta_deg, double phi = 0.7) {
 Vec3 mirror(Vec3 wo) { return Vec3(-wo.x, -wo.y, wo.z); }
 
 Bsdf make_bsdf(const Material& m) {
-  return Bsdf(kUp, kUp, m.base_color, m.metallic, m.roughness, kIor);
+  return Bsdf(kUp, kUp, m.base_color, m.metallic, m.roughness, kIor, m.specular);
 }
 
 // GGX alpha as the material model defines it (glTF: roughness squared).
@@ -343,6 +350,62 @@ TEST(BsdfFurnace, WhiteMaterialReflectsOneForAnyIor) {
         }
       }
     }
+  }
+}
+
+// KHR_materials_specular: with any strength s and colour c of the
+// dielectric's coat, a white base still reflects exactly 1, in every channel
+// (the coat's albedo and what the base receives are per channel), smooth and
+// rough, at every angle; s = 0 leaves the base alone, a Lambert lobe exactly.
+TEST(BsdfFurnace, WhiteMaterialReflectsOneForAnySpecularLayer) {
+  const dofarm::render::SpecularLayer layers[] = {
+      {0.0f, Vec3(1.0f)},
+      {0.5f, Vec3(1.0f)},
+      {1.0f, Vec3(0.0f)},
+      {1.0f, Vec3(1.0f, 0.5f, 0.0f)},
+      {0.3f, Vec3(2.0f, 0.7f, 0.1f)},
+      {1.0f, Vec3(100.0f)}};  // the last: F0 clamped to 1
+  for (const auto& layer : layers) {
+    for (float metallic : {0.0f, 0.5f}) {
+      for (float roughness : {0.0f, 0.3f, 1.0f}) {
+        const Bsdf bsdf(kUp, kUp, Vec3(1.0f), metallic, roughness, kIor, layer);
+        for (float mu : {1.0f, 0.1f}) {
+          const Vec3 q = albedo_by_quadrature(bsdf, incident_mu(mu), roughness);
+          for (int c = 0; c < 3; ++c)
+            EXPECT_NEAR(q[c], 1.0f, 2e-3f)
+                << "s " << layer.factor << " colour " << layer.color[c] << " metallic " << metallic
+                << " roughness " << roughness << " mu " << mu << " channel " << c;
+        }
+      }
+    }
+  }
+  const Vec3 base(0.2f, 0.5f, 0.9f);
+  const Bsdf bare(kUp, kUp, base, 0.0f, 0.4f, kIor, {0.0f, Vec3(1.0f)});
+  for (float mu_o : {1.0f, 0.3f})
+    for (float mu_i : {0.9f, 0.2f}) {
+      const Vec3 f = bare.eval(incident_mu(mu_o, 0.3), incident_mu(mu_i, 2.0));
+      for (int c = 0; c < 3; ++c) EXPECT_FLOAT_EQ(f[c], base[c] * kInvPi * mu_i);
+    }
+}
+
+// The coat's albedo is the albedo of the material over a black base, per
+// channel; a coloured F0 tints what the coat reflects and, with it, what the
+// base receives: a white base under a coat with F0 red > blue reflects the
+// same 1, but a grey base reflects more red than blue (more of the red is
+// the coat's, which the base's grey does not dim).
+TEST(BsdfFurnace, ColouredCoatTintsTheReflectionPerChannel) {
+  const dofarm::render::SpecularLayer red{1.0f, Vec3(4.0f, 1.0f, 0.0f)};
+  const float c = 0.5f;
+  const Bsdf grey(kUp, kUp, Vec3(c), 0.0f, 0.6f, kIor, red);
+  const Bsdf black(kUp, kUp, Vec3(0.0f), 0.0f, 0.6f, kIor, red);
+  for (float mu : {1.0f, 0.4f, 0.1f}) {
+    const Vec3 a = albedo_by_quadrature(grey, incident_mu(mu), 0.6f);
+    const Vec3 s = albedo_by_quadrature(black, incident_mu(mu), 0.6f);
+    for (int k = 0; k < 3; ++k)
+      EXPECT_NEAR(a[k], s[k] + c * (1.0f - s[k]), 2e-3f) << mu << " " << k;
+    EXPECT_GT(s.x, s.y) << mu;
+    EXPECT_GT(s.y, s.z) << mu;
+    EXPECT_GT(a.x, a.z + 1e-3f) << mu;
   }
 }
 

@@ -512,6 +512,64 @@ TEST(GltfMaterials, IorOneIsReadAsOne) {
   EXPECT_NE(lines[0].find("KHR_materials_ior"), std::string::npos) << lines[0];
 }
 
+// KHR_materials_specular's factors as written (what Blender 3.4 exports for
+// a Principled BSDF whose Specular is not 0.5: specularColorFactor =
+// 0.08 specular / F0(ior)); no extension is factor 1 and white; a value
+// outside the schema is warned about, naming the material and the key, and
+// the default used; textures are named in a warning (factors only). The
+// extension is read, so it is not in the "ignores" warning.
+TEST(GltfMaterials, SpecularFactorsAreRead) {
+  TempDir dir("specular");
+  auto sink = std::make_shared<spdlog::sinks::ringbuffer_sink_mt>(16);
+  auto previous = spdlog::default_logger();
+  spdlog::set_default_logger(std::make_shared<spdlog::logger>("capture", sink));
+  struct Case {
+    const char* name;
+    Json ext;  // null: no extension
+    float factor;
+    Vec3 color;
+  } cases[] = {{"blender_specular_0", {{"specularColorFactor", {0.0, 0.0, 0.0}}}, 1.0f, Vec3(0.0f)},
+               {"tinted",
+                {{"specularFactor", 0.25}, {"specularColorFactor", {2.0, 1.0, 0.5}}},
+                0.25f,
+                Vec3(2.0f, 1.0f, 0.5f)},
+               {"empty", Json::object(), 1.0f, Vec3(1.0f)},
+               {"none", nullptr, 1.0f, Vec3(1.0f)},
+               {"factor_above", {{"specularFactor", 1.5}}, 1.0f, Vec3(1.0f)},
+               {"color_negative", {{"specularColorFactor", {1.0, -1.0, 1.0}}}, 1.0f, Vec3(1.0f)},
+               {"textured",
+                {{"specularFactor", 0.5}, {"specularTexture", {{"index", 0}}}},
+                0.5f,
+                Vec3(1.0f)}};
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    GltfQuad q = gltf_quad();
+    q.doc["materials"][0]["name"] = c.name;
+    if (!c.ext.is_null()) {
+      q.doc["materials"][0]["extensions"] = {{"KHR_materials_specular", c.ext}};
+      q.doc["extensionsUsed"] = {"KHR_materials_specular"};
+    }
+    write_gltf(dir.path / (std::string(c.name) + ".gltf"), q);
+    SceneData s = load_scene_data(dir.path / (std::string(c.name) + ".gltf"));
+    ASSERT_EQ(s.triangle_count(), 2u);
+    const Material& m = s.materials[s.tri_material[0]];
+    EXPECT_EQ(m.name, c.name);
+    EXPECT_FLOAT_EQ(m.specular, c.factor);
+    expect_near3(m.specular_color, c.color, 0.0f);
+  }
+  spdlog::set_default_logger(previous);
+  std::vector<std::string> lines = sink->last_formatted();
+  ASSERT_EQ(lines.size(), 3u);
+  EXPECT_NE(lines[0].find("\"factor_above\""), std::string::npos) << lines[0];
+  EXPECT_NE(lines[0].find("specularFactor 1.5"), std::string::npos) << lines[0];
+  EXPECT_NE(lines[1].find("\"color_negative\""), std::string::npos) << lines[1];
+  EXPECT_NE(lines[1].find("specularColorFactor"), std::string::npos) << lines[1];
+  EXPECT_NE(lines[2].find("\"textured\""), std::string::npos) << lines[2];
+  EXPECT_NE(lines[2].find("specularTexture ignored"), std::string::npos) << lines[2];
+  for (const std::string& l : lines)
+    EXPECT_EQ(l.find("ignores the glTF extensions"), std::string::npos) << l;
+}
+
 TEST(LoadSceneData, EmptyOrCameraOnlyGltfSaysWhy) {
   TempDir dir("empty");
   // What Blender 3.4 exports for an empty scene.

@@ -20,40 +20,59 @@ constexpr float kSchlickWeightAverage = 1.0f / 21.0f;
 
 }  // namespace
 
-Bsdf::Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, float ior)
+Bsdf::Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, float ior,
+           const SpecularLayer& specular)
     : frame_(ns), ng_(ng) {
   metallic = clamp01(metallic);
   roughness = clamp01(roughness);
   float f = (ior - 1.0f) / (ior + 1.0f);
-  dielectric_f0_ = std::isfinite(f) ? std::min(f * f, 1.0f) : 0.04f;
+  const float f0_ior = std::isfinite(f) ? std::min(f * f, 1.0f) : 0.04f;
+  // KHR_materials_specular: F0' = min(F0_ior c, 1) per channel, the lobe
+  // scaled by s. Without the extension (c = 1) F0' is F0_ior exactly.
+  const float s = std::isfinite(specular.factor) ? std::max(specular.factor, 0.0f) : 1.0f;
+  auto f0_of = [&](float c) {
+    return std::isfinite(c) ? std::min(f0_ior * std::max(c, 0.0f), 1.0f) : f0_ior;
+  };
+  dielectric_f0_ = Vec3(f0_of(specular.color.x), f0_of(specular.color.y), f0_of(specular.color.z));
+  grey_f0_ = dielectric_f0_.x == dielectric_f0_.y && dielectric_f0_.y == dielectric_f0_.z;
   metal_f0_ = base_color;
   metal_weight_ = max_component(base_color) > 0 ? metallic : 0.0f;
-  dielectric_weight_ = dielectric_f0_ > 0 ? 1.0f - metallic : 0.0f;
+  // IOR 1 is no interface whatever the extension says; otherwise the layer
+  // is there unless s = 0 (a channel of F0' = 0 still rises at grazing
+  // angles, F90 = s, as the extension defines).
+  specular_factor_ = f0_ior > 0 ? s : 0.0f;
+  dielectric_weight_ = specular_factor_ > 0 ? (1.0f - metallic) * specular_factor_ : 0.0f;
   diffuse_color_ = base_color * (1.0f - metallic);
   diffuse_weight_ = max_component(diffuse_color_);
   alpha_ = ggx::alpha_from_roughness(roughness);
   delta_specular_ = roughness * roughness < ggx::kDeltaAlpha;
   has_specular_ = metal_weight_ > 0 || dielectric_weight_ > 0;
-  // The base's normalisation; a mirror's albedo F(mu) has the closed-form
-  // average f0 + (1 - f0) / 21.
-  diffuse_norm_ = kInvPi;
+  // The base's normalisation; a mirror's albedo s F(mu) has the closed-form
+  // average s (f0 + (1 - f0) / 21).
+  diffuse_norm_ = Vec3(kInvPi);
   if (has_specular_ && delta_specular_ && dielectric_weight_ > 0) {
-    const float f0 = dielectric_f0_;
-    diffuse_norm_ = kInvPi / std::max(1.0f - (f0 + (1.0f - f0) * kSchlickWeightAverage), 1e-6f);
+    for (int c = 0; c < 3; ++c) {
+      const float f0 = dielectric_f0_[c];
+      diffuse_norm_[c] =
+          kInvPi /
+          std::max(1.0f - specular_factor_ * (f0 + (1.0f - f0) * kSchlickWeightAverage), 1e-6f);
+    }
   }
   if (!has_specular_ || delta_specular_) return;  // no table needed
   const ggx::AlbedoTable& table = ggx::albedo_table();
   row_ = ggx::albedo_row(table, alpha_);
 
   // The base's normalisation 1 / (pi (1 - E_s_avg)) (Kulla & Conty 2017), with
-  // E_s(mu) = (f0 A + B)(1 + f0 k) the dielectric's compensated specular
+  // E_s(mu) = s (f0 A + B)(1 + f0 k) the dielectric's compensated specular
   // albedo, k = (1 - E) / E; its cosine-weighted average is therefore
-  // f0 avg(A) + avg(B) + f0^2 avg(A k) + f0 avg(B k).
+  // s (f0 avg(A) + avg(B) + f0^2 avg(A k) + f0 avg(B k)).
   if (diffuse_weight_ > 0 && dielectric_weight_ > 0) {
-    const float f0 = dielectric_f0_;
     const ggx::AlbedoTable::Averages avg = ggx::albedo_averages(table, row_);
-    const float e_avg = f0 * avg.a + avg.b + f0 * f0 * avg.ak + f0 * avg.bk;
-    diffuse_norm_ = kInvPi / std::max(1.0f - e_avg, 1e-6f);
+    for (int c = 0; c < 3; ++c) {
+      const float f0 = dielectric_f0_[c];
+      const float e_avg = specular_factor_ * (f0 * avg.a + avg.b + f0 * f0 * avg.ak + f0 * avg.bk);
+      diffuse_norm_[c] = kInvPi / std::max(1.0f - e_avg, 1e-6f);
+    }
   }
 }
 
@@ -66,11 +85,14 @@ ggx::Albedo Bsdf::specular_albedo(float mu) const {
   return ggx::albedo(row_, mu);
 }
 
-float Bsdf::base_transmission(const ggx::Albedo& e) const {
-  if (!(dielectric_weight_ > 0)) return 1.0f;
-  const float f0 = dielectric_f0_;
+Vec3 Bsdf::base_transmission(const ggx::Albedo& e) const {
+  if (!(dielectric_weight_ > 0)) return Vec3(1.0f);
   const float k = delta_specular_ ? 0.0f : e.k();
-  return std::max(0.0f, 1.0f - (f0 * e.a + e.b) * (1.0f + f0 * k));
+  auto channel = [&](float f0) {
+    return std::max(0.0f, 1.0f - specular_factor_ * ((f0 * e.a + e.b) * (1.0f + f0 * k)));
+  };
+  if (grey_f0_) return Vec3(channel(dielectric_f0_.x));
+  return Vec3(channel(dielectric_f0_.x), channel(dielectric_f0_.y), channel(dielectric_f0_.z));
 }
 
 Bsdf::Outgoing Bsdf::outgoing(Vec3 wo_w) const {
@@ -90,14 +112,14 @@ Bsdf::Outgoing Bsdf::outgoing(Vec3 wo_w) const {
     const float k = delta_specular_ ? 0.0f : e.k();
     const Vec3 one(1.0f);
     const Vec3 metal = (one + metal_f0_ * k) * metal_weight_;
-    const float dielectric = dielectric_weight_ * (1.0f + dielectric_f0_ * k);
-    o.fresnel_c0 = metal * metal_f0_ + Vec3(dielectric * dielectric_f0_);
-    o.fresnel_c1 = metal * (one - metal_f0_) + Vec3(dielectric * (1.0f - dielectric_f0_));
+    const Vec3 dielectric = (one + dielectric_f0_ * k) * dielectric_weight_;
+    o.fresnel_c0 = metal * metal_f0_ + dielectric * dielectric_f0_;
+    o.fresnel_c1 = metal * (one - metal_f0_) + dielectric * (one - dielectric_f0_);
     // The lobe's albedo: c0 E + c1 B (microfacet_albedo.h).
     specular_albedo_o = o.fresnel_c0 * e.e() + o.fresnel_c1 * e.b;
   }
   if (diffuse_weight_ > 0) {
-    const float t = base_transmission(e);
+    const Vec3 t = base_transmission(e);
     o.diffuse = diffuse_color_ * (t * diffuse_norm_);
     if (!has_specular_) {
       o.specular_prob = 0.0f;
@@ -105,7 +127,7 @@ Bsdf::Outgoing Bsdf::outgoing(Vec3 wo_w) const {
       // The lobes' albedos at this wo (the base's is diffuse_color (1 - E_s(mu_o))),
       // bounded away from 0 and 1 so that neither lobe is ever starved.
       const float fs = luminance(specular_albedo_o);
-      const float fd = luminance(diffuse_color_) * t;
+      const float fd = grey_f0_ ? luminance(diffuse_color_) * t.x : luminance(diffuse_color_ * t);
       const float sum = fs + fd;
       o.specular_prob = sum > 0 ? std::clamp(fs / sum, 0.05f, 0.95f) : 0.5f;
     }
@@ -128,8 +150,11 @@ Vec3 Bsdf::evaluate_local(const Outgoing& o, Vec3 wi, float* pdf_out) const {
   Vec3 f(0);
   float p = (1.0f - ps) * wi.z * kInvPi;
   if (diffuse_weight_ > 0) {
-    const float t = dielectric_weight_ > 0 ? base_transmission(specular_albedo(wi.z)) : 1.0f;
-    f += o.diffuse * (t * wi.z);
+    if (dielectric_weight_ > 0) {
+      f += o.diffuse * (base_transmission(specular_albedo(wi.z)) * wi.z);
+    } else {
+      f += o.diffuse * wi.z;
+    }
   }
   if (has_specular_ && !delta_specular_) {
     // Both directions are above the surface, so wo + wi is never zero.

@@ -20,6 +20,12 @@
 //   lobe: no eval, no NEE); its albedo is F(mu) and the base's layering uses that.
 // - F0 = 0 (IOR 1, or a black metal) is no interface: that part has no
 //   specular lobe (Schlick's curve would still rise to 1 at grazing angles).
+// - KHR_materials_specular (Specular below) scales the dielectric's lobe:
+//   F = s (F0' + (1 - F0') w) per channel, F0' = min(F0_ior c, 1), i.e. the
+//   extension's F0 = s F0' and F90 = s. Its albedo, and so what the base
+//   receives, is then per channel; a white base still reflects exactly 1
+//   in every channel. With s = 1 and c = 1 (no extension) every value is
+//   bit for bit what it was without it.
 //
 // docs/renderer.md (Materials) has the equations and the furnace figures.
 // All directions are in world space; the BSDF works in the shading frame.
@@ -38,10 +44,19 @@ struct BsdfSample {
   bool valid = false;
 };
 
+// glTF KHR_materials_specular's factors: the strength s of the dielectric's
+// specular layer (specularFactor) and the colour c its F0 is multiplied by
+// (specularColorFactor).
+struct SpecularLayer {
+  float factor = 1.0f;
+  Vec3 color{1.0f};
+};
+
 class Bsdf {
  public:
   // `ns` shading normal, `ng` geometric normal, both facing wo's side.
-  Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, float ior);
+  Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, float ior,
+       const SpecularLayer& specular = {});
 
   // What depends on the outgoing direction alone (its local form, the
   // compensated Fresnel, the base's share, lobe probability, Smith term),
@@ -77,18 +92,20 @@ class Bsdf {
   // Single-scattering albedo terms A, B of the specular lobe at mu.
   ggx::Albedo specular_albedo(float mu) const;
   // 1 - E_s(mu) from mu's A and B: what the dielectric's specular layer lets
-  // through to the base (1 without a dielectric interface).
-  float base_transmission(const ggx::Albedo& e) const;
+  // through to the base (1 without a dielectric interface), per channel.
+  Vec3 base_transmission(const ggx::Albedo& e) const;
 
   Frame frame_;
   Vec3 ng_;
   ggx::AlbedoRow row_;       // set only for a rough specular lobe
   Vec3 metal_f0_;            // the base colour
   float metal_weight_;       // metallic; 0 for a black metal (no interface)
-  float dielectric_f0_;      // from the IOR
-  float dielectric_weight_;  // of the dielectric's specular lobe: 1 - metallic, 0 for IOR 1
+  Vec3 dielectric_f0_;       // from the IOR, times the specular colour (clamped to 1)
+  float dielectric_weight_;  // of the dielectric's specular lobe: (1 - metallic) s, 0 for IOR 1
+  float specular_factor_;    // s, or 0 without a dielectric interface
+  bool grey_f0_;             // the same F0 in every channel (no specular colour)
   Vec3 diffuse_color_;       // (1 - metallic) * base_color
-  float diffuse_norm_;       // 1 / (pi (1 - E_s_avg)); 1 / pi without an interface
+  Vec3 diffuse_norm_;        // 1 / (pi (1 - E_s_avg)); 1 / pi without an interface
   float alpha_;
   float diffuse_weight_;
   bool delta_specular_;

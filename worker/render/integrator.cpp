@@ -96,7 +96,8 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
       sampler.skip(1);
     }
 
-    Bsdf bsdf(hit.ns, hit.ng, hit.base_color, hit.metallic, hit.roughness, hit.ior);
+    Bsdf bsdf(hit.ns, hit.ng, hit.base_color, hit.metallic, hit.roughness, hit.ior,
+              {hit.specular, hit.specular_color});
     const Bsdf::Outgoing out = bsdf.outgoing(-ray.d);
 
     if (use_nee && bsdf.has_non_delta()) {

@@ -239,6 +239,8 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
   hit->metallic = m.metallic;
   hit->roughness = m.roughness;
   hit->ior = m.ior;
+  hit->specular = m.specular;
+  hit->specular_color = m.specular_color;
   // Only textured materials pay for lookups.
   if (m.base_color_tex >= 0)
     hit->base_color =

@@ -25,6 +25,8 @@ struct SurfaceHit {
   uint32_t prim = 0;
   Vec3 base_color;
   float metallic = 0, roughness = 0, ior = 1.5f;
+  float specular = 1.0f;      // KHR_materials_specular specularFactor
+  Vec3 specular_color{1.0f};  // and specularColorFactor
   Vec3 emission;  // radiance leaving the surface (both faces emit)
 };
 

@@ -151,6 +151,11 @@ struct GltfMaterialInfo {
   // extension's default 1.5); ior < 1 or non-finite is outside the schema.
   bool ior_present = false;
   double ior = 1.5;
+  // KHR_materials_specular's factors as written (NaN: not a number, or the
+  // wrong shape); its textures are not applied.
+  double specular_factor = 1.0;
+  double specular_color[3] = {1.0, 1.0, 1.0};
+  std::string specular_textures;  // the texture keys present, for the warning
 };
 struct GltfInfo {
   std::vector<GltfMaterialInfo> materials;
@@ -158,11 +163,11 @@ struct GltfInfo {
 };
 
 // The extensions whose content dofarm reads (assimp: KHR_materials_ior,
-// KHR_lights_punctual; here: the other two).
+// KHR_lights_punctual; here: the others).
 const std::set<std::string>& implemented_extensions() {
   static const std::set<std::string> names = {"KHR_materials_emissive_strength",
-                                              "KHR_materials_ior", "KHR_lights_punctual",
-                                              "KHR_texture_transform"};
+                                              "KHR_materials_ior", "KHR_materials_specular",
+                                              "KHR_lights_punctual", "KHR_texture_transform"};
   return names;
 }
 
@@ -238,6 +243,25 @@ GltfInfo read_gltf_info(const std::filesystem::path& path) {
       if (ext.is_object() && ext.contains("ior"))
         info.ior = ext["ior"].is_number() ? ext["ior"].get<double>() : NAN;
     }
+    if (m.contains("extensions") && m["extensions"].is_object() &&
+        m["extensions"].contains("KHR_materials_specular")) {
+      const auto& ext = m["extensions"]["KHR_materials_specular"];
+      if (ext.is_object()) {
+        if (ext.contains("specularFactor"))
+          info.specular_factor =
+              ext["specularFactor"].is_number() ? ext["specularFactor"].get<double>() : NAN;
+        if (ext.contains("specularColorFactor")) {
+          const auto& c = ext["specularColorFactor"];
+          const bool ok = c.is_array() && c.size() == 3 && c[0].is_number() && c[1].is_number() &&
+                          c[2].is_number();
+          for (int k = 0; k < 3; ++k) info.specular_color[k] = ok ? c[k].get<double>() : NAN;
+        }
+        for (const char* key : {"specularTexture", "specularColorTexture"})
+          if (ext.contains(key))
+            info.specular_textures +=
+                (info.specular_textures.empty() ? "" : " and ") + std::string(key);
+      }
+    }
     if (m.contains("pbrMetallicRoughness") && m["pbrMetallicRoughness"].is_object()) {
       const auto& pbr = m["pbrMetallicRoughness"];
       if (pbr.contains("baseColorTexture"))
@@ -266,7 +290,7 @@ void check_extensions(const std::filesystem::path& path, const GltfInfo& info) {
     fail(path, "extensionsRequired lists " + required +
                    ", which dofarm does not implement (it implements " +
                    "KHR_lights_punctual, KHR_materials_emissive_strength, KHR_materials_ior, " +
-                   "KHR_texture_transform)");
+                   "KHR_materials_specular, KHR_texture_transform)");
   for (const std::string& e : info.extensions_used)
     if (!implemented_extensions().count(e)) used += (used.empty() ? "" : ", ") + e;
   if (!used.empty())
@@ -341,6 +365,7 @@ class Loader {
         // "not set", so only a value above 1 counts there.
         m.ior = value;
       }
+      if (const GltfMaterialInfo* g = gltf_material(i, m.name)) specular_layer(*g, i, &m);
       m.base_color_tex = texture(am, {aiTextureType_BASE_COLOR, aiTextureType_DIFFUSE}, true);
       // glTF metallicRoughnessTexture: assimp 5.2 files it under UNKNOWN
       // (AI_MATKEY_GLTF_PBRMETALLICROUGHNESS_METALLICROUGHNESS_TEXTURE).
@@ -382,6 +407,33 @@ class Loader {
   int texture(const aiMaterial* am, std::initializer_list<aiTextureType> types, bool srgb);
   static RgbImage decode_embedded(const aiTexture* t, const std::string& name, bool srgb);
   void mesh(const aiMesh* m, const aiMatrix4x4& world, const char* node_name);
+  // KHR_materials_specular's factors (schema: specularFactor in [0, 1],
+  // specularColorFactor >= 0, above 1 allowed: F0 is clamped to 1); a value
+  // outside them is named in a warning and the extension's default used.
+  void specular_layer(const GltfMaterialInfo& g, unsigned index, Material* m) const {
+    const std::string which = "material " + std::to_string(index) + " (\"" + m->name + "\")";
+    if (std::isfinite(g.specular_factor) && g.specular_factor >= 0 && g.specular_factor <= 1) {
+      m->specular = float(g.specular_factor);
+    } else {
+      spdlog::warn("{}: {}: KHR_materials_specular specularFactor {} is outside [0, 1]; using 1",
+                   path_.string(), which, g.specular_factor);
+    }
+    const double* c = g.specular_color;
+    const bool color_ok = std::isfinite(c[0]) && std::isfinite(c[1]) && std::isfinite(c[2]) &&
+                          c[0] >= 0 && c[1] >= 0 && c[2] >= 0 && c[0] <= 1e6 && c[1] <= 1e6 &&
+                          c[2] <= 1e6;
+    if (color_ok) {
+      m->specular_color = Vec3(float(c[0]), float(c[1]), float(c[2]));
+    } else {
+      spdlog::warn(
+          "{}: {}: KHR_materials_specular specularColorFactor [{}, {}, {}] is not three numbers in "
+          "[0, 1e6]; using [1, 1, 1]",
+          path_.string(), which, c[0], c[1], c[2]);
+    }
+    if (!g.specular_textures.empty())
+      spdlog::warn("{}: {}: KHR_materials_specular {} ignored (its factors are used)",
+                   path_.string(), which, g.specular_textures);
+  }
   void check_material(const Material& m, unsigned index) const {
     const std::string which = "material " + std::to_string(index) + " (\"" + m.name + "\")";
     bool ok = is_finite(m.base_color) && is_finite(m.emission) && std::isfinite(m.metallic) &&

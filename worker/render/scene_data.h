@@ -62,6 +62,11 @@ struct Material {
   float roughness = 0.5f;
   Vec3 emission{0.0f};  // radiance emitted (already times emissive strength)
   float ior = 1.5f;
+  // KHR_materials_specular: the strength of the dielectric's specular layer
+  // and the colour its F0 is multiplied by (worker/render/bsdf.h); 1 and
+  // white without the extension.
+  float specular = 1.0f;
+  Vec3 specular_color{1.0f};
   int base_color_tex = -1;   // index into SceneData::textures; multiplies base_color
   int metal_rough_tex = -1;  // glTF: G = roughness, B = metallic; multiplies the factors
   int emission_tex = -1;     // multiplies emission
