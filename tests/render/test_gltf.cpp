@@ -16,6 +16,9 @@
 
 #include "common/error.h"
 #include "common/exr_io.h"
+#include "worker/render/camera.h"
+#include "worker/render/environment.h"
+#include "worker/render/scene.h"
 #include "worker/render/scene_data.h"
 
 // Static, so this test's stb_image_write cannot clash with another file's.
@@ -449,7 +452,7 @@ TEST(GltfExtensions, UsedButUnimplementedAreNamedInOneWarning) {
   EXPECT_EQ(lines[0].find("KHR_lights_punctual"), std::string::npos) << lines[0];
 }
 
-TEST(GltfExtensions, NormalMapsAndTransparencyAreWarnedNamingTheMaterials) {
+TEST(GltfExtensions, TransparencyIsWarnedNamingTheMaterials) {
   TempDir dir("core_warnings");
   write_bytes(dir.path / "tex.png", test_png());
   GltfQuad q = gltf_quad();
@@ -465,11 +468,102 @@ TEST(GltfExtensions, NormalMapsAndTransparencyAreWarnedNamingTheMaterials) {
   spdlog::set_default_logger(previous);
   EXPECT_EQ(s.triangle_count(), 2u);
   std::vector<std::string> lines = sink->last_formatted();
-  ASSERT_EQ(lines.size(), 2u);
-  EXPECT_NE(lines[0].find("normal maps ignored"), std::string::npos) << lines[0];
+  ASSERT_EQ(lines.size(), 1u);  // the normal map is applied: no warning
+  EXPECT_NE(lines[0].find("alphaMode ignored"), std::string::npos) << lines[0];
   EXPECT_NE(lines[0].find("\"bumpy glass\""), std::string::npos) << lines[0];
-  EXPECT_NE(lines[1].find("alphaMode ignored"), std::string::npos) << lines[1];
-  EXPECT_NE(lines[1].find("core.gltf"), std::string::npos) << lines[1];
+  EXPECT_NE(lines[0].find("core.gltf"), std::string::npos) << lines[0];
+  const Material& m = s.materials[s.tri_material[0]];
+  EXPECT_GE(m.normal_tex, 0);
+  EXPECT_EQ(s.tangents.size(), s.positions.size());
+}
+
+std::string png_1x1(unsigned char r, unsigned char g, unsigned char b) {
+  const unsigned char px[] = {r, g, b};
+  std::string out;
+  stbi_write_png_to_func(
+      [](void* ctx, void* data, int size) {
+        static_cast<std::string*>(ctx)->append(static_cast<const char*>(data), size_t(size));
+      },
+      &out, 1, 1, 3, px, 3);
+  return out;
+}
+
+// The shading normal where a ray straight down meets the quad (y = 0, facing
+// +y; u grows along +x, glTF's v along +z, so the image's up is -z) with a
+// one-texel normal map of the given value, scale and, with `mirror_u`, u
+// growing along -x instead.
+Vec3 mapped_normal(const std::filesystem::path& dir, unsigned char r, unsigned char g,
+                   unsigned char b, float scale = 1.0f, bool mirror_u = false) {
+  GltfQuad q = gltf_quad();
+  if (mirror_u) {
+    q.bin.replace(48, 32, floats_bytes({1, 0, 1, 1, 0, 1, 0, 0}));
+  }
+  write_bytes(dir / "n.png", png_1x1(r, g, b));
+  q.doc["images"] = Json::array({{{"uri", "n.png"}}});
+  q.doc["textures"] = Json::parse(R"([{"source": 0}])");
+  q.doc["materials"][0]["normalTexture"] = {{"index", 0}, {"scale", scale}};
+  write_gltf(dir / "n.gltf", q);
+  SceneData d = load_scene_data(dir / "n.gltf");
+  EXPECT_EQ(d.tangents.size(), d.positions.size());
+  for (const SceneData::Tangent& t : d.tangents) {
+    expect_near3(t.t, Vec3(mirror_u ? -1.0f : 1.0f, 0, 0), 1e-6f);
+    EXPECT_EQ(t.w, mirror_u ? -1.0f : 1.0f);
+  }
+  Scene scene(std::move(d), std::make_unique<Environment>(Vec3(1.0f)));
+  SurfaceHit hit;
+  EXPECT_TRUE(scene.intersect(Ray{Vec3(0.3f, 1.0f, 0.6f), Vec3(0, -1, 0)}, &hit));
+  expect_near3(hit.ng, Vec3(0, 1, 0), 0.0f);
+  return hit.ns;
+}
+
+// glTF normalTexture: the texel (2 rgb - 1) in the frame (tangent along +u,
+// cross(n, t) w towards the image's up, n), x and y times the scale; the
+// tangents are computed from the uvs, so mirrored uvs mirror the frame.
+TEST(GltfNormalMaps, TexelBendsTheShadingNormalInTheTangentFrame) {
+  TempDir dir("normal_map");
+  const float s30 = 0.5f, c30 = std::sqrt(3.0f) / 2.0f;
+  // 8-bit texels: each component is within 1/255 of the intended value.
+  const float tol = 6e-3f;
+  const auto q8 = [](float x) { return static_cast<unsigned char>(std::lround((x + 1) * 127.5f)); };
+  // Flat: the normal stays the surface's.
+  expect_near3(mapped_normal(dir.path, 128, 128, 255), Vec3(0, 1, 0), tol);
+  // A texel that points into the surface is not mirrored out of it: unbent.
+  expect_near3(mapped_normal(dir.path, 0, 0, 0), Vec3(0, 1, 0), 0.0f);
+  // Red: towards +u (+x here), 30 degrees.
+  expect_near3(mapped_normal(dir.path, q8(s30), 128, q8(c30)), Vec3(s30, c30, 0), tol);
+  // Green: towards the image's up (-z here).
+  expect_near3(mapped_normal(dir.path, 128, q8(s30), q8(c30)), Vec3(0, c30, -s30), tol);
+  // Scale 0.5 halves x and y before normalising.
+  const Vec3 half = normalize(Vec3(0.5f * s30, c30, 0), Vec3(0));
+  expect_near3(mapped_normal(dir.path, q8(s30), 128, q8(c30), 0.5f), half, tol);
+  // u growing along -x: red bends towards -x, green still towards the image's up.
+  expect_near3(mapped_normal(dir.path, q8(s30), 128, q8(c30), 1.0f, true), Vec3(-s30, c30, 0), tol);
+  expect_near3(mapped_normal(dir.path, 128, q8(s30), q8(c30), 1.0f, true), Vec3(0, c30, -s30), tol);
+}
+
+// Without texture coordinates a normal map has no orientation: it is named
+// in a warning and not applied.
+TEST(GltfNormalMaps, WithoutTexcoordsTheMapIsWarnedAndIgnored) {
+  TempDir dir("normal_map_no_uv");
+  GltfQuad q = gltf_quad();
+  q.doc["meshes"][0]["primitives"][0]["attributes"].erase("TEXCOORD_0");
+  write_bytes(dir.path / "n.png", png_1x1(200, 128, 200));
+  q.doc["images"] = Json::array({{{"uri", "n.png"}}});
+  q.doc["textures"] = Json::parse(R"([{"source": 0}])");
+  q.doc["materials"][0]["name"] = "bumpy";
+  q.doc["materials"][0]["normalTexture"] = {{"index", 0}};
+  write_gltf(dir.path / "n.gltf", q);
+  auto sink = std::make_shared<spdlog::sinks::ringbuffer_sink_mt>(16);
+  auto previous = spdlog::default_logger();
+  spdlog::set_default_logger(std::make_shared<spdlog::logger>("capture", sink));
+  SceneData d = load_scene_data(dir.path / "n.gltf");
+  spdlog::set_default_logger(previous);
+  std::vector<std::string> lines = sink->last_formatted();
+  ASSERT_EQ(lines.size(), 1u);
+  EXPECT_NE(lines[0].find("normal maps ignored"), std::string::npos) << lines[0];
+  EXPECT_NE(lines[0].find("\"bumpy\""), std::string::npos) << lines[0];
+  EXPECT_EQ(d.materials[d.tri_material[0]].normal_tex, -1);
+  EXPECT_TRUE(d.tangents.empty());
 }
 
 // KHR_materials_ior as written: IOR 1 (Blender's Principled IOR 1, an

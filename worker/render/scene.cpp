@@ -188,6 +188,28 @@ float Scene::triangle_area(uint32_t t) const {
   return 0.5f * length(cross(p1 - p0, p2 - p0));
 }
 
+Vec3 Scene::normal_mapped(const Material& m, const uint32_t* idx, float b0, float b1, float b2,
+                          Vec3 n, Vec2 uv) const {
+  // glTF 3.9.3: the texel's (2 rgb - 1) in the frame (t, b, n), x and y
+  // times the map's scale; b = cross(n, t) w, t made orthogonal to the
+  // interpolated n first (SceneData::tangents).
+  if (!(dot(n, n) > 0.0f)) return n;  // a degenerate triangle: no frame
+  const SceneData::Tangent& a = data_.tangents[idx[0]];
+  const SceneData::Tangent& b = data_.tangents[idx[1]];
+  const SceneData::Tangent& c = data_.tangents[idx[2]];
+  Vec3 t = a.t * b0 + b.t * b1 + c.t * b2;
+  t = t - n * dot(n, t);
+  const float len = length(t);
+  if (!(len > 1e-12f)) return n;
+  t = t / len;
+  const float w = a.w * b0 + b.w * b1 + c.w * b2 < 0.0f ? -1.0f : 1.0f;
+  const Vec3 bt = cross(n, t) * w;
+  const Vec3 texel = data_.textures[m.normal_tex].lookup(m.normal_uv.apply(uv));
+  const Vec3 v((2.0f * texel.x - 1.0f) * m.normal_scale, (2.0f * texel.y - 1.0f) * m.normal_scale,
+               2.0f * texel.z - 1.0f);
+  return normalize(t * v.x + bt * v.y + n * v.z, n);
+}
+
 Vec3 Scene::material_emission(const Material& m, Vec2 uv) const {
   if (!m.is_emissive()) return Vec3(0);
   if (m.emission_tex >= 0)
@@ -222,8 +244,23 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
   if (ng.x == 0 && ng.y == 0 && ng.z == 0) ng = -ray.d;
   if (dot(ng, ray.d) > 0) ng = -ng;
   hit->ng = ng;
+  hit->uv = texcoord(idx, b0, b1, b2);
+  const Material& m = data_.materials[data_.tri_material[prim]];
   Vec3 ns = ng;
-  if (!data_.normals.empty()) {
+  if (m.normal_tex >= 0 && !data_.tangents.empty()) {
+    // The interpolated normal (or the triangle's own) bent by the map, on
+    // the surface's front side, then turned to the side the ray is on.
+    Vec3 n = tri_normal_[prim];
+    if (!data_.normals.empty())
+      n = normalize(
+          data_.normals[idx[0]] * b0 + data_.normals[idx[1]] * b1 + data_.normals[idx[2]] * b2, n);
+    const Vec3 bent = normal_mapped(m, idx, b0, b1, b2, n, hit->uv);
+    // A bent normal below the surface (a map that points into it) is not
+    // mirrored out of it: the unbent one is used.
+    if (dot(bent, tri_normal_[prim]) > 0) n = bent;
+    ns = dot(n, ng) < 0 ? -n : n;
+    if (!(length(ns) > 0) || dot(ns, ray.d) >= 0) ns = ng;
+  } else if (!data_.normals.empty()) {
     ns = normalize(
         data_.normals[idx[0]] * b0 + data_.normals[idx[1]] * b1 + data_.normals[idx[2]] * b2, ng);
     if (dot(ns, ng) < 0) ns = -ns;
@@ -233,8 +270,6 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
     if (dot(ns, ray.d) >= 0) ns = ng;
   }
   hit->ns = ns;
-  hit->uv = texcoord(idx, b0, b1, b2);
-  const Material& m = data_.materials[data_.tri_material[prim]];
   hit->base_color = m.base_color;
   hit->metallic = m.metallic;
   hit->roughness = m.roughness;

@@ -125,6 +125,10 @@ class Scene {
 
  private:
   Vec3 material_emission(const Material& m, Vec2 uv) const;
+  // The unit normal n (front side, unflipped) bent by m's normal map at the
+  // barycentrics (b0, b1, b2) of triangle `idx`; n where it cannot be.
+  Vec3 normal_mapped(const Material& m, const uint32_t* idx, float b0, float b1, float b2, Vec3 n,
+                     Vec2 uv) const;
   float triangle_area(uint32_t prim) const;
   bool sample_punctual(const PunctualLight& light, Vec3 from, LightSample* out) const;
   // Whether sample_light() and light_pdf() treat light triangle i, seen

@@ -144,8 +144,8 @@ struct GltfTextureInfo {
 struct GltfMaterialInfo {
   std::string name;  // to check that assimp kept the order
   float emissive_strength = 1.0f;
-  GltfTextureInfo base_color, metal_rough, emission;
-  bool normal_map = false;  // normalTexture: not applied
+  GltfTextureInfo base_color, metal_rough, emission, normal;
+  float normal_scale = 1.0f;  // normalTexture.scale
   bool not_opaque = false;  // alphaMode MASK or BLEND: rendered opaque
   // KHR_materials_ior: present = the extension is there (its "ior" or the
   // extension's default 1.5); ior < 1 or non-finite is outside the schema.
@@ -160,6 +160,7 @@ struct GltfMaterialInfo {
 struct GltfInfo {
   std::vector<GltfMaterialInfo> materials;
   std::vector<std::string> extensions_used, extensions_required;
+  bool tangent_attribute = false;  // a primitive has TANGENT (not read: computed)
 };
 
 // The extensions whose content dofarm reads (assimp: KHR_materials_ior,
@@ -224,6 +225,13 @@ GltfInfo read_gltf_info(const std::filesystem::path& path) {
   if (!doc.is_object()) return out;  // assimp gives the reason
   out.extensions_used = string_list(doc, "extensionsUsed");
   out.extensions_required = string_list(doc, "extensionsRequired");
+  if (doc.contains("meshes") && doc["meshes"].is_array())
+    for (const auto& mesh : doc["meshes"])
+      if (mesh.is_object() && mesh.contains("primitives") && mesh["primitives"].is_array())
+        for (const auto& prim : mesh["primitives"])
+          if (prim.is_object() && prim.contains("attributes") && prim["attributes"].is_object() &&
+              prim["attributes"].contains("TANGENT"))
+            out.tangent_attribute = true;
   if (!doc.contains("materials") || !doc["materials"].is_array()) return out;
   for (const auto& m : doc["materials"]) {
     GltfMaterialInfo info;
@@ -270,7 +278,10 @@ GltfInfo read_gltf_info(const std::filesystem::path& path) {
         info.metal_rough = read_texture_info(pbr["metallicRoughnessTexture"]);
     }
     if (m.contains("emissiveTexture")) info.emission = read_texture_info(m["emissiveTexture"]);
-    info.normal_map = m.contains("normalTexture");
+    if (m.contains("normalTexture")) {
+      info.normal = read_texture_info(m["normalTexture"]);
+      info.normal_scale = number_or(m["normalTexture"], "scale", 1.0f);
+    }
     info.not_opaque = m.contains("alphaMode") && m["alphaMode"].is_string() &&
                       m["alphaMode"].get<std::string>() != "OPAQUE";
     info.name = m.contains("name") && m["name"].is_string() ? m["name"].get<std::string>() : "";
@@ -297,14 +308,14 @@ void check_extensions(const std::filesystem::path& path, const GltfInfo& info) {
     spdlog::warn("{}: dofarm ignores the glTF extensions {} (the scene renders without them)",
                  path.string(), used);
   // Core features dofarm does not render, named once each.
-  std::string normal_maps, transparent;
-  for (const GltfMaterialInfo& m : info.materials) {
-    if (m.normal_map) normal_maps += (normal_maps.empty() ? "\"" : ", \"") + m.name + "\"";
+  std::string transparent;
+  for (const GltfMaterialInfo& m : info.materials)
     if (m.not_opaque) transparent += (transparent.empty() ? "\"" : ", \"") + m.name + "\"";
-  }
-  if (!normal_maps.empty())
-    spdlog::warn("{}: normal maps ignored (vertex normals are used) in materials {}", path.string(),
-                 normal_maps);
+  if (info.tangent_attribute)
+    spdlog::warn(
+        "{}: TANGENT attributes are not read; normal maps use tangents computed from "
+        "the texture coordinates",
+        path.string());
   if (!transparent.empty())
     spdlog::warn("{}: alphaMode ignored (rendered opaque) in materials {}", path.string(),
                  transparent);
@@ -372,13 +383,19 @@ class Loader {
       m.metal_rough_tex = texture(am, {aiTextureType_UNKNOWN}, false);
       m.emission_tex = texture(am, {aiTextureType_EMISSIVE}, true);
       if (const GltfMaterialInfo* g = gltf_material(i, m.name)) {
+        // glTF normalTexture (assimp files it under NORMALS): linear values.
+        // Other formats' bump and normal maps are not read.
+        m.normal_tex = texture(am, {aiTextureType_NORMALS}, false);
+        m.normal_scale = std::isfinite(g->normal_scale) ? g->normal_scale : 1.0f;
         m.base_color_uv = g->base_color.transform;
         m.metal_rough_uv = g->metal_rough.transform;
         m.emission_uv = g->emission.transform;
+        m.normal_uv = g->normal.transform;
         const std::pair<const char*, const GltfTextureInfo*> slots[] = {
             {"baseColorTexture", &g->base_color},
             {"metallicRoughnessTexture", &g->metal_rough},
-            {"emissiveTexture", &g->emission}};
+            {"emissiveTexture", &g->emission},
+            {"normalTexture", &g->normal}};
         for (const auto& [slot, tex] : slots) {
           if (tex->tex_coord != 0)
             spdlog::warn(
@@ -802,7 +819,68 @@ SceneData load_scene_data(const std::filesystem::path& path) {
                    " meshes, only points or lines)");
   loader.camera_track();
   loader.lights();
+  // Normal maps need tangents, which need texture coordinates.
+  std::string no_uv;
+  for (Material& m : out.materials) {
+    if (m.normal_tex < 0 || !out.uvs.empty()) continue;
+    no_uv += (no_uv.empty() ? "\"" : ", \"") + m.name + "\"";
+    m.normal_tex = -1;
+  }
+  if (!no_uv.empty())
+    spdlog::warn(
+        "{}: normal maps ignored (the scene has no TEXCOORD_0 to orient them) in "
+        "materials {}",
+        path.string(), no_uv);
+  for (const Material& m : out.materials)
+    if (m.normal_tex >= 0) {
+      compute_tangents(&out);
+      break;
+    }
   return out;
+}
+
+void compute_tangents(SceneData* d) {
+  const size_t n = d->positions.size();
+  std::vector<Vec3> along_u(n, Vec3(0.0f)), up(n, Vec3(0.0f)), face_normal(n, Vec3(0.0f));
+  if (d->uvs.size() != n) {
+    d->tangents.clear();
+    return;
+  }
+  for (size_t t = 0; t + 2 < d->indices.size(); t += 3) {
+    const uint32_t i0 = d->indices[t], i1 = d->indices[t + 1], i2 = d->indices[t + 2];
+    const Vec3 e1 = d->positions[i1] - d->positions[i0], e2 = d->positions[i2] - d->positions[i0];
+    const Vec2 w1 = d->uvs[i1] - d->uvs[i0], w2 = d->uvs[i2] - d->uvs[i0];
+    const Vec3 fn = cross(e1, e2);
+    for (uint32_t i : {i0, i1, i2}) face_normal[i] += fn;
+    // e1 = w1.x dp/du + w1.y dp/dv, e2 likewise: solve for the derivatives.
+    const float det = w1.x * w2.y - w2.x * w1.y;
+    if (!(std::fabs(det) > 0.0f) || !std::isfinite(det)) continue;
+    const float r = 1.0f / det;
+    const Vec3 dpdu = (e1 * w2.y - e2 * w1.y) * r;
+    const Vec3 dpdv = (e2 * w1.x - e1 * w2.x) * r;
+    if (!is_finite(dpdu) || !is_finite(dpdv)) continue;
+    // Each triangle's directions, weighted by its area.
+    const float area = length(fn);
+    const Vec3 tu = normalize(dpdu, Vec3(0.0f)) * area, tv = normalize(dpdv, Vec3(0.0f)) * area;
+    for (uint32_t i : {i0, i1, i2}) {
+      along_u[i] += tu;
+      up[i] = up[i] - tv;
+    }
+  }
+  d->tangents.assign(n, {});
+  for (size_t i = 0; i < n; ++i) {
+    Vec3 nrm = d->normals.size() == n ? d->normals[i] : Vec3(0.0f);
+    if (!(length(nrm) > 0.0f)) nrm = normalize(face_normal[i], Vec3(0, 0, 1));
+    Vec3 t = along_u[i] - nrm * dot(nrm, along_u[i]);
+    if (!(length(t) > 1e-20f)) {
+      // No uv extent: any direction in the tangent plane.
+      const Vec3 a = std::fabs(nrm.x) < 0.9f ? Vec3(1, 0, 0) : Vec3(0, 1, 0);
+      t = a - nrm * dot(nrm, a);
+    }
+    t = normalize(t, Vec3(1, 0, 0));
+    d->tangents[i].t = t;
+    d->tangents[i].w = dot(cross(nrm, t), up[i]) < 0.0f ? -1.0f : 1.0f;
+  }
 }
 
 }  // namespace dofarm::render

@@ -70,8 +70,12 @@ struct Material {
   int base_color_tex = -1;   // index into SceneData::textures; multiplies base_color
   int metal_rough_tex = -1;  // glTF: G = roughness, B = metallic; multiplies the factors
   int emission_tex = -1;     // multiplies emission
+  // glTF normalTexture (tangent space, linear RGB; SceneData::tangents) and
+  // its scale, which multiplies the map's x and y (glTF 3.9.3).
+  int normal_tex = -1;
+  float normal_scale = 1.0f;
   // Each texture's KHR_texture_transform (identity when the file has none).
-  UvTransform base_color_uv, metal_rough_uv, emission_uv;
+  UvTransform base_color_uv, metal_rough_uv, emission_uv, normal_uv;
   bool is_emissive() const { return emission.x > 0 || emission.y > 0 || emission.z > 0; }
   bool has_textures() const {
     return base_color_tex >= 0 || metal_rough_tex >= 0 || emission_tex >= 0;
@@ -117,6 +121,16 @@ struct SceneData {
   // writes zeros when meshes with and without normals are mixed).
   std::vector<Vec3> normals;
   std::vector<Vec2> uvs;               // per vertex; empty = no texture coordinates
+  // Per vertex, for normal maps: the tangent along +u, orthogonal to the
+  // vertex normal, and the sign w that makes cross(n, t) w point along the
+  // image's up (glTF's TANGENT convention; v grows downwards in glTF, so up
+  // is -dp/dv). Empty unless a material has a normal map
+  // (compute_tangents()).
+  struct Tangent {
+    Vec3 t;
+    float w = 1.0f;
+  };
+  std::vector<Tangent> tangents;
   std::vector<uint32_t> indices;       // 3 per triangle
   std::vector<uint32_t> tri_material;  // one per triangle
   std::vector<Material> materials;
@@ -146,5 +160,15 @@ struct SceneData {
 // first and converts the second into its own convention); lights come
 // through assimp's aiLight, placed by their node at time 0.
 SceneData load_scene_data(const std::filesystem::path& path);
+
+// Fills data->tangents from positions, normals and uvs: per triangle the
+// derivatives dp/du and -dp/dv (Lengyel 2001, "Computing Tangent Space Basis
+// Vectors for an Arbitrary Mesh"), as unit vectors weighted by the
+// triangle's area and summed at its vertices, then per vertex made orthogonal to the normal
+// (Gram-Schmidt) and unit, with w the handedness. A vertex whose triangles
+// have no uv extent gets some unit vector orthogonal to its normal. Needs
+// uvs; MikkTSpace, which glTF recommends, agrees on planar and regular meshes
+// and differs on irregular ones in how vertices average their triangles.
+void compute_tangents(SceneData* data);
 
 }  // namespace dofarm::render
