@@ -46,6 +46,14 @@ RgbImage load_rgb_image(const std::filesystem::path& path, bool srgb = true);
 // file that was noted already).
 RgbImage decode_rgb_image(const void* data, size_t size, const std::string& name, bool srgb = true);
 
+// The alpha channel of an image stb_image reads (PNG, TGA, ...; 8 bits),
+// per texel in [0, 1], row 0 = top, as load_rgb_image() lays out its texels;
+// empty when the image has no alpha channel, and for EXR and HDR files,
+// whose alpha is not read. Throws RuntimeError naming the file on failure.
+// For glTF's alphaMode MASK (worker/render/scene_data.h).
+std::vector<float> load_image_alpha(const std::filesystem::path& path);
+std::vector<float> decode_image_alpha(const void* data, size_t size, const std::string& name);
+
 // Returns the XXH64 checksum (common/checksum.h) of the file's bytes, computed
 // over the encoded bytes before they are written, so that checksum_file() of
 // the result gives the same value without reading it back.

@@ -188,6 +188,44 @@ RgbImage decode_rgb_image(const void* data, size_t size, const std::string& name
   return img;
 }
 
+namespace {
+
+std::vector<float> stb_alpha(const StbSource& src, const std::string& what) {
+  int w = 0, h = 0, channels = 0;
+  const bool ok = src.path ? stbi_info(src.path->c_str(), &w, &h, &channels)
+                           : stbi_info_from_memory(src.data, src.size, &w, &h, &channels);
+  if (!ok) {
+    const char* reason = stbi_failure_reason();
+    throw RuntimeError("cannot read image " + what + ": " +
+                       (reason ? reason : "unknown stb_image error"));
+  }
+  if (channels != 2 && channels != 4) return {};  // grey or RGB: no alpha
+  stbi_uc* data = src.path ? stbi_load(src.path->c_str(), &w, &h, &channels, 4)
+                           : stbi_load_from_memory(src.data, src.size, &w, &h, &channels, 4);
+  if (!data) throw RuntimeError("cannot read image " + what + ": " + stbi_failure_reason());
+  std::vector<float> alpha(size_t(w) * h);
+  for (size_t i = 0; i < alpha.size(); ++i) alpha[i] = data[4 * i + 3] / 255.0f;
+  stbi_image_free(data);
+  return alpha;
+}
+
+}  // namespace
+
+std::vector<float> load_image_alpha(const std::filesystem::path& path) {
+  const std::string ext = lower_extension(path);
+  if (ext == ".exr" || ext == ".hdr") return {};
+  return stb_alpha(StbSource{&path}, quoted(path));
+}
+
+std::vector<float> decode_image_alpha(const void* data, size_t size, const std::string& name) {
+  const std::string what = std::string(1, '"').append(name).append(1, '"');
+  if (size == 0 || size > size_t(std::numeric_limits<int>::max()))
+    throw RuntimeError("cannot read image " + what + ": " + std::to_string(size) + " bytes");
+  StbSource src{nullptr, static_cast<const stbi_uc*>(data), int(size)};
+  if (stbi_is_hdr_from_memory(src.data, src.size)) return {};
+  return stb_alpha(src, what);
+}
+
 // IEC 61966-2-1: linear segment below the knee, 2.4 power above it.
 float srgb_to_linear(float v) {
   if (v <= 0.04045f) return v / 12.92f;

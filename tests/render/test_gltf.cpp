@@ -469,12 +469,103 @@ TEST(GltfExtensions, TransparencyIsWarnedNamingTheMaterials) {
   EXPECT_EQ(s.triangle_count(), 2u);
   std::vector<std::string> lines = sink->last_formatted();
   ASSERT_EQ(lines.size(), 1u);  // the normal map is applied: no warning
-  EXPECT_NE(lines[0].find("alphaMode ignored"), std::string::npos) << lines[0];
+  EXPECT_NE(lines[0].find("alphaMode BLEND rendered as MASK"), std::string::npos) << lines[0];
   EXPECT_NE(lines[0].find("\"bumpy glass\""), std::string::npos) << lines[0];
   EXPECT_NE(lines[0].find("core.gltf"), std::string::npos) << lines[0];
   const Material& m = s.materials[s.tri_material[0]];
   EXPECT_GE(m.normal_tex, 0);
   EXPECT_EQ(s.tangents.size(), s.positions.size());
+}
+
+// alphaMode MASK: the cutoff, baseColorFactor's alpha and the base colour
+// texture's alpha channel are read (an RGBA PNG, here 2 x 1: alpha 0 and
+// 255); an opaque material loads no alpha.
+TEST(GltfAlphaMask, MaskReadsCutoffFactorAndTheTexturesAlpha) {
+  TempDir dir("alpha_mask");
+  const unsigned char px[] = {200, 10, 10, 0, 10, 200, 10, 255};
+  std::string png;
+  stbi_write_png_to_func(
+      [](void* ctx, void* data, int size) {
+        static_cast<std::string*>(ctx)->append(static_cast<const char*>(data), size_t(size));
+      },
+      &png, 2, 1, 4, px, 2 * 4);
+  write_bytes(dir.path / "leaf.png", png);
+  GltfQuad q = gltf_quad();
+  use_base_color_image(&q, {{"uri", "leaf.png"}});
+  q.doc["materials"][0]["name"] = "leaf";
+  q.doc["materials"][0]["alphaMode"] = "MASK";
+  q.doc["materials"][0]["alphaCutoff"] = 0.25;
+  q.doc["materials"][0]["pbrMetallicRoughness"]["baseColorFactor"] = {1, 1, 1, 0.8};
+  write_gltf(dir.path / "leaf.gltf", q);
+  SceneData s = load_scene_data(dir.path / "leaf.gltf");
+  const Material& m = s.materials[s.tri_material[0]];
+  EXPECT_TRUE(m.alpha_mask);
+  EXPECT_FLOAT_EQ(m.alpha_cutoff, 0.25f);
+  EXPECT_FLOAT_EQ(m.base_alpha, 0.8f);
+  ASSERT_GE(m.base_color_tex, 0);
+  const Texture& t = s.textures[size_t(m.base_color_tex)];
+  ASSERT_EQ(t.alpha.size(), 2u);
+  EXPECT_EQ(t.alpha[0], 0.0f);
+  EXPECT_EQ(t.alpha[1], 1.0f);
+  EXPECT_NEAR(t.rgb[0], srgb_to_linear(200 / 255.0f), 1e-6f);  // colour as before
+
+  q.doc["materials"][0].erase("alphaMode");
+  write_gltf(dir.path / "opaque.gltf", q);
+  SceneData o = load_scene_data(dir.path / "opaque.gltf");
+  EXPECT_FALSE(o.materials[o.tri_material[0]].alpha_mask);
+  EXPECT_TRUE(o.textures[size_t(o.materials[o.tri_material[0]].base_color_tex)].alpha.empty());
+}
+
+// A cut-out point is not there for any ray: closest-hit queries go on to
+// the surface behind it and shadow queries pass it; the rest of the masked
+// surface and unmasked surfaces are hit as before. Two unit quads, the
+// masked one (alpha 0 for u < 0.5, 1 above, by a 2 x 1 texture) at y = 1
+// over an opaque one at y = 0.
+TEST(GltfAlphaMask, CutOutPointsLetEveryRayThrough) {
+  SceneData d;
+  Texture tex;
+  tex.width = 2;
+  tex.height = 1;
+  tex.rgb.assign(6, 0.5f);
+  tex.alpha = {0.0f, 1.0f};
+  d.textures.push_back(tex);
+  const std::vector<Vec2> uv = {{0, 0}, {0, 1}, {1, 1}, {1, 0}};
+  const std::vector<uint32_t> idx = {0, 1, 2, 0, 2, 3};
+  auto quad = [](float y) { return std::vector<Vec3>{{0, y, 0}, {0, y, 1}, {1, y, 1}, {1, y, 0}}; };
+  Material floor, leaf;
+  leaf.alpha_mask = true;
+  leaf.base_color_tex = 0;
+  d.add_mesh(quad(0.0f), {}, uv, idx, floor);
+  d.add_mesh(quad(1.0f), {}, uv, idx, leaf);
+  auto first_hit_y = [](const Scene& scene, float x) {
+    SurfaceHit hit;
+    if (!scene.intersect(Ray{Vec3(x, 2.0f, 0.5f), Vec3(0, -1, 0)}, &hit)) return -1.0f;
+    return hit.p.y;
+  };
+  {
+    Scene scene(d, std::make_unique<Environment>(Vec3(1.0f)));
+    // Bilinear between texel centres at u = 0.25 and 0.75: alpha < 0.5 below u = 0.5.
+    EXPECT_FLOAT_EQ(first_hit_y(scene, 0.1f), 0.0f);
+    EXPECT_FLOAT_EQ(first_hit_y(scene, 0.4f), 0.0f);
+    EXPECT_FLOAT_EQ(first_hit_y(scene, 0.6f), 1.0f);
+    EXPECT_FLOAT_EQ(first_hit_y(scene, 0.9f), 1.0f);
+    // Shadow rays between y = 2 and y = 0.5 (above the floor).
+    EXPECT_FALSE(scene.occluded(Vec3(0.1f, 2.0f, 0.5f), Vec3(0, -1, 0), 1.5f));
+    EXPECT_TRUE(scene.occluded(Vec3(0.9f, 2.0f, 0.5f), Vec3(0, -1, 0), 1.5f));
+  }
+  // baseColorFactor's alpha scales the texture's: at u = 0.75 (a texel
+  // centre, alpha 1) 0.4 x 1 is cut at cutoff 0.5 and kept at 0.3.
+  d.materials[1].base_alpha = 0.4f;
+  {
+    Scene scene(d, std::make_unique<Environment>(Vec3(1.0f)));
+    EXPECT_FLOAT_EQ(first_hit_y(scene, 0.75f), 0.0f);
+  }
+  d.materials[1].alpha_cutoff = 0.3f;
+  {
+    Scene scene(d, std::make_unique<Environment>(Vec3(1.0f)));
+    EXPECT_FLOAT_EQ(first_hit_y(scene, 0.75f), 1.0f);
+    EXPECT_FLOAT_EQ(first_hit_y(scene, 0.1f), 0.0f);
+  }
 }
 
 std::string png_1x1(unsigned char r, unsigned char g, unsigned char b) {

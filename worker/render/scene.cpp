@@ -51,6 +51,36 @@ Vec3 texture_mean(const Texture& t) {
 
 }  // namespace
 
+namespace {
+
+// Embree calls this for every candidate hit of the scene's triangles, in
+// closest-hit and shadow queries alike (it is set only when a material has
+// an alpha mask); a hit on a cut-out point is rejected, so the ray goes on
+// as if the surface were not there.
+void alpha_mask_filter(const RTCFilterFunctionNArguments* args) {
+  const auto* scene = static_cast<const Scene*>(args->geometryUserPtr);
+  for (unsigned i = 0; i < args->N; ++i) {
+    if (args->valid[i] != -1) continue;
+    if (scene->cut_out(RTCHitN_primID(args->hit, args->N, i), RTCHitN_u(args->hit, args->N, i),
+                       RTCHitN_v(args->hit, args->N, i)))
+      args->valid[i] = 0;
+  }
+}
+
+}  // namespace
+
+bool Scene::cut_out(uint32_t prim, float b1, float b2) const {
+  const Material& m = data_.materials[data_.tri_material[prim]];
+  if (!m.alpha_mask) return false;
+  float alpha = m.base_alpha;
+  if (m.base_color_tex >= 0) {
+    const uint32_t* idx = &data_.indices[size_t(prim) * 3];
+    const Vec2 uv = texcoord(idx, 1.0f - b1 - b2, b1, b2);
+    alpha *= data_.textures[m.base_color_tex].alpha_lookup(m.base_color_uv.apply(uv));
+  }
+  return alpha < m.alpha_cutoff;
+}
+
 Scene::Scene(SceneData data, std::unique_ptr<Environment> environment)
     : data_(std::move(data)), environment_(std::move(environment)) {
   const FileLoc loc{data_.source.string()};
@@ -152,6 +182,12 @@ Scene::Scene(SceneData data, std::unique_ptr<Environment> environment)
                              vertex_buffer_.data(), 0, 3 * sizeof(float), data_.positions.size());
   rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, data_.indices.data(),
                              0, 3 * sizeof(uint32_t), data_.triangle_count());
+  if (std::any_of(data_.materials.begin(), data_.materials.end(),
+                  [](const Material& m) { return m.alpha_mask; })) {
+    rtcSetGeometryUserData(geom, this);
+    rtcSetGeometryIntersectFilterFunction(geom, alpha_mask_filter);
+    rtcSetGeometryOccludedFilterFunction(geom, alpha_mask_filter);
+  }
   rtcCommitGeometry(geom);
   rtcAttachGeometry(rtc_scene_, geom);
   rtcReleaseGeometry(geom);

@@ -25,31 +25,52 @@ namespace dofarm::render {
 // ---------------------------------------------------------------------------
 // Texture
 
-Vec3 Texture::lookup(Vec2 uv) const {
-  if (width <= 0 || height <= 0) return Vec3(1.0f);
-  // Texel centres sit at (i + 0.5) / size, so a texture of one texel is
-  // constant and uv 0 and 1 blend the two border texels (repeat wrap).
-  auto axis = [](float t, int size, int* i0, int* i1, float* frac) {
-    if (!std::isfinite(t)) t = 0.0f;
-    t -= std::floor(t);  // into [0, 1) first, so huge uvs keep their precision
-    float x = t * static_cast<float>(size) - 0.5f;
-    float fx = std::floor(x);
-    *frac = x - fx;
-    // t is in [0, 1], so i is in [-1, size - 1]: the wrap is one compare
-    // each way (no integer division in the hot path).
-    int i = static_cast<int>(fx);
-    *i0 = i < 0 ? size - 1 : (i >= size ? size - 1 : i);
-    *i1 = *i0 + 1 == size ? 0 : *i0 + 1;
-  };
+namespace {
+
+// Bilinear weights and texel indices at uv (glTF convention, repeat wrap):
+// texel centres sit at (i + 0.5) / size, so a texture of one texel is
+// constant and uv 0 and 1 blend the two border texels.
+struct Bilinear {
   int x0, x1, y0, y1;
   float fx, fy;
-  axis(uv.x, width, &x0, &x1, &fx);
-  axis(uv.y, height, &y0, &y1, &fy);  // v = 0 is row 0, the top row (glTF)
+  Bilinear(Vec2 uv, int width, int height) {
+    auto axis = [](float t, int size, int* i0, int* i1, float* frac) {
+      if (!std::isfinite(t)) t = 0.0f;
+      t -= std::floor(t);  // into [0, 1) first, so huge uvs keep their precision
+      float x = t * static_cast<float>(size) - 0.5f;
+      float fx = std::floor(x);
+      *frac = x - fx;
+      // t is in [0, 1], so i is in [-1, size - 1]: the wrap is one compare
+      // each way (no integer division in the hot path).
+      int i = static_cast<int>(fx);
+      *i0 = i < 0 ? size - 1 : (i >= size ? size - 1 : i);
+      *i1 = *i0 + 1 == size ? 0 : *i0 + 1;
+    };
+    axis(uv.x, width, &x0, &x1, &fx);
+    axis(uv.y, height, &y0, &y1, &fy);  // v = 0 is row 0, the top row (glTF)
+  }
+};
+
+}  // namespace
+
+float Texture::alpha_lookup(Vec2 uv) const {
+  if (alpha.empty() || width <= 0 || height <= 0) return 1.0f;
+  const Bilinear b(uv, width, height);
+  auto at = [&](int x, int y) { return alpha[static_cast<size_t>(y) * width + x]; };
+  auto mix = [](float p, float q, float t) { return p * (1.0f - t) + q * t; };
+  return mix(mix(at(b.x0, b.y0), at(b.x1, b.y0), b.fx), mix(at(b.x0, b.y1), at(b.x1, b.y1), b.fx),
+             b.fy);
+}
+
+Vec3 Texture::lookup(Vec2 uv) const {
+  if (width <= 0 || height <= 0) return Vec3(1.0f);
+  const Bilinear b(uv, width, height);
   auto texel = [&](int x, int y) {
     const float* p = &rgb[(static_cast<size_t>(y) * width + x) * 3];
     return Vec3(p[0], p[1], p[2]);
   };
-  return lerp(lerp(texel(x0, y0), texel(x1, y0), fx), lerp(texel(x0, y1), texel(x1, y1), fx), fy);
+  return lerp(lerp(texel(b.x0, b.y0), texel(b.x1, b.y0), b.fx),
+              lerp(texel(b.x0, b.y1), texel(b.x1, b.y1), b.fx), b.fy);
 }
 
 // ---------------------------------------------------------------------------
@@ -146,7 +167,10 @@ struct GltfMaterialInfo {
   float emissive_strength = 1.0f;
   GltfTextureInfo base_color, metal_rough, emission, normal;
   float normal_scale = 1.0f;  // normalTexture.scale
-  bool not_opaque = false;  // alphaMode MASK or BLEND: rendered opaque
+  // alphaMode: MASK (cut out below alpha_cutoff) or BLEND (read as MASK at
+  // 0.5); base_alpha is baseColorFactor's alpha.
+  bool mask = false, blend = false;
+  float alpha_cutoff = 0.5f, base_alpha = 1.0f;
   // KHR_materials_ior: present = the extension is there (its "ior" or the
   // extension's default 1.5); ior < 1 or non-finite is outside the schema.
   bool ior_present = false;
@@ -282,8 +306,18 @@ GltfInfo read_gltf_info(const std::filesystem::path& path) {
       info.normal = read_texture_info(m["normalTexture"]);
       info.normal_scale = number_or(m["normalTexture"], "scale", 1.0f);
     }
-    info.not_opaque = m.contains("alphaMode") && m["alphaMode"].is_string() &&
-                      m["alphaMode"].get<std::string>() != "OPAQUE";
+    const std::string mode = m.contains("alphaMode") && m["alphaMode"].is_string()
+                                 ? m["alphaMode"].get<std::string>()
+                                 : "OPAQUE";
+    info.mask = mode == "MASK";
+    info.blend = mode == "BLEND";
+    info.alpha_cutoff = number_or(m, "alphaCutoff", 0.5f);
+    if (m.contains("pbrMetallicRoughness") && m["pbrMetallicRoughness"].is_object()) {
+      const auto& f = m["pbrMetallicRoughness"];
+      if (f.contains("baseColorFactor") && f["baseColorFactor"].is_array() &&
+          f["baseColorFactor"].size() == 4 && f["baseColorFactor"][3].is_number())
+        info.base_alpha = f["baseColorFactor"][3].get<float>();
+    }
     info.name = m.contains("name") && m["name"].is_string() ? m["name"].get<std::string>() : "";
     out.materials.push_back(std::move(info));
   }
@@ -307,18 +341,20 @@ void check_extensions(const std::filesystem::path& path, const GltfInfo& info) {
   if (!used.empty())
     spdlog::warn("{}: dofarm ignores the glTF extensions {} (the scene renders without them)",
                  path.string(), used);
-  // Core features dofarm does not render, named once each.
-  std::string transparent;
+  // Core features dofarm renders otherwise than the file asks, named once each.
+  std::string blended;
   for (const GltfMaterialInfo& m : info.materials)
-    if (m.not_opaque) transparent += (transparent.empty() ? "\"" : ", \"") + m.name + "\"";
+    if (m.blend) blended += (blended.empty() ? "\"" : ", \"") + m.name + "\"";
   if (info.tangent_attribute)
     spdlog::warn(
         "{}: TANGENT attributes are not read; normal maps use tangents computed from "
         "the texture coordinates",
         path.string());
-  if (!transparent.empty())
-    spdlog::warn("{}: alphaMode ignored (rendered opaque) in materials {}", path.string(),
-                 transparent);
+  if (!blended.empty())
+    spdlog::warn(
+        "{}: alphaMode BLEND rendered as MASK with alphaCutoff 0.5 (cut out, no partial "
+        "transparency) in materials {}",
+        path.string(), blended);
 }
 
 Vec3 to_vec3(const aiVector3D& v) { return {v.x, v.y, v.z}; }
@@ -377,7 +413,16 @@ class Loader {
         m.ior = value;
       }
       if (const GltfMaterialInfo* g = gltf_material(i, m.name)) specular_layer(*g, i, &m);
-      m.base_color_tex = texture(am, {aiTextureType_BASE_COLOR, aiTextureType_DIFFUSE}, true);
+      const GltfMaterialInfo* alpha_info = gltf_material(i, m.name);
+      if (alpha_info && (alpha_info->mask || alpha_info->blend)) {
+        m.alpha_mask = true;
+        m.alpha_cutoff = alpha_info->mask && std::isfinite(alpha_info->alpha_cutoff)
+                             ? alpha_info->alpha_cutoff
+                             : 0.5f;
+        m.base_alpha = std::isfinite(alpha_info->base_alpha) ? alpha_info->base_alpha : 1.0f;
+      }
+      m.base_color_tex = texture(am, {aiTextureType_BASE_COLOR, aiTextureType_DIFFUSE}, true,
+                                 /*with_alpha=*/m.alpha_mask);
       // glTF metallicRoughnessTexture: assimp 5.2 files it under UNKNOWN
       // (AI_MATKEY_GLTF_PBRMETALLICROUGHNESS_METALLICROUGHNESS_TEXTURE).
       m.metal_rough_tex = texture(am, {aiTextureType_UNKNOWN}, false);
@@ -421,7 +466,9 @@ class Loader {
   void lights();
 
  private:
-  int texture(const aiMaterial* am, std::initializer_list<aiTextureType> types, bool srgb);
+  // `with_alpha`: also the image's alpha channel (Texture::alpha).
+  int texture(const aiMaterial* am, std::initializer_list<aiTextureType> types, bool srgb,
+              bool with_alpha = false);
   static RgbImage decode_embedded(const aiTexture* t, const std::string& name, bool srgb);
   void mesh(const aiMesh* m, const aiMatrix4x4& world, const char* node_name);
   // KHR_materials_specular's factors (schema: specularFactor in [0, 1],
@@ -478,9 +525,11 @@ class Loader {
   const GltfInfo& gltf_;
   SceneData* out_;
   std::map<std::pair<std::string, bool>, int> texture_index_;  // shared textures load once
+  std::set<int> alpha_loaded_;  // textures whose alpha channel was asked for
 };
 
-int Loader::texture(const aiMaterial* am, std::initializer_list<aiTextureType> types, bool srgb) {
+int Loader::texture(const aiMaterial* am, std::initializer_list<aiTextureType> types, bool srgb,
+                    bool with_alpha) {
   for (aiTextureType type : types) {
     aiString file;
     if (am->GetTexture(type, 0, &file) != AI_SUCCESS) continue;
@@ -492,7 +541,28 @@ int Loader::texture(const aiMaterial* am, std::initializer_list<aiTextureType> t
     if (!embedded && name[0] == '*') fail(path_, "texture \"" + name + "\" is not in the file");
     std::filesystem::path tex_path = path_.parent_path() / name;
     auto key = std::make_pair(embedded ? name : tex_path.lexically_normal().string(), srgb);
-    if (auto it = texture_index_.find(key); it != texture_index_.end()) return it->second;
+    // The alpha channel, once per texture, when a material asks for it.
+    auto add_alpha = [&](int index) {
+      if (!with_alpha || !alpha_loaded_.insert(index).second) return index;
+      Texture& tex = out_->textures[size_t(index)];
+      try {
+        if (embedded && embedded->mHeight != 0) {  // raw texels
+          tex.alpha.resize(size_t(embedded->mWidth) * embedded->mHeight);
+          for (size_t k = 0; k < tex.alpha.size(); ++k)
+            tex.alpha[k] = embedded->pcData[k].a / 255.0f;
+        } else {
+          tex.alpha = embedded ? decode_image_alpha(embedded->pcData, embedded->mWidth, name)
+                               : load_image_alpha(tex_path);
+        }
+      } catch (const std::exception& e) {
+        fail(path_, std::string("texture: ") + e.what());
+      }
+      if (!tex.alpha.empty() && tex.alpha.size() != size_t(tex.width) * size_t(tex.height))
+        fail(path_, "texture \"" + name + "\": its alpha channel and colour differ in size");
+      return index;
+    };
+    if (auto it = texture_index_.find(key); it != texture_index_.end())
+      return add_alpha(it->second);
     RgbImage image;
     try {
       image = embedded ? decode_embedded(embedded, name, srgb) : load_rgb_image(tex_path, srgb);
@@ -507,7 +577,7 @@ int Loader::texture(const aiMaterial* am, std::initializer_list<aiTextureType> t
     out_->textures.push_back(std::move(tex));
     int index = static_cast<int>(out_->textures.size()) - 1;
     texture_index_.emplace(key, index);
-    return index;
+    return add_alpha(index);
   }
   return -1;
 }

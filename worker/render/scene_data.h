@@ -35,9 +35,13 @@ inline constexpr float kLumensPerWatt = 683.0f;
 struct Texture {
   int width = 0, height = 0;
   std::vector<float> rgb;  // interleaved, row 0 = top (v = 0 in glTF)
+  // Per texel in [0, 1]; empty = opaque. Loaded only for the base colour
+  // texture of a material with alphaMode MASK.
+  std::vector<float> alpha;
   std::string name;
   // Bilinear, repeat wrapping; uv in glTF convention.
   Vec3 lookup(Vec2 uv) const;
+  float alpha_lookup(Vec2 uv) const;  // the same filter over `alpha`; 1 without
 };
 
 // KHR_texture_transform as a 2x3 affine map of glTF texture coordinates:
@@ -74,6 +78,13 @@ struct Material {
   // its scale, which multiplies the map's x and y (glTF 3.9.3).
   int normal_tex = -1;
   float normal_scale = 1.0f;
+  // glTF alphaMode MASK: a surface point whose alpha (baseColorFactor's
+  // alpha times the base colour texture's) is below alpha_cutoff is not
+  // there for any ray (an Embree filter, worker/render/scene.cpp). BLEND is
+  // read as MASK at 0.5 (no partial transparency), with a warning.
+  bool alpha_mask = false;
+  float alpha_cutoff = 0.5f;
+  float base_alpha = 1.0f;
   // Each texture's KHR_texture_transform (identity when the file has none).
   UvTransform base_color_uv, metal_rough_uv, emission_uv, normal_uv;
   bool is_emissive() const { return emission.x > 0 || emission.y > 0 || emission.z > 0; }
