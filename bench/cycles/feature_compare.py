@@ -1,0 +1,176 @@
+#!/usr/bin/env python3
+# The dofarm half of bench/cycles/gltf_features_vs_cycles.sh: writes the job
+# files (and control variants) for a scene that feature_scene.py exported,
+# and prints the comparison with Cycles' image. Plain Python (no numpy).
+#
+#   feature_compare.py header FEATURE
+#   feature_compare.py variants FEATURE DIR SIZE   -> DIR/<variant>.toml, prints the variants
+#   feature_compare.py rows FEATURE DIR SPP [SPECULAR TINT]
+#
+# Variants (each a job of its own, rendered by bench/render_spp):
+#   specular    file (as exported), ignored (KHR_materials_specular removed:
+#               how dofarm rendered it before reading the extension)
+#   normal_map  file, flipped (the map's green inverted: a frame whose up is
+#               the wrong way), nomap (normalTexture removed)
+#   alpha_mask  file, opaque (alphaMode removed)
+# Measures: specular, dofarm / Cycles per channel over the centre 8 x 8
+# pixels (lamp, surface and camera in line: the coat's highlight, and
+# Cycles' Disney diffuse equals Lambert's there); the others, the
+# correlation of pixel luminances with Cycles' (the pattern of light and
+# shade, or of holes) and the ratio of the means.
+import copy
+import json
+import struct
+import sys
+import zlib
+
+VARIANTS = {"specular": ["file", "ignored"], "normal_map": ["file", "flipped", "nomap"],
+            "alpha_mask": ["file", "opaque"]}
+WHAT = {"file": "the exported file", "ignored": "KHR_materials_specular ignored",
+        "flipped": "control: the map's green inverted", "nomap": "control: no normal map",
+        "opaque": "control: alphaMode ignored (opaque)"}
+
+
+def read_png(path):
+    """8-bit RGB or RGBA, not interlaced (what Blender writes): w, h, channels, rows."""
+    data = open(path, "rb").read()
+    pos, idat = 8, b""
+    while pos < len(data):
+        n, kind = struct.unpack(">I4s", data[pos:pos + 8])
+        body = data[pos + 8:pos + 8 + n]
+        if kind == b"IHDR":
+            w, h, depth, ctype = struct.unpack(">IIBB", body[:10])
+            if depth != 8 or ctype not in (2, 6):
+                raise SystemExit("%s: expected 8-bit RGB or RGBA" % path)
+            ch = 3 if ctype == 2 else 4
+        elif kind == b"IDAT":
+            idat += body
+        pos += 12 + n
+    raw, rows, prev, stride = zlib.decompress(idat), [], bytearray(w * ch), w * ch + 1
+    for y in range(h):
+        f, line = raw[y * stride], bytearray(raw[y * stride + 1:(y + 1) * stride])
+        for i in range(len(line)):
+            a = line[i - ch] if i >= ch else 0
+            b, c = prev[i], (prev[i - ch] if i >= ch else 0)
+            p = a + b - c
+            paeth = a if abs(p - a) <= abs(p - b) and abs(p - a) <= abs(p - c) else (
+                b if abs(p - b) <= abs(p - c) else c)
+            line[i] = (line[i] + (0, a, b, (a + b) // 2, paeth)[f]) & 255
+        rows.append(bytes(line))
+        prev = line
+    return w, h, ch, rows
+
+
+def write_png(path, w, h, ch, rows):
+    def chunk(kind, body):
+        return (struct.pack(">I", len(body)) + kind + body +
+                struct.pack(">I", zlib.crc32(kind + body) & 0xffffffff))
+    header = struct.pack(">IIBBBBB", w, h, 8, 2 if ch == 3 else 6, 0, 0, 0)
+    raw = b"".join(b"\0" + r for r in rows)
+    with open(path, "wb") as f:
+        f.write(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(raw)) +
+                chunk(b"IEND", b""))
+
+
+def variants(feature, d, size):
+    g = json.load(open(d + "/scene.gltf"))
+    for name in VARIANTS[feature]:
+        v = copy.deepcopy(g)
+        mats = v["materials"]
+        if name == "ignored":
+            for m in mats:
+                m.get("extensions", {}).pop("KHR_materials_specular", None)
+            v["extensionsUsed"] = [e for e in v.get("extensionsUsed", [])
+                                   if e != "KHR_materials_specular"]
+        elif name == "nomap":
+            for m in mats:
+                m.pop("normalTexture", None)
+        elif name == "opaque":
+            for m in mats:
+                m.pop("alphaMode", None)
+        elif name == "flipped":
+            m = next(m for m in mats if "normalTexture" in m)
+            image = v["images"][v["textures"][m["normalTexture"]["index"]]["source"]]
+            w, h, ch, rows = read_png(d + "/" + image["uri"])
+            rows = [bytes(x if i % ch != 1 else 255 - x for i, x in enumerate(r)) for r in rows]
+            write_png(d + "/flipped_green.png", w, h, ch, rows)
+            image["uri"] = "flipped_green.png"
+        json.dump(v, open("%s/%s.gltf" % (d, name), "w"))
+        open("%s/%s.toml" % (d, name), "w").write(
+            'scene = "%s.gltf"\nseed = 3\n[image]\nwidth = %d\nheight = %d\n'
+            '[frames]\nstart = 0\nend = 0\n[camera]\nfrom_scene = true\n'
+            '[[camera.key]]\nframe = 0\naperture = 0.0\nfocal_distance = 5.0\n'
+            '[buffers]\nversions = 1\nalbedo_ref_spp = 1\n' % (name, size, size))
+        print(name)
+
+
+def read_pfm(path):
+    data = open(path, "rb").read()
+    _, dims, _, body = data.split(b"\n", 3)
+    w, h = map(int, dims.split())
+    return w, h, struct.unpack("<%df" % (w * h * 3), body[:12 * w * h])
+
+
+def centre(path):
+    w, h, px = read_pfm(path)
+    s = [0.0, 0.0, 0.0]
+    for y in range(h // 2 - 4, h // 2 + 4):
+        for x in range(w // 2 - 4, w // 2 + 4):
+            for c in range(3):
+                s[c] += px[3 * (y * w + x) + c] / 64.0
+    return s
+
+
+def luminance(path):
+    w, h, px = read_pfm(path)
+    return [0.2126 * px[3 * i] + 0.7152 * px[3 * i + 1] + 0.0722 * px[3 * i + 2]
+            for i in range(w * h)]
+
+
+def correlation(a, b):
+    ma, mb = sum(a) / len(a), sum(b) / len(b)
+    sab = sum((x - ma) * (y - mb) for x, y in zip(a, b))
+    saa, sbb = sum((x - ma) ** 2 for x in a), sum((y - mb) ** 2 for y in b)
+    return sab / (saa * sbb) ** 0.5 if saa > 0 and sbb > 0 else 0.0
+
+
+def header(feature):
+    if feature == "specular":
+        print("| Specular | Tint | specularColorFactor in the file | dofarm / Cycles (R, G, B) |"
+              " extension ignored (R, G, B) |")
+        print("| --- | --- | --- | --- | --- |")
+    else:
+        print("| dofarm render | correlation with Cycles | mean / Cycles' mean |")
+        print("| --- | --- | --- |")
+
+
+def rows(feature, d, spp, extra):
+    image = lambda name: "%s/%s_%s.pfm" % (d, name, spp)
+    if feature == "specular":
+        cy = centre(d + "/cycles.pfm")
+        ratio = lambda name: ", ".join("%.3f" % (a / b) for a, b in zip(centre(image(name)), cy))
+        ext = json.load(open(d + "/scene.gltf"))["materials"][0].get("extensions", {})
+        f = ext.get("KHR_materials_specular", {}).get("specularColorFactor")
+        f = "[" + ", ".join("%.3f" % x for x in f) + "]" if f else "(none)"
+        print("| %s | %s | %s | %s | %s |" % (extra[0], extra[1], f, ratio("file"), ratio("ignored")))
+        return
+    cy = luminance(d + "/cycles.pfm")
+    for name in VARIANTS[feature]:
+        x = luminance(image(name))
+        print("| %s | %.3f | %.3f |" % (WHAT[name], correlation(x, cy),
+                                         (sum(x) / len(x)) / (sum(cy) / len(cy))))
+
+
+def main():
+    a = sys.argv[1:]
+    if len(a) >= 2 and a[0] == "header":
+        header(a[1])
+    elif len(a) == 4 and a[0] == "variants":
+        variants(a[1], a[2], int(a[3]))
+    elif len(a) >= 4 and a[0] == "rows":
+        rows(a[1], a[2], a[3], a[4:])
+    else:
+        raise SystemExit(__doc__ or "usage: see the head of feature_compare.py")
+
+
+main()

@@ -1,0 +1,173 @@
+# Blender script for bench/cycles/gltf_features_vs_cycles.sh: one small
+# scene per glTF feature that Blender's exporter writes from a Principled
+# BSDF, exported as glTF (Punctual Lights on) and rendered with Cycles into
+# a PFM, seen from 5 m above with a black world:
+#
+#   specular    a 4 m plane (base colour 0.8, 0.4, 0.2, roughness 0.5) of the
+#               given Specular and Specular Tint, 2 m below a 1000 W point
+#               lamp (KHR_materials_specular); 64 x 64
+#   normal_map  a 4 m plane (base 0.7, roughness 1, Specular 0) whose normal
+#               comes from a tangent-space map of bumps along both image
+#               axes (Image Texture, Non-Color -> Normal Map node: the
+#               exporter's normalTexture), a sun from the side; 96 x 96
+#   alpha_mask  a 2 m plane whose base colour texture's alpha is an 8 x 8
+#               checker of 0 and 1 (Alpha Clip: alphaMode MASK), 1 m over
+#               a 4 m blue plane, a sun from the side; 96 x 96
+#
+#   blender -b -noaudio --factory-startup -P feature_scene.py -- FEATURE OUT_DIR SPP [SPECULAR TINT]
+#   -> OUT_DIR/scene.gltf (+ .bin, images), OUT_DIR/cycles.pfm (linear RGB, rows bottom-up)
+import math
+import os
+import struct
+import sys
+
+import bpy
+
+
+def image(name, size, texel, path, colour_space):
+    """A size x size image from texel(x, y) -> RGBA (x right, y up, in [0, 1)), saved as PNG."""
+    img = bpy.data.images.new(name, size, size, alpha=True)
+    # Before the pixels: changing a generated image's colour space regenerates it.
+    img.colorspace_settings.name = colour_space
+    px = [0.0] * (size * size * 4)
+    for j in range(size):
+        for i in range(size):
+            px[4 * (j * size + i):4 * (j * size + i) + 4] = texel((i + 0.5) / size, (j + 0.5) / size)
+    img.pixels = px
+    img.filepath_raw = path
+    img.file_format = "PNG"
+    img.save()
+    return img
+
+
+def bumps(x, y):
+    # h = a sin(4 pi x) sin(6 pi y); n = (-dh/dx, -dh/dy, 1), stored as
+    # (n + 1) / 2 (OpenGL convention: green is up).
+    a = 0.08
+    dx = a * 4 * math.pi * math.cos(4 * math.pi * x) * math.sin(6 * math.pi * y)
+    dy = a * 6 * math.pi * math.sin(4 * math.pi * x) * math.cos(6 * math.pi * y)
+    l = math.sqrt(dx * dx + dy * dy + 1)
+    return [(-dx / l + 1) / 2, (-dy / l + 1) / 2, (1 / l + 1) / 2, 1.0]
+
+
+def checker(x, y):
+    on = (int(x * 8) + int(y * 8)) % 2 == 0
+    return [0.9, 0.6, 0.1, 1.0 if on else 0.0]
+
+
+def principled(name, base, roughness, specular=0.5, tint=0.0):
+    mat = bpy.data.materials.new(name)
+    mat.use_nodes = True
+    p = mat.node_tree.nodes["Principled BSDF"]
+    p.inputs["Base Color"].default_value = base + (1.0,)
+    p.inputs["Roughness"].default_value = roughness
+    p.inputs["Specular"].default_value = specular
+    p.inputs["Specular Tint"].default_value = tint
+    return mat, p
+
+
+def plane(size, z, mat):
+    bpy.ops.mesh.primitive_plane_add(size=size, location=(0.0, 0.0, z))
+    obj = bpy.context.active_object
+    obj.data.materials.append(mat)
+    return obj
+
+
+def light(scene, kind, energy, location=(0.0, 0.0, 0.0), rotation=(0.0, 0.0, 0.0)):
+    data = bpy.data.lights.new(kind.lower(), type=kind)
+    data.energy = energy
+    if kind == "SUN":
+        data.angle = 0.0
+    else:
+        data.shadow_soft_size = 0.0
+    obj = bpy.data.objects.new(kind.lower(), data)
+    obj.location = location
+    obj.rotation_euler = rotation
+    scene.collection.objects.link(obj)
+
+
+def main():
+    argv = sys.argv[sys.argv.index("--") + 1:]
+    if len(argv) not in (3, 5):
+        raise SystemExit("usage: feature_scene.py -- FEATURE OUT_DIR SPP [SPECULAR TINT]")
+    feature, out, spp = argv[0], argv[1], int(argv[2])
+    os.makedirs(out, exist_ok=True)
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    # Light from +x, +y and above: a frame turned wrongly in either axis shows.
+    sun_rotation = (math.radians(-50.0), math.radians(35.0), 0.0)
+    if feature == "specular":
+        size = 64
+        mat, _ = principled("plane", (0.8, 0.4, 0.2), 0.5, float(argv[3]), float(argv[4]))
+        plane(4.0, 0.0, mat)
+        light(scene, "POINT", 1000.0, location=(0.0, 0.0, 2.0))
+    elif feature == "normal_map":
+        size = 96
+        mat, p = principled("bumpy", (0.7, 0.7, 0.7), 1.0, specular=0.0)
+        nodes, links = mat.node_tree.nodes, mat.node_tree.links
+        tex = nodes.new("ShaderNodeTexImage")
+        tex.image = image("bumps", 128, bumps, os.path.join(out, "bumps.png"), "Non-Color")
+        nmap = nodes.new("ShaderNodeNormalMap")
+        nmap.space = "TANGENT"
+        links.new(tex.outputs["Color"], nmap.inputs["Color"])
+        links.new(nmap.outputs["Normal"], p.inputs["Normal"])
+        plane(4.0, 0.0, mat)
+        light(scene, "SUN", 3.0, rotation=sun_rotation)
+    elif feature == "alpha_mask":
+        size = 96
+        back, _ = principled("back", (0.1, 0.3, 0.8), 1.0, specular=0.0)
+        plane(4.0, 0.0, back)
+        mat, p = principled("leaf", (1.0, 1.0, 1.0), 1.0, specular=0.0)
+        nodes, links = mat.node_tree.nodes, mat.node_tree.links
+        tex = nodes.new("ShaderNodeTexImage")
+        tex.image = image("checker", 64, checker, os.path.join(out, "checker.png"), "sRGB")
+        tex.interpolation = "Closest"
+        links.new(tex.outputs["Color"], p.inputs["Base Color"])
+        links.new(tex.outputs["Alpha"], p.inputs["Alpha"])
+        mat.blend_method = "CLIP"
+        mat.alpha_threshold = 0.5
+        plane(2.0, 1.0, mat)
+        light(scene, "SUN", 3.0, rotation=sun_rotation)
+    else:
+        raise SystemExit("feature_scene.py: unknown feature " + feature)
+
+    cam = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
+    cam.location = (0.0, 0.0, 5.0)  # looks down its -z
+    scene.collection.objects.link(cam)
+    scene.camera = cam
+    scene.world = bpy.data.worlds.new("black")
+    scene.world.use_nodes = False
+    scene.world.color = (0.0, 0.0, 0.0)
+    scene.render.engine = "CYCLES"
+    scene.render.resolution_x = size
+    scene.render.resolution_y = size
+    scene.render.resolution_percentage = 100
+    scene.view_settings.view_transform = "Standard"
+    c = scene.cycles
+    c.device = "CPU"
+    c.samples = spp
+    c.use_denoising = False
+    c.use_adaptive_sampling = False
+    c.pixel_filter_type = "BOX"
+    c.filter_width = 1.0
+    c.max_bounces = 8
+
+    bpy.ops.export_scene.gltf(filepath=os.path.join(out, "scene.gltf"),
+                              export_format="GLTF_SEPARATE", export_lights=True,
+                              export_cameras=True)
+    exr = os.path.join(out, "cycles.exr")
+    scene.render.image_settings.file_format = "OPEN_EXR"
+    scene.render.image_settings.color_depth = "32"
+    scene.render.filepath = exr
+    bpy.ops.render.render(write_still=True)
+    img = bpy.data.images.load(exr)
+    px = list(img.pixels)  # RGBA, rows bottom-up, as PFM
+    rgb = [0.0] * (size * size * 3)
+    for k in range(3):
+        rgb[k::3] = px[k::4]
+    with open(os.path.join(out, "cycles.pfm"), "wb") as f:
+        f.write(b"PF\n%d %d\n-1.0\n" % (size, size))
+        f.write(struct.pack("<%df" % len(rgb), *rgb))
+
+
+main()

@@ -1,0 +1,48 @@
+#!/usr/bin/env bash
+# What Blender's glTF exporter writes from a Principled BSDF, rendered by
+# dofarm against Cycles' render of the same Blender scene: the coat's
+# Specular and Specular Tint (KHR_materials_specular), a tangent-space
+# normal map (normalTexture) and an Alpha Clip cut-out (alphaMode MASK).
+# bench/cycles/feature_scene.py builds, exports and renders each scene with
+# Cycles; dofarm renders the exported file and control variants
+# (bench/cycles/feature_compare.py says which and what is measured), and
+# one table per feature is printed. bench/README.md has the figures.
+#
+#   bench/cycles/gltf_features_vs_cycles.sh [BUILD_DIR] [OUT_DIR] [SPP]
+#   (BUILD_DIR default build, OUT_DIR /tmp/gltf_features_vs_cycles, SPP 64;
+#    needs Debian's blender and python3-numpy, which its glTF exporter
+#    imports; neither is a dependency of dofarm)
+set -euo pipefail
+here=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
+build=$(cd "${1:-build}" && pwd)
+out=${2:-/tmp/gltf_features_vs_cycles}
+spp=${3:-64}
+command -v blender > /dev/null ||
+  { echo "gltf_features_vs_cycles.sh: needs blender (apt-get install blender python3-numpy)" >&2; exit 2; }
+mkdir -p "$out"
+
+# One scene: FEATURE DIR SIZE [SPECULAR TINT]; prints its table rows.
+scene() {
+  local feature=$1 dir=$2 size=$3
+  shift 3
+  blender -b -noaudio --factory-startup -P "$here/feature_scene.py" -- "$feature" "$dir" "$spp" "$@" \
+    > "$dir.blender.log" 2>&1 || { cat "$dir.blender.log" >&2; exit 1; }
+  for v in $(python3 "$here/feature_compare.py" variants "$feature" "$dir" "$size"); do
+    "$build/bench/render_spp" --job "$dir/$v.toml" --spp "$spp" --threads 2 --out "$dir/${v}_" \
+      > "$dir/$v.log" 2>&1 || { cat "$dir/$v.log" >&2; exit 1; }
+  done
+  python3 "$here/feature_compare.py" rows "$feature" "$dir" "$spp" "$@"
+}
+
+echo "KHR_materials_specular (centre 8 x 8 pixels, $spp spp):"
+python3 "$here/feature_compare.py" header specular
+for pair in "0 0" "0.5 0" "1 0" "0.5 1"; do
+  set -- $pair
+  scene specular "$out/specular-s$1-t$2" 64 "$1" "$2"
+done
+for feature in normal_map alpha_mask; do
+  echo
+  echo "$feature ($spp spp):"
+  python3 "$here/feature_compare.py" header "$feature"
+  scene "$feature" "$out/$feature" 96
+done
