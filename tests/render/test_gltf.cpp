@@ -52,6 +52,26 @@ struct TempDir {
   ~TempDir() { std::filesystem::remove_all(path); }
 };
 
+// Captures what spdlog logs from its construction until lines() is called,
+// which puts the previous logger back.
+class LogCapture {
+ public:
+  LogCapture()
+      : sink_(std::make_shared<spdlog::sinks::ringbuffer_sink_mt>(16)),
+        previous_(spdlog::default_logger()) {
+    spdlog::set_default_logger(std::make_shared<spdlog::logger>("capture", sink_));
+  }
+  ~LogCapture() { spdlog::set_default_logger(previous_); }
+  std::vector<std::string> lines() {
+    spdlog::set_default_logger(previous_);
+    return sink_->last_formatted();
+  }
+
+ private:
+  std::shared_ptr<spdlog::sinks::ringbuffer_sink_mt> sink_;
+  std::shared_ptr<spdlog::logger> previous_;
+};
+
 void write_bytes(const std::filesystem::path& p, const std::string& bytes) {
   std::ofstream out(p, std::ios::binary);
   out.write(bytes.data(), std::streamsize(bytes.size()));
@@ -437,14 +457,10 @@ TEST(GltfExtensions, UsedButUnimplementedAreNamedInOneWarning) {
   q.doc["extensionsUsed"] = {"KHR_materials_sheen", "KHR_lights_punctual",
                              "KHR_materials_clearcoat"};
   write_gltf(dir.path / "used.gltf", q);
-  auto sink = std::make_shared<spdlog::sinks::ringbuffer_sink_mt>(16);
-  auto logger = std::make_shared<spdlog::logger>("capture", sink);
-  auto previous = spdlog::default_logger();
-  spdlog::set_default_logger(logger);
+  LogCapture log;
   SceneData s = load_scene_data(dir.path / "used.gltf");
-  spdlog::set_default_logger(previous);
+  std::vector<std::string> lines = log.lines();
   EXPECT_EQ(s.triangle_count(), 2u);
-  std::vector<std::string> lines = sink->last_formatted();
   ASSERT_EQ(lines.size(), 1u);
   EXPECT_NE(lines[0].find("used.gltf"), std::string::npos) << lines[0];
   EXPECT_NE(lines[0].find("KHR_materials_sheen, KHR_materials_clearcoat"), std::string::npos)
@@ -461,13 +477,10 @@ TEST(GltfExtensions, TransparencyIsWarnedNamingTheMaterials) {
   q.doc["materials"][0]["normalTexture"] = {{"index", 0}};
   q.doc["materials"][0]["alphaMode"] = "BLEND";
   write_gltf(dir.path / "core.gltf", q);
-  auto sink = std::make_shared<spdlog::sinks::ringbuffer_sink_mt>(16);
-  auto previous = spdlog::default_logger();
-  spdlog::set_default_logger(std::make_shared<spdlog::logger>("capture", sink));
+  LogCapture log;
   SceneData s = load_scene_data(dir.path / "core.gltf");
-  spdlog::set_default_logger(previous);
+  std::vector<std::string> lines = log.lines();
   EXPECT_EQ(s.triangle_count(), 2u);
-  std::vector<std::string> lines = sink->last_formatted();
   ASSERT_EQ(lines.size(), 1u);  // the normal map is applied: no warning
   EXPECT_NE(lines[0].find("alphaMode BLEND rendered as MASK"), std::string::npos) << lines[0];
   EXPECT_NE(lines[0].find("\"bumpy glass\""), std::string::npos) << lines[0];
@@ -644,17 +657,32 @@ TEST(GltfNormalMaps, WithoutTexcoordsTheMapIsWarnedAndIgnored) {
   q.doc["materials"][0]["name"] = "bumpy";
   q.doc["materials"][0]["normalTexture"] = {{"index", 0}};
   write_gltf(dir.path / "n.gltf", q);
-  auto sink = std::make_shared<spdlog::sinks::ringbuffer_sink_mt>(16);
-  auto previous = spdlog::default_logger();
-  spdlog::set_default_logger(std::make_shared<spdlog::logger>("capture", sink));
+  LogCapture log;
   SceneData d = load_scene_data(dir.path / "n.gltf");
-  spdlog::set_default_logger(previous);
-  std::vector<std::string> lines = sink->last_formatted();
+  std::vector<std::string> lines = log.lines();
   ASSERT_EQ(lines.size(), 1u);
   EXPECT_NE(lines[0].find("normal maps ignored"), std::string::npos) << lines[0];
   EXPECT_NE(lines[0].find("\"bumpy\""), std::string::npos) << lines[0];
   EXPECT_EQ(d.materials[d.tri_material[0]].normal_tex, -1);
   EXPECT_TRUE(d.tangents.empty());
+}
+
+// The quad's material, named `name`, with the material extension `ext_name`
+// holding `ext` (none for null), as load_scene_data() reads it.
+Material material_with_extension(const std::filesystem::path& dir, const char* name,
+                                 const char* ext_name, const Json& ext) {
+  GltfQuad q = gltf_quad();
+  q.doc["materials"][0]["name"] = name;
+  if (!ext.is_null()) {
+    q.doc["materials"][0]["extensions"] = {{ext_name, ext}};
+    q.doc["extensionsUsed"] = {ext_name};
+  }
+  write_gltf(dir / (std::string(name) + ".gltf"), q);
+  SceneData s = load_scene_data(dir / (std::string(name) + ".gltf"));
+  EXPECT_EQ(s.triangle_count(), 2u);
+  const Material m = s.materials[s.tri_material[0]];
+  EXPECT_EQ(m.name, name);
+  return m;
 }
 
 // KHR_materials_ior as written: IOR 1 (Blender's Principled IOR 1, an
@@ -663,9 +691,7 @@ TEST(GltfNormalMaps, WithoutTexcoordsTheMapIsWarnedAndIgnored) {
 // naming the material, and falls back to 1.5.
 TEST(GltfMaterials, IorOneIsReadAsOne) {
   TempDir dir("ior");
-  auto sink = std::make_shared<spdlog::sinks::ringbuffer_sink_mt>(16);
-  auto previous = spdlog::default_logger();
-  spdlog::set_default_logger(std::make_shared<spdlog::logger>("capture", sink));
+  LogCapture log;
   struct Case {
     const char* name;
     Json ext;  // null: no extension
@@ -677,21 +703,10 @@ TEST(GltfMaterials, IorOneIsReadAsOne) {
                {"below", {{"ior", 0.5}}, 1.5f}};
   for (const Case& c : cases) {
     SCOPED_TRACE(c.name);
-    GltfQuad q = gltf_quad();
-    q.doc["materials"][0]["name"] = c.name;
-    if (!c.ext.is_null()) {
-      q.doc["materials"][0]["extensions"] = {{"KHR_materials_ior", c.ext}};
-      q.doc["extensionsUsed"] = {"KHR_materials_ior"};
-    }
-    write_gltf(dir.path / (std::string(c.name) + ".gltf"), q);
-    SceneData s = load_scene_data(dir.path / (std::string(c.name) + ".gltf"));
-    ASSERT_EQ(s.triangle_count(), 2u);
-    const Material& m = s.materials[s.tri_material[0]];
-    EXPECT_EQ(m.name, c.name);
-    EXPECT_FLOAT_EQ(m.ior, c.ior);
+    EXPECT_FLOAT_EQ(material_with_extension(dir.path, c.name, "KHR_materials_ior", c.ext).ior,
+                    c.ior);
   }
-  spdlog::set_default_logger(previous);
-  std::vector<std::string> lines = sink->last_formatted();
+  std::vector<std::string> lines = log.lines();
   ASSERT_EQ(lines.size(), 1u);
   EXPECT_NE(lines[0].find("\"below\""), std::string::npos) << lines[0];
   EXPECT_NE(lines[0].find("KHR_materials_ior"), std::string::npos) << lines[0];
@@ -705,9 +720,7 @@ TEST(GltfMaterials, IorOneIsReadAsOne) {
 // extension is read, so it is not in the "ignores" warning.
 TEST(GltfMaterials, SpecularFactorsAreRead) {
   TempDir dir("specular");
-  auto sink = std::make_shared<spdlog::sinks::ringbuffer_sink_mt>(16);
-  auto previous = spdlog::default_logger();
-  spdlog::set_default_logger(std::make_shared<spdlog::logger>("capture", sink));
+  LogCapture log;
   struct Case {
     const char* name;
     Json ext;  // null: no extension
@@ -728,22 +741,11 @@ TEST(GltfMaterials, SpecularFactorsAreRead) {
                 Vec3(1.0f)}};
   for (const Case& c : cases) {
     SCOPED_TRACE(c.name);
-    GltfQuad q = gltf_quad();
-    q.doc["materials"][0]["name"] = c.name;
-    if (!c.ext.is_null()) {
-      q.doc["materials"][0]["extensions"] = {{"KHR_materials_specular", c.ext}};
-      q.doc["extensionsUsed"] = {"KHR_materials_specular"};
-    }
-    write_gltf(dir.path / (std::string(c.name) + ".gltf"), q);
-    SceneData s = load_scene_data(dir.path / (std::string(c.name) + ".gltf"));
-    ASSERT_EQ(s.triangle_count(), 2u);
-    const Material& m = s.materials[s.tri_material[0]];
-    EXPECT_EQ(m.name, c.name);
+    const Material m = material_with_extension(dir.path, c.name, "KHR_materials_specular", c.ext);
     EXPECT_FLOAT_EQ(m.specular, c.factor);
     expect_near3(m.specular_color, c.color, 0.0f);
   }
-  spdlog::set_default_logger(previous);
-  std::vector<std::string> lines = sink->last_formatted();
+  std::vector<std::string> lines = log.lines();
   ASSERT_EQ(lines.size(), 3u);
   EXPECT_NE(lines[0].find("\"factor_above\""), std::string::npos) << lines[0];
   EXPECT_NE(lines[0].find("specularFactor 1.5"), std::string::npos) << lines[0];
