@@ -30,11 +30,17 @@ Bsdf::Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, f
   // KHR_materials_specular: F0' = min(F0_ior c, 1) per channel, the lobe
   // scaled by s. Without the extension (c = 1) F0' is F0_ior exactly.
   const float s = std::isfinite(specular.factor) ? std::max(specular.factor, 0.0f) : 1.0f;
-  auto f0_of = [&](float c) {
-    return std::isfinite(c) ? std::min(f0_ior * std::max(c, 0.0f), 1.0f) : f0_ior;
-  };
-  dielectric_f0_ = Vec3(f0_of(specular.color.x), f0_of(specular.color.y), f0_of(specular.color.z));
-  grey_f0_ = dielectric_f0_.x == dielectric_f0_.y && dielectric_f0_.y == dielectric_f0_.z;
+  const Vec3 c = specular.color;
+  if (c.x == 1.0f && c.y == 1.0f && c.z == 1.0f) {  // no colour: the common case, cheaply
+    dielectric_f0_ = Vec3(f0_ior);
+    grey_f0_ = true;
+  } else {
+    auto f0_of = [&](float k) {
+      return std::isfinite(k) ? std::min(f0_ior * std::max(k, 0.0f), 1.0f) : f0_ior;
+    };
+    dielectric_f0_ = Vec3(f0_of(c.x), f0_of(c.y), f0_of(c.z));
+    grey_f0_ = dielectric_f0_.x == dielectric_f0_.y && dielectric_f0_.y == dielectric_f0_.z;
+  }
   metal_f0_ = base_color;
   metal_weight_ = max_component(base_color) > 0 ? metallic : 0.0f;
   // IOR 1 is no interface whatever the extension says; otherwise the layer
@@ -50,13 +56,19 @@ Bsdf::Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, f
   // The base's normalisation; a mirror's albedo s F(mu) has the closed-form
   // average s (f0 + (1 - f0) / 21).
   diffuse_norm_ = Vec3(kInvPi);
-  if (has_specular_ && delta_specular_ && dielectric_weight_ > 0) {
-    for (int c = 0; c < 3; ++c) {
-      const float f0 = dielectric_f0_[c];
-      diffuse_norm_[c] =
-          kInvPi /
-          std::max(1.0f - specular_factor_ * (f0 + (1.0f - f0) * kSchlickWeightAverage), 1e-6f);
+  // One channel's normalisation, copied to all when F0 is grey.
+  auto per_channel = [&](auto norm_of) {
+    diffuse_norm_ = Vec3(norm_of(dielectric_f0_.x));
+    if (!grey_f0_) {
+      diffuse_norm_.y = norm_of(dielectric_f0_.y);
+      diffuse_norm_.z = norm_of(dielectric_f0_.z);
     }
+  };
+  if (has_specular_ && delta_specular_ && dielectric_weight_ > 0) {
+    per_channel([&](float f0) {
+      return kInvPi /
+             std::max(1.0f - specular_factor_ * (f0 + (1.0f - f0) * kSchlickWeightAverage), 1e-6f);
+    });
   }
   if (!has_specular_ || delta_specular_) return;  // no table needed
   const ggx::AlbedoTable& table = ggx::albedo_table();
@@ -68,11 +80,10 @@ Bsdf::Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, f
   // s (f0 avg(A) + avg(B) + f0^2 avg(A k) + f0 avg(B k)).
   if (diffuse_weight_ > 0 && dielectric_weight_ > 0) {
     const ggx::AlbedoTable::Averages avg = ggx::albedo_averages(table, row_);
-    for (int c = 0; c < 3; ++c) {
-      const float f0 = dielectric_f0_[c];
+    per_channel([&](float f0) {
       const float e_avg = specular_factor_ * (f0 * avg.a + avg.b + f0 * f0 * avg.ak + f0 * avg.bk);
-      diffuse_norm_[c] = kInvPi / std::max(1.0f - e_avg, 1e-6f);
-    }
+      return kInvPi / std::max(1.0f - e_avg, 1e-6f);
+    });
   }
 }
 
@@ -85,7 +96,7 @@ ggx::Albedo Bsdf::specular_albedo(float mu) const {
   return ggx::albedo(row_, mu);
 }
 
-Vec3 Bsdf::base_transmission(const ggx::Albedo& e) const {
+[[gnu::always_inline]] inline Vec3 Bsdf::base_transmission(const ggx::Albedo& e) const {
   if (!(dielectric_weight_ > 0)) return Vec3(1.0f);
   const float k = delta_specular_ ? 0.0f : e.k();
   auto channel = [&](float f0) {

@@ -281,16 +281,18 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
   if (dot(ng, ray.d) > 0) ng = -ng;
   hit->ng = ng;
   hit->uv = texcoord(idx, b0, b1, b2);
-  const Material& m = data_.materials[data_.tri_material[prim]];
   Vec3 ns = ng;
-  if (m.normal_tex >= 0 && !data_.tangents.empty()) {
+  // Tangents exist only when some material has a normal map: other scenes
+  // do not wait for the material here.
+  if (!data_.tangents.empty() && data_.materials[data_.tri_material[prim]].normal_tex >= 0) {
     // The interpolated normal (or the triangle's own) bent by the map, on
     // the surface's front side, then turned to the side the ray is on.
     Vec3 n = tri_normal_[prim];
     if (!data_.normals.empty())
       n = normalize(
           data_.normals[idx[0]] * b0 + data_.normals[idx[1]] * b1 + data_.normals[idx[2]] * b2, n);
-    const Vec3 bent = normal_mapped(m, idx, b0, b1, b2, n, hit->uv);
+    const Vec3 bent =
+        normal_mapped(data_.materials[data_.tri_material[prim]], idx, b0, b1, b2, n, hit->uv);
     // A bent normal below the surface (a map that points into it) is not
     // mirrored out of it: the unbent one is used.
     if (dot(bent, tri_normal_[prim]) > 0) n = bent;
@@ -306,6 +308,7 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
     if (dot(ns, ray.d) >= 0) ns = ng;
   }
   hit->ns = ns;
+  const Material& m = data_.materials[data_.tri_material[prim]];
   hit->base_color = m.base_color;
   hit->metallic = m.metallic;
   hit->roughness = m.roughness;
