@@ -94,7 +94,9 @@ class ClaimsTest : public ::testing::Test {
       ++rounds;
       if (!status) status = receive(*client_);
       answer = receive(*worker_);
-      if (answer && rounds > 1) EXPECT_TRUE(status.has_value()) << "status waited for the claim";
+      if (answer && rounds > 1) {
+        EXPECT_TRUE(status.has_value()) << "status waited for the claim";
+      }
     }
     EXPECT_TRUE(answer.has_value());
     return answer ? answer->body.value("status", "") : "";
