@@ -11,7 +11,8 @@
 #   specular    file (as exported), ignored (KHR_materials_specular removed:
 #               how dofarm rendered it before reading the extension)
 #   normal_map  file, flipped (the map's green inverted: a frame whose up is
-#               the wrong way), nomap (normalTexture removed)
+#               the wrong way), nomap (normalTexture removed); the same for
+#   normal_map_tangents (the file carries TANGENT)
 #   alpha_mask  file, opaque (alphaMode removed)
 # Measures: specular, dofarm / Cycles per channel over the centre 8 x 8
 # pixels (lamp, surface and camera in line: the coat's highlight, and
@@ -25,7 +26,7 @@ import sys
 import zlib
 
 VARIANTS = {"specular": ["file", "ignored"], "normal_map": ["file", "flipped", "nomap"],
-            "alpha_mask": ["file", "opaque"]}
+            "normal_map_tangents": ["file", "flipped", "nomap"], "alpha_mask": ["file", "opaque"]}
 WHAT = {"file": "the exported file", "ignored": "KHR_materials_specular ignored",
         "flipped": "control: the map's green inverted", "nomap": "control: no normal map",
         "opaque": "control: alphaMode ignored (opaque)"}

@@ -10,6 +10,7 @@
 #               comes from a tangent-space map of bumps along both image
 #               axes (Image Texture, Non-Color -> Normal Map node: the
 #               exporter's normalTexture), a sun from the side; 96 x 96
+#   normal_map_tangents  the same, exported with its tangents (TANGENT)
 #   alpha_mask  a 2 m plane whose base colour texture's alpha is an 8 x 8
 #               checker of 0 and 1 (Alpha Clip: alphaMode MASK), 1 m over
 #               a 4 m blue plane, a sun from the side; 96 x 96
@@ -101,7 +102,7 @@ def main():
         mat, _ = principled("plane", (0.8, 0.4, 0.2), 0.5, float(argv[3]), float(argv[4]))
         plane(4.0, 0.0, mat)
         light(scene, "POINT", 1000.0, location=(0.0, 0.0, 2.0))
-    elif feature == "normal_map":
+    elif feature in ("normal_map", "normal_map_tangents"):
         size = 96
         mat, p = principled("bumpy", (0.7, 0.7, 0.7), 1.0, specular=0.0)
         nodes, links = mat.node_tree.nodes, mat.node_tree.links
@@ -154,7 +155,8 @@ def main():
 
     bpy.ops.export_scene.gltf(filepath=os.path.join(out, "scene.gltf"),
                               export_format="GLTF_SEPARATE", export_lights=True,
-                              export_cameras=True)
+                              export_cameras=True,
+                              export_tangents=feature == "normal_map_tangents")
     exr = os.path.join(out, "cycles.exr")
     scene.render.image_settings.file_format = "OPEN_EXR"
     scene.render.image_settings.color_depth = "32"

@@ -645,6 +645,43 @@ TEST(GltfNormalMaps, TexelBendsTheShadingNormalInTheTangentFrame) {
   expect_near3(mapped_normal(dir.path, 128, q8(s30), q8(c30), 1.0f, true), Vec3(0, c30, -s30), tol);
 }
 
+// A file's TANGENT (glTF 3.7.2.1) is used instead of the computed tangent:
+// the quad given t = +z, w = 1 (so the bitangent cross(n, t) w is +x) bends
+// a red texel towards +z and a green one towards +x, where the computed
+// frame bends them towards +x and -z.
+TEST(GltfNormalMaps, TheFilesTangentsAreUsed) {
+  TempDir dir("normal_map_tangent");
+  const float s30 = 0.5f, c30 = std::sqrt(3.0f) / 2.0f, tol = 6e-3f;
+  const auto q8 = [](float x) { return static_cast<unsigned char>(std::lround((x + 1) * 127.5f)); };
+  auto bent = [&](unsigned char r, unsigned char g, unsigned char b) {
+    GltfQuad q = gltf_quad();
+    const size_t at = q.bin.size();
+    for (int v = 0; v < 4; ++v) q.bin += floats_bytes({0, 0, 1, 1});
+    q.doc["accessors"].push_back(
+        {{"bufferView", 3}, {"componentType", 5126}, {"count", 4}, {"type", "VEC4"}});
+    q.doc["bufferViews"].push_back({{"buffer", 0}, {"byteOffset", at}, {"byteLength", 64}});
+    q.doc["meshes"][0]["primitives"][0]["attributes"]["TANGENT"] = 3;
+    q.doc["meshes"][0]["primitives"][0]["attributes"]["NORMAL"] = 4;
+    const size_t nat = q.bin.size();
+    for (int v = 0; v < 4; ++v) q.bin += floats_bytes({0, 1, 0});
+    q.doc["accessors"].push_back(
+        {{"bufferView", 4}, {"componentType", 5126}, {"count", 4}, {"type", "VEC3"}});
+    q.doc["bufferViews"].push_back({{"buffer", 0}, {"byteOffset", nat}, {"byteLength", 48}});
+    write_bytes(dir.path / "n.png", png_1x1(r, g, b));
+    q.doc["images"] = Json::array({{{"uri", "n.png"}}});
+    q.doc["textures"] = Json::parse(R"([{"source": 0}])");
+    q.doc["materials"][0]["normalTexture"] = {{"index", 0}};
+    write_gltf(dir.path / "n.gltf", q);
+    SceneData d = load_scene_data(dir.path / "n.gltf");
+    Scene scene(std::move(d), std::make_unique<Environment>(Vec3(1.0f)));
+    SurfaceHit hit;
+    EXPECT_TRUE(scene.intersect(Ray{Vec3(0.3f, 1.0f, 0.6f), Vec3(0, -1, 0)}, &hit));
+    return hit.ns;
+  };
+  expect_near3(bent(q8(s30), 128, q8(c30)), Vec3(0, c30, s30), tol);
+  expect_near3(bent(128, q8(s30), q8(c30)), Vec3(s30, c30, 0), tol);
+}
+
 // Without texture coordinates a normal map has no orientation: it is named
 // in a warning and not applied.
 TEST(GltfNormalMaps, WithoutTexcoordsTheMapIsWarnedAndIgnored) {

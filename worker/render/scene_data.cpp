@@ -184,8 +184,14 @@ struct GltfMaterialInfo {
 struct GltfInfo {
   std::vector<GltfMaterialInfo> materials;
   std::vector<std::string> extensions_used, extensions_required;
-  bool tangent_attribute = false;  // a primitive has TANGENT (not read: computed)
+  bool tangent_attribute = false;  // a primitive has TANGENT
 };
+
+// assimp 5.2 hands out a glTF TANGENT's bitangent as cross(n, t) w with
+// glTF's w; dofarm's w makes cross(n, t) w point along the image's up.
+// Measured against Blender (bench/cycles/gltf_features_vs_cycles.sh, the
+// normal map exported with its tangents): the two agree.
+constexpr float kGivenBitangentSign = 1.0f;
 
 // The extensions whose content dofarm reads (assimp: KHR_materials_ior,
 // KHR_lights_punctual; here: the others).
@@ -345,11 +351,7 @@ void check_extensions(const std::filesystem::path& path, const GltfInfo& info) {
   std::string blended;
   for (const GltfMaterialInfo& m : info.materials)
     if (m.blend) blended += (blended.empty() ? "\"" : ", \"") + m.name + "\"";
-  if (info.tangent_attribute)
-    spdlog::warn(
-        "{}: TANGENT attributes are not read; normal maps use tangents computed from "
-        "the texture coordinates",
-        path.string());
+
   if (!blended.empty())
     spdlog::warn(
         "{}: alphaMode BLEND rendered as MASK with alphaCutoff 0.5 (cut out, no partial "
@@ -526,6 +528,12 @@ class Loader {
   SceneData* out_;
   std::map<std::pair<std::string, bool>, int> texture_index_;  // shared textures load once
   std::set<int> alpha_loaded_;  // textures whose alpha channel was asked for
+
+ public:
+  // Per vertex, where the file gives tangents (a zero t elsewhere); they
+  // replace the computed ones (glTF 3.7.2.1: MikkTSpace is only the
+  // fallback when the file has none).
+  std::vector<SceneData::Tangent> given_tangents_;
 };
 
 int Loader::texture(const aiMaterial* am, std::initializer_list<aiTextureType> types, bool srgb,
@@ -616,6 +624,19 @@ void Loader::mesh(const aiMesh* m, const aiMatrix4x4& world, const char* node_na
                       "\": vertex " + std::to_string(v) + " is not finite");
     }
     out_->positions.push_back(p);
+    // A glTF TANGENT (assimp: mTangents, and mBitangents = cross(n, t) w):
+    // the tangent moves with the surface (the world matrix, not the
+    // normals' inverse transpose); w is the side cross(n, t) must take to
+    // point along the image's up (SceneData::tangents).
+    if (m->HasTangentsAndBitangents() && m->HasNormals()) {
+      aiMatrix3x3 linear(world);
+      const Vec3 n = normalize(to_vec3(normal_matrix * m->mNormals[v]), Vec3(0.0f));
+      const Vec3 t = normalize(to_vec3(linear * m->mTangents[v]), Vec3(0.0f));
+      const Vec3 b = to_vec3(linear * m->mBitangents[v]);
+      given_tangents_.resize(out_->positions.size());
+      given_tangents_.back() = {t,
+                                kGivenBitangentSign * (dot(cross(n, t), b) < 0.0f ? -1.0f : 1.0f)};
+    }
     // aiProcess_GenSmoothNormals fills in normals where the file has none.
     Vec3 n = m->HasNormals() ? to_vec3(normal_matrix * m->mNormals[v]) : Vec3(0.0f);
     out_->normals.push_back(normalize(n, Vec3(0.0f)));
@@ -904,6 +925,9 @@ SceneData load_scene_data(const std::filesystem::path& path) {
   for (const Material& m : out.materials)
     if (m.normal_tex >= 0) {
       compute_tangents(&out);
+      const auto& given = loader.given_tangents_;
+      for (size_t i = 0; i < given.size() && i < out.tangents.size(); ++i)
+        if (length(given[i].t) > 0.0f) out.tangents[i] = given[i];
       break;
     }
   return out;
