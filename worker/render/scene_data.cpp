@@ -187,12 +187,6 @@ struct GltfInfo {
   bool tangent_attribute = false;  // a primitive has TANGENT
 };
 
-// assimp 5.2 hands out a glTF TANGENT's bitangent as cross(n, t) w with
-// glTF's w; dofarm's w makes cross(n, t) w point along the image's up.
-// Measured against Blender (bench/cycles/gltf_features_vs_cycles.sh, the
-// normal map exported with its tangents): the two agree.
-constexpr float kGivenBitangentSign = 1.0f;
-
 // The extensions whose content dofarm reads (assimp: KHR_materials_ior,
 // KHR_lights_punctual; here: the others).
 const std::set<std::string>& implemented_extensions() {
@@ -624,18 +618,19 @@ void Loader::mesh(const aiMesh* m, const aiMatrix4x4& world, const char* node_na
                       "\": vertex " + std::to_string(v) + " is not finite");
     }
     out_->positions.push_back(p);
-    // A glTF TANGENT (assimp: mTangents, and mBitangents = cross(n, t) w):
-    // the tangent moves with the surface (the world matrix, not the
-    // normals' inverse transpose); w is the side cross(n, t) must take to
-    // point along the image's up (SceneData::tangents).
+    // A glTF TANGENT (assimp 5.2: mTangents, and mBitangents = cross(n, t) w
+    // with the file's w): the tangent moves with the surface (the world
+    // matrix, not the normals' inverse transpose). glTF's bitangent is the
+    // map's +y, the image's up, as SceneData::tangents' is, so w carries
+    // over (checked against Blender's export: bench/cycles/
+    // gltf_features_vs_cycles.sh, the normal map with TANGENT).
     if (m->HasTangentsAndBitangents() && m->HasNormals()) {
       aiMatrix3x3 linear(world);
       const Vec3 n = normalize(to_vec3(normal_matrix * m->mNormals[v]), Vec3(0.0f));
       const Vec3 t = normalize(to_vec3(linear * m->mTangents[v]), Vec3(0.0f));
       const Vec3 b = to_vec3(linear * m->mBitangents[v]);
       given_tangents_.resize(out_->positions.size());
-      given_tangents_.back() = {t,
-                                kGivenBitangentSign * (dot(cross(n, t), b) < 0.0f ? -1.0f : 1.0f)};
+      given_tangents_.back() = {t, dot(cross(n, t), b) < 0.0f ? -1.0f : 1.0f};
     }
     // aiProcess_GenSmoothNormals fills in normals where the file has none.
     Vec3 n = m->HasNormals() ? to_vec3(normal_matrix * m->mNormals[v]) : Vec3(0.0f);
