@@ -13,7 +13,7 @@
 #   normal_map  file, flipped (the map's green inverted: a frame whose up is
 #               the wrong way), nomap (normalTexture removed); the same for
 #   normal_map_tangents (the file carries TANGENT)
-#   alpha_mask  file, opaque (alphaMode removed)
+#   alpha_mask, alpha_blend  file, opaque (alphaMode removed)
 # Measures: specular, dofarm / Cycles per channel over the centre 8 x 8
 # pixels (lamp, surface and camera in line: the coat's highlight, and
 # Cycles' Disney diffuse equals Lambert's there); the others, the
@@ -26,7 +26,8 @@ import sys
 import zlib
 
 VARIANTS = {"specular": ["file", "ignored"], "normal_map": ["file", "flipped", "nomap"],
-            "normal_map_tangents": ["file", "flipped", "nomap"], "alpha_mask": ["file", "opaque"]}
+            "normal_map_tangents": ["file", "flipped", "nomap"], "alpha_mask": ["file", "opaque"],
+            "alpha_blend": ["file", "opaque"]}
 WHAT = {"file": "the exported file", "ignored": "KHR_materials_specular ignored",
         "flipped": "control: the map's green inverted", "nomap": "control: no normal map",
         "opaque": "control: alphaMode ignored (opaque)"}

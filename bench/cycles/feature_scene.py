@@ -14,6 +14,7 @@
 #   alpha_mask  a 2 m plane whose base colour texture's alpha is an 8 x 8
 #               checker of 0 and 1 (Alpha Clip: alphaMode MASK), 1 m over
 #               a 4 m blue plane, a sun from the side; 96 x 96
+#   alpha_blend the same with alpha 0.4 and 0 (Alpha Blend: alphaMode BLEND)
 #
 #   blender -b -noaudio --factory-startup -P feature_scene.py -- FEATURE OUT_DIR SPP [SPECULAR TINT]
 #   -> OUT_DIR/scene.gltf (+ .bin, images), OUT_DIR/cycles.pfm (linear RGB, rows bottom-up)
@@ -51,9 +52,9 @@ def bumps(x, y):
     return [(-dx / l + 1) / 2, (-dy / l + 1) / 2, (1 / l + 1) / 2, 1.0]
 
 
-def checker(x, y):
+def checker(x, y, alpha=1.0):
     on = (int(x * 8) + int(y * 8)) % 2 == 0
-    return [0.9, 0.6, 0.1, 1.0 if on else 0.0]
+    return [0.9, 0.6, 0.1, alpha if on else 0.0]
 
 
 def principled(name, base, roughness, specular=0.5, tint=0.0):
@@ -114,18 +115,20 @@ def main():
         links.new(nmap.outputs["Normal"], p.inputs["Normal"])
         plane(4.0, 0.0, mat)
         light(scene, "SUN", 3.0, rotation=sun_rotation)
-    elif feature == "alpha_mask":
+    elif feature in ("alpha_mask", "alpha_blend"):
         size = 96
         back, _ = principled("back", (0.1, 0.3, 0.8), 1.0, specular=0.0)
         plane(4.0, 0.0, back)
         mat, p = principled("leaf", (1.0, 1.0, 1.0), 1.0, specular=0.0)
         nodes, links = mat.node_tree.nodes, mat.node_tree.links
         tex = nodes.new("ShaderNodeTexImage")
-        tex.image = image("checker", 64, checker, os.path.join(out, "checker.png"), "sRGB")
+        alpha = 1.0 if feature == "alpha_mask" else 0.4
+        tex.image = image("checker", 64, lambda x, y: checker(x, y, alpha),
+                          os.path.join(out, "checker.png"), "sRGB")
         tex.interpolation = "Closest"
         links.new(tex.outputs["Color"], p.inputs["Base Color"])
         links.new(tex.outputs["Alpha"], p.inputs["Alpha"])
-        mat.blend_method = "CLIP"
+        mat.blend_method = "CLIP" if feature == "alpha_mask" else "BLEND"
         mat.alpha_threshold = 0.5
         plane(2.0, 1.0, mat)
         light(scene, "SUN", 3.0, rotation=sun_rotation)

@@ -2,8 +2,8 @@
 # What Blender's glTF exporter writes from a Principled BSDF, rendered by
 # dofarm against Cycles' render of the same Blender scene: the coat's
 # Specular and Specular Tint (KHR_materials_specular), a tangent-space
-# normal map (normalTexture; exported without and with TANGENT) and an
-# Alpha Clip cut-out (alphaMode MASK).
+# normal map (normalTexture; exported without and with TANGENT), an Alpha
+# Clip cut-out (alphaMode MASK) and Alpha Blend (BLEND).
 # bench/cycles/feature_scene.py builds, exports and renders each scene with
 # Cycles; dofarm renders the exported file and control variants
 # (bench/cycles/feature_compare.py says which and what is measured), and
@@ -41,7 +41,7 @@ for pair in "0 0" "0.5 0" "1 0" "0.5 1"; do
   set -- $pair
   scene specular "$out/specular-s$1-t$2" 64 "$1" "$2"
 done
-for feature in normal_map normal_map_tangents alpha_mask; do
+for feature in normal_map normal_map_tangents alpha_mask alpha_blend; do
   echo
   echo "$feature ($spp spp):"
   python3 "$here/feature_compare.py" header "$feature"

@@ -1,11 +1,13 @@
 #include "worker/render/scene.h"
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <limits>
 #include <string>
 
 #include "common/error.h"
+#include "worker/render/sampler.h"
 #include "worker/render/spherical_triangle.h"
 
 namespace dofarm::render {
@@ -61,15 +63,21 @@ void alpha_mask_filter(const RTCFilterFunctionNArguments* args) {
   const auto* scene = static_cast<const Scene*>(args->geometryUserPtr);
   for (unsigned i = 0; i < args->N; ++i) {
     if (args->valid[i] != -1) continue;
+    // The ray's origin and direction, bit for bit: its key for BLEND.
+    const float f[6] = {RTCRayN_org_x(args->ray, args->N, i), RTCRayN_org_y(args->ray, args->N, i),
+                        RTCRayN_org_z(args->ray, args->N, i), RTCRayN_dir_x(args->ray, args->N, i),
+                        RTCRayN_dir_y(args->ray, args->N, i), RTCRayN_dir_z(args->ray, args->N, i)};
+    uint64_t key = 0;
+    for (float v : f) key = hash_combine(key, std::bit_cast<uint32_t>(v));
     if (scene->cut_out(RTCHitN_primID(args->hit, args->N, i), RTCHitN_u(args->hit, args->N, i),
-                       RTCHitN_v(args->hit, args->N, i)))
+                       RTCHitN_v(args->hit, args->N, i), key))
       args->valid[i] = 0;
   }
 }
 
 }  // namespace
 
-bool Scene::cut_out(uint32_t prim, float b1, float b2) const {
+bool Scene::cut_out(uint32_t prim, float b1, float b2, uint64_t ray_key) const {
   const Material& m = data_.materials[data_.tri_material[prim]];
   if (!m.alpha_mask) return false;
   float alpha = m.base_alpha;
@@ -78,7 +86,10 @@ bool Scene::cut_out(uint32_t prim, float b1, float b2) const {
     const Vec2 uv = texcoord(idx, 1.0f - b1 - b2, b1, b2);
     alpha *= data_.textures[m.base_color_tex].alpha_lookup(m.base_color_uv.apply(uv));
   }
-  return alpha < m.alpha_cutoff;
+  if (!m.alpha_blend) return alpha < m.alpha_cutoff;
+  // 24 bits of the hash: a float in [0, 1).
+  const float u = float(hash_combine(ray_key, prim) >> 40) * 0x1p-24f;
+  return u >= alpha;
 }
 
 Scene::Scene(SceneData data, std::unique_ptr<Environment> environment)

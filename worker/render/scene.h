@@ -122,12 +122,14 @@ class Scene {
   void set_ray_sink(RaySink* sink) { ray_sink_ = sink; }
   // The Embree scene, for benchmarks that trace with bare rtcIntersect1.
   RTCScene embree_scene() const { return rtc_scene_; }
-  // Whether the point at barycentrics (b1, b2) of triangle `prim` is cut out
-  // by its material's alpha mask (glTF alphaMode MASK): alpha = base_alpha
-  // times the base colour texture's alpha, below alpha_cutoff. Every ray
-  // passes such points (an Embree filter function); false for materials
-  // without a mask.
-  bool cut_out(uint32_t prim, float b1, float b2) const;
+  // Whether a ray passes the point at barycentrics (b1, b2) of triangle
+  // `prim` (an Embree filter function asks): its material's alpha (alpha =
+  // base_alpha times the base colour texture's alpha) is below alpha_cutoff
+  // (glTF alphaMode MASK), or, for BLEND, a uniform number drawn from
+  // `ray_key` (a hash of the ray) and the triangle is at least alpha, so a
+  // ray stops with probability alpha and the same ray always decides the
+  // same way. False for materials without alpha.
+  bool cut_out(uint32_t prim, float b1, float b2, uint64_t ray_key) const;
 
  private:
   Vec3 material_emission(const Material& m, Vec2 uv) const;

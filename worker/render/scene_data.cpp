@@ -341,16 +341,6 @@ void check_extensions(const std::filesystem::path& path, const GltfInfo& info) {
   if (!used.empty())
     spdlog::warn("{}: dofarm ignores the glTF extensions {} (the scene renders without them)",
                  path.string(), used);
-  // Core features dofarm renders otherwise than the file asks, named once each.
-  std::string blended;
-  for (const GltfMaterialInfo& m : info.materials)
-    if (m.blend) blended += (blended.empty() ? "\"" : ", \"") + m.name + "\"";
-
-  if (!blended.empty())
-    spdlog::warn(
-        "{}: alphaMode BLEND rendered as MASK with alphaCutoff 0.5 (cut out, no partial "
-        "transparency) in materials {}",
-        path.string(), blended);
 }
 
 Vec3 to_vec3(const aiVector3D& v) { return {v.x, v.y, v.z}; }
@@ -412,6 +402,7 @@ class Loader {
       const GltfMaterialInfo* alpha_info = gltf_material(i, m.name);
       if (alpha_info && (alpha_info->mask || alpha_info->blend)) {
         m.alpha_mask = true;
+        m.alpha_blend = alpha_info->blend;
         m.alpha_cutoff = alpha_info->mask && std::isfinite(alpha_info->alpha_cutoff)
                              ? alpha_info->alpha_cutoff
                              : 0.5f;

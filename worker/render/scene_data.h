@@ -80,9 +80,11 @@ struct Material {
   float normal_scale = 1.0f;
   // glTF alphaMode MASK: a surface point whose alpha (baseColorFactor's
   // alpha times the base colour texture's) is below alpha_cutoff is not
-  // there for any ray (an Embree filter, worker/render/scene.cpp). BLEND is
-  // read as MASK at 0.5 (no partial transparency), with a warning.
+  // there for any ray (an Embree filter, worker/render/scene.cpp). BLEND
+  // (alpha_blend): a ray stops at the point with probability alpha, so the
+  // surface covers that share of what is behind it, on average.
   bool alpha_mask = false;
+  bool alpha_blend = false;
   float alpha_cutoff = 0.5f;
   float base_alpha = 1.0f;
   // Each texture's KHR_texture_transform (identity when the file has none).
