@@ -468,6 +468,27 @@ TEST(GltfExtensions, UsedButUnimplementedAreNamedInOneWarning) {
   EXPECT_EQ(lines[0].find("KHR_lights_punctual"), std::string::npos) << lines[0];
 }
 
+// COLOR_0 is not applied (Blender's exporter writes it for every mesh with a
+// colour attribute; Blender renders it only where a material reads it), and
+// says so once.
+TEST(GltfExtensions, VertexColoursAreNamedInAWarning) {
+  TempDir dir("colors");
+  GltfQuad q = gltf_quad();
+  const size_t at = q.bin.size();
+  for (int v = 0; v < 4; ++v) q.bin += floats_bytes({1, 0, 0, 1});
+  q.doc["accessors"].push_back(
+      {{"bufferView", 3}, {"componentType", 5126}, {"count", 4}, {"type", "VEC4"}});
+  q.doc["bufferViews"].push_back({{"buffer", 0}, {"byteOffset", at}, {"byteLength", 64}});
+  q.doc["meshes"][0]["primitives"][0]["attributes"]["COLOR_0"] = 3;
+  write_gltf(dir.path / "colors.gltf", q);
+  LogCapture log;
+  SceneData s = load_scene_data(dir.path / "colors.gltf");
+  std::vector<std::string> lines = log.lines();
+  ASSERT_EQ(lines.size(), 1u);
+  EXPECT_NE(lines[0].find("COLOR_0"), std::string::npos) << lines[0];
+  expect_near3(s.materials[s.tri_material[0]].base_color, Vec3(1.0f), 0.0f);  // not red
+}
+
 // Normal maps and alphaMode BLEND are rendered, so a material with both
 // loads without a warning.
 TEST(GltfExtensions, NormalMapsAndBlendLoadWithoutWarnings) {

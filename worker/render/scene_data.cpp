@@ -184,7 +184,7 @@ struct GltfMaterialInfo {
 struct GltfInfo {
   std::vector<GltfMaterialInfo> materials;
   std::vector<std::string> extensions_used, extensions_required;
-  bool tangent_attribute = false;  // a primitive has TANGENT
+  bool vertex_colors = false;  // a primitive has COLOR_0 (not applied)
 };
 
 // The extensions whose content dofarm reads (assimp: KHR_materials_ior,
@@ -253,9 +253,8 @@ GltfInfo read_gltf_info(const std::filesystem::path& path) {
     for (const auto& mesh : doc["meshes"])
       if (mesh.is_object() && mesh.contains("primitives") && mesh["primitives"].is_array())
         for (const auto& prim : mesh["primitives"])
-          if (prim.is_object() && prim.contains("attributes") && prim["attributes"].is_object() &&
-              prim["attributes"].contains("TANGENT"))
-            out.tangent_attribute = true;
+          if (prim.is_object() && prim.contains("attributes") && prim["attributes"].is_object())
+            out.vertex_colors |= prim["attributes"].contains("COLOR_0");
   if (!doc.contains("materials") || !doc["materials"].is_array()) return out;
   for (const auto& m : doc["materials"]) {
     GltfMaterialInfo info;
@@ -341,6 +340,11 @@ void check_extensions(const std::filesystem::path& path, const GltfInfo& info) {
   if (!used.empty())
     spdlog::warn("{}: dofarm ignores the glTF extensions {} (the scene renders without them)",
                  path.string(), used);
+  // glTF multiplies the base colour by COLOR_0; Blender's exporter writes
+  // it for every mesh with a colour attribute, which Blender's own render
+  // uses only where a material reads it, so dofarm does not apply it.
+  if (info.vertex_colors)
+    spdlog::warn("{}: vertex colours (COLOR_0) are not applied to the base colour", path.string());
 }
 
 Vec3 to_vec3(const aiVector3D& v) { return {v.x, v.y, v.z}; }
