@@ -147,6 +147,21 @@ GltfQuad gltf_quad() {
   return q;
 }
 
+// Gives every vertex of the quad the attribute `name` with the value `v`
+// (3 or 4 floats), in a new accessor and buffer view.
+void add_attribute(GltfQuad* q, const char* name, std::initializer_list<float> v) {
+  const size_t at = q->bin.size();
+  for (int k = 0; k < 4; ++k) q->bin += floats_bytes(v);
+  const size_t view = q->doc["bufferViews"].size();
+  q->doc["accessors"].push_back({{"bufferView", view},
+                                 {"componentType", 5126},
+                                 {"count", 4},
+                                 {"type", v.size() == 4 ? "VEC4" : "VEC3"}});
+  q->doc["bufferViews"].push_back(
+      {{"buffer", 0}, {"byteOffset", at}, {"byteLength", 16 * v.size()}});
+  q->doc["meshes"][0]["primitives"][0]["attributes"][name] = q->doc["accessors"].size() - 1;
+}
+
 // Writes `q` as a .gltf whose buffer is a data: URI.
 void write_gltf(const std::filesystem::path& p, GltfQuad q) {
   q.doc["buffers"][0]["byteLength"] = q.bin.size();
@@ -474,12 +489,7 @@ TEST(GltfExtensions, UsedButUnimplementedAreNamedInOneWarning) {
 TEST(GltfExtensions, VertexColoursAreNamedInAWarning) {
   TempDir dir("colors");
   GltfQuad q = gltf_quad();
-  const size_t at = q.bin.size();
-  for (int v = 0; v < 4; ++v) q.bin += floats_bytes({1, 0, 0, 1});
-  q.doc["accessors"].push_back(
-      {{"bufferView", 3}, {"componentType", 5126}, {"count", 4}, {"type", "VEC4"}});
-  q.doc["bufferViews"].push_back({{"buffer", 0}, {"byteOffset", at}, {"byteLength", 64}});
-  q.doc["meshes"][0]["primitives"][0]["attributes"]["COLOR_0"] = 3;
+  add_attribute(&q, "COLOR_0", {1, 0, 0, 1});
   write_gltf(dir.path / "colors.gltf", q);
   LogCapture log;
   SceneData s = load_scene_data(dir.path / "colors.gltf");
@@ -635,6 +645,13 @@ TEST(GltfAlphaMask, BlendStopsAShareAlphaOfTheRays) {
   EXPECT_NEAR(blocked, 0.3 * n, 4 * sigma);
 }
 
+// Normal-map texels for a 30-degree bend: sin and cos of 30 degrees, and a
+// component in [-1, 1] as its 8-bit code; each code is within 1/255 of the
+// value, so bent normals are within kTexelTolerance.
+const float s30 = 0.5f, c30 = std::sqrt(3.0f) / 2.0f;
+constexpr float kTexelTolerance = 6e-3f;
+unsigned char q8(float x) { return static_cast<unsigned char>(std::lround((x + 1) * 127.5f)); }
+
 std::string png_1x1(unsigned char r, unsigned char g, unsigned char b) {
   const unsigned char px[] = {r, g, b};
   std::string out;
@@ -679,10 +696,7 @@ Vec3 mapped_normal(const std::filesystem::path& dir, unsigned char r, unsigned c
 // tangents are computed from the uvs, so mirrored uvs mirror the frame.
 TEST(GltfNormalMaps, TexelBendsTheShadingNormalInTheTangentFrame) {
   TempDir dir("normal_map");
-  const float s30 = 0.5f, c30 = std::sqrt(3.0f) / 2.0f;
-  // 8-bit texels: each component is within 1/255 of the intended value.
-  const float tol = 6e-3f;
-  const auto q8 = [](float x) { return static_cast<unsigned char>(std::lround((x + 1) * 127.5f)); };
+  const float tol = kTexelTolerance;
   // Flat: the normal stays the surface's.
   expect_near3(mapped_normal(dir.path, 128, 128, 255), Vec3(0, 1, 0), tol);
   // A texel that points into the surface is not mirrored out of it: unbent.
@@ -705,22 +719,11 @@ TEST(GltfNormalMaps, TexelBendsTheShadingNormalInTheTangentFrame) {
 // frame bends them towards +x and -z.
 TEST(GltfNormalMaps, TheFilesTangentsAreUsed) {
   TempDir dir("normal_map_tangent");
-  const float s30 = 0.5f, c30 = std::sqrt(3.0f) / 2.0f, tol = 6e-3f;
-  const auto q8 = [](float x) { return static_cast<unsigned char>(std::lround((x + 1) * 127.5f)); };
+  const float tol = kTexelTolerance;
   auto bent = [&](unsigned char r, unsigned char g, unsigned char b) {
     GltfQuad q = gltf_quad();
-    const size_t at = q.bin.size();
-    for (int v = 0; v < 4; ++v) q.bin += floats_bytes({0, 0, 1, 1});
-    q.doc["accessors"].push_back(
-        {{"bufferView", 3}, {"componentType", 5126}, {"count", 4}, {"type", "VEC4"}});
-    q.doc["bufferViews"].push_back({{"buffer", 0}, {"byteOffset", at}, {"byteLength", 64}});
-    q.doc["meshes"][0]["primitives"][0]["attributes"]["TANGENT"] = 3;
-    q.doc["meshes"][0]["primitives"][0]["attributes"]["NORMAL"] = 4;
-    const size_t nat = q.bin.size();
-    for (int v = 0; v < 4; ++v) q.bin += floats_bytes({0, 1, 0});
-    q.doc["accessors"].push_back(
-        {{"bufferView", 4}, {"componentType", 5126}, {"count", 4}, {"type", "VEC3"}});
-    q.doc["bufferViews"].push_back({{"buffer", 0}, {"byteOffset", nat}, {"byteLength", 48}});
+    add_attribute(&q, "TANGENT", {0, 0, 1, 1});
+    add_attribute(&q, "NORMAL", {0, 1, 0});
     write_bytes(dir.path / "n.png", png_1x1(r, g, b));
     q.doc["images"] = Json::array({{{"uri", "n.png"}}});
     q.doc["textures"] = Json::parse(R"([{"source": 0}])");
