@@ -101,6 +101,14 @@ struct StbSource {
   }
 };
 
+// The error for a failed stb_image call on `what` (the file, or the
+// embedded image), with stb_image's reason.
+RuntimeError stb_error(const std::string& what) {
+  const char* reason = stbi_failure_reason();
+  return RuntimeError("cannot read image " + what + ": " +
+                      (reason ? reason : "unknown stb_image error"));
+}
+
 // Throws RuntimeError naming `what` (the file, or the embedded image).
 RgbImage load_stb_rgb(const StbSource& src, const std::string& what, bool hdr, bool srgb) {
   RgbImage img;
@@ -137,11 +145,7 @@ RgbImage load_stb_rgb(const StbSource& src, const std::string& what, bool hdr, b
     }
     return img.rgb.size();
   }();
-  if (n == 0) {
-    const char* reason = stbi_failure_reason();
-    throw RuntimeError("cannot read image " + what + ": " +
-                       (reason ? reason : "unknown stb_image error"));
-  }
+  if (n == 0) throw stb_error(what);
   return img;
 }
 
@@ -194,15 +198,11 @@ std::vector<float> stb_alpha(const StbSource& src, const std::string& what) {
   int w = 0, h = 0, channels = 0;
   const bool ok = src.path ? stbi_info(src.path->c_str(), &w, &h, &channels)
                            : stbi_info_from_memory(src.data, src.size, &w, &h, &channels);
-  if (!ok) {
-    const char* reason = stbi_failure_reason();
-    throw RuntimeError("cannot read image " + what + ": " +
-                       (reason ? reason : "unknown stb_image error"));
-  }
+  if (!ok) throw stb_error(what);
   if (channels != 2 && channels != 4) return {};  // grey or RGB: no alpha
   stbi_uc* data = src.path ? stbi_load(src.path->c_str(), &w, &h, &channels, 4)
                            : stbi_load_from_memory(src.data, src.size, &w, &h, &channels, 4);
-  if (!data) throw RuntimeError("cannot read image " + what + ": " + stbi_failure_reason());
+  if (!data) throw stb_error(what);
   std::vector<float> alpha(size_t(w) * h);
   for (size_t i = 0; i < alpha.size(); ++i) alpha[i] = data[4 * i + 3] / 255.0f;
   stbi_image_free(data);

@@ -51,10 +51,6 @@ Vec3 texture_mean(const Texture& t) {
   return n ? Vec3(float(s[0] / n), float(s[1] / n), float(s[2] / n)) : Vec3(0);
 }
 
-}  // namespace
-
-namespace {
-
 // Embree calls this for every candidate hit of the scene's triangles, in
 // closest-hit and shadow queries alike (it is set only when a material has
 // an alpha mask); a hit on a cut-out point is rejected, so the ray goes on
@@ -295,15 +291,16 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
   Vec3 ns = ng;
   // Tangents exist only when some material has a normal map: other scenes
   // do not wait for the material here.
-  if (!data_.tangents.empty() && data_.materials[data_.tri_material[prim]].normal_tex >= 0) {
+  const Material* mapped =
+      data_.tangents.empty() ? nullptr : &data_.materials[data_.tri_material[prim]];
+  if (mapped && mapped->normal_tex >= 0) {
     // The interpolated normal (or the triangle's own) bent by the map, on
     // the surface's front side, then turned to the side the ray is on.
     Vec3 n = tri_normal_[prim];
     if (!data_.normals.empty())
       n = normalize(
           data_.normals[idx[0]] * b0 + data_.normals[idx[1]] * b1 + data_.normals[idx[2]] * b2, n);
-    const Vec3 bent =
-        normal_mapped(data_.materials[data_.tri_material[prim]], idx, b0, b1, b2, n, hit->uv);
+    const Vec3 bent = normal_mapped(*mapped, idx, b0, b1, b2, n, hit->uv);
     // A bent normal below the surface (a map that points into it) is not
     // mirrored out of it: the unbent one is used.
     if (dot(bent, tri_normal_[prim]) > 0) n = bent;

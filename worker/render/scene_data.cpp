@@ -167,8 +167,8 @@ struct GltfMaterialInfo {
   float emissive_strength = 1.0f;
   GltfTextureInfo base_color, metal_rough, emission, normal;
   float normal_scale = 1.0f;  // normalTexture.scale
-  // alphaMode: MASK (cut out below alpha_cutoff) or BLEND (read as MASK at
-  // 0.5); base_alpha is baseColorFactor's alpha.
+  // alphaMode: MASK (cut out below alpha_cutoff) or BLEND (a ray stops with
+  // probability alpha); base_alpha is baseColorFactor's alpha.
   bool mask = false, blend = false;
   float alpha_cutoff = 0.5f, base_alpha = 1.0f;
   // KHR_materials_ior: present = the extension is there (its "ior" or the
@@ -385,7 +385,9 @@ class Loader {
         }
         m.emission = to_vec3(color) * strength;
       }
-      if (const GltfMaterialInfo* g = gltf_material(i, m.name); g && g->ior_present) {
+      // What the loader reads of the glTF beyond assimp; null for other formats.
+      const GltfMaterialInfo* g = gltf_material(i, m.name);
+      if (g && g->ior_present) {
         // glTF: KHR_materials_ior as written. IOR 1 is a valid value (an
         // interface that reflects nothing: F0 = 0, the base layer alone,
         // docs/renderer.md); the schema's minimum is 1.
@@ -402,15 +404,12 @@ class Loader {
         // "not set", so only a value above 1 counts there.
         m.ior = value;
       }
-      if (const GltfMaterialInfo* g = gltf_material(i, m.name)) specular_layer(*g, i, &m);
-      const GltfMaterialInfo* alpha_info = gltf_material(i, m.name);
-      if (alpha_info && (alpha_info->mask || alpha_info->blend)) {
+      if (g) specular_layer(*g, i, &m);
+      if (g && (g->mask || g->blend)) {
         m.alpha_mask = true;
-        m.alpha_blend = alpha_info->blend;
-        m.alpha_cutoff = alpha_info->mask && std::isfinite(alpha_info->alpha_cutoff)
-                             ? alpha_info->alpha_cutoff
-                             : 0.5f;
-        m.base_alpha = std::isfinite(alpha_info->base_alpha) ? alpha_info->base_alpha : 1.0f;
+        m.alpha_blend = g->blend;
+        m.alpha_cutoff = g->mask && std::isfinite(g->alpha_cutoff) ? g->alpha_cutoff : 0.5f;
+        m.base_alpha = std::isfinite(g->base_alpha) ? g->base_alpha : 1.0f;
       }
       m.base_color_tex = texture(am, {aiTextureType_BASE_COLOR, aiTextureType_DIFFUSE}, true,
                                  /*with_alpha=*/m.alpha_mask);
@@ -418,7 +417,7 @@ class Loader {
       // (AI_MATKEY_GLTF_PBRMETALLICROUGHNESS_METALLICROUGHNESS_TEXTURE).
       m.metal_rough_tex = texture(am, {aiTextureType_UNKNOWN}, false);
       m.emission_tex = texture(am, {aiTextureType_EMISSIVE}, true);
-      if (const GltfMaterialInfo* g = gltf_material(i, m.name)) {
+      if (g) {
         // glTF normalTexture (assimp files it under NORMALS): linear values.
         // Other formats' bump and normal maps are not read.
         m.normal_tex = texture(am, {aiTextureType_NORMALS}, false);
@@ -455,6 +454,10 @@ class Loader {
 
   void camera_track();
   void lights();
+  // The file's TANGENTs, per vertex (a zero t where it gives none): they
+  // replace the computed ones (glTF 3.7.2.1: MikkTSpace is only the
+  // fallback when the file has none).
+  const std::vector<SceneData::Tangent>& given_tangents() const { return given_tangents_; }
 
  private:
   // `with_alpha`: also the image's alpha channel (Texture::alpha).
@@ -517,11 +520,7 @@ class Loader {
   SceneData* out_;
   std::map<std::pair<std::string, bool>, int> texture_index_;  // shared textures load once
   std::set<int> alpha_loaded_;  // textures whose alpha channel was asked for
-
- public:
-  // Per vertex, where the file gives tangents (a zero t elsewhere); they
-  // replace the computed ones (glTF 3.7.2.1: MikkTSpace is only the
-  // fallback when the file has none).
+  // Per vertex, where the file gives tangents (a zero t elsewhere).
   std::vector<SceneData::Tangent> given_tangents_;
 };
 
@@ -613,6 +612,10 @@ void Loader::mesh(const aiMesh* m, const aiMatrix4x4& world, const char* node_na
                       "\": vertex " + std::to_string(v) + " is not finite");
     }
     out_->positions.push_back(p);
+    // aiProcess_GenSmoothNormals fills in normals where the file has none.
+    const Vec3 n = normalize(m->HasNormals() ? to_vec3(normal_matrix * m->mNormals[v]) : Vec3(0.0f),
+                             Vec3(0.0f));
+    out_->normals.push_back(n);
     // A glTF TANGENT (assimp 5.2: mTangents, and mBitangents = cross(n, t) w
     // with the file's w): the tangent moves with the surface (the world
     // matrix, not the normals' inverse transpose). glTF's bitangent is the
@@ -621,15 +624,11 @@ void Loader::mesh(const aiMesh* m, const aiMatrix4x4& world, const char* node_na
     // gltf_features_vs_cycles.sh, the normal map with TANGENT).
     if (m->HasTangentsAndBitangents() && m->HasNormals()) {
       aiMatrix3x3 linear(world);
-      const Vec3 n = normalize(to_vec3(normal_matrix * m->mNormals[v]), Vec3(0.0f));
       const Vec3 t = normalize(to_vec3(linear * m->mTangents[v]), Vec3(0.0f));
       const Vec3 b = to_vec3(linear * m->mBitangents[v]);
       given_tangents_.resize(out_->positions.size());
       given_tangents_.back() = {t, dot(cross(n, t), b) < 0.0f ? -1.0f : 1.0f};
     }
-    // aiProcess_GenSmoothNormals fills in normals where the file has none.
-    Vec3 n = m->HasNormals() ? to_vec3(normal_matrix * m->mNormals[v]) : Vec3(0.0f);
-    out_->normals.push_back(normalize(n, Vec3(0.0f)));
     if (has_uv) {
       out_->uvs.emplace_back(m->mTextureCoords[0][v].x, m->mTextureCoords[0][v].y);
     } else if (!out_->uvs.empty()) {
@@ -915,7 +914,7 @@ SceneData load_scene_data(const std::filesystem::path& path) {
   for (const Material& m : out.materials)
     if (m.normal_tex >= 0) {
       compute_tangents(&out);
-      const auto& given = loader.given_tangents_;
+      const auto& given = loader.given_tangents();
       for (size_t i = 0; i < given.size() && i < out.tangents.size(); ++i)
         if (length(given[i].t) > 0.0f) out.tangents[i] = given[i];
       break;
@@ -925,11 +924,11 @@ SceneData load_scene_data(const std::filesystem::path& path) {
 
 void compute_tangents(SceneData* d) {
   const size_t n = d->positions.size();
-  std::vector<Vec3> along_u(n, Vec3(0.0f)), up(n, Vec3(0.0f)), face_normal(n, Vec3(0.0f));
   if (d->uvs.size() != n) {
     d->tangents.clear();
     return;
   }
+  std::vector<Vec3> along_u(n, Vec3(0.0f)), up(n, Vec3(0.0f)), face_normal(n, Vec3(0.0f));
   for (size_t t = 0; t + 2 < d->indices.size(); t += 3) {
     const uint32_t i0 = d->indices[t], i1 = d->indices[t + 1], i2 = d->indices[t + 2];
     const Vec3 e1 = d->positions[i1] - d->positions[i0], e2 = d->positions[i2] - d->positions[i0];

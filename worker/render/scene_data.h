@@ -36,7 +36,7 @@ struct Texture {
   int width = 0, height = 0;
   std::vector<float> rgb;  // interleaved, row 0 = top (v = 0 in glTF)
   // Per texel in [0, 1]; empty = opaque. Loaded only for the base colour
-  // texture of a material with alphaMode MASK.
+  // texture of a material with alphaMode MASK or BLEND.
   std::vector<float> alpha;
   std::string name;
   // Bilinear, repeat wrapping; uv in glTF convention.
