@@ -1,0 +1,183 @@
+#include "worker/render/gltf_info.h"
+
+#include <spdlog/spdlog.h>
+
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <fstream>
+#include <iterator>
+#include <nlohmann/json.hpp>
+#include <set>
+
+#include "common/error.h"
+
+namespace dofarm::render {
+
+namespace {
+
+// The extensions whose content dofarm reads (assimp: KHR_materials_ior,
+// KHR_lights_punctual; here: the others).
+const std::set<std::string>& implemented_extensions() {
+  static const std::set<std::string> names = {"KHR_materials_emissive_strength",
+                                              "KHR_materials_ior", "KHR_materials_specular",
+                                              "KHR_lights_punctual", "KHR_texture_transform"};
+  return names;
+}
+
+float number_or(const nlohmann::json& obj, const char* key, float fallback) {
+  if (!obj.is_object() || !obj.contains(key) || !obj[key].is_number()) return fallback;
+  return obj[key].get<float>();
+}
+
+Vec2 vec2_or(const nlohmann::json& obj, const char* key, Vec2 fallback) {
+  if (!obj.is_object() || !obj.contains(key) || !obj[key].is_array() || obj[key].size() != 2 ||
+      !obj[key][0].is_number() || !obj[key][1].is_number())
+    return fallback;
+  return {obj[key][0].get<float>(), obj[key][1].get<float>()};
+}
+
+// A textureInfo object (glTF 5.22) with its optional KHR_texture_transform.
+GltfTextureInfo read_texture_info(const nlohmann::json& info) {
+  GltfTextureInfo out;
+  if (!info.is_object()) return out;
+  out.tex_coord = static_cast<int>(number_or(info, "texCoord", 0));
+  if (info.contains("extensions") && info["extensions"].is_object() &&
+      info["extensions"].contains("KHR_texture_transform")) {
+    const auto& t = info["extensions"]["KHR_texture_transform"];
+    out.transform =
+        UvTransform::from_gltf(vec2_or(t, "offset", Vec2(0, 0)), number_or(t, "rotation", 0),
+                               vec2_or(t, "scale", Vec2(1, 1)));
+    if (t.is_object() && t.contains("texCoord") && t["texCoord"].is_number_integer())
+      out.tex_coord = t["texCoord"].get<int>();
+  }
+  return out;
+}
+
+std::vector<std::string> string_list(const nlohmann::json& doc, const char* key) {
+  std::vector<std::string> out;
+  if (!doc.contains(key) || !doc[key].is_array()) return out;
+  for (const auto& v : doc[key])
+    if (v.is_string()) out.push_back(v.get<std::string>());
+  return out;
+}
+
+}  // namespace
+
+GltfInfo read_gltf_info(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  std::string json_text = bytes;
+  if (bytes.size() >= 20 && bytes.compare(0, 4, "glTF") == 0) {
+    // .glb: 12-byte header, then the JSON chunk (length, type "JSON", data).
+    uint32_t length = 0;
+    std::memcpy(&length, bytes.data() + 12, 4);
+    if (bytes.compare(16, 4, "JSON") != 0 || 20 + size_t{length} > bytes.size()) return {};
+    json_text = bytes.substr(20, length);
+  }
+  GltfInfo out;
+  auto doc = nlohmann::json::parse(json_text, nullptr, /*allow_exceptions=*/false);
+  if (!doc.is_object()) return out;  // assimp gives the reason
+  out.extensions_used = string_list(doc, "extensionsUsed");
+  out.extensions_required = string_list(doc, "extensionsRequired");
+  if (doc.contains("meshes") && doc["meshes"].is_array())
+    for (const auto& mesh : doc["meshes"])
+      if (mesh.is_object() && mesh.contains("primitives") && mesh["primitives"].is_array())
+        for (const auto& prim : mesh["primitives"])
+          if (prim.is_object() && prim.contains("attributes") && prim["attributes"].is_object())
+            out.vertex_colors |= prim["attributes"].contains("COLOR_0");
+  if (!doc.contains("materials") || !doc["materials"].is_array()) return out;
+  for (const auto& m : doc["materials"]) {
+    GltfMaterialInfo info;
+    if (!m.is_object()) {
+      out.materials.push_back(info);
+      continue;
+    }
+    if (m.contains("extensions") && m["extensions"].is_object() &&
+        m["extensions"].contains("KHR_materials_emissive_strength")) {
+      info.emissive_strength =
+          number_or(m["extensions"]["KHR_materials_emissive_strength"], "emissiveStrength", 1.0f);
+    }
+    if (m.contains("extensions") && m["extensions"].is_object() &&
+        m["extensions"].contains("KHR_materials_ior")) {
+      const auto& ext = m["extensions"]["KHR_materials_ior"];
+      info.ior_present = true;
+      if (ext.is_object() && ext.contains("ior"))
+        info.ior = ext["ior"].is_number() ? ext["ior"].get<double>() : NAN;
+    }
+    if (m.contains("extensions") && m["extensions"].is_object() &&
+        m["extensions"].contains("KHR_materials_specular")) {
+      const auto& ext = m["extensions"]["KHR_materials_specular"];
+      if (ext.is_object()) {
+        if (ext.contains("specularFactor"))
+          info.specular_factor =
+              ext["specularFactor"].is_number() ? ext["specularFactor"].get<double>() : NAN;
+        if (ext.contains("specularColorFactor")) {
+          const auto& c = ext["specularColorFactor"];
+          const bool ok = c.is_array() && c.size() == 3 && c[0].is_number() && c[1].is_number() &&
+                          c[2].is_number();
+          for (int k = 0; k < 3; ++k) info.specular_color[k] = ok ? c[k].get<double>() : NAN;
+        }
+        for (const char* key : {"specularTexture", "specularColorTexture"})
+          if (ext.contains(key))
+            info.specular_textures +=
+                (info.specular_textures.empty() ? "" : " and ") + std::string(key);
+      }
+    }
+    if (m.contains("pbrMetallicRoughness") && m["pbrMetallicRoughness"].is_object()) {
+      const auto& pbr = m["pbrMetallicRoughness"];
+      if (pbr.contains("baseColorTexture"))
+        info.base_color = read_texture_info(pbr["baseColorTexture"]);
+      if (pbr.contains("metallicRoughnessTexture"))
+        info.metal_rough = read_texture_info(pbr["metallicRoughnessTexture"]);
+    }
+    if (m.contains("emissiveTexture")) info.emission = read_texture_info(m["emissiveTexture"]);
+    if (m.contains("normalTexture")) {
+      info.normal = read_texture_info(m["normalTexture"]);
+      info.normal_scale = number_or(m["normalTexture"], "scale", 1.0f);
+    }
+    const std::string mode = m.contains("alphaMode") && m["alphaMode"].is_string()
+                                 ? m["alphaMode"].get<std::string>()
+                                 : "OPAQUE";
+    info.mask = mode == "MASK";
+    info.blend = mode == "BLEND";
+    info.alpha_cutoff = number_or(m, "alphaCutoff", 0.5f);
+    if (m.contains("pbrMetallicRoughness") && m["pbrMetallicRoughness"].is_object()) {
+      const auto& f = m["pbrMetallicRoughness"];
+      if (f.contains("baseColorFactor") && f["baseColorFactor"].is_array() &&
+          f["baseColorFactor"].size() == 4 && f["baseColorFactor"][3].is_number())
+        info.base_alpha = f["baseColorFactor"][3].get<float>();
+    }
+    info.name = m.contains("name") && m["name"].is_string() ? m["name"].get<std::string>() : "";
+    out.materials.push_back(std::move(info));
+  }
+  return out;
+}
+
+// glTF 3.12: a required extension the loader does not implement means the
+// asset cannot be rendered correctly, so it is refused; one that is only
+// used is named in one warning, so nothing is dropped silently.
+void check_extensions(const std::filesystem::path& path, const GltfInfo& info) {
+  std::string required, used;
+  for (const std::string& e : info.extensions_required)
+    if (!implemented_extensions().count(e)) required += (required.empty() ? "" : ", ") + e;
+  if (!required.empty())
+    throw SpecError(
+        FileLoc{path.string()}, "scene",
+        "extensionsRequired lists " + required +
+            ", which dofarm does not implement (it implements " +
+            "KHR_lights_punctual, KHR_materials_emissive_strength, KHR_materials_ior, " +
+            "KHR_materials_specular, KHR_texture_transform)");
+  for (const std::string& e : info.extensions_used)
+    if (!implemented_extensions().count(e)) used += (used.empty() ? "" : ", ") + e;
+  if (!used.empty())
+    spdlog::warn("{}: dofarm ignores the glTF extensions {} (the scene renders without them)",
+                 path.string(), used);
+  // glTF multiplies the base colour by COLOR_0; Blender's exporter writes
+  // it for every mesh with a colour attribute, which Blender's own render
+  // uses only where a material reads it, so dofarm does not apply it.
+  if (info.vertex_colors)
+    spdlog::warn("{}: vertex colours (COLOR_0) are not applied to the base colour", path.string());
+}
+
+}  // namespace dofarm::render

@@ -1,0 +1,57 @@
+// What the scene loader (scene_data.cpp) reads of a glTF file's JSON beyond
+// what assimp 5.2 gives it, and the check of the file's extension lists.
+#pragma once
+
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include "worker/render/scene_data.h"
+
+namespace dofarm::render {
+
+// What dofarm reads of a glTF beyond what assimp 5.2.5 gives: per material,
+// KHR_materials_emissive_strength (assimp drops it silently) and each
+// texture's KHR_texture_transform (assimp converts it into its own
+// aiUVTransform convention; the file's numbers are taken as the extension
+// defines them instead); the file's extension lists.
+struct GltfTextureInfo {
+  UvTransform transform;
+  int tex_coord = 0;  // TEXCOORD_n the texture reads (texCoord, or the transform's override)
+};
+struct GltfMaterialInfo {
+  std::string name;  // to check that assimp kept the order
+  float emissive_strength = 1.0f;
+  GltfTextureInfo base_color, metal_rough, emission, normal;
+  float normal_scale = 1.0f;  // normalTexture.scale
+  // alphaMode: MASK (cut out below alpha_cutoff) or BLEND (a ray stops with
+  // probability alpha); base_alpha is baseColorFactor's alpha.
+  bool mask = false, blend = false;
+  float alpha_cutoff = 0.5f, base_alpha = 1.0f;
+  // KHR_materials_ior: present = the extension is there (its "ior" or the
+  // extension's default 1.5); ior < 1 or non-finite is outside the schema.
+  bool ior_present = false;
+  double ior = 1.5;
+  // KHR_materials_specular's factors as written (NaN: not a number, or the
+  // wrong shape); its textures are not applied.
+  double specular_factor = 1.0;
+  double specular_color[3] = {1.0, 1.0, 1.0};
+  std::string specular_textures;  // the texture keys present, for the warning
+};
+struct GltfInfo {
+  std::vector<GltfMaterialInfo> materials;
+  std::vector<std::string> extensions_used, extensions_required;
+  bool vertex_colors = false;  // a primitive has COLOR_0 (not applied)
+};
+
+// The JSON of a .gltf, or of a .glb's JSON chunk; empty where the file is
+// not JSON (assimp then gives the reason).
+GltfInfo read_gltf_info(const std::filesystem::path& path);
+
+// glTF 3.12: a required extension the loader does not implement means the
+// asset cannot be rendered correctly, so it is refused (SpecError naming
+// the file); one that is only used is named in one warning, so nothing is
+// dropped silently; so are vertex colours, which are not applied.
+void check_extensions(const std::filesystem::path& path, const GltfInfo& info);
+
+}  // namespace dofarm::render
