@@ -14,11 +14,16 @@
 #               the wrong way), nomap (normalTexture removed); the same for
 #   normal_map_tangents (the file carries TANGENT)
 #   alpha_mask, alpha_blend  file, opaque (alphaMode removed)
+#   transmission  file, opaque (KHR_materials_transmission removed: how
+#               dofarm rendered it before reading the extension), ior1
+#               (control: IOR 1, so nothing bends); these jobs add the
+#               world's grey (0.3) as a constant environment
 # Measures: specular, dofarm / Cycles per channel over the centre 8 x 8
 # pixels (lamp, surface and camera in line: the coat's highlight, and
 # Cycles' Disney diffuse equals Lambert's there); the others, the
 # correlation of pixel luminances with Cycles' (the pattern of light and
-# shade, or of holes) and the ratio of the means.
+# shade, or of holes) and the ratio of the means; for transmission over the
+# centre 24 x 24 pixels (inside the sphere's disk: the refracted floor).
 import copy
 import json
 import struct
@@ -27,10 +32,10 @@ import zlib
 
 VARIANTS = {"specular": ["file", "ignored"], "normal_map": ["file", "flipped", "nomap"],
             "normal_map_tangents": ["file", "flipped", "nomap"], "alpha_mask": ["file", "opaque"],
-            "alpha_blend": ["file", "opaque"]}
+            "alpha_blend": ["file", "opaque"], "transmission": ["file", "opaque", "ior1"]}
 WHAT = {"file": "the exported file", "ignored": "KHR_materials_specular ignored",
         "flipped": "control: the map's green inverted", "nomap": "control: no normal map",
-        "opaque": "control: alphaMode ignored (opaque)"}
+        "opaque": "control: alphaMode ignored (opaque)", "ior1": "control: IOR 1 (no bending)"}
 
 
 def read_png(path):
@@ -87,9 +92,18 @@ def variants(feature, d, size):
         elif name == "nomap":
             for m in mats:
                 m.pop("normalTexture", None)
+        elif name == "opaque" and feature == "transmission":
+            for m in mats:
+                m.get("extensions", {}).pop("KHR_materials_transmission", None)
+            v["extensionsUsed"] = [e for e in v.get("extensionsUsed", [])
+                                   if e != "KHR_materials_transmission"]
         elif name == "opaque":
             for m in mats:
                 m.pop("alphaMode", None)
+        elif name == "ior1":
+            for m in mats:
+                if "KHR_materials_transmission" in m.get("extensions", {}):
+                    m["extensions"]["KHR_materials_ior"] = {"ior": 1.0}
         elif name == "flipped":
             m = next(m for m in mats if "normalTexture" in m)
             image = v["images"][v["textures"][m["normalTexture"]["index"]]["source"]]
@@ -98,11 +112,12 @@ def variants(feature, d, size):
             write_png(d + "/flipped_green.png", w, h, ch, rows)
             image["uri"] = "flipped_green.png"
         json.dump(v, open("%s/%s.gltf" % (d, name), "w"))
+        world = '[environment]\ncolor = [0.3, 0.3, 0.3]\n' if feature == "transmission" else ""
         open("%s/%s.toml" % (d, name), "w").write(
             'scene = "%s.gltf"\nseed = 3\n[image]\nwidth = %d\nheight = %d\n'
             '[frames]\nstart = 0\nend = 0\n[camera]\nfrom_scene = true\n'
             '[[camera.key]]\nframe = 0\naperture = 0.0\nfocal_distance = 5.0\n'
-            '[buffers]\nversions = 1\nalbedo_ref_spp = 1\n' % (name, size, size))
+            '[buffers]\nversions = 1\nalbedo_ref_spp = 1\n%s' % (name, size, size, world))
         print(name)
 
 
@@ -123,10 +138,13 @@ def centre(path):
     return s
 
 
-def luminance(path):
+def luminance(path, window=0):
+    """Pixel luminances, all or the centre window x window."""
     w, h, px = read_pfm(path)
+    keep = lambda i: not window or (abs(i % w - w // 2 + 0.5) < window / 2 and
+                                    abs(i // w - h // 2 + 0.5) < window / 2)
     return [0.2126 * px[3 * i] + 0.7152 * px[3 * i + 1] + 0.0722 * px[3 * i + 2]
-            for i in range(w * h)]
+            for i in range(w * h) if keep(i)]
 
 
 def correlation(a, b):
@@ -156,9 +174,10 @@ def rows(feature, d, spp, extra):
         f = "[" + ", ".join("%.3f" % x for x in f) + "]" if f else "(none)"
         print("| %s | %s | %s | %s | %s |" % (extra[0], extra[1], f, ratio("file"), ratio("ignored")))
         return
-    cy = luminance(d + "/cycles.pfm")
+    window = 24 if feature == "transmission" else 0
+    cy = luminance(d + "/cycles.pfm", window)
     for name in VARIANTS[feature]:
-        x = luminance(image(name))
+        x = luminance(image(name), window)
         print("| %s | %.3f | %.3f |" % (WHAT[name], correlation(x, cy),
                                          (sum(x) / len(x)) / (sum(cy) / len(cy))))
 

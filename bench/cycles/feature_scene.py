@@ -15,8 +15,14 @@
 #               checker of 0 and 1 (Alpha Clip: alphaMode MASK), 1 m over
 #               a 4 m blue plane, a sun from the side; 96 x 96
 #   alpha_blend the same with alpha 0.4 and 0 (Alpha Blend: alphaMode BLEND)
+#   transmission  a glass sphere (Transmission 1, IOR 1.45, base 0.95, 0.9,
+#               0.8, the given Roughness) of radius 0.6 m, 1.2 m over a 4 m
+#               checkered floor (base colour texture), a sun from the side
+#               and a grey world (0.3), so the sphere shows the floor
+#               refracted (KHR_materials_transmission + KHR_materials_ior);
+#               96 x 96
 #
-#   blender -b -noaudio --factory-startup -P feature_scene.py -- FEATURE OUT_DIR SPP [SPECULAR TINT]
+#   blender -b -noaudio --factory-startup -P feature_scene.py -- FEATURE OUT_DIR SPP [SPECULAR TINT | ROUGHNESS]
 #   -> OUT_DIR/scene.gltf (+ .bin, images), OUT_DIR/cycles.pfm (linear RGB, rows bottom-up)
 import math
 import os
@@ -90,8 +96,9 @@ def light(scene, kind, energy, location=(0.0, 0.0, 0.0), rotation=(0.0, 0.0, 0.0
 
 def main():
     argv = sys.argv[sys.argv.index("--") + 1:]
-    if len(argv) not in (3, 5):
-        raise SystemExit("usage: feature_scene.py -- FEATURE OUT_DIR SPP [SPECULAR TINT]")
+    if len(argv) not in (3, 4, 5):
+        raise SystemExit(
+            "usage: feature_scene.py -- FEATURE OUT_DIR SPP [SPECULAR TINT | ROUGHNESS]")
     feature, out, spp = argv[0], argv[1], int(argv[2])
     os.makedirs(out, exist_ok=True)
     bpy.ops.wm.read_factory_settings(use_empty=True)
@@ -132,6 +139,27 @@ def main():
         mat.alpha_threshold = 0.5
         plane(2.0, 1.0, mat)
         light(scene, "SUN", 3.0, rotation=sun_rotation)
+    elif feature == "transmission":
+        size = int(os.environ.get("FEATURE_SIZE", "96"))
+        floor, fp = principled("floor", (1.0, 1.0, 1.0), 1.0, specular=0.0)
+        nodes, links = floor.node_tree.nodes, floor.node_tree.links
+        tex = nodes.new("ShaderNodeTexImage")
+        tex.image = image("checker", 64, lambda x, y: checker(x, y, 1.0)[:3] + [1.0]
+                          if checker(x, y)[3] else [0.1, 0.1, 0.1, 1.0],
+                          os.path.join(out, "checker.png"), "sRGB")
+        # Bilinear, as dofarm filters every texture (the glass magnifies a
+        # few texels of the floor many times).
+        tex.interpolation = "Linear"
+        links.new(tex.outputs["Color"], fp.inputs["Base Color"])
+        plane(4.0, 0.0, floor)
+        glass, p = principled("glass", (0.95, 0.9, 0.8), float(argv[3]))
+        p.inputs["Transmission"].default_value = 1.0
+        p.inputs["IOR"].default_value = 1.45
+        bpy.ops.mesh.primitive_uv_sphere_add(radius=0.6, location=(0.0, 0.0, 1.2), segments=64,
+                                             ring_count=32)
+        bpy.ops.object.shade_smooth()
+        bpy.context.active_object.data.materials.append(glass)
+        light(scene, "SUN", 3.0, rotation=sun_rotation)
     else:
         raise SystemExit("feature_scene.py: unknown feature " + feature)
 
@@ -139,9 +167,10 @@ def main():
     cam.location = (0.0, 0.0, 5.0)  # looks down its -z
     scene.collection.objects.link(cam)
     scene.camera = cam
-    scene.world = bpy.data.worlds.new("black")
+    scene.world = bpy.data.worlds.new("world")
     scene.world.use_nodes = False
-    scene.world.color = (0.0, 0.0, 0.0)
+    # Black, but grey where glass needs something to refract and reflect.
+    scene.world.color = (0.3, 0.3, 0.3) if feature == "transmission" else (0.0, 0.0, 0.0)
     scene.render.engine = "CYCLES"
     scene.render.resolution_x = size
     scene.render.resolution_y = size
@@ -155,6 +184,7 @@ def main():
     c.pixel_filter_type = "BOX"
     c.filter_width = 1.0
     c.max_bounces = 8
+    c.transmission_bounces = 8
 
     bpy.ops.export_scene.gltf(filepath=os.path.join(out, "scene.gltf"),
                               export_format="GLTF_SEPARATE", export_lights=True,

@@ -3,7 +3,8 @@
 # dofarm against Cycles' render of the same Blender scene: the coat's
 # Specular and Specular Tint (KHR_materials_specular), a tangent-space
 # normal map (normalTexture; exported without and with TANGENT), an Alpha
-# Clip cut-out (alphaMode MASK) and Alpha Blend (BLEND).
+# Clip cut-out (alphaMode MASK), Alpha Blend (BLEND) and a glass sphere
+# (Transmission: KHR_materials_transmission), smooth and rough.
 # bench/cycles/feature_scene.py builds, exports and renders each scene with
 # Cycles; dofarm renders the exported file and control variants
 # (bench/cycles/feature_compare.py says which and what is measured), and
@@ -46,4 +47,11 @@ for feature in normal_map normal_map_tangents alpha_mask alpha_blend; do
   echo "$feature ($spp spp):"
   python3 "$here/feature_compare.py" header "$feature"
   scene "$feature" "$out/$feature" 96
+done
+echo
+echo "transmission (centre 24 x 24 pixels, $spp spp):"
+for roughness in 0 0.3; do
+  echo "Roughness $roughness:"
+  python3 "$here/feature_compare.py" header transmission
+  scene transmission "$out/transmission-r$roughness" 96 "$roughness"
 done

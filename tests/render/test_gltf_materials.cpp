@@ -361,5 +361,54 @@ TEST(GltfMaterials, SpecularFactorsAreRead) {
     EXPECT_EQ(l.find("ignores the glTF extensions"), std::string::npos) << l;
 }
 
+// KHR_materials_transmission's factor as written (what Blender 3.4 exports
+// for a Principled BSDF with Transmission > 0, beside KHR_materials_ior); no
+// extension or no key is 0; a value outside [0, 1] is warned about, naming
+// the material and the key, and 0 used; the texture is named in a warning
+// (factor only). The extension is read, so it is not in the "ignores"
+// warning.
+TEST(GltfMaterials, TransmissionFactorIsRead) {
+  TempDir dir("transmission");
+  LogCapture log;
+  struct Case {
+    const char* name;
+    Json ext;  // null: no extension
+    float factor;
+  } cases[] = {{"glass", {{"transmissionFactor", 1.0}}, 1.0f},
+               {"half", {{"transmissionFactor", 0.5}}, 0.5f},
+               {"empty", Json::object(), 0.0f},
+               {"none", nullptr, 0.0f},
+               {"above", {{"transmissionFactor", 1.5}}, 0.0f}};
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    const Material m =
+        material_with_extension(dir.path, c.name, "KHR_materials_transmission", c.ext);
+    EXPECT_FLOAT_EQ(m.transmission, c.factor);
+  }
+  {
+    // assimp checks that the texture exists in the file (the image itself
+    // is never read).
+    GltfQuad q = gltf_quad();
+    q.doc["materials"][0]["name"] = "textured";
+    q.doc["materials"][0]["extensions"] = {
+        {"KHR_materials_transmission",
+         {{"transmissionFactor", 0.75}, {"transmissionTexture", {{"index", 0}}}}}};
+    q.doc["extensionsUsed"] = {"KHR_materials_transmission"};
+    q.doc["textures"] = Json::array({{{"source", 0}}});
+    q.doc["images"] = Json::array({{{"uri", "transmission.png"}}});
+    write_gltf(dir.path / "textured.gltf", q);
+    SceneData s = load_scene_data(dir.path / "textured.gltf");
+    EXPECT_FLOAT_EQ(s.materials[s.tri_material[0]].transmission, 0.75f);
+  }
+  std::vector<std::string> lines = log.lines();
+  ASSERT_EQ(lines.size(), 2u);
+  EXPECT_NE(lines[0].find("\"above\""), std::string::npos) << lines[0];
+  EXPECT_NE(lines[0].find("transmissionFactor 1.5"), std::string::npos) << lines[0];
+  EXPECT_NE(lines[1].find("\"textured\""), std::string::npos) << lines[1];
+  EXPECT_NE(lines[1].find("transmissionTexture ignored"), std::string::npos) << lines[1];
+  for (const std::string& l : lines)
+    EXPECT_EQ(l.find("ignores the glTF extensions"), std::string::npos) << l;
+}
+
 }  // namespace
 }  // namespace dofarm::render

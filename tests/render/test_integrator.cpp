@@ -330,6 +330,67 @@ TEST(Integrator, ObserverSeesEveryTermOfTheEstimateAndChangesNothing) {
   EXPECT_GT(roulettes, 0);
 }
 
+// KHR_materials_transmission (bsdf.h): a white sphere of smooth glass in a
+// uniform environment is invisible, as everything that enters leaves again
+// (Fresnel reflection, refraction, total internal reflection and the
+// 1 / eta^2 radiance scaling, which cancels on the way out, must all be
+// right, and the ray must know whether it enters or leaves). NEE cannot
+// reach through a delta interface, so this is BSDF sampling alone.
+TEST(Integrator, WhiteFurnaceSmoothGlassSphereIsOne) {
+  SceneData d;
+  Material glass;
+  glass.base_color = Vec3(1);
+  glass.roughness = 0;
+  glass.transmission = 1;
+  add_icosphere(d, Vec3(0), 1.0f, 3, glass, /*smooth=*/false);
+  auto scene = make_scene(std::move(d), testing::constant_env(1.0f));
+  JobSpec spec = sphere_view();
+  spec.max_depth = 64;
+  Estimate e = estimate(*scene, spec, 64, LightStrategy::kMis);
+  ASSERT_GT(e.n, 10000u);
+  std::printf("  white furnace, smooth glass sphere: %.5f +- %.5f\n", e.mean, e.std_error);
+  EXPECT_NEAR(e.mean, 1.0, 3.0 * e.std_error + 1e-4);
+}
+
+// Rough glass with NEE and BSDF sampling combined: it never returns more
+// than it receives, and loses only what single scattering loses (bsdf.h;
+// tests/render/test_bsdf_glass.cpp has the lobe's own albedo).
+TEST(Integrator, WhiteFurnaceRoughGlassSphereLosesOnlyWhatTheLobeLoses) {
+  for (float roughness : {0.1f, 0.3f}) {
+    SceneData d;
+    Material glass;
+    glass.base_color = Vec3(1);
+    glass.roughness = roughness;
+    glass.transmission = 1;
+    add_icosphere(d, Vec3(0), 1.0f, 3, glass, /*smooth=*/false);
+    auto scene = make_scene(std::move(d), testing::constant_env(1.0f));
+    JobSpec spec = sphere_view();
+    spec.max_depth = 64;
+    Estimate e = estimate(*scene, spec, 64, LightStrategy::kMis);
+    std::printf("  white furnace, glass sphere roughness %.1f: %.5f +- %.5f\n", roughness, e.mean,
+                e.std_error);
+    EXPECT_LE(e.mean, 1.0 + 3.0 * e.std_error) << "roughness " << roughness;
+    EXPECT_GE(e.mean, roughness < 0.2f ? 0.99 : 0.9) << "roughness " << roughness;
+  }
+}
+
+// IOR 1 is no interface: light crosses the sphere unbent, tinted by the
+// base colour once on the way in and once on the way out; no noise at all.
+TEST(Integrator, IorOneGlassSphereTintsTwiceAndBendsNothing) {
+  SceneData d;
+  Material glass;
+  glass.base_color = Vec3(0.5f);
+  glass.roughness = 0.5f;
+  glass.ior = 1.0f;
+  glass.transmission = 1;
+  add_icosphere(d, Vec3(0), 1.0f, 3, glass, /*smooth=*/false);
+  auto scene = make_scene(std::move(d), testing::constant_env(1.0f));
+  Estimate e = estimate(*scene, sphere_view(), 4, LightStrategy::kMis);
+  ASSERT_GT(e.n, 1000u);
+  EXPECT_NEAR(e.mean, 0.25, 1e-6);
+  EXPECT_LT(e.std_error, 1e-6);
+}
+
 TEST(Integrator, SceneWithoutLightIsRefused) {
   SceneData d;
   d.source = "dark.gltf";

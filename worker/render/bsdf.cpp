@@ -18,10 +18,34 @@ float schlick_weight(float cos_theta) {
 // 2 ∫_0^1 (1 - mu)^5 mu dmu: the cosine-weighted average of Schlick's weight.
 constexpr float kSchlickWeightAverage = 1.0f / 21.0f;
 
+// Refraction of wo (on h's side) through a microfacet of normal h into the
+// medium of relative IOR eta (far over near); false under total internal
+// reflection.
+bool refract(Vec3 wo, Vec3 h, float cos_oh, float eta, Vec3* wi) {
+  const float inv_eta = 1.0f / eta;
+  const float sin2_t = (1.0f - cos_oh * cos_oh) * inv_eta * inv_eta;
+  if (!(sin2_t < 1.0f)) return false;
+  const float cos_t = std::sqrt(1.0f - sin2_t);
+  *wi = h * (cos_oh * inv_eta - cos_t) - wo * inv_eta;
+  return true;
+}
+
 }  // namespace
 
+float fresnel_dielectric(float cos_i, float eta) {
+  cos_i = clamp01(cos_i);
+  const float sin2_t = (1.0f - cos_i * cos_i) / (eta * eta);
+  if (!(sin2_t < 1.0f)) return 1.0f;
+  const float cos_t = std::sqrt(1.0f - sin2_t);
+  // The s- and p-polarised amplitudes (Born & Wolf; pbrt-v3 eq. 8.2).
+  const float rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
+  const float rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
+  const float f = 0.5f * (rs * rs + rp * rp);
+  return std::isfinite(f) ? std::min(f, 1.0f) : 1.0f;
+}
+
 Bsdf::Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, float ior,
-           const SpecularLayer& specular)
+           const SpecularLayer& specular, const TransmissionLayer& transmission)
     : frame_(ns), ng_(ng) {
   metallic = clamp01(metallic);
   roughness = clamp01(roughness);
@@ -47,11 +71,23 @@ Bsdf::Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, f
   // is there unless s = 0 (a channel of F0' = 0 still rises at grazing
   // angles, F90 = s, as the extension defines).
   specular_factor_ = f0_ior > 0 ? s : 0.0f;
-  dielectric_weight_ = specular_factor_ > 0 ? (1.0f - metallic) * specular_factor_ : 0.0f;
-  diffuse_color_ = base_color * (1.0f - metallic);
+  // KHR_materials_transmission: the share t of the dielectric that is glass;
+  // the layered (opaque) dielectric keeps 1 - t (exactly 1 without it).
+  const float t = std::isfinite(transmission.factor) ? clamp01(transmission.factor) : 0.0f;
+  const float opaque = 1.0f - t;
+  dielectric_weight_ = specular_factor_ > 0 ? (1.0f - metallic) * opaque * specular_factor_ : 0.0f;
+  diffuse_color_ = base_color * ((1.0f - metallic) * opaque);
   diffuse_weight_ = max_component(diffuse_color_);
   alpha_ = ggx::alpha_from_roughness(roughness);
   delta_specular_ = roughness * roughness < ggx::kDeltaAlpha;
+  if (t > 0 && metallic < 1.0f) {
+    glass_weight_ = (1.0f - metallic) * t;
+    glass_tint_ = base_color;
+    const float n = std::isfinite(ior) && ior >= 1.0f ? std::min(ior, 1e4f) : 1.5f;
+    eta_ = transmission.entering ? n : 1.0f / n;
+    // IOR 1 is no interface: light passes unbent whatever the roughness.
+    glass_delta_ = delta_specular_ || n == 1.0f;
+  }
   has_specular_ = metal_weight_ > 0 || dielectric_weight_ > 0;
   // The base's normalisation; a mirror's albedo s F(mu) has the closed-form
   // average s (f0 + (1 - f0) / 21).
@@ -145,6 +181,16 @@ Bsdf::Outgoing Bsdf::outgoing(Vec3 wo_w) const {
   } else {
     o.specular_prob = has_specular_ ? 1.0f : 0.0f;
   }
+  if (glass_weight_ > 0) {
+    // The glass lobe's albedo is about 1 (F plus 1 - F tinted): chosen by
+    // its weight, bounded away from 0 and 1 while other lobes exist.
+    const bool others = diffuse_weight_ > 0 || has_specular_;
+    o.glass_prob = others ? std::clamp(glass_weight_, 0.05f, 0.95f) : 1.0f;
+    if (!glass_delta_) {
+      o.smith_r = ggx::smith_r(o.wo, alpha_);
+      o.inv_4_cos_o = 1.0f / (4.0f * o.wo.z);
+    }
+  }
   if (has_specular_ && !delta_specular_) {
     o.smith_r = ggx::smith_r(o.wo, alpha_);
     o.inv_4_cos_o = 1.0f / (4.0f * o.wo.z);
@@ -178,15 +224,69 @@ Vec3 Bsdf::evaluate_local(const Outgoing& o, Vec3 wi, float* pdf_out) const {
     f += fr * (d * g * o.inv_4_cos_o);  // times cos(wi) / cos(wi) cancels
     if (wo_h > 0) p += d * o.specular_pdf_scale;
   }
+  if (glass_weight_ > 0) {
+    p *= 1.0f - o.glass_prob;
+    if (!glass_delta_) add_glass_reflection(o, wi, &f, &p);
+  }
   *pdf_out = p;
   return f;
 }
 
+void Bsdf::add_glass_reflection(const Outgoing& o, Vec3 wi, Vec3* f, float* pdf) const {
+  const Vec3 wo = o.wo;
+  const Vec3 sum = wo + wi;
+  const Vec3 h = sum * (1.0f / std::sqrt(dot(sum, sum)));
+  const float wo_h = dot(wo, h);
+  if (!(wo_h > 0)) return;
+  const float fr = fresnel_dielectric(wo_h, eta_);
+  const float d = ggx::D(h, alpha_);
+  const float g = ggx::G2_from_r(wo.z, o.smith_r, wi.z, ggx::smith_r(wi, alpha_));
+  *f += Vec3(glass_weight_ * fr * d * g * o.inv_4_cos_o);
+  // VNDF pdf of h times the reflection Jacobian 1 / (4 wo.h), times the
+  // probability F of reflecting.
+  *pdf += o.glass_prob * fr * d / (2.0f * (wo.z + o.smith_r));
+}
+
+Vec3 Bsdf::evaluate_refraction(const Outgoing& o, Vec3 wi, float* pdf_out) const {
+  *pdf_out = 0;
+  const Vec3 wo = o.wo;
+  // The generalised half vector (Walter et al. 2007, eq. 16), on wo's side.
+  Vec3 h = wo + wi * eta_;
+  const float len2 = dot(h, h);
+  if (!(len2 > 0)) return Vec3(0);
+  h = h * (1.0f / std::sqrt(len2));
+  if (h.z < 0) h = -h;
+  const float wo_h = dot(wo, h), wi_h = dot(wi, h);
+  // Both directions on their own sides of the microfacet.
+  if (!(wo_h > 0) || !(wi_h < 0)) return Vec3(0);
+  const float ft = 1.0f - fresnel_dielectric(wo_h, eta_);
+  const float d = ggx::D(h, alpha_);
+  const float g = ggx::G2_from_r(wo.z, o.smith_r, -wi.z, ggx::smith_r(wi, alpha_));
+  // dh/dwi (eq. 17): |wi.h| / (wi.h + wo.h / eta)^2.
+  const float den = wi_h + wo_h / eta_;
+  const float jacobian = -wi_h / (den * den);
+  // f |cos wi| = (1 - F) D G |wo.h| dh/dwi / (|wo.z| eta^2) (eq. 21, radiance).
+  const float value = glass_weight_ * ft * d * g * wo_h * jacobian / (wo.z * eta_ * eta_);
+  const float p = o.glass_prob * ft * 2.0f * wo_h * d / (wo.z + o.smith_r) * jacobian;
+  if (!std::isfinite(value) || !std::isfinite(p)) return Vec3(0);
+  *pdf_out = p;
+  return glass_tint_ * value;
+}
+
 Vec3 Bsdf::evaluate(const Outgoing& o, Vec3 wi_w, float* pdf_out) const {
   *pdf_out = 0;
-  // Reflection only: both directions above the geometric surface, so light
-  // never leaks through a surface because of a bent shading normal.
-  if (!o.valid || dot(wi_w, ng_) <= 0) return Vec3(0);
+  if (!o.valid) return Vec3(0);
+  // Reflection with both directions above the geometric surface, refraction
+  // with wi below both surfaces, so that light never leaks through a
+  // surface because of a bent shading normal.
+  const float side = dot(wi_w, ng_);
+  if (side <= 0) {
+    if (glass_weight_ > 0 && !glass_delta_ && side < 0) {
+      const Vec3 wi = frame_.to_local(wi_w);
+      if (wi.z < 0) return evaluate_refraction(o, wi, pdf_out);
+    }
+    return Vec3(0);
+  }
   const Vec3 wi = frame_.to_local(wi_w);
   if (wi.z <= 0) return Vec3(0);
   return evaluate_local(o, wi, pdf_out);
@@ -211,9 +311,54 @@ BsdfSample Bsdf::sample(Vec3 wo_w, float u_lobe, Vec2 u) const {
   return sample(outgoing(wo_w), u_lobe, u);
 }
 
+BsdfSample Bsdf::sample_glass(const Outgoing& o, float u_lobe, Vec2 u) const {
+  BsdfSample s;
+  const Vec3 wo = o.wo;
+  if (glass_delta_) {
+    // A smooth interface: reflect with probability F, else refract; F
+    // cancels in the weights.
+    const float fr = fresnel_dielectric(wo.z, eta_);
+    Vec3 wi;
+    if (u_lobe < fr) {
+      wi = Vec3(-wo.x, -wo.y, wo.z);
+      s.wi = frame_.to_world(wi);
+      if (dot(s.wi, ng_) <= 0) return s;
+      s.weight = Vec3(glass_weight_ / o.glass_prob);
+    } else {
+      if (!refract(wo, Vec3(0, 0, 1), wo.z, eta_, &wi)) return s;
+      s.wi = frame_.to_world(wi);
+      if (dot(s.wi, ng_) >= 0) return s;
+      s.weight = glass_tint_ * (glass_weight_ / (o.glass_prob * eta_ * eta_));
+    }
+    s.is_delta = true;
+    s.valid = is_finite(s.weight);
+    return s;
+  }
+  const Vec3 h = ggx::sample_vndf(wo, alpha_, u);
+  const float wo_h = dot(wo, h);
+  const float fr = fresnel_dielectric(wo_h, eta_);
+  Vec3 wi;
+  if (u_lobe < fr) {
+    wi = reflect(wo, h);
+    if (wi.z <= 0) return s;
+  } else {
+    if (!refract(wo, h, wo_h, eta_, &wi) || wi.z >= 0) return s;
+  }
+  s.wi = frame_.to_world(wi);
+  Vec3 f = evaluate(o, s.wi, &s.pdf);
+  if (!(s.pdf > 0)) return s;
+  s.weight = f / s.pdf;
+  s.valid = is_finite(s.weight);
+  return s;
+}
+
 BsdfSample Bsdf::sample(const Outgoing& o, float u_lobe, Vec2 u) const {
   BsdfSample s;
   if (!o.valid) return s;
+  if (glass_weight_ > 0) {
+    if (u_lobe < o.glass_prob) return sample_glass(o, u_lobe / o.glass_prob, u);
+    u_lobe = std::min((u_lobe - o.glass_prob) / (1.0f - o.glass_prob), 0.99999994f);
+  }
   const Vec3 wo = o.wo;
   const float ps = o.specular_prob;
   Vec3 wi;
@@ -224,6 +369,7 @@ BsdfSample Bsdf::sample(const Outgoing& o, float u_lobe, Vec2 u) const {
       if (dot(s.wi, ng_) <= 0) return s;
       // h = n, so wo.h = mu_o.
       s.weight = (o.fresnel_c0 + o.fresnel_c1 * schlick_weight(wo.z)) / ps;
+      if (glass_weight_ > 0) s.weight = s.weight / (1.0f - o.glass_prob);
       s.is_delta = true;
       s.valid = is_finite(s.weight);
       return s;

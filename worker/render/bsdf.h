@@ -27,6 +27,19 @@
 //   in every channel. With s = 1 and c = 1 (no extension) every value is
 //   bit for bit what it was without it.
 //
+// - KHR_materials_transmission (Transmission below) makes a share t of the
+//   dielectric a rough glass interface, as Cycles 3.4's Principled BSDF
+//   does: f = metallic * metal + (1 - metallic) [(1 - t) layered + t glass].
+//   The glass reflects F and refracts 1 - F of the light with the exact
+//   dielectric Fresnel F (with total internal reflection), both through
+//   the same GGX microfacets (Walter et al. 2007: the generalised half
+//   vector of eq. 16, the Jacobian of eq. 17, the BTDF of eq. 21, with the
+//   1 / eta^2 radiance scaling); the refracted light is tinted by the base
+//   colour. Single scattering: rough glass loses what multiple scattering
+//   between microfacets would return (docs/renderer.md has the figures).
+//   Below kDeltaAlpha it is a delta lobe; at IOR 1 it lets light through
+//   unbent (no interface).
+//
 // docs/renderer.md (Materials) has the equations and the furnace figures.
 // All directions are in world space; the BSDF works in the shading frame.
 #pragma once
@@ -52,11 +65,25 @@ struct SpecularLayer {
   Vec3 color{1.0f};
 };
 
+// The unpolarised Fresnel reflectance of a smooth dielectric interface for
+// light meeting it at cos_i > 0 from the side of IOR n1, eta = n2 / n1; 1
+// under total internal reflection.
+float fresnel_dielectric(float cos_i, float eta);
+
+// glTF KHR_materials_transmission's factor t, and on which side of the
+// surface the outgoing direction lies: `entering` = on its front side (the
+// side its winding faces, glTF 3.7.2.1), so the material's IOR lies beyond;
+// otherwise the ray is inside and the medium beyond has IOR 1.
+struct TransmissionLayer {
+  float factor = 0.0f;
+  bool entering = true;
+};
+
 class Bsdf {
  public:
   // `ns` shading normal, `ng` geometric normal, both facing wo's side.
   Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, float ior,
-       const SpecularLayer& specular = {});
+       const SpecularLayer& specular = {}, const TransmissionLayer& transmission = {});
 
   // What depends on the outgoing direction alone (its local form, the
   // compensated Fresnel, the base's share, lobe probability, Smith term),
@@ -72,6 +99,7 @@ class Bsdf {
     float smith_r = 0;             // ggx::smith_r(wo, alpha)
     float inv_4_cos_o = 0;         // 1 / (4 wo.z), of the microfacet BRDF
     float specular_pdf_scale = 0;  // specular lobe's pdf over D(h)
+    float glass_prob = 0;          // of choosing the glass lobe in sample()
     bool valid = false;            // above both the shading and the geometric surface
   };
   Outgoing outgoing(Vec3 wo) const;
@@ -84,11 +112,22 @@ class Bsdf {
   Vec3 evaluate(const Outgoing& o, Vec3 wi, float* pdf) const;
   BsdfSample sample(Vec3 wo, float u_lobe, Vec2 u) const;
   BsdfSample sample(const Outgoing& o, float u_lobe, Vec2 u) const;
-  bool has_non_delta() const { return diffuse_weight_ > 0 || (has_specular_ && !delta_specular_); }
+  bool has_non_delta() const {
+    return diffuse_weight_ > 0 || (has_specular_ && !delta_specular_) ||
+           (glass_weight_ > 0 && !glass_delta_);
+  }
+  // The relative IOR across the surface, far side over wo's side (1 without
+  // transmission).
+  float eta() const { return eta_; }
 
  private:
   // evaluate() with both directions local and above the surfaces.
   Vec3 evaluate_local(const Outgoing& o, Vec3 wi, float* pdf) const;
+  // The glass lobe for wi below the surface (refraction), rough glass only.
+  Vec3 evaluate_refraction(const Outgoing& o, Vec3 wi, float* pdf) const;
+  // The glass lobe's reflection, added to f and *pdf (wi above the surface).
+  void add_glass_reflection(const Outgoing& o, Vec3 wi, Vec3* f, float* pdf) const;
+  BsdfSample sample_glass(const Outgoing& o, float u_lobe, Vec2 u) const;
   // Single-scattering albedo terms A, B of the specular lobe at mu.
   ggx::Albedo specular_albedo(float mu) const;
   // 1 - E_s(mu) from mu's A and B: what the dielectric's specular layer lets
@@ -106,6 +145,10 @@ class Bsdf {
   bool grey_f0_;             // the same F0 in every channel (no specular colour)
   Vec3 diffuse_color_;       // (1 - metallic) * base_color
   Vec3 diffuse_norm_;        // 1 / (pi (1 - E_s_avg)); 1 / pi without an interface
+  float glass_weight_ = 0;   // (1 - metallic) t
+  Vec3 glass_tint_;          // the base colour, which tints refracted light
+  float eta_ = 1;            // IOR beyond the surface over IOR on wo's side
+  bool glass_delta_ = false;
   float alpha_;
   float diffuse_weight_;
   bool delta_specular_;

@@ -19,9 +19,9 @@ namespace {
 // The extensions whose content dofarm reads (assimp: KHR_materials_ior,
 // KHR_lights_punctual; here: the others).
 const std::set<std::string>& implemented_extensions() {
-  static const std::set<std::string> names = {"KHR_materials_emissive_strength",
-                                              "KHR_materials_ior", "KHR_materials_specular",
-                                              "KHR_lights_punctual", "KHR_texture_transform"};
+  static const std::set<std::string> names = {
+      "KHR_materials_emissive_strength", "KHR_materials_ior",   "KHR_materials_specular",
+      "KHR_materials_transmission",      "KHR_lights_punctual", "KHR_texture_transform"};
   return names;
 }
 
@@ -124,6 +124,16 @@ GltfInfo read_gltf_info(const std::filesystem::path& path) {
                 (info.specular_textures.empty() ? "" : " and ") + std::string(key);
       }
     }
+    if (m.contains("extensions") && m["extensions"].is_object() &&
+        m["extensions"].contains("KHR_materials_transmission")) {
+      const auto& ext = m["extensions"]["KHR_materials_transmission"];
+      if (ext.is_object()) {
+        if (ext.contains("transmissionFactor"))
+          info.transmission =
+              ext["transmissionFactor"].is_number() ? ext["transmissionFactor"].get<double>() : NAN;
+        info.transmission_texture = ext.contains("transmissionTexture");
+      }
+    }
     if (m.contains("pbrMetallicRoughness") && m["pbrMetallicRoughness"].is_object()) {
       const auto& pbr = m["pbrMetallicRoughness"];
       if (pbr.contains("baseColorTexture"))
@@ -167,7 +177,7 @@ void check_extensions(const std::filesystem::path& path, const GltfInfo& info) {
         "extensionsRequired lists " + required +
             ", which dofarm does not implement (it implements " +
             "KHR_lights_punctual, KHR_materials_emissive_strength, KHR_materials_ior, " +
-            "KHR_materials_specular, KHR_texture_transform)");
+            "KHR_materials_specular, KHR_materials_transmission, KHR_texture_transform)");
   for (const std::string& e : info.extensions_used)
     if (!implemented_extensions().count(e)) used += (used.empty() ? "" : ", ") + e;
   if (!used.empty())

@@ -37,6 +37,10 @@ struct GltfMaterialInfo {
   double specular_factor = 1.0;
   double specular_color[3] = {1.0, 1.0, 1.0};
   std::string specular_textures;  // the texture keys present, for the warning
+  // KHR_materials_transmission's factor as written (0 without the
+  // extension; NaN: not a number); its texture is not applied.
+  double transmission = 0.0;
+  bool transmission_texture = false;
 };
 struct GltfInfo {
   std::vector<GltfMaterialInfo> materials;

@@ -285,7 +285,8 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
   hit->p = p0 * b0 + p1 * b1 + p2 * b2;
   Vec3 ng = tri_normal_[prim];
   if (ng.x == 0 && ng.y == 0 && ng.z == 0) ng = -ray.d;
-  if (dot(ng, ray.d) > 0) ng = -ng;
+  hit->front = dot(ng, ray.d) <= 0;
+  if (!hit->front) ng = -ng;
   hit->ng = ng;
   hit->uv = texcoord(idx, b0, b1, b2);
   Vec3 ns = ng;
@@ -323,6 +324,7 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
   hit->ior = m.ior;
   hit->specular = m.specular;
   hit->specular_color = m.specular_color;
+  hit->transmission = m.transmission;
   // Only textured materials pay for lookups.
   if (m.base_color_tex >= 0)
     hit->base_color =

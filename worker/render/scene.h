@@ -27,6 +27,8 @@ struct SurfaceHit {
   float metallic = 0, roughness = 0, ior = 1.5f;
   float specular = 1.0f;      // KHR_materials_specular specularFactor
   Vec3 specular_color{1.0f};  // and specularColorFactor
+  float transmission = 0;     // KHR_materials_transmission transmissionFactor
+  bool front = true;          // the ray hit the side the triangle's winding faces
   Vec3 emission;  // radiance leaving the surface (both faces emit)
 };
 

@@ -211,6 +211,7 @@ class Loader {
         m.ior = value;
       }
       if (g) specular_layer(*g, i, &m);
+      if (g) transmission(*g, i, &m);
       if (g && (g->mask || g->blend)) {
         m.alpha_mask = true;
         m.alpha_blend = g->blend;
@@ -297,6 +298,24 @@ class Loader {
     if (!g.specular_textures.empty())
       spdlog::warn("{}: {}: KHR_materials_specular {} ignored (its factors are used)",
                    path_.string(), which, g.specular_textures);
+  }
+  // KHR_materials_transmission's factor (schema: [0, 1]); a value outside
+  // is named in a warning and the extension's default 0 used. Its texture
+  // is not applied (the factor is).
+  void transmission(const GltfMaterialInfo& g, unsigned index, Material* m) const {
+    const std::string which = "material " + std::to_string(index) + " (\"" + m->name + "\")";
+    if (std::isfinite(g.transmission) && g.transmission >= 0 && g.transmission <= 1) {
+      m->transmission = float(g.transmission);
+    } else {
+      spdlog::warn(
+          "{}: {}: KHR_materials_transmission transmissionFactor {} is outside [0, 1]; using 0",
+          path_.string(), which, g.transmission);
+    }
+    if (g.transmission_texture)
+      spdlog::warn(
+          "{}: {}: KHR_materials_transmission transmissionTexture ignored (its factor "
+          "is used)",
+          path_.string(), which);
   }
   void check_material(const Material& m, unsigned index) const {
     const std::string which = "material " + std::to_string(index) + " (\"" + m.name + "\")";

@@ -71,6 +71,9 @@ struct Material {
   // white without the extension.
   float specular = 1.0f;
   Vec3 specular_color{1.0f};
+  // KHR_materials_transmission: the share of the dielectric that is a glass
+  // interface refracting into the mesh (worker/render/bsdf.h).
+  float transmission = 0.0f;
   int base_color_tex = -1;   // index into SceneData::textures; multiplies base_color
   int metal_rough_tex = -1;  // glTF: G = roughness, B = metallic; multiplies the factors
   int emission_tex = -1;     // multiplies emission
