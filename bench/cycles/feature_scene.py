@@ -17,7 +17,8 @@
 #   alpha_blend the same with alpha 0.4 and 0 (Alpha Blend: alphaMode BLEND)
 #   transmission  a glass sphere (Transmission 1, IOR 1.45, base 0.95, 0.9,
 #               0.8, the given Roughness) of radius 0.6 m, 1.2 m over a 4 m
-#               checkered floor (base colour texture), a sun from the side
+#               checkered floor (base colour texture, Closest interpolation)
+#               (moved off centre by 0.17, 0.11 m), a sun from the side
 #               and a grey world (0.3), so the sphere shows the floor
 #               refracted (KHR_materials_transmission + KHR_materials_ior);
 #               96 x 96
@@ -147,11 +148,14 @@ def main():
         tex.image = image("checker", 64, lambda x, y: checker(x, y, 1.0)[:3] + [1.0]
                           if checker(x, y)[3] else [0.1, 0.1, 0.1, 1.0],
                           os.path.join(out, "checker.png"), "sRGB")
-        # Bilinear, as dofarm filters every texture (the glass magnifies a
-        # few texels of the floor many times).
-        tex.interpolation = "Linear"
+        # Closest (glTF magFilter NEAREST): the glass magnifies a few texels
+        # of the floor many times, and Cycles blends 8-bit sRGB texels
+        # before decoding them (dofarm after), which would show there.
+        tex.interpolation = "Closest"
         links.new(tex.outputs["Color"], fp.inputs["Base Color"])
-        plane(4.0, 0.0, floor)
+        # Off centre, so that the floor under the sphere is no symmetric
+        # checker corner (which looks the same refracted or not).
+        plane(4.0, 0.0, floor).location = (0.17, 0.11, 0.0)
         glass, p = principled("glass", (0.95, 0.9, 0.8), float(argv[3]))
         p.inputs["Transmission"].default_value = 1.0
         p.inputs["IOR"].default_value = 1.45

@@ -49,6 +49,36 @@ TEST(GltfEmbeddedTextures, GlbAndDataUriLoadLikeTheImageBesideTheScene) {
   }
 }
 
+// glTF samplers as Blender 3.4 writes them: "Closest" interpolation is
+// magFilter NEAREST (9728), "Extend" wraps CLAMP_TO_EDGE (33071), "Mirror"
+// MIRRORED_REPEAT (33648). The same image under two samplers is two
+// textures; no sampler is bilinear and repeating.
+TEST(GltfSamplers, FilterAndWrapAreRead) {
+  TempDir dir("samplers");
+  write_bytes(dir.path / "tex.png", test_png());
+  GltfQuad q = gltf_quad();
+  use_base_color_image(&q, {{"uri", "tex.png"}});
+  q.doc["samplers"] =
+      Json::parse(R"([{"magFilter": 9728, "minFilter": 9984, "wrapS": 33071, "wrapT": 33648}])");
+  q.doc["textures"] = Json::parse(R"([{"source": 0, "sampler": 0}, {"source": 0}])");
+  q.doc["materials"][0]["emissiveTexture"] = {{"index", 1}};
+  q.doc["materials"][0]["emissiveFactor"] = {1.0, 1.0, 1.0};
+  write_gltf(dir.path / "samplers.gltf", q);
+  SceneData s = load_scene_data(dir.path / "samplers.gltf");
+  const Material& m = s.materials[s.tri_material[0]];
+  ASSERT_GE(m.base_color_tex, 0);
+  ASSERT_GE(m.emission_tex, 0);
+  ASSERT_NE(m.base_color_tex, m.emission_tex);
+  const TextureSampler& a = s.textures[size_t(m.base_color_tex)].sampler;
+  EXPECT_TRUE(a.nearest);
+  EXPECT_EQ(a.wrap_u, TextureWrap::kClamp);
+  EXPECT_EQ(a.wrap_v, TextureWrap::kMirror);
+  const TextureSampler& b = s.textures[size_t(m.emission_tex)].sampler;
+  EXPECT_FALSE(b.nearest);
+  EXPECT_EQ(b.wrap_u, TextureWrap::kRepeat);
+  EXPECT_EQ(b.wrap_v, TextureWrap::kRepeat);
+}
+
 TEST(GltfEmbeddedTextures, CorruptEmbeddedImageNamesTheFile) {
   TempDir dir("embedded_bad");
   GltfQuad q = gltf_quad();

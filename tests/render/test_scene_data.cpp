@@ -452,6 +452,45 @@ TEST(Texture, RepeatWraps) {
   EXPECT_FLOAT_EQ(t.lookup({-1e-10f, 0.25f}).y, 0.5f);
 }
 
+// glTF magFilter NEAREST (Blender's "Closest"): the texel uv lies in, no
+// blending, at and between the centres and across the wrap.
+TEST(Texture, NearestTakesTheTexelUvLiesIn) {
+  Texture t = two_by_two();
+  t.sampler.nearest = true;
+  EXPECT_FLOAT_EQ(t.lookup({0.25f, 0.25f}).y, 0.0f);
+  EXPECT_FLOAT_EQ(t.lookup({0.49f, 0.25f}).y, 0.0f);
+  EXPECT_FLOAT_EQ(t.lookup({0.51f, 0.25f}).y, 1.0f);
+  EXPECT_FLOAT_EQ(t.lookup({0.5f, 0.5f}).y, 3.0f);  // a corner belongs to the texel after it
+  EXPECT_FLOAT_EQ(t.lookup({0.99f, 0.01f}).x, 11.0f);
+  EXPECT_FLOAT_EQ(t.lookup({1.01f, 0.01f}).y, 0.0f);  // repeat
+  EXPECT_FLOAT_EQ(t.lookup({-0.01f, 0.01f}).y, 1.0f);
+}
+
+// CLAMP_TO_EDGE ("Extend"): beyond the outer texel centres the border texel
+// holds, in both directions; MIRRORED_REPEAT ("Mirror"): uv reflects at
+// every integer.
+TEST(Texture, ClampAndMirrorWrap) {
+  Texture t = two_by_two();
+  t.sampler.wrap_u = TextureWrap::kClamp;
+  t.sampler.wrap_v = TextureWrap::kClamp;
+  EXPECT_FLOAT_EQ(t.lookup({0.0f, 0.25f}).y, 0.0f);  // repeat would blend in texel 1: 0.5
+  EXPECT_FLOAT_EQ(t.lookup({-3.0f, 0.25f}).y, 0.0f);
+  EXPECT_FLOAT_EQ(t.lookup({1.0f, 0.25f}).y, 1.0f);
+  EXPECT_FLOAT_EQ(t.lookup({7.0f, 5.0f}).y, 3.0f);
+  EXPECT_FLOAT_EQ(t.lookup({0.5f, 0.25f}).y, 0.5f);  // inside: bilinear as before
+  t.sampler.wrap_u = TextureWrap::kMirror;
+  EXPECT_FLOAT_EQ(t.lookup({1.25f, 0.25f}).y, 1.0f);  // = u 0.75
+  EXPECT_FLOAT_EQ(t.lookup({1.75f, 0.25f}).y, 0.0f);  // = u 0.25
+  EXPECT_FLOAT_EQ(t.lookup({2.25f, 0.25f}).y, 0.0f);  // = u 0.25 again
+  EXPECT_FLOAT_EQ(t.lookup({-0.25f, 0.25f}).y, 0.0f);
+  EXPECT_FLOAT_EQ(t.lookup({1.0f, 0.25f}).y, 1.0f);  // the mirror line holds the border texel
+  // The alpha channel is read the same way.
+  t.alpha = {0.0f, 1.0f, 0.0f, 1.0f};
+  t.sampler.nearest = true;
+  EXPECT_FLOAT_EQ(t.alpha_lookup({1.75f, 0.25f}), 0.0f);
+  EXPECT_FLOAT_EQ(t.alpha_lookup({1.25f, 0.25f}), 1.0f);
+}
+
 TEST(Texture, EmptyTextureIsWhite) {
   Texture t;
   expect_near3(t.lookup({0.3f, 0.6f}), Vec3(1.0f), 0.0f);

@@ -27,27 +27,49 @@ namespace dofarm::render {
 
 namespace {
 
-// Bilinear weights and texel indices at uv (glTF convention, repeat wrap):
-// texel centres sit at (i + 0.5) / size, so a texture of one texel is
-// constant and uv 0 and 1 blend the two border texels.
+// Bilinear weights and texel indices at uv (glTF convention): texel centres
+// sit at (i + 0.5) / size, so a texture of one texel is constant. Repeat
+// blends the two border texels at uv 0 and 1; clamp holds the border
+// texel beyond the outer centres; mirror reflects uv at every integer (so
+// its borders hold too). Nearest (glTF magFilter NEAREST) takes the texel
+// uv lies in: weights 0.
 struct Bilinear {
   int x0, x1, y0, y1;
   float fx, fy;
-  Bilinear(Vec2 uv, int width, int height) {
-    auto axis = [](float t, int size, int* i0, int* i1, float* frac) {
+  Bilinear(Vec2 uv, int width, int height, const TextureSampler& s = {}) {
+    auto axis = [&s](float t, int size, TextureWrap wrap, int* i0, int* i1, float* frac) {
       if (!std::isfinite(t)) t = 0.0f;
-      t -= std::floor(t);  // into [0, 1) first, so huge uvs keep their precision
+      if (wrap == TextureWrap::kRepeat) [[likely]] {
+        t -= std::floor(t);  // into [0, 1) first, so huge uvs keep their precision
+      } else {
+        if (wrap == TextureWrap::kMirror) {
+          t -= 2.0f * std::floor(0.5f * t);  // [0, 2)
+          if (t > 1.0f) t = 2.0f - t;
+        }
+        t = clamp01(t);
+      }
+      if (s.nearest) {
+        const int i = static_cast<int>(t * static_cast<float>(size));
+        *i0 = *i1 = i >= size ? size - 1 : i;
+        *frac = 0.0f;
+        return;
+      }
       float x = t * static_cast<float>(size) - 0.5f;
       float fx = std::floor(x);
       *frac = x - fx;
       // t is in [0, 1], so i is in [-1, size - 1]: the wrap is one compare
       // each way (no integer division in the hot path).
       int i = static_cast<int>(fx);
-      *i0 = i < 0 ? size - 1 : (i >= size ? size - 1 : i);
-      *i1 = *i0 + 1 == size ? 0 : *i0 + 1;
+      if (wrap == TextureWrap::kRepeat) [[likely]] {
+        *i0 = i < 0 ? size - 1 : (i >= size ? size - 1 : i);
+        *i1 = *i0 + 1 == size ? 0 : *i0 + 1;
+      } else {
+        *i0 = i < 0 ? 0 : (i >= size ? size - 1 : i);
+        *i1 = i + 1 >= size ? size - 1 : (i + 1 < 0 ? 0 : i + 1);
+      }
     };
-    axis(uv.x, width, &x0, &x1, &fx);
-    axis(uv.y, height, &y0, &y1, &fy);  // v = 0 is row 0, the top row (glTF)
+    axis(uv.x, width, s.wrap_u, &x0, &x1, &fx);
+    axis(uv.y, height, s.wrap_v, &y0, &y1, &fy);  // v = 0 is row 0, the top row (glTF)
   }
 };
 
@@ -55,7 +77,7 @@ struct Bilinear {
 
 float Texture::alpha_lookup(Vec2 uv) const {
   if (alpha.empty() || width <= 0 || height <= 0) return 1.0f;
-  const Bilinear b(uv, width, height);
+  const Bilinear b(uv, width, height, sampler);
   auto at = [&](int x, int y) { return alpha[static_cast<size_t>(y) * width + x]; };
   auto mix = [](float p, float q, float t) { return p * (1.0f - t) + q * t; };
   return mix(mix(at(b.x0, b.y0), at(b.x1, b.y0), b.fx), mix(at(b.x0, b.y1), at(b.x1, b.y1), b.fx),
@@ -64,7 +86,7 @@ float Texture::alpha_lookup(Vec2 uv) const {
 
 Vec3 Texture::lookup(Vec2 uv) const {
   if (width <= 0 || height <= 0) return Vec3(1.0f);
-  const Bilinear b(uv, width, height);
+  const Bilinear b(uv, width, height, sampler);
   auto texel = [&](int x, int y) {
     const float* p = &rgb[(static_cast<size_t>(y) * width + x) * 3];
     return Vec3(p[0], p[1], p[2]);
@@ -343,7 +365,8 @@ class Loader {
   const aiScene* scene_;
   const GltfInfo& gltf_;
   SceneData* out_;
-  std::map<std::pair<std::string, bool>, int> texture_index_;  // shared textures load once
+  // Shared textures load once per (image, colour space, sampler).
+  std::map<std::tuple<std::string, bool, TextureSampler>, int> texture_index_;
   std::set<int> alpha_loaded_;  // textures whose alpha channel was asked for
   // Per vertex, where the file gives tangents (a zero t elsewhere).
   std::vector<SceneData::Tangent> given_tangents_;
@@ -361,7 +384,22 @@ int Loader::texture(const aiMaterial* am, std::initializer_list<aiTextureType> t
     const aiTexture* embedded = scene_->GetEmbeddedTexture(file.C_Str());
     if (!embedded && name[0] == '*') fail(path_, "texture \"" + name + "\" is not in the file");
     std::filesystem::path tex_path = path_.parent_path() / name;
-    auto key = std::make_pair(embedded ? name : tex_path.lexically_normal().string(), srgb);
+    // The glTF sampler, as assimp reads it (other formats: repeat, bilinear).
+    TextureSampler sampler;
+    int filter = 0;
+    if (am->Get(AI_MATKEY_GLTF_MAPPINGFILTER_MAG(type, 0), filter) == AI_SUCCESS)
+      sampler.nearest = filter == 9728;  // glTF NEAREST
+    auto wrap_of = [&](const char* key, unsigned t, unsigned i) {
+      int mode = aiTextureMapMode_Wrap;
+      if (am->Get(key, t, i, mode) != AI_SUCCESS) return TextureWrap::kRepeat;
+      return mode == aiTextureMapMode_Clamp    ? TextureWrap::kClamp
+             : mode == aiTextureMapMode_Mirror ? TextureWrap::kMirror
+                                               : TextureWrap::kRepeat;
+    };
+    sampler.wrap_u = wrap_of(AI_MATKEY_MAPPINGMODE_U(type, 0));
+    sampler.wrap_v = wrap_of(AI_MATKEY_MAPPINGMODE_V(type, 0));
+    auto key =
+        std::make_tuple(embedded ? name : tex_path.lexically_normal().string(), srgb, sampler);
     // The alpha channel, once per texture, when a material asks for it.
     auto add_alpha = [&](int index) {
       if (!with_alpha || !alpha_loaded_.insert(index).second) return index;
@@ -395,6 +433,7 @@ int Loader::texture(const aiMaterial* am, std::initializer_list<aiTextureType> t
     tex.height = image.height;
     tex.rgb = std::move(image.rgb);
     tex.name = name;
+    tex.sampler = sampler;
     out_->textures.push_back(std::move(tex));
     int index = static_cast<int>(out_->textures.size()) - 1;
     texture_index_.emplace(key, index);

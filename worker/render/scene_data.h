@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <memory>
 #include <string>
+#include <tuple>
 #include <vector>
 
 #include "common/jobspec.h"
@@ -32,6 +33,19 @@ using dofarm::kMaxRadiance;
 inline constexpr float kLumensPerWatt = 683.0f;
 
 // Linear RGB texture; 8-bit colour data is converted from sRGB on load.
+// How a texture is read between and beyond its texels: glTF's sampler
+// (magFilter NEAREST = Blender's "Closest" interpolation; wrapS / wrapT
+// CLAMP_TO_EDGE = "Extend", MIRRORED_REPEAT = "Mirror"). The default is
+// bilinear and repeating in both directions.
+enum class TextureWrap : uint8_t { kRepeat, kClamp, kMirror };
+struct TextureSampler {
+  bool nearest = false;
+  TextureWrap wrap_u = TextureWrap::kRepeat, wrap_v = TextureWrap::kRepeat;
+  bool operator<(const TextureSampler& o) const {
+    return std::tie(nearest, wrap_u, wrap_v) < std::tie(o.nearest, o.wrap_u, o.wrap_v);
+  }
+};
+
 struct Texture {
   int width = 0, height = 0;
   std::vector<float> rgb;  // interleaved, row 0 = top (v = 0 in glTF)
@@ -39,7 +53,8 @@ struct Texture {
   // texture of a material with alphaMode MASK or BLEND.
   std::vector<float> alpha;
   std::string name;
-  // Bilinear, repeat wrapping; uv in glTF convention.
+  TextureSampler sampler;
+  // Filtered and wrapped as `sampler` says; uv in glTF convention.
   Vec3 lookup(Vec2 uv) const;
   float alpha_lookup(Vec2 uv) const;  // the same filter over `alpha`; 1 without
 };
