@@ -141,7 +141,7 @@ def main():
         plane(2.0, 1.0, mat)
         light(scene, "SUN", 3.0, rotation=sun_rotation)
     elif feature == "transmission":
-        size = int(os.environ.get("FEATURE_SIZE", "96"))
+        size = 96
         floor, fp = principled("floor", (1.0, 1.0, 1.0), 1.0, specular=0.0)
         nodes, links = floor.node_tree.nodes, floor.node_tree.links
         tex = nodes.new("ShaderNodeTexImage")

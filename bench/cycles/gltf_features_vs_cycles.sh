@@ -49,7 +49,7 @@ for feature in normal_map normal_map_tangents alpha_mask alpha_blend; do
   scene "$feature" "$out/$feature" 96
 done
 echo
-echo "transmission (centre 24 x 24 pixels, $spp spp):"
+echo "transmission (centre 32 x 32 pixels, $spp spp):"
 for roughness in 0 0.3; do
   echo "Roughness $roughness:"
   python3 "$here/feature_compare.py" header transmission
