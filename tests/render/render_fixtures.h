@@ -49,6 +49,17 @@ inline Material diffuse(Vec3 color, float ior = 1.5f) {
   return m;
 }
 
+// KHR_materials_transmission 1: glass of this roughness and IOR.
+inline Material glass(float roughness, Vec3 color = Vec3(1), float ior = 1.5f) {
+  Material m;
+  m.base_color = color;
+  m.metallic = 0;
+  m.roughness = roughness;
+  m.ior = ior;
+  m.transmission = 1;
+  return m;
+}
+
 inline Material emitter(Vec3 radiance) {
   Material m = diffuse(Vec3(0));
   m.emission = radiance;

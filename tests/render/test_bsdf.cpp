@@ -491,26 +491,36 @@ TEST(Bsdf, EveryOutputIsFiniteOnTheEdgesOfItsDomain) {
     for (float metallic : {0.0f, 0.5f, 1.0f}) {
       for (float ior : {1.0f, 1.0001f, 1.5f, 1e30f, 0.5f, 0.0f, nan}) {
         for (Vec3 base : {Vec3(0.0f), Vec3(1.0f), Vec3(1.0f, 0.0f, 0.5f)}) {
-          const Bsdf bsdf(kUp, kUp, base, metallic, roughness, ior);
-          for (Vec3 wo : directions) {
-            const Bsdf::Outgoing o = bsdf.outgoing(wo);
-            for (Vec3 wi : directions) {
-              float p = -1;
-              const Vec3 f = bsdf.evaluate(o, wi, &p);
-              ASSERT_TRUE(dofarm::is_finite(f) && std::isfinite(p))
-                  << roughness << " " << metallic << " " << ior << " " << wo.z << " " << wi.z;
-              ASSERT_GE(std::min({f.x, f.y, f.z}), 0.0f);
-              ASSERT_GE(p, 0.0f);
+          // KHR_materials_transmission: none, glass seen from outside and
+          // inside, half glass, a factor that is not a number.
+          for (dofarm::render::TransmissionLayer glass :
+               {dofarm::render::TransmissionLayer{0.0f, true},
+                {1.0f, true},
+                {1.0f, false},
+                {0.5f, false},
+                {nan, true}}) {
+            const Bsdf bsdf(kUp, kUp, base, metallic, roughness, ior, {}, glass);
+            for (Vec3 wo : directions) {
+              const Bsdf::Outgoing o = bsdf.outgoing(wo);
+              for (Vec3 wi : directions) {
+                float p = -1;
+                const Vec3 f = bsdf.evaluate(o, wi, &p);
+                ASSERT_TRUE(dofarm::is_finite(f) && std::isfinite(p))
+                    << roughness << " " << metallic << " " << ior << " " << glass.factor << " "
+                    << wo.z << " " << wi.z;
+                ASSERT_GE(std::min({f.x, f.y, f.z}), 0.0f);
+                ASSERT_GE(p, 0.0f);
+              }
+              for (float ul : us)
+                for (float u1 : us)
+                  for (float u2 : us) {
+                    const BsdfSample s = bsdf.sample(o, ul, Vec2(u1, u2));
+                    if (!s.valid) continue;
+                    ASSERT_TRUE(dofarm::is_finite(s.weight) && std::isfinite(s.pdf))
+                        << roughness << " " << metallic << " " << ior << " " << wo.z;
+                    ASSERT_GE(std::min({s.weight.x, s.weight.y, s.weight.z}), 0.0f);
+                  }
             }
-            for (float ul : us)
-              for (float u1 : us)
-                for (float u2 : us) {
-                  const BsdfSample s = bsdf.sample(o, ul, Vec2(u1, u2));
-                  if (!s.valid) continue;
-                  ASSERT_TRUE(dofarm::is_finite(s.weight) && std::isfinite(s.pdf))
-                      << roughness << " " << metallic << " " << ior << " " << wo.z;
-                  ASSERT_GE(std::min({s.weight.x, s.weight.y, s.weight.z}), 0.0f);
-                }
           }
         }
       }

@@ -338,11 +338,7 @@ TEST(Integrator, ObserverSeesEveryTermOfTheEstimateAndChangesNothing) {
 // reach through a delta interface, so this is BSDF sampling alone.
 TEST(Integrator, WhiteFurnaceSmoothGlassSphereIsOne) {
   SceneData d;
-  Material glass;
-  glass.base_color = Vec3(1);
-  glass.roughness = 0;
-  glass.transmission = 1;
-  add_icosphere(d, Vec3(0), 1.0f, 3, glass, /*smooth=*/false);
+  add_icosphere(d, Vec3(0), 1.0f, 3, testing::glass(0.0f), /*smooth=*/false);
   auto scene = make_scene(std::move(d), testing::constant_env(1.0f));
   JobSpec spec = sphere_view();
   spec.max_depth = 64;
@@ -358,11 +354,7 @@ TEST(Integrator, WhiteFurnaceSmoothGlassSphereIsOne) {
 TEST(Integrator, WhiteFurnaceRoughGlassSphereLosesOnlyWhatTheLobeLoses) {
   for (float roughness : {0.1f, 0.3f}) {
     SceneData d;
-    Material glass;
-    glass.base_color = Vec3(1);
-    glass.roughness = roughness;
-    glass.transmission = 1;
-    add_icosphere(d, Vec3(0), 1.0f, 3, glass, /*smooth=*/false);
+    add_icosphere(d, Vec3(0), 1.0f, 3, testing::glass(roughness), /*smooth=*/false);
     auto scene = make_scene(std::move(d), testing::constant_env(1.0f));
     JobSpec spec = sphere_view();
     spec.max_depth = 64;
@@ -378,12 +370,8 @@ TEST(Integrator, WhiteFurnaceRoughGlassSphereLosesOnlyWhatTheLobeLoses) {
 // base colour once on the way in and once on the way out; no noise at all.
 TEST(Integrator, IorOneGlassSphereTintsTwiceAndBendsNothing) {
   SceneData d;
-  Material glass;
-  glass.base_color = Vec3(0.5f);
-  glass.roughness = 0.5f;
-  glass.ior = 1.0f;
-  glass.transmission = 1;
-  add_icosphere(d, Vec3(0), 1.0f, 3, glass, /*smooth=*/false);
+  add_icosphere(d, Vec3(0), 1.0f, 3, testing::glass(0.5f, Vec3(0.5f), /*ior=*/1.0f),
+                /*smooth=*/false);
   auto scene = make_scene(std::move(d), testing::constant_env(1.0f));
   Estimate e = estimate(*scene, sphere_view(), 4, LightStrategy::kMis);
   ASSERT_GT(e.n, 1000u);

@@ -23,13 +23,8 @@ Vec3 refract_through(const SurfaceHit& hit, Vec3 d) {
 
 TEST(Transmission, RayCrossesASlabAsSnellSays) {
   SceneData d;
-  Material glass;
-  glass.base_color = Vec3(1);
-  glass.roughness = 0;
-  glass.ior = 1.5f;
-  glass.transmission = 1;
   const float thickness = 0.5f;
-  add_box(d, Vec3(-5, -5, -thickness), Vec3(5, 5, 0), glass);
+  add_box(d, Vec3(-5, -5, -thickness), Vec3(5, 5, 0), testing::glass(0.0f));
   auto scene = testing::make_scene(std::move(d), testing::constant_env(1.0f));
 
   for (double theta_deg : {0.0, 20.0, 45.0, 70.0}) {
@@ -67,11 +62,7 @@ TEST(Transmission, RayCrossesASlabAsSnellSays) {
 // surface reflects everything: the refraction number draws a reflection.
 TEST(Transmission, TotalInternalReflectionFromInside) {
   SceneData d;
-  Material glass;
-  glass.base_color = Vec3(1);
-  glass.roughness = 0;
-  glass.transmission = 1;
-  add_box(d, Vec3(-5, -5, -1), Vec3(5, 5, 0), glass);
+  add_box(d, Vec3(-5, -5, -1), Vec3(5, 5, 0), testing::glass(0.0f));
   auto scene = testing::make_scene(std::move(d), testing::constant_env(1.0f));
   for (double theta_deg : {30.0, 41.0, 42.5, 60.0}) {
     SCOPED_TRACE(theta_deg);

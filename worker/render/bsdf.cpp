@@ -181,7 +181,7 @@ Bsdf::Outgoing Bsdf::outgoing(Vec3 wo_w) const {
   } else {
     o.specular_prob = has_specular_ ? 1.0f : 0.0f;
   }
-  if (glass_weight_ > 0) {
+  if (glass_weight_ > 0) [[unlikely]] {
     // The glass lobe's albedo is about 1 (F plus 1 - F tinted): chosen by
     // its weight, bounded away from 0 and 1 while other lobes exist.
     const bool others = diffuse_weight_ > 0 || has_specular_;
@@ -224,7 +224,8 @@ Vec3 Bsdf::evaluate_local(const Outgoing& o, Vec3 wi, float* pdf_out) const {
     f += fr * (d * g * o.inv_4_cos_o);  // times cos(wi) / cos(wi) cancels
     if (wo_h > 0) p += d * o.specular_pdf_scale;
   }
-  if (glass_weight_ > 0) {
+  // Glass code stays out of line: opaque materials pay one branch.
+  if (glass_weight_ > 0) [[unlikely]] {
     p *= 1.0f - o.glass_prob;
     if (!glass_delta_) add_glass_reflection(o, wi, &f, &p);
   }
@@ -232,7 +233,8 @@ Vec3 Bsdf::evaluate_local(const Outgoing& o, Vec3 wi, float* pdf_out) const {
   return f;
 }
 
-void Bsdf::add_glass_reflection(const Outgoing& o, Vec3 wi, Vec3* f, float* pdf) const {
+[[gnu::noinline]] void Bsdf::add_glass_reflection(const Outgoing& o, Vec3 wi, Vec3* f,
+                                                  float* pdf) const {
   const Vec3 wo = o.wo;
   const Vec3 sum = wo + wi;
   const Vec3 h = sum * (1.0f / std::sqrt(dot(sum, sum)));
@@ -247,7 +249,7 @@ void Bsdf::add_glass_reflection(const Outgoing& o, Vec3 wi, Vec3* f, float* pdf)
   *pdf += o.glass_prob * fr * d / (2.0f * (wo.z + o.smith_r));
 }
 
-Vec3 Bsdf::evaluate_refraction(const Outgoing& o, Vec3 wi, float* pdf_out) const {
+[[gnu::noinline]] Vec3 Bsdf::evaluate_refraction(const Outgoing& o, Vec3 wi, float* pdf_out) const {
   *pdf_out = 0;
   const Vec3 wo = o.wo;
   // The generalised half vector (Walter et al. 2007, eq. 16), on wo's side.
@@ -281,7 +283,7 @@ Vec3 Bsdf::evaluate(const Outgoing& o, Vec3 wi_w, float* pdf_out) const {
   // surface because of a bent shading normal.
   const float side = dot(wi_w, ng_);
   if (side <= 0) {
-    if (glass_weight_ > 0 && !glass_delta_ && side < 0) {
+    if (glass_weight_ > 0 && !glass_delta_ && side < 0) [[unlikely]] {
       const Vec3 wi = frame_.to_local(wi_w);
       if (wi.z < 0) return evaluate_refraction(o, wi, pdf_out);
     }
@@ -311,7 +313,7 @@ BsdfSample Bsdf::sample(Vec3 wo_w, float u_lobe, Vec2 u) const {
   return sample(outgoing(wo_w), u_lobe, u);
 }
 
-BsdfSample Bsdf::sample_glass(const Outgoing& o, float u_lobe, Vec2 u) const {
+[[gnu::noinline]] BsdfSample Bsdf::sample_glass(const Outgoing& o, float u_lobe, Vec2 u) const {
   BsdfSample s;
   const Vec3 wo = o.wo;
   if (glass_delta_) {
@@ -355,7 +357,7 @@ BsdfSample Bsdf::sample_glass(const Outgoing& o, float u_lobe, Vec2 u) const {
 BsdfSample Bsdf::sample(const Outgoing& o, float u_lobe, Vec2 u) const {
   BsdfSample s;
   if (!o.valid) return s;
-  if (glass_weight_ > 0) {
+  if (glass_weight_ > 0) [[unlikely]] {
     if (u_lobe < o.glass_prob) return sample_glass(o, u_lobe / o.glass_prob, u);
     u_lobe = std::min((u_lobe - o.glass_prob) / (1.0f - o.glass_prob), 0.99999994f);
   }
@@ -369,7 +371,8 @@ BsdfSample Bsdf::sample(const Outgoing& o, float u_lobe, Vec2 u) const {
       if (dot(s.wi, ng_) <= 0) return s;
       // h = n, so wo.h = mu_o.
       s.weight = (o.fresnel_c0 + o.fresnel_c1 * schlick_weight(wo.z)) / ps;
-      if (glass_weight_ > 0) s.weight = s.weight / (1.0f - o.glass_prob);
+      if (glass_weight_ > 0) [[unlikely]]
+        s.weight = s.weight / (1.0f - o.glass_prob);
       s.is_delta = true;
       s.valid = is_finite(s.weight);
       return s;

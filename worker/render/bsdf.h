@@ -145,14 +145,16 @@ class Bsdf {
   bool grey_f0_;             // the same F0 in every channel (no specular colour)
   Vec3 diffuse_color_;       // (1 - metallic) * base_color
   Vec3 diffuse_norm_;        // 1 / (pi (1 - E_s_avg)); 1 / pi without an interface
-  float glass_weight_ = 0;   // (1 - metallic) t
-  Vec3 glass_tint_;          // the base colour, which tints refracted light
-  float eta_ = 1;            // IOR beyond the surface over IOR on wo's side
-  bool glass_delta_ = false;
   float alpha_;
   float diffuse_weight_;
   bool delta_specular_;
   bool has_specular_;
+  // The glass lobe (KHR_materials_transmission); last, so that opaque
+  // materials' members keep their places.
+  bool glass_delta_ = false;
+  float glass_weight_ = 0;  // (1 - metallic) t
+  float eta_ = 1;           // IOR beyond the surface over IOR on wo's side
+  Vec3 glass_tint_;         // the base colour, which tints refracted light
 };
 
 }  // namespace dofarm::render
