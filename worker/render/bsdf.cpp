@@ -2,6 +2,7 @@
 
 #include <cmath>
 
+#include "worker/render/glass_albedo.h"
 #include "worker/render/microfacet.h"
 #include "worker/render/trig.h"
 
@@ -18,10 +19,9 @@ float schlick_weight(float cos_theta) {
 // 2 ∫_0^1 (1 - mu)^5 mu dmu: the cosine-weighted average of Schlick's weight.
 constexpr float kSchlickWeightAverage = 1.0f / 21.0f;
 
-// Refraction of wo (on h's side) through a microfacet of normal h into the
-// medium of relative IOR eta (far over near); false under total internal
-// reflection.
-bool refract(Vec3 wo, Vec3 h, float cos_oh, float eta, Vec3* wi) {
+}  // namespace
+
+bool refract_through(Vec3 wo, Vec3 h, float cos_oh, float eta, Vec3* wi) {
   const float inv_eta = 1.0f / eta;
   const float sin2_t = (1.0f - cos_oh * cos_oh) * inv_eta * inv_eta;
   if (!(sin2_t < 1.0f)) return false;
@@ -29,8 +29,6 @@ bool refract(Vec3 wo, Vec3 h, float cos_oh, float eta, Vec3* wi) {
   *wi = h * (cos_oh * inv_eta - cos_t) - wo * inv_eta;
   return true;
 }
-
-}  // namespace
 
 float fresnel_dielectric(float cos_i, float eta) {
   cos_i = clamp01(cos_i);
@@ -85,6 +83,8 @@ Bsdf::Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, f
     glass_tint_ = base_color;
     const float n = std::isfinite(ior) && ior >= 1.0f ? std::min(ior, 1e4f) : 1.5f;
     eta_ = transmission.entering ? n : 1.0f / n;
+    glass_ior_ = n;
+    glass_entering_ = transmission.entering;
     // IOR 1 is no interface: light passes unbent whatever the roughness.
     glass_delta_ = delta_specular_ || n == 1.0f;
   }
@@ -189,6 +189,10 @@ Bsdf::Outgoing Bsdf::outgoing(Vec3 wo_w) const {
     if (!glass_delta_) {
       o.smith_r = ggx::smith_r(o.wo, alpha_);
       o.inv_4_cos_o = 1.0f / (4.0f * o.wo.z);
+      // Multiple-scattering compensation (glass_albedo.h).
+      const float e =
+          ggx::glass_albedo(ggx::glass_albedo_table(), glass_ior_, glass_entering_, alpha_, o.wo.z);
+      o.glass_scale = 1.0f / std::max(e, 0.1f);
     }
   }
   if (has_specular_ && !delta_specular_) {
@@ -243,7 +247,7 @@ Vec3 Bsdf::evaluate_local(const Outgoing& o, Vec3 wi, float* pdf_out) const {
   const float fr = fresnel_dielectric(wo_h, eta_);
   const float d = ggx::D(h, alpha_);
   const float g = ggx::G2_from_r(wo.z, o.smith_r, wi.z, ggx::smith_r(wi, alpha_));
-  *f += Vec3(glass_weight_ * fr * d * g * o.inv_4_cos_o);
+  *f += Vec3(glass_weight_ * o.glass_scale * fr * d * g * o.inv_4_cos_o);
   // VNDF pdf of h times the reflection Jacobian 1 / (4 wo.h), times the
   // probability F of reflecting.
   *pdf += o.glass_prob * fr * d / (2.0f * (wo.z + o.smith_r));
@@ -268,7 +272,8 @@ Vec3 Bsdf::evaluate_local(const Outgoing& o, Vec3 wi, float* pdf_out) const {
   const float den = wi_h + wo_h / eta_;
   const float jacobian = -wi_h / (den * den);
   // f |cos wi| = (1 - F) D G |wo.h| dh/dwi / (|wo.z| eta^2) (eq. 21, radiance).
-  const float value = glass_weight_ * ft * d * g * wo_h * jacobian / (wo.z * eta_ * eta_);
+  const float value =
+      glass_weight_ * o.glass_scale * ft * d * g * wo_h * jacobian / (wo.z * eta_ * eta_);
   const float p = o.glass_prob * ft * 2.0f * wo_h * d / (wo.z + o.smith_r) * jacobian;
   if (!std::isfinite(value) || !std::isfinite(p)) return Vec3(0);
   *pdf_out = p;
@@ -327,7 +332,7 @@ BsdfSample Bsdf::sample(Vec3 wo_w, float u_lobe, Vec2 u) const {
       if (dot(s.wi, ng_) <= 0) return s;
       s.weight = Vec3(glass_weight_ / o.glass_prob);
     } else {
-      if (!refract(wo, Vec3(0, 0, 1), wo.z, eta_, &wi)) return s;
+      if (!refract_through(wo, Vec3(0, 0, 1), wo.z, eta_, &wi)) return s;
       s.wi = frame_.to_world(wi);
       if (dot(s.wi, ng_) >= 0) return s;
       s.weight = glass_tint_ * (glass_weight_ / (o.glass_prob * eta_ * eta_));
@@ -344,7 +349,7 @@ BsdfSample Bsdf::sample(Vec3 wo_w, float u_lobe, Vec2 u) const {
     wi = reflect(wo, h);
     if (wi.z <= 0) return s;
   } else {
-    if (!refract(wo, h, wo_h, eta_, &wi) || wi.z >= 0) return s;
+    if (!refract_through(wo, h, wo_h, eta_, &wi) || wi.z >= 0) return s;
   }
   s.wi = frame_.to_world(wi);
   Vec3 f = evaluate(o, s.wi, &s.pdf);

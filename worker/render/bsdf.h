@@ -35,8 +35,9 @@
 //   the same GGX microfacets (Walter et al. 2007: the generalised half
 //   vector of eq. 16, the Jacobian of eq. 17, the BTDF of eq. 21, with the
 //   1 / eta^2 radiance scaling); the refracted light is tinted by the base
-//   colour. Single scattering: rough glass loses what multiple scattering
-//   between microfacets would return (docs/renderer.md has the figures).
+//   colour. Rough glass loses what multiple scattering between microfacets
+//   would return; the lobe is scaled by 1 / E(mu_o), its directional albedo
+//   (glass_albedo.h), which gives it back (docs/renderer.md has the figures).
 //   Below kDeltaAlpha it is a delta lobe; at IOR 1 it lets light through
 //   unbent (no interface).
 //
@@ -69,6 +70,10 @@ struct SpecularLayer {
 // light meeting it at cos_i > 0 from the side of IOR n1, eta = n2 / n1; 1
 // under total internal reflection.
 float fresnel_dielectric(float cos_i, float eta);
+// Refraction of wo (on h's side, cos_oh = wo.h > 0) through a microfacet of
+// normal h into the medium of relative IOR eta (far over near); false under
+// total internal reflection.
+bool refract_through(Vec3 wo, Vec3 h, float cos_oh, float eta, Vec3* wi);
 
 // glTF KHR_materials_transmission's factor t, and on which side of the
 // surface the outgoing direction lies: `entering` = on its front side (the
@@ -100,6 +105,7 @@ class Bsdf {
     float inv_4_cos_o = 0;         // 1 / (4 wo.z), of the microfacet BRDF
     float specular_pdf_scale = 0;  // specular lobe's pdf over D(h)
     float glass_prob = 0;          // of choosing the glass lobe in sample()
+    float glass_scale = 1;         // 1 / E_glass(mu_o): multiple-scattering compensation
     bool valid = false;            // above both the shading and the geometric surface
   };
   Outgoing outgoing(Vec3 wo) const;
@@ -154,6 +160,8 @@ class Bsdf {
   bool glass_delta_ = false;
   float glass_weight_ = 0;  // (1 - metallic) t
   float eta_ = 1;           // IOR beyond the surface over IOR on wo's side
+  float glass_ior_ = 1;     // the material's IOR
+  bool glass_entering_ = true;
   Vec3 glass_tint_;         // the base colour, which tints refracted light
 };
 
