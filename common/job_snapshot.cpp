@@ -163,6 +163,9 @@ std::string canonical_spec_toml(const JobSpec& spec, const std::string& scene,
     line("reference_spp = " + std::to_string(spec.reference_spp));
   }
   line("albedo_ref_spp = " + std::to_string(spec.albedo_ref_spp));
+  // Written only when set, so that the snapshots (and content hashes) of
+  // jobs without it stay what they were.
+  if (spec.reference_clamp > 0) line("reference_clamp = " + number(spec.reference_clamp));
   line("\n[render]");
   line("max_depth = " + std::to_string(spec.max_depth));
   line("rr_start_depth = " + std::to_string(spec.rr_start_depth));

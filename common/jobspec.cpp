@@ -249,8 +249,8 @@ void read_environment(const Section& s, const fs::path& base, JobSpec& spec) {
 }
 
 void read_buffers(const Section& s, JobSpec& spec) {
-  s.check_keys(
-      {"versions", "reference_spp", "reference_error", "reference_max_spp", "albedo_ref_spp"});
+  s.check_keys({"versions", "reference_spp", "reference_error", "reference_max_spp",
+                "reference_clamp", "albedo_ref_spp"});
   if (auto v = s.integer("versions", IntRange::between(1, 64))) spec.versions = int(*v);
   s.exclusive("reference_spp", "reference_error");
   if (auto v = s.integer("reference_spp", IntRange::positive())) spec.reference_spp = int(*v);
@@ -261,6 +261,7 @@ void read_buffers(const Section& s, JobSpec& spec) {
   if (auto v = s.integer("reference_max_spp", IntRange::positive()))
     spec.reference_max_spp = int(*v);
   if (auto v = s.integer("albedo_ref_spp", IntRange::positive())) spec.albedo_ref_spp = int(*v);
+  if (auto v = s.number("reference_clamp", Interval::positive())) spec.reference_clamp = float(*v);
 }
 
 void read_render(const Section& s, JobSpec& spec) {

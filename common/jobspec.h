@@ -81,6 +81,10 @@ struct JobSpec {
   int reference_spp = 1024;        // used when reference_error is 0
   float reference_error = 0.0f;    // > 0: per-pixel relative std. error target
   int reference_max_spp = 65536;   // cap when reference_error is used
+  // > 0: the reference's samples are clamped (biased, opt-in): everything
+  // but directly seen emission, at most this in its largest channel
+  // (docs/renderer.md, "How converged is the reference"). 0: unbiased.
+  float reference_clamp = 0.0f;
   int albedo_ref_spp = 24;
 
   // [render]

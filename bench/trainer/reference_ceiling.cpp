@@ -14,7 +14,9 @@
 // scores two renders of the same frame with different seeds against each
 // other (the issue's own definition of the ceiling: an independent second
 // reference at the full sample count), to compare with the half-vs-half
-// figure of each.
+// figure of each, and gives the ratio of their mean radiances (A over B:
+// what a clamped reference loses against an unbiased B,
+// buffers.reference_clamp).
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -79,10 +81,15 @@ int main(int argc, char** argv) {
     using dofarm::trainer::display_encode;
     const std::vector<float> da = display_encode({a.reference.data(), 3, a.height, a.width});
     const std::vector<float> db = display_encode({b.reference.data(), 3, b.height, b.width});
+    double sum_a = 0, sum_b = 0;
+    for (float v : a.reference) sum_a += v;
+    for (float v : b.reference) sum_b += v;
     std::printf(
-        "pair: SSIM(reference A, reference B) %.5f; half-vs-half A %.5f, B %.5f\n",
+        "pair: SSIM(reference A, reference B) %.5f; half-vs-half A %.5f, B %.5f; mean A / B "
+        "%.4f\n",
         dofarm::trainer::ssim({da.data(), 3, a.height, a.width}, {db.data(), 3, b.height, b.width}),
-        dofarm::trainer::reference_ceiling_ssim(a), dofarm::trainer::reference_ceiling_ssim(b));
+        dofarm::trainer::reference_ceiling_ssim(a), dofarm::trainer::reference_ceiling_ssim(b),
+        sum_b > 0 ? sum_a / sum_b : 0.0);
     return 0;
   }
   std::vector<Row> rows;

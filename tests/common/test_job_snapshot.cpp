@@ -73,6 +73,19 @@ TEST(JobSnapshot, CanonicalSpecReadsBackToTheSameJob) {
   EXPECT_EQ(checked, 5);
 }
 
+// The reference clamp is written only when set: jobs without it keep the
+// snapshot (and content hash) they had; with it, it reads back.
+TEST(JobSnapshot, ReferenceClampIsWrittenOnlyWhenSet) {
+  const fs::path spec_path = fs::path(DOFARM_SOURCE_DIR) / "jobs" / "cornell.toml";
+  JobSpec plain = load_job_spec(spec_path);
+  const std::string text = canonical_spec_toml(plain, plain.scene.string(), "");
+  EXPECT_EQ(text.find("reference_clamp"), std::string::npos);
+  JobSpec clamped = load_job_spec(spec_path, {"buffers.reference_clamp=20"});
+  const std::string with = canonical_spec_toml(clamped, clamped.scene.string(), "");
+  EXPECT_NE(with.find("reference_clamp = 20"), std::string::npos) << with;
+  EXPECT_EQ(parse_job_spec(with, spec_path).reference_clamp, 20.0f);
+}
+
 TEST(JobSnapshot, DifferencesNameEachChangedKey) {
   const fs::path spec_path = fs::path(DOFARM_SOURCE_DIR) / "jobs/cornell.toml";
   JobSpec a = load_job_spec(spec_path);

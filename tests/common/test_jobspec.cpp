@@ -432,6 +432,23 @@ TEST_F(JobSpecFiles, BadOverrideValueIsLocatedAtTheSet) {
   EXPECT_NE(std::string(nan.what()).find("finite"), std::string::npos);
 }
 
+// The reference clamp (opt-in, biased): off (0) unless set; a positive
+// number; zero, negative or not a number is an error naming the key.
+TEST_F(JobSpecFiles, ReferenceClampIsOptInAndPositive) {
+  EXPECT_EQ(parse(kOneKey).reference_clamp, 0.0f);
+  EXPECT_EQ(parse(kOneKey, {"buffers.reference_clamp=12.5"}).reference_clamp, 12.5f);
+  for (const char* bad :
+       {"buffers.reference_clamp=0", "buffers.reference_clamp=-1", "buffers.reference_clamp=inf"}) {
+    SCOPED_TRACE(bad);
+    SpecError e = parse_error(kOneKey, {bad});
+    EXPECT_EQ(e.key(), "buffers.reference_clamp");
+    const std::string what = e.what();
+    EXPECT_TRUE(what.find("a positive number") != std::string::npos ||
+                what.find("a finite number") != std::string::npos)
+        << what;
+  }
+}
+
 TEST_F(JobSpecFiles, OverrideOfUnknownKeyIsAnError) {
   SpecError e = parse_error(kOneKey, {"image.widht=64"});
   EXPECT_EQ(e.loc().file, "--set image.widht=64");

@@ -378,6 +378,49 @@ TEST(Integrator, IorOneGlassSphereTintsTwiceAndBendsNothing) {
   EXPECT_LT(e.std_error, 1e-6);
 }
 
+// The sample clamp (JobSpec::reference_clamp, opt-in and biased): what the
+// camera sees emitted directly is never clamped; the rest of a sample is
+// scaled, hue kept, to at most the bound in its largest channel; off, it
+// changes nothing.
+TEST(Integrator, SampleClampBoundsAllButDirectlySeenEmission) {
+  SceneData d;
+  // A bright lamp (radiance 50, 25, 10) facing a white floor.
+  add_quad(d, Vec3(0, 0, 0), Vec3(2, 0, 0), Vec3(0, 0, -2), testing::diffuse(Vec3(0.8f)));  // up
+  add_quad(d, Vec3(0, 1, 0), Vec3(0.2f, 0, 0), Vec3(0, 0, 0.2f),
+           testing::emitter(Vec3(50, 25, 10)));  // faces down
+  auto scene = make_scene(std::move(d));
+  IntegratorSettings plain, clamped;
+  clamped.sample_clamp = 0.5f;
+  int floor_samples = 0, above = 0;
+  for (int i = 0; i < 256; ++i) {
+    // Down at the floor from beside the lamp, and up into the lamp.
+    const Ray at_floor{Vec3(0.5f, 0.5f, 0.0f),
+                       normalize(Vec3(0.01f * (i % 16), -1, 0.01f * (i / 16)))};
+    PixelSampler a(SamplerKind::kSobol, 5, 0, i, 0, Stream::kTest), b = a;
+    a.start_sample(0);
+    b.start_sample(0);
+    const Vec3 lp = trace_path(*scene, at_floor, a, plain);
+    const Vec3 lc = trace_path(*scene, at_floor, b, clamped);
+    if (max_component(lp) > 0.5f) {
+      ++above;
+      EXPECT_NEAR(max_component(lc), 0.5f, 1e-5f);
+      EXPECT_NEAR(lc.y / lc.x, lp.y / lp.x, 1e-4f);  // hue kept
+    } else {
+      EXPECT_EQ(lc.x, lp.x);
+      EXPECT_EQ(lc.z, lp.z);
+    }
+    ++floor_samples;
+  }
+  EXPECT_GT(above, 10);
+  EXPECT_EQ(floor_samples, 256);
+  // The lamp seen directly keeps its radiance.
+  PixelSampler s(SamplerKind::kSobol, 5, 0, 0, 0, Stream::kTest);
+  s.start_sample(0);
+  const Vec3 lamp = trace_path(*scene, {Vec3(0.1f, 0.5f, -0.1f), Vec3(0, 1, 0)}, s, clamped);
+  EXPECT_GE(lamp.x, 50.0f);
+  EXPECT_GE(lamp.y, 25.0f);
+}
+
 TEST(Integrator, SceneWithoutLightIsRefused) {
   SceneData d;
   d.source = "dark.gltf";

@@ -28,6 +28,7 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
   const bool use_mis = settings.strategy == LightStrategy::kMis;
 
   Vec3 L(0), beta(1);
+  Vec3 seen(0);  // emission the camera ray itself reaches (never clamped)
   Ray ray = camera_ray;
   bool delta_bounce = true;  // the camera ray counts as one: nothing to weigh against
   float prev_bsdf_pdf = 0;
@@ -67,6 +68,7 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
           le = env->eval(escape);
         }
         L += beta * le * w;
+        if (depth == 0) seen = L;
         if (settings.observer)
           settings.observer->contribution(PathObserver::Kind::kEnvironment, depth, beta * le * w);
       }
@@ -77,6 +79,7 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
       if (!delta_bounce && use_mis)
         w = power_heuristic(prev_bsdf_pdf, scene.light_pdf(prev_p, hit));
       L += beta * hit.emission * w;
+      if (depth == 0) seen = L;
       if (settings.observer)
         settings.observer->contribution(
             delta_bounce ? PathObserver::Kind::kEmitted : PathObserver::Kind::kBsdfHit, depth,
@@ -156,6 +159,14 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
     ray = {scene.offset_origin(hit, bs.wi), bs.wi};
   }
   if (!is_finite(L) || L.x < 0 || L.y < 0 || L.z < 0) return Vec3(0);
+  if (settings.sample_clamp > 0) [[unlikely]] {
+    // A sample clamp (biased; JobSpec::reference_clamp): the rest of the
+    // sample keeps its hue, its largest channel at most the bound.
+    const Vec3 rest(std::max(L.x - seen.x, 0.0f), std::max(L.y - seen.y, 0.0f),
+                    std::max(L.z - seen.z, 0.0f));
+    const float m = max_component(rest);
+    if (m > settings.sample_clamp) L = seen + rest * (settings.sample_clamp / m);
+  }
   return L;
 }
 

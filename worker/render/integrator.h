@@ -42,6 +42,11 @@ struct IntegratorSettings {
   float rr_threshold = 0.25f;
   LightStrategy strategy = LightStrategy::kMis;
   PathObserver* observer = nullptr;  // measurements only (bench/path_variance)
+  // > 0: a biased, opt-in clamp (JobSpec::reference_clamp): of each sample,
+  // everything but what the camera ray itself sees emitted (a light or the
+  // environment seen directly) is scaled down so that its largest channel
+  // is at most this. 0 (the default) changes nothing.
+  float sample_clamp = 0.0f;
 };
 
 // What the denoiser sees of the first surface: the reflectance used to

@@ -57,6 +57,10 @@ class PixelRenderer {
       : scene_(scene), spec_(spec), camera_(camera), frame_(frame), reference_only_(reference_only) {
     settings_.max_depth = spec.max_depth;
     settings_.rr_start_depth = spec.rr_start_depth;
+    // The reference alone may be clamped (opt-in, biased); the noisy inputs
+    // never are.
+    reference_settings_ = settings_;
+    reference_settings_.sample_clamp = spec.reference_clamp;
   }
 
   // Exact for a fixed reference spp; for an error target, the cap.
@@ -157,7 +161,7 @@ class PixelRenderer {
     if (adaptive) sums_at_32.reserve(size_t(target / 32));
     for (int s = 0; s < target; ++s) {
       ref.start_sample(uint32_t(s));
-      acc.add(trace_path(scene_, lens_ray(ref, x, y), ref, settings_));
+      acc.add(trace_path(scene_, lens_ray(ref, x, y), ref, reference_settings_));
       if (s + 1 == half_of_target) half_sum = {acc.sum[0], acc.sum[1], acc.sum[2]};
       if (adaptive && (s + 1) % 32 == 0) sums_at_32.push_back({acc.sum[0], acc.sum[1], acc.sum[2]});
       if (adaptive && (s + 1) % batch == 0 && acc.relative_error() <= spec_.reference_error) break;
@@ -195,7 +199,7 @@ class PixelRenderer {
   const Camera& camera_;
   int frame_;
   bool reference_only_;
-  IntegratorSettings settings_;
+  IntegratorSettings settings_, reference_settings_;
 };
 
 }  // namespace
