@@ -11,13 +11,13 @@
 #include <cstdio>
 #include <iterator>
 #include <limits>
-#include <optional>
 #include <random>
 #include <string>
 #include <tuple>
 #include <vector>
 
 #include "common/math.h"
+#include "tests/render/bsdf_chi2.h"
 #include "tests/render/chi2.h"
 #include "worker/render/bsdf.h"
 #include "worker/render/microfacet.h"
@@ -28,7 +28,6 @@ using dofarm::Vec2;
 using dofarm::Vec3;
 using dofarm::render::Bsdf;
 using dofarm::render::BsdfSample;
-using dofarm::test::Chi2Options;
 using dofarm::test::Chi2Result;
 using dofarm::test::SphereCells;
 
@@ -97,27 +96,7 @@ double lobe_width(const Material& m) {
   return 2.0 * dofarm::render::ggx::alpha_from_roughness(m.roughness);
 }
 
-// The directions the sampler produces for the non-delta part; rejected and
-// delta samples are missing mass, which pdf() must account for.
-std::optional<Vec3> sampled_direction(const Bsdf& bsdf, Vec3 wo, Vec2 u, float u_lobe) {
-  BsdfSample s = bsdf.sample(wo, u_lobe, u);
-  if (!s.valid || s.is_delta) return std::nullopt;
-  return s.wi;
-}
-
-Chi2Result run_chi2(const Bsdf& sampler, const Bsdf& density, Vec3 wo, const SphereCells& cells,
-                    int64_t samples = 100000) {
-  Chi2Options options;
-  options.cells = cells;
-  options.samples = samples;
-  // An error of 0.02 expected samples per cell is far below the Poisson noise
-  // of cells that hold >= 5, and keeps the integration of cells cut by the
-  // horizon (grazing incidence, narrow lobes) from running to full depth.
-  options.count_tolerance = 2e-2;
-  return dofarm::test::chi2_test(
-      [&](Vec2 u, float u_lobe) { return sampled_direction(sampler, wo, u, u_lobe); },
-      [&](Vec3 wi) { return density.pdf(wo, wi); }, options);
-}
+using dofarm::test::bsdf_chi2;
 
 }  // namespace
 
@@ -129,12 +108,7 @@ class BsdfChi2 : public ::testing::TestWithParam<std::tuple<int, double>> {
   const Material& material() const { return kMaterials[std::get<0>(GetParam())]; }
   double angle() const { return std::get<1>(GetParam()); }
   void Report(const char* cells, const Chi2Result& r) {
-    EXPECT_EQ(r.malformed, 0) << r.summary();
-    EXPECT_LE(r.pdf_integral, 1.0 + 1e-3) << r.summary();
-    EXPECT_EQ(r.outside_support, 0) << r.summary();
-    EXPECT_GT(r.p_value, kChi2Threshold) << r.summary();
-    std::printf("  %-15s theta %2.0f, %s cells: %s\n", material().name, angle(), cells,
-                r.summary().c_str());
+    dofarm::test::expect_chi2_pass(r, kChi2Threshold, material().name, angle(), cells);
   }
 };
 
@@ -144,7 +118,7 @@ TEST_P(BsdfChi2, DirectionsFollowPdfNearTheMirrorDirection) {
   const Bsdf bsdf = make_bsdf(material());
   const Vec3 wo = incident(angle());
   Report("mirror",
-         run_chi2(bsdf, bsdf, wo, SphereCells{mirror(wo), lobe_width(material()), 20, 40}));
+         bsdf_chi2(bsdf, bsdf, wo, SphereCells{mirror(wo), lobe_width(material()), 20, 40}));
 }
 
 // Equal-area cells around the normal (20 rings above the horizon, 20 below)
@@ -153,7 +127,7 @@ TEST_P(BsdfChi2, DirectionsFollowPdfNearTheMirrorDirection) {
 TEST_P(BsdfChi2, DirectionsFollowPdfOverTheHemisphere) {
   const Bsdf bsdf = make_bsdf(material());
   const Vec3 wo = incident(angle());
-  Report("normal", run_chi2(bsdf, bsdf, wo, SphereCells{kUp, 0.0, 40, 40}));
+  Report("normal", bsdf_chi2(bsdf, bsdf, wo, SphereCells{kUp, 0.0, 40, 40}));
 }
 
 INSTANTIATE_TEST_SUITE_P(MaterialsAndAngles, BsdfChi2,
@@ -171,7 +145,7 @@ TEST(BsdfChi2Control, RejectsPdfOfAnotherRoughness) {
   const Material wrong{"half_metal", 0.5f, 0.55f, Vec3(0.9f, 0.6f, 0.3f)};
   const Vec3 wo = incident(45);
   Chi2Result r =
-      run_chi2(make_bsdf(m), make_bsdf(wrong), wo, SphereCells{mirror(wo), lobe_width(m), 20, 40});
+      bsdf_chi2(make_bsdf(m), make_bsdf(wrong), wo, SphereCells{mirror(wo), lobe_width(m), 20, 40});
   EXPECT_LT(r.p_value, 1e-12) << r.summary();
 }
 
@@ -179,7 +153,7 @@ TEST(BsdfChi2Control, RejectsPdfOfAnotherMetallic) {
   const Material m{"half_metal", 0.5f, 0.5f, Vec3(0.9f, 0.6f, 0.3f)};
   const Material wrong{"half_metal", 0.4f, 0.5f, Vec3(0.9f, 0.6f, 0.3f)};
   const Vec3 wo = incident(45);
-  Chi2Result r = run_chi2(make_bsdf(m), make_bsdf(wrong), wo, SphereCells{kUp, 0.0, 40, 40});
+  Chi2Result r = bsdf_chi2(make_bsdf(m), make_bsdf(wrong), wo, SphereCells{kUp, 0.0, 40, 40});
   EXPECT_LT(r.p_value, 1e-12) << r.summary();
 }
 

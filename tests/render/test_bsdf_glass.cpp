@@ -9,12 +9,12 @@
 #include <cmath>
 #include <cstdio>
 #include <iterator>
-#include <optional>
 #include <random>
 #include <string>
 #include <tuple>
 
 #include "common/math.h"
+#include "tests/render/bsdf_chi2.h"
 #include "tests/render/chi2.h"
 #include "worker/render/bsdf.h"
 #include "worker/render/glass_albedo.h"
@@ -27,7 +27,6 @@ using dofarm::render::Bsdf;
 using dofarm::render::BsdfSample;
 using dofarm::render::fresnel_dielectric;
 using dofarm::render::TransmissionLayer;
-using dofarm::test::Chi2Options;
 using dofarm::test::Chi2Result;
 using dofarm::test::SphereCells;
 
@@ -83,17 +82,7 @@ Vec3 lobe_centre(Vec3 wo, float eta) {
 }
 
 Chi2Result run_chi2(const Bsdf& bsdf, Vec3 wo, const SphereCells& cells) {
-  Chi2Options options;
-  options.cells = cells;
-  options.samples = 100000;
-  options.count_tolerance = 2e-2;
-  return dofarm::test::chi2_test(
-      [&](Vec2 u, float u_lobe) -> std::optional<Vec3> {
-        BsdfSample s = bsdf.sample(wo, u_lobe, u);
-        if (!s.valid || s.is_delta) return std::nullopt;
-        return s.wi;
-      },
-      [&](Vec3 wi) { return bsdf.pdf(wo, wi); }, options);
+  return dofarm::test::bsdf_chi2(bsdf, bsdf, wo, cells);
 }
 
 }  // namespace
@@ -123,12 +112,7 @@ class GlassChi2 : public ::testing::TestWithParam<std::tuple<int, double>> {
   const Glass& glass() const { return kGlasses[std::get<0>(GetParam())]; }
   double angle() const { return std::get<1>(GetParam()); }
   void Report(const char* cells, const Chi2Result& r) {
-    EXPECT_EQ(r.malformed, 0) << r.summary();
-    EXPECT_LE(r.pdf_integral, 1.0 + 1e-3) << r.summary();
-    EXPECT_EQ(r.outside_support, 0) << r.summary();
-    EXPECT_GT(r.p_value, kChi2Threshold) << r.summary();
-    std::printf("  %-16s theta %2.0f, %s cells: %s\n", glass().name, angle(), cells,
-                r.summary().c_str());
+    dofarm::test::expect_chi2_pass(r, kChi2Threshold, glass().name, angle(), cells);
   }
 };
 
@@ -160,18 +144,8 @@ INSTANTIATE_TEST_SUITE_P(GlassesAndAngles, GlassChi2,
 TEST(GlassChi2Control, RejectsPdfOfAnotherIor) {
   const Bsdf bsdf = make_bsdf(kGlasses[0]);
   const Bsdf wrong(kUp, kUp, Vec3(1.0f), 0.0f, 0.3f, 1.6f, {}, TransmissionLayer{1.0f, true});
-  const Vec3 wo = incident(30);
-  Chi2Options options;
-  options.cells = SphereCells{kUp, 0.0, 40, 40};
-  options.samples = 100000;
-  options.count_tolerance = 2e-2;
-  Chi2Result r = dofarm::test::chi2_test(
-      [&](Vec2 u, float u_lobe) -> std::optional<Vec3> {
-        BsdfSample s = bsdf.sample(wo, u_lobe, u);
-        if (!s.valid || s.is_delta) return std::nullopt;
-        return s.wi;
-      },
-      [&](Vec3 wi) { return wrong.pdf(wo, wi); }, options);
+  const Chi2Result r =
+      dofarm::test::bsdf_chi2(bsdf, wrong, incident(30), SphereCells{kUp, 0.0, 40, 40});
   EXPECT_LT(r.p_value, 1e-12) << r.summary();
 }
 
