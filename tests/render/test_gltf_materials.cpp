@@ -410,5 +410,40 @@ TEST(GltfMaterials, TransmissionFactorIsRead) {
     EXPECT_EQ(l.find("ignores the glTF extensions"), std::string::npos) << l;
 }
 
+// KHR_materials_volume's attenuation as written: sigma_a = -ln(c) / d per
+// channel; no extension, no distance (the extension's +inf) or white is
+// clear; a distance not above 0 or a colour outside [0, 1] is warned about,
+// naming the material and the key, and no absorption used. The extension
+// is read, so it is not in the "ignores" warning.
+TEST(GltfMaterials, VolumeAttenuationIsRead) {
+  TempDir dir("volume");
+  LogCapture log;
+  struct Case {
+    const char* name;
+    Json ext;  // null: no extension
+    Vec3 sigma;
+  } cases[] = {
+      {"tinted",
+       {{"thicknessFactor", 0.1},
+        {"attenuationDistance", 2.0},
+        {"attenuationColor", {0.5, 0.25, 1.0}}},
+       Vec3(std::log(2.0f) / 2, std::log(4.0f) / 2, 0.0f)},
+      {"no_distance", {{"attenuationColor", {0.5, 0.5, 0.5}}}, Vec3(0.0f)},
+      {"none", nullptr, Vec3(0.0f)},
+      {"zero_distance", {{"attenuationDistance", 0.0}}, Vec3(0.0f)},
+      {"bright", {{"attenuationDistance", 1.0}, {"attenuationColor", {1.5, 1, 1}}}, Vec3(0.0f)}};
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    const Material m = material_with_extension(dir.path, c.name, "KHR_materials_volume", c.ext);
+    expect_near3(m.attenuation, c.sigma, 1e-6f);
+  }
+  std::vector<std::string> lines = log.lines();
+  ASSERT_EQ(lines.size(), 2u);
+  EXPECT_NE(lines[0].find("\"zero_distance\""), std::string::npos) << lines[0];
+  EXPECT_NE(lines[0].find("attenuationDistance 0"), std::string::npos) << lines[0];
+  EXPECT_NE(lines[1].find("\"bright\""), std::string::npos) << lines[1];
+  EXPECT_NE(lines[1].find("attenuationColor"), std::string::npos) << lines[1];
+}
+
 }  // namespace
 }  // namespace dofarm::render

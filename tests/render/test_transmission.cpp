@@ -8,6 +8,7 @@
 
 #include "tests/render/render_fixtures.h"
 #include "worker/render/bsdf.h"
+#include "worker/render/integrator.h"
 
 namespace dofarm::render {
 namespace {
@@ -77,6 +78,34 @@ TEST(Transmission, TotalInternalReflectionFromInside) {
     } else {
       EXPECT_GT(wi.z, 0.0f);  // out through the top
       EXPECT_NEAR(wi.x, 1.5 * std::sin(theta), 1e-5);
+    }
+  }
+}
+
+// KHR_materials_volume (Beer-Lambert): light that crosses a clear IOR-1
+// slab of thickness T absorbing sigma = -ln(c) / d leaves with c^(T / d) of
+// its radiance, per channel, exactly; the same slab without absorption
+// passes everything.
+TEST(Transmission, AbsorbingSlabPassesColourToTheThicknessOverDistance) {
+  for (bool absorbing : {true, false}) {
+    SCOPED_TRACE(absorbing);
+    SceneData d;
+    Material m = testing::glass(0.0f, Vec3(1), /*ior=*/1.0f);
+    const Vec3 c(0.5f, 0.25f, 1.0f);
+    const float distance = 2.0f, thickness = 0.5f;
+    if (absorbing) m.attenuation = Vec3(-std::log(c.x), -std::log(c.y), -std::log(c.z)) / distance;
+    add_box(d, Vec3(-5, -5, -thickness), Vec3(5, 5, 0), m);
+    auto scene = testing::make_scene(std::move(d), testing::constant_env(1.0f));
+    IntegratorSettings settings;
+    for (int i = 0; i < 8; ++i) {
+      PixelSampler sampler(SamplerKind::kSobol, 3, 0, i, 0, Stream::kTest);
+      sampler.start_sample(0);
+      const Vec3 dir = normalize(Vec3(0.1f * i, 0.0f, -1.0f));
+      const Vec3 L = trace_path(*scene, {dir * -3.0f, dir}, sampler, settings);
+      const float path = thickness / -dir.z;  // the length inside the slab
+      for (int k = 0; k < 3; ++k)
+        EXPECT_NEAR(L[k], absorbing ? std::pow(c[k], path / distance) : 1.0f, 1e-5f)
+            << "channel " << k << " ray " << i;
     }
   }
 }

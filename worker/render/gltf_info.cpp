@@ -19,9 +19,13 @@ namespace {
 // The extensions whose content dofarm reads (assimp: KHR_materials_ior,
 // KHR_lights_punctual; here: the others).
 const std::set<std::string>& implemented_extensions() {
-  static const std::set<std::string> names = {
-      "KHR_materials_emissive_strength", "KHR_materials_ior",   "KHR_materials_specular",
-      "KHR_materials_transmission",      "KHR_lights_punctual", "KHR_texture_transform"};
+  static const std::set<std::string> names = {"KHR_materials_emissive_strength",
+                                              "KHR_materials_ior",
+                                              "KHR_materials_specular",
+                                              "KHR_materials_transmission",
+                                              "KHR_materials_volume",
+                                              "KHR_lights_punctual",
+                                              "KHR_texture_transform"};
   return names;
 }
 
@@ -134,6 +138,22 @@ GltfInfo read_gltf_info(const std::filesystem::path& path) {
         info.transmission_texture = ext.contains("transmissionTexture");
       }
     }
+    if (m.contains("extensions") && m["extensions"].is_object() &&
+        m["extensions"].contains("KHR_materials_volume")) {
+      const auto& ext = m["extensions"]["KHR_materials_volume"];
+      if (ext.is_object()) {
+        if (ext.contains("attenuationDistance"))
+          info.attenuation_distance = ext["attenuationDistance"].is_number()
+                                          ? ext["attenuationDistance"].get<double>()
+                                          : NAN;
+        if (ext.contains("attenuationColor")) {
+          const auto& c = ext["attenuationColor"];
+          const bool ok = c.is_array() && c.size() == 3 && c[0].is_number() && c[1].is_number() &&
+                          c[2].is_number();
+          for (int k = 0; k < 3; ++k) info.attenuation_color[k] = ok ? c[k].get<double>() : NAN;
+        }
+      }
+    }
     if (m.contains("pbrMetallicRoughness") && m["pbrMetallicRoughness"].is_object()) {
       const auto& pbr = m["pbrMetallicRoughness"];
       if (pbr.contains("baseColorTexture"))
@@ -177,7 +197,8 @@ void check_extensions(const std::filesystem::path& path, const GltfInfo& info) {
         "extensionsRequired lists " + required +
             ", which dofarm does not implement (it implements " +
             "KHR_lights_punctual, KHR_materials_emissive_strength, KHR_materials_ior, " +
-            "KHR_materials_specular, KHR_materials_transmission, KHR_texture_transform)");
+            "KHR_materials_specular, KHR_materials_transmission, KHR_materials_volume, "
+            "KHR_texture_transform)");
   for (const std::string& e : info.extensions_used)
     if (!implemented_extensions().count(e)) used += (used.empty() ? "" : ", ") + e;
   if (!used.empty())

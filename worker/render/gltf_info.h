@@ -2,6 +2,7 @@
 // what assimp 5.2 gives it, and the check of the file's extension lists.
 #pragma once
 
+#include <cmath>
 #include <filesystem>
 #include <string>
 #include <vector>
@@ -41,6 +42,12 @@ struct GltfMaterialInfo {
   // extension; NaN: not a number); its texture is not applied.
   double transmission = 0.0;
   bool transmission_texture = false;
+  // KHR_materials_volume's attenuation as written (distance +inf and
+  // colour white without the extension; NaN: not a number or the wrong
+  // shape); thickness is a rasteriser's stand-in for the geometry, which
+  // a ray tracer has.
+  double attenuation_distance = INFINITY;
+  double attenuation_color[3] = {1.0, 1.0, 1.0};
 };
 struct GltfInfo {
   std::vector<GltfMaterialInfo> materials;

@@ -53,6 +53,13 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
     SurfaceHit hit;
     bool found = scene.intersect(ray, &hit);
     if (depth == 0 && albedo) *albedo = primary_albedo(found ? &hit : nullptr);
+    // KHR_materials_volume: a segment that ends on the inside of a mesh
+    // whose material absorbs ran through that medium (closed meshes that do
+    // not overlap): Beer-Lambert, exp(-sigma_a t).
+    if (found && !hit.front && max_component(hit.attenuation) > 0) [[unlikely]] {
+      const Vec3& s = hit.attenuation;
+      beta = beta * Vec3(std::exp(-s.x * hit.t), std::exp(-s.y * hit.t), std::exp(-s.z * hit.t));
+    }
     if (found && settings.observer) settings.observer->vertex(depth, hit);
 
     if (!found) {

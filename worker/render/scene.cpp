@@ -325,6 +325,7 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
   hit->specular = m.specular;
   hit->specular_color = m.specular_color;
   hit->transmission = m.transmission;
+  hit->attenuation = m.attenuation;
   // Only textured materials pay for lookups.
   if (m.base_color_tex >= 0)
     hit->base_color =

@@ -28,6 +28,7 @@ struct SurfaceHit {
   float specular = 1.0f;      // KHR_materials_specular specularFactor
   Vec3 specular_color{1.0f};  // and specularColorFactor
   float transmission = 0;     // KHR_materials_transmission transmissionFactor
+  Vec3 attenuation;           // KHR_materials_volume absorption coefficient (per unit length)
   bool front = true;          // the ray hit the side the triangle's winding faces
   Vec3 emission;  // radiance leaving the surface (both faces emit)
 };

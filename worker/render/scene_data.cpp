@@ -234,6 +234,7 @@ class Loader {
       }
       if (g) specular_layer(*g, i, &m);
       if (g) transmission(*g, i, &m);
+      if (g) volume(*g, i, &m);
       if (g && (g->mask || g->blend)) {
         m.alpha_mask = true;
         m.alpha_blend = g->blend;
@@ -338,6 +339,36 @@ class Loader {
           "{}: {}: KHR_materials_transmission transmissionTexture ignored (its factor "
           "is used)",
           path_.string(), which);
+  }
+  // KHR_materials_volume's attenuation (schema: attenuationDistance > 0,
+  // attenuationColor in [0, 1]): sigma_a = -ln(c) / d per channel; a value
+  // outside is named in a warning and the extension's default (no
+  // absorption) used. Only transmissive materials let light inside.
+  void volume(const GltfMaterialInfo& g, unsigned index, Material* m) const {
+    const std::string which = "material " + std::to_string(index) + " (\"" + m->name + "\")";
+    const double d = g.attenuation_distance;
+    const double* c = g.attenuation_color;
+    if (!(d > 0)) {  // NaN too
+      spdlog::warn(
+          "{}: {}: KHR_materials_volume attenuationDistance {} is not above 0; no absorption",
+          path_.string(), which, d);
+      return;
+    }
+    for (int k = 0; k < 3; ++k)
+      if (!(c[k] >= 0 && c[k] <= 1)) {
+        spdlog::warn(
+            "{}: {}: KHR_materials_volume attenuationColor [{}, {}, {}] is not three "
+            "numbers in [0, 1]; no absorption",
+            path_.string(), which, c[0], c[1], c[2]);
+        return;
+      }
+    if (std::isinf(d)) return;  // the default: clear
+    // A channel of 0 absorbs everything: a large finite coefficient keeps
+    // exp(-sigma t) a plain 0 without infinities.
+    auto sigma = [&](double ck) {
+      return float(std::min(-std::log(std::max(ck, 1e-30)) / d, 1e30));
+    };
+    m->attenuation = Vec3(sigma(c[0]), sigma(c[1]), sigma(c[2]));
   }
   void check_material(const Material& m, unsigned index) const {
     const std::string which = "material " + std::to_string(index) + " (\"" + m.name + "\")";

@@ -89,6 +89,10 @@ struct Material {
   // KHR_materials_transmission: the share of the dielectric that is a glass
   // interface refracting into the mesh (worker/render/bsdf.h).
   float transmission = 0.0f;
+  // KHR_materials_volume: the absorption coefficient sigma_a = -ln(c) / d
+  // per channel (attenuationColor c, attenuationDistance d) of the medium
+  // a transmissive mesh encloses; 0 = clear.
+  Vec3 attenuation{0.0f};
   int base_color_tex = -1;   // index into SceneData::textures; multiplies base_color
   int metal_rough_tex = -1;  // glTF: G = roughness, B = metallic; multiplies the factors
   int emission_tex = -1;     // multiplies emission
