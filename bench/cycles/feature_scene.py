@@ -23,7 +23,9 @@
 #               refracted (KHR_materials_transmission + KHR_materials_ior);
 #               96 x 96
 #
-#   blender -b -noaudio --factory-startup -P feature_scene.py -- FEATURE OUT_DIR SPP [SPECULAR TINT | ROUGHNESS]
+#   blender -b -noaudio --factory-startup -P feature_scene.py -- FEATURE OUT_DIR SPP [SPECULAR TINT | ROUGHNESS [DISTRIBUTION]]
+#   (DISTRIBUTION: the glass's Principled distribution, GGX (Blender's
+#   default) or MULTI_GGX; the exported file is the same)
 #   -> OUT_DIR/scene.gltf (+ .bin, images), OUT_DIR/cycles.pfm (linear RGB, rows bottom-up)
 import math
 import os
@@ -99,7 +101,7 @@ def main():
     argv = sys.argv[sys.argv.index("--") + 1:]
     if len(argv) not in (3, 4, 5):
         raise SystemExit(
-            "usage: feature_scene.py -- FEATURE OUT_DIR SPP [SPECULAR TINT | ROUGHNESS]")
+            "usage: feature_scene.py -- FEATURE OUT_DIR SPP [SPECULAR TINT | ROUGHNESS [DISTRIBUTION]]")
     feature, out, spp = argv[0], argv[1], int(argv[2])
     os.makedirs(out, exist_ok=True)
     bpy.ops.wm.read_factory_settings(use_empty=True)
@@ -158,6 +160,8 @@ def main():
         plane(4.0, 0.0, floor).location = (0.17, 0.11, 0.0)
         glass, p = principled("glass", (0.95, 0.9, 0.8), float(argv[3]))
         p.inputs["Transmission"].default_value = 1.0
+        if len(argv) == 5:
+            p.distribution = argv[4]
         p.inputs["IOR"].default_value = 1.45
         bpy.ops.mesh.primitive_uv_sphere_add(radius=0.6, location=(0.0, 0.0, 1.2), segments=64,
                                              ring_count=32)
