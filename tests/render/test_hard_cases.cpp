@@ -47,6 +47,40 @@ TEST(HardCases, RoughnessZeroAndOne) {
   }
 }
 
+// Glass (KHR_materials_transmission, KHR_materials_volume) at the edges of
+// what a scene may hold: IORs 1, barely above 1 and 1e4, smooth and rough,
+// a smooth-shaded sphere (shading normals that disagree with the facets
+// at the silhouette), absorption from none to total, the reference clamp
+// at its smallest; and a light inside a glass box.
+TEST(HardCases, GlassAtTheEdgesKeepsEveryBufferFinite) {
+  for (float ior : {1.0f, 1.0001f, 1.5f, 1e4f}) {
+    for (float roughness : {0.0f, 0.02f, 0.5f, 1.0f}) {
+      for (float sigma : {0.0f, 3.0f, 1e30f}) {
+        SceneData d = testing::small_room();
+        Material m = testing::glass(roughness, Vec3(0.9f, 0.7f, 0.2f), ior);
+        m.attenuation = Vec3(sigma, 0.0f, sigma * 0.5f);
+        add_icosphere(d, Vec3(0.3f, 1.3f, 0.2f), 0.3f, 3, m, /*smooth=*/true);
+        add_box(d, Vec3(-0.6f, 0.2f, -0.2f), Vec3(-0.2f, 0.6f, 0.2f), m);
+        auto scene = make_scene(std::move(d));
+        JobSpec spec = make_spec(12, 12, Vec3(0, 1, 3), Vec3(0, 1, 0), 50, 2.5f, 0.05f);
+        spec.reference_clamp = sigma > 1 ? 1e-30f : 0.0f;
+        expect_clean(render_small(*scene, spec), "glass");
+      }
+    }
+  }
+  // A lamp sealed in rough glass: reachable only by BSDF sampling through it.
+  SceneData d;
+  add_box(d, Vec3(-1, -1, -1), Vec3(1, 1, 1), testing::glass(0.4f));
+  add_quad(d, Vec3(0, 0, 0), Vec3(0.2f, 0, 0), Vec3(0, 0, 0.2f), testing::emitter(Vec3(20)));
+  add_quad(d, Vec3(0, -2, 0), Vec3(4, 0, 0), Vec3(0, 0, -4), testing::diffuse(Vec3(0.5f)));
+  auto scene = make_scene(std::move(d));
+  FrameBuffers fb = render_small(*scene, make_spec(12, 12, Vec3(0, 1, 5), Vec3(0, 0, 0)));
+  expect_clean(fb, "lamp in glass");
+  float total = 0;
+  for (float v : fb.reference) total += v;
+  EXPECT_GT(total, 0.0f);
+}
+
 TEST(HardCases, GrazingViewsAndBackFacingShadingNormals) {
   SceneData d;
   // A floor seen almost edge-on, with shading normals tilted far from the
