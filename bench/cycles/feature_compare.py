@@ -18,7 +18,10 @@
 #               dofarm rendered it before reading the extension), ior1
 #               (control: IOR 1, so nothing bends); these jobs add the
 #               world's grey (0.3) as a constant environment
-# Measures: specular, dofarm / Cycles per channel over the centre 8 x 8
+#   clearcoat   file, ignored (KHR_materials_clearcoat removed), quarter
+#               (clearcoatFactor x 0.25: Blender 3.4's Principled v1 weighs
+#               its clearcoat lobe by a quarter, as Disney's 2012 model does)
+# Measures: specular and clearcoat, dofarm / Cycles per channel over the centre 8 x 8
 # pixels (lamp, surface and camera in line: the coat's highlight, and
 # Cycles' Disney diffuse equals Lambert's there); the others, the
 # correlation of pixel luminances with Cycles' (the pattern of light and
@@ -30,7 +33,7 @@ import struct
 import sys
 import zlib
 
-VARIANTS = {"specular": ["file", "ignored"], "normal_map": ["file", "flipped", "nomap"],
+VARIANTS = {"specular": ["file", "ignored"], "clearcoat": ["file", "ignored", "quarter"], "normal_map": ["file", "flipped", "nomap"],
             "normal_map_tangents": ["file", "flipped", "nomap"], "alpha_mask": ["file", "opaque"],
             "alpha_blend": ["file", "opaque"], "transmission": ["file", "opaque", "ior1"]}
 WHAT = {"file": "the exported file", "ignored": "KHR_materials_specular ignored",
@@ -85,10 +88,15 @@ def variants(feature, d, size):
         v = copy.deepcopy(g)
         mats = v["materials"]
         if name == "ignored":
+            ext = "KHR_materials_clearcoat" if feature == "clearcoat" else "KHR_materials_specular"
             for m in mats:
-                m.get("extensions", {}).pop("KHR_materials_specular", None)
-            v["extensionsUsed"] = [e for e in v.get("extensionsUsed", [])
-                                   if e != "KHR_materials_specular"]
+                m.get("extensions", {}).pop(ext, None)
+            v["extensionsUsed"] = [e for e in v.get("extensionsUsed", []) if e != ext]
+        elif name == "quarter":
+            for m in mats:
+                cc = m.get("extensions", {}).get("KHR_materials_clearcoat")
+                if cc:
+                    cc["clearcoatFactor"] = 0.25 * cc.get("clearcoatFactor", 0.0)
         elif name == "nomap":
             for m in mats:
                 m.pop("normalTexture", None)
@@ -159,6 +167,10 @@ def header(feature):
         print("| Specular | Tint | specularColorFactor in the file | dofarm / Cycles (R, G, B) |"
               " extension ignored (R, G, B) |")
         print("| --- | --- | --- | --- | --- |")
+    elif feature == "clearcoat":
+        print("| Clearcoat Roughness | dofarm / Cycles (R, G, B) | extension ignored (R, G, B) |"
+              " clearcoatFactor x 0.25 (R, G, B) |")
+        print("| --- | --- | --- | --- |")
     else:
         print("| dofarm render | correlation with Cycles | mean / Cycles' mean |")
         print("| --- | --- | --- |")
@@ -173,6 +185,11 @@ def rows(feature, d, spp, extra):
         f = ext.get("KHR_materials_specular", {}).get("specularColorFactor")
         f = "[" + ", ".join("%.3f" % x for x in f) + "]" if f else "(none)"
         print("| %s | %s | %s | %s | %s |" % (extra[0], extra[1], f, ratio("file"), ratio("ignored")))
+        return
+    if feature == "clearcoat":
+        cy = centre(d + "/cycles.pfm")
+        ratio = lambda name: ", ".join("%.3f" % (a / b) for a, b in zip(centre(image(name)), cy))
+        print("| %s | %s | %s | %s |" % (extra[0], ratio("file"), ratio("ignored"), ratio("quarter")))
         return
     window = 32 if feature == "transmission" else 0
     cy = luminance(d + "/cycles.pfm", window)

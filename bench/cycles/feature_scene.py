@@ -15,6 +15,8 @@
 #               checker of 0 and 1 (Alpha Clip: alphaMode MASK), 1 m over
 #               a 4 m blue plane, a sun from the side; 96 x 96
 #   alpha_blend the same with alpha 0.4 and 0 (Alpha Blend: alphaMode BLEND)
+#   clearcoat   the specular scene's plane (Specular 0.5) with Clearcoat 1 and
+#               the given Clearcoat Roughness (KHR_materials_clearcoat); 64 x 64
 #   transmission  a glass sphere (Transmission 1, IOR 1.45, base 0.95, 0.9,
 #               0.8, the given Roughness) of radius 0.6 m, 1.2 m over a 4 m
 #               checkered floor (base colour texture, Closest interpolation)
@@ -111,6 +113,13 @@ def main():
     if feature == "specular":
         size = 64
         mat, _ = principled("plane", (0.8, 0.4, 0.2), 0.5, float(argv[3]), float(argv[4]))
+        plane(4.0, 0.0, mat)
+        light(scene, "POINT", 1000.0, location=(0.0, 0.0, 2.0))
+    elif feature == "clearcoat":
+        size = 64
+        mat, p = principled("plane", (0.8, 0.4, 0.2), 0.5)
+        p.inputs["Clearcoat"].default_value = 1.0
+        p.inputs["Clearcoat Roughness"].default_value = float(argv[3])
         plane(4.0, 0.0, mat)
         light(scene, "POINT", 1000.0, location=(0.0, 0.0, 2.0))
     elif feature in ("normal_map", "normal_map_tangents"):

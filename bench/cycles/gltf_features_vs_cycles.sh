@@ -3,8 +3,9 @@
 # dofarm against Cycles' render of the same Blender scene: the coat's
 # Specular and Specular Tint (KHR_materials_specular), a tangent-space
 # normal map (normalTexture; exported without and with TANGENT), an Alpha
-# Clip cut-out (alphaMode MASK), Alpha Blend (BLEND) and a glass sphere
-# (Transmission: KHR_materials_transmission), smooth and rough.
+# Clip cut-out (alphaMode MASK), Alpha Blend (BLEND), Clearcoat
+# (KHR_materials_clearcoat) and a glass sphere (Transmission:
+# KHR_materials_transmission), smooth and rough.
 # bench/cycles/feature_scene.py builds, exports and renders each scene with
 # Cycles; dofarm renders the exported file and control variants
 # (bench/cycles/feature_compare.py says which and what is measured), and
@@ -47,6 +48,12 @@ for feature in normal_map normal_map_tangents alpha_mask alpha_blend; do
   echo "$feature ($spp spp):"
   python3 "$here/feature_compare.py" header "$feature"
   scene "$feature" "$out/$feature" 96
+done
+echo
+echo "clearcoat (centre 8 x 8 pixels, $spp spp):"
+python3 "$here/feature_compare.py" header clearcoat
+for roughness in 0.1 0.3 0.6; do
+  scene clearcoat "$out/clearcoat-r$roughness" 64 "$roughness"
 done
 echo
 echo "transmission (centre 32 x 32 pixels, $spp spp):"

@@ -41,6 +41,7 @@ struct Material {
   float roughness;
   Vec3 base_color;
   dofarm::render::SpecularLayer specular = {};  // KHR_materials_specular
+  dofarm::render::ClearcoatLayer coat = {};     // KHR_materials_clearcoat
 };
 
 // Roughness 0.1 / 0.5 / 1 and metallic 0 / 0.5 / 1, coloured so that the
@@ -67,6 +68,11 @@ const Material kMaterials[] = {
     // that only rises at grazing angles).
     {"plastic_spec_tint", 0.0f, 0.3f, Vec3(0.5f, 0.6f, 0.7f), {0.7f, Vec3(1.5f, 0.8f, 0.2f)}},
     {"plastic_spec0", 0.0f, 0.5f, Vec3(0.8f, 0.8f, 0.8f), {1.0f, Vec3(0.0f)}},
+    // KHR_materials_clearcoat: a glossy coat over rough plastic, a rough
+    // half coat over a metal, a mirror coat over a diffuse base (delta).
+    {"coat_plastic", 0.0f, 0.6f, Vec3(0.8f, 0.2f, 0.1f), {}, {1.0f, 0.2f}},
+    {"coat_metal", 1.0f, 0.4f, Vec3(0.9f, 0.6f, 0.3f), {}, {0.5f, 0.5f}},
+    {"coat_mirror", 0.0f, 1.0f, Vec3(0.5f, 0.6f, 0.7f), {}, {1.0f, 0.0f}},
 };
 const double kAngles[] = {0, 45, 80, 89};
 
@@ -88,7 +94,7 @@ Vec3 incident(double theta_deg, double phi = 0.7) {
 Vec3 mirror(Vec3 wo) { return Vec3(-wo.x, -wo.y, wo.z); }
 
 Bsdf make_bsdf(const Material& m) {
-  return Bsdf(kUp, kUp, m.base_color, m.metallic, m.roughness, kIor, m.specular);
+  return Bsdf(kUp, kUp, m.base_color, m.metallic, m.roughness, kIor, m.specular, {}, m.coat);
 }
 
 // GGX alpha as the material model defines it (glTF: roughness squared).
@@ -310,6 +316,31 @@ TEST(BsdfFurnace, WhiteMaterialReflectsOneAtEveryRoughnessMetallicAndAngle) {
   }
 }
 
+// KHR_materials_clearcoat: a coat of any strength and roughness over any
+// white material still returns 1: the coat reflects E_c(mu_o) and the rest
+// receives 1 - E_c(mu_o). Mean sample weight (the coat may be a delta lobe).
+TEST(BsdfFurnace, WhiteMaterialUnderAClearcoatReflectsOne) {
+  const dofarm::render::ClearcoatLayer coats[] = {{1.0f, 0.0f}, {1.0f, 0.2f}, {0.5f, 0.7f}};
+  uint64_t seed = 97;
+  for (const auto& coat : coats)
+    for (float metallic : {0.0f, 1.0f})
+      for (float roughness : {0.0f, 0.3f, 1.0f}) {
+        const Bsdf bsdf(kUp, kUp, Vec3(1.0f), metallic, roughness, kIor, {}, {}, coat);
+        for (float mu : {1.0f, 0.3f, 0.05f}) {
+          const MeanWeight s = albedo_by_sampling(bsdf, incident_mu(mu), ++seed, 120);
+          EXPECT_NEAR(s.mean, 1.0, 3.0 * s.std_error + 0.01)
+              << "coat " << coat.factor << "/" << coat.roughness << " metallic " << metallic
+              << " roughness " << roughness << " mu " << mu;
+        }
+      }
+  // A coat over black (and no interface of its own: IOR 1) reflects what
+  // the coat alone reflects: F0 0.04 at normal incidence.
+  const Bsdf black(kUp, kUp, Vec3(0.0f), 0.0f, 1.0f, 1.0f, {}, {}, {1.0f, 0.0f});
+  const MeanWeight b = albedo_by_sampling(black, incident_mu(1.0f), 5, 120);
+  EXPECT_NEAR(b.mean, 0.04, 3.0 * b.std_error + 1e-5);
+  EXPECT_LT(b.std_error, 2e-3);
+}
+
 // Any IOR: the coat's F0 runs from 0 (IOR 1: no interface, a pure Lambert
 // base) to 0.67 (IOR 10), which weighs the quadratic terms of E_s,avg.
 TEST(BsdfFurnace, WhiteMaterialReflectsOneForAnyIor) {
@@ -473,7 +504,13 @@ TEST(Bsdf, EveryOutputIsFiniteOnTheEdgesOfItsDomain) {
                 {1.0f, false},
                 {0.5f, false},
                 {nan, true}}) {
-            const Bsdf bsdf(kUp, kUp, base, metallic, roughness, ior, {}, glass);
+            // KHR_materials_clearcoat alongside: none, a rough coat on the
+            // glass-less materials, a mirror coat on the rest.
+            const dofarm::render::ClearcoatLayer coat =
+                glass.factor > 0
+                    ? dofarm::render::ClearcoatLayer{1.0f, 0.0f}
+                    : dofarm::render::ClearcoatLayer{roughness > 0.4f ? 1.0f : 0.0f, 0.5f};
+            const Bsdf bsdf(kUp, kUp, base, metallic, roughness, ior, {}, glass, coat);
             for (Vec3 wo : directions) {
               const Bsdf::Outgoing o = bsdf.outgoing(wo);
               for (Vec3 wi : directions) {

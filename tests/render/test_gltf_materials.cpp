@@ -410,6 +410,36 @@ TEST(GltfMaterials, TransmissionFactorIsRead) {
     EXPECT_EQ(l.find("ignores the glTF extensions"), std::string::npos) << l;
 }
 
+// KHR_materials_clearcoat's factors as written (Blender 3.4 writes
+// clearcoatFactor = Clearcoat and clearcoatRoughnessFactor = Clearcoat
+// Roughness for a Principled BSDF whose Clearcoat is above 0); no
+// extension is 0; a value outside [0, 1] is warned about, naming the
+// material and the key, and 0 used. The extension is read, so it is not in
+// the "ignores" warning.
+TEST(GltfMaterials, ClearcoatFactorsAreRead) {
+  TempDir dir("clearcoat");
+  LogCapture log;
+  struct Case {
+    const char* name;
+    Json ext;  // null: no extension
+    float factor, roughness;
+  } cases[] = {
+      {"blender", {{"clearcoatFactor", 1.0}, {"clearcoatRoughnessFactor", 0.03}}, 1.0f, 0.03f},
+      {"half", {{"clearcoatFactor", 0.5}}, 0.5f, 0.0f},
+      {"none", nullptr, 0.0f, 0.0f},
+      {"rough_above", {{"clearcoatFactor", 1.0}, {"clearcoatRoughnessFactor", 2.0}}, 1.0f, 0.0f}};
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    const Material m = material_with_extension(dir.path, c.name, "KHR_materials_clearcoat", c.ext);
+    EXPECT_FLOAT_EQ(m.clearcoat, c.factor);
+    EXPECT_FLOAT_EQ(m.clearcoat_roughness, c.roughness);
+  }
+  std::vector<std::string> lines = log.lines();
+  ASSERT_EQ(lines.size(), 1u);
+  EXPECT_NE(lines[0].find("\"rough_above\""), std::string::npos) << lines[0];
+  EXPECT_NE(lines[0].find("clearcoatRoughnessFactor 2"), std::string::npos) << lines[0];
+}
+
 // KHR_materials_volume's attenuation as written: sigma_a = -ln(c) / d per
 // channel; no extension, no distance (the extension's +inf) or white is
 // clear; a distance not above 0 or a colour outside [0, 1] is warned about,

@@ -365,6 +365,27 @@ TEST(Integrator, WhiteFurnaceRoughGlassSphereIsOne) {
   }
 }
 
+// KHR_materials_clearcoat: a coat (mirror and rough) over white plastic and
+// white metal keeps the furnace sphere at 1, with NEE and BSDF sampling.
+TEST(Integrator, WhiteFurnaceClearcoatedSpheresAreOne) {
+  for (float coat_roughness : {0.0f, 0.3f}) {
+    for (float metallic : {0.0f, 1.0f}) {
+      SceneData d;
+      Material m;
+      m.base_color = Vec3(1);
+      m.metallic = metallic;
+      m.roughness = 0.5f;
+      m.clearcoat = 1.0f;
+      m.clearcoat_roughness = coat_roughness;
+      add_icosphere(d, Vec3(0), 1.0f, 3, m, /*smooth=*/false);
+      auto scene = make_scene(std::move(d), testing::constant_env(1.0f));
+      Estimate e = estimate(*scene, sphere_view(), 64, LightStrategy::kMis);
+      EXPECT_NEAR(e.mean, 1.0, 3.0 * e.std_error + 3e-3)
+          << "coat roughness " << coat_roughness << " metallic " << metallic;
+    }
+  }
+}
+
 // IOR 1 is no interface: light crosses the sphere unbent, tinted by the
 // base colour once on the way in and once on the way out; no noise at all.
 TEST(Integrator, IorOneGlassSphereTintsTwiceAndBendsNothing) {

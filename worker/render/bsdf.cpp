@@ -42,9 +42,22 @@ float fresnel_dielectric(float cos_i, float eta) {
   return std::isfinite(f) ? std::min(f, 1.0f) : 1.0f;
 }
 
+namespace {
+// The clearcoat's F0: IOR 1.5 (glTF KHR_materials_clearcoat).
+constexpr float kCoatF0 = 0.04f;
+}  // namespace
+
 Bsdf::Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, float ior,
-           const SpecularLayer& specular, const TransmissionLayer& transmission)
+           const SpecularLayer& specular, const TransmissionLayer& transmission,
+           const ClearcoatLayer& clearcoat)
     : frame_(ns), ng_(ng) {
+  if (clearcoat.factor > 0) [[unlikely]] {  // false for NaN too
+    coat_weight_ = std::min(clearcoat.factor, 1.0f);
+    const float r = std::isfinite(clearcoat.roughness) ? clamp01(clearcoat.roughness) : 0.0f;
+    coat_alpha_ = ggx::alpha_from_roughness(r);
+    coat_delta_ = r * r < ggx::kDeltaAlpha;
+    if (!coat_delta_) coat_row_ = ggx::albedo_row(ggx::albedo_table(), coat_alpha_);
+  }
   metallic = clamp01(metallic);
   roughness = clamp01(roughness);
   float f = (ior - 1.0f) / (ior + 1.0f);
@@ -195,6 +208,22 @@ Bsdf::Outgoing Bsdf::outgoing(Vec3 wo_w) const {
       o.glass_scale = 1.0f / std::max(e, 0.1f);
     }
   }
+  if (coat_weight_ > 0) [[unlikely]] {
+    // The coat's compensated albedo E_c(mu_o) = c (F0 A + B)(1 + F0 k) (a
+    // mirror: c F(mu_o)); what it does not reflect reaches the rest.
+    float e_c;
+    if (coat_delta_) {
+      e_c = coat_weight_ * (kCoatF0 + (1.0f - kCoatF0) * schlick_weight(mu));
+    } else {
+      const ggx::Albedo a = ggx::albedo(coat_row_, mu);
+      o.coat_fresnel = coat_weight_ * (1.0f + kCoatF0 * a.k());
+      e_c = o.coat_fresnel * (kCoatF0 * a.a + a.b);
+      o.coat_smith_r = ggx::smith_r(o.wo, coat_alpha_);
+    }
+    e_c = std::clamp(e_c, 0.0f, 1.0f);
+    o.coat_scale = 1.0f - e_c;
+    o.coat_prob = std::clamp(e_c, 0.05f, 0.95f);
+  }
   if (has_specular_ && !delta_specular_) {
     o.smith_r = ggx::smith_r(o.wo, alpha_);
     o.inv_4_cos_o = 1.0f / (4.0f * o.wo.z);
@@ -281,6 +310,32 @@ Vec3 Bsdf::evaluate_local(const Outgoing& o, Vec3 wi, float* pdf_out) const {
 }
 
 Vec3 Bsdf::evaluate(const Outgoing& o, Vec3 wi_w, float* pdf_out) const {
+  Vec3 f = evaluate_base(o, wi_w, pdf_out);
+  if (coat_weight_ > 0) [[unlikely]]
+    add_coat(o, wi_w, &f, pdf_out);
+  return f;
+}
+
+[[gnu::noinline]] void Bsdf::add_coat(const Outgoing& o, Vec3 wi_w, Vec3* f, float* pdf) const {
+  if (!o.valid) return;
+  *f = *f * o.coat_scale;
+  *pdf *= 1.0f - o.coat_prob;
+  if (coat_delta_ || dot(wi_w, ng_) <= 0) return;
+  const Vec3 wi = frame_.to_local(wi_w);
+  if (wi.z <= 0) return;
+  const Vec3 wo = o.wo;
+  const Vec3 sum = wo + wi;
+  const Vec3 h = sum * (1.0f / std::sqrt(dot(sum, sum)));
+  const float wo_h = dot(wo, h);
+  if (!(wo_h > 0)) return;
+  const float d = ggx::D(h, coat_alpha_);
+  const float g = ggx::G2_from_r(wo.z, o.coat_smith_r, wi.z, ggx::smith_r(wi, coat_alpha_));
+  const float fr = kCoatF0 + (1.0f - kCoatF0) * schlick_weight(wo_h);
+  *f += Vec3(o.coat_fresnel * fr * d * g / (4.0f * wo.z));
+  *pdf += o.coat_prob * d / (2.0f * (wo.z + o.coat_smith_r));
+}
+
+Vec3 Bsdf::evaluate_base(const Outgoing& o, Vec3 wi_w, float* pdf_out) const {
   *pdf_out = 0;
   if (!o.valid) return Vec3(0);
   // Reflection with both directions above the geometric surface, refraction
@@ -360,6 +415,47 @@ BsdfSample Bsdf::sample(Vec3 wo_w, float u_lobe, Vec2 u) const {
 }
 
 BsdfSample Bsdf::sample(const Outgoing& o, float u_lobe, Vec2 u) const {
+  if (coat_weight_ > 0) [[unlikely]]
+    return sample_coated(o, u_lobe, u);
+  return sample_base(o, u_lobe, u);
+}
+
+[[gnu::noinline]] BsdfSample Bsdf::sample_coated(const Outgoing& o, float u_lobe, Vec2 u) const {
+  BsdfSample s;
+  if (!o.valid) return s;
+  const Vec3 wo = o.wo;
+  if (u_lobe < o.coat_prob) {
+    if (coat_delta_) {
+      s.wi = frame_.to_world(Vec3(-wo.x, -wo.y, wo.z));
+      if (dot(s.wi, ng_) <= 0) return s;
+      s.weight =
+          Vec3(coat_weight_ * (kCoatF0 + (1.0f - kCoatF0) * schlick_weight(wo.z)) / o.coat_prob);
+      s.is_delta = true;
+      s.valid = is_finite(s.weight);
+      return s;
+    }
+    const Vec3 wi = reflect(wo, ggx::sample_vndf(wo, coat_alpha_, u));
+    if (wi.z <= 0) return s;
+    s.wi = frame_.to_world(wi);
+  } else {
+    s = sample_base(o, std::min((u_lobe - o.coat_prob) / (1.0f - o.coat_prob), 0.99999994f), u);
+    if (!s.valid) return s;
+    if (s.is_delta) {
+      s.weight = s.weight * (o.coat_scale / (1.0f - o.coat_prob));
+      s.valid = is_finite(s.weight);
+      return s;
+    }
+    s.valid = false;
+  }
+  // Weighed against everything the material does in that direction.
+  const Vec3 f = evaluate(o, s.wi, &s.pdf);
+  if (!(s.pdf > 0)) return s;
+  s.weight = f / s.pdf;
+  s.valid = is_finite(s.weight);
+  return s;
+}
+
+BsdfSample Bsdf::sample_base(const Outgoing& o, float u_lobe, Vec2 u) const {
   BsdfSample s;
   if (!o.valid) return s;
   if (glass_weight_ > 0) [[unlikely]] {

@@ -40,6 +40,12 @@
 //   (glass_albedo.h), which gives it back (docs/renderer.md has the figures).
 //   Below kDeltaAlpha it is a delta lobe; at IOR 1 it lets light through
 //   unbent (no interface).
+// - KHR_materials_clearcoat (Clearcoat below): a coat of strength c and its
+//   own roughness over everything else: a GGX lobe with F0 = 0.04 (IOR
+//   1.5), compensated for multiple scattering as the specular lobe is, and
+//   the material beneath scaled by 1 - E_c(mu_o), E_c the coat's albedo,
+//   so that a white material under a coat still returns exactly 1 (as
+//   Turquin's compensation, it depends on wo alone).
 //
 // docs/renderer.md (Materials) has the equations and the furnace figures.
 // All directions are in world space; the BSDF works in the shading frame.
@@ -84,11 +90,19 @@ struct TransmissionLayer {
   bool entering = true;
 };
 
+// glTF KHR_materials_clearcoat's clearcoatFactor and
+// clearcoatRoughnessFactor.
+struct ClearcoatLayer {
+  float factor = 0.0f;
+  float roughness = 0.0f;
+};
+
 class Bsdf {
  public:
   // `ns` shading normal, `ng` geometric normal, both facing wo's side.
   Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, float ior,
-       const SpecularLayer& specular = {}, const TransmissionLayer& transmission = {});
+       const SpecularLayer& specular = {}, const TransmissionLayer& transmission = {},
+       const ClearcoatLayer& clearcoat = {});
 
   // What depends on the outgoing direction alone (its local form, the
   // compensated Fresnel, the base's share, lobe probability, Smith term),
@@ -106,6 +120,10 @@ class Bsdf {
     float specular_pdf_scale = 0;  // specular lobe's pdf over D(h)
     float glass_prob = 0;          // of choosing the glass lobe in sample()
     float glass_scale = 1;         // 1 / E_glass(mu_o): multiple-scattering compensation
+    float coat_prob = 0;           // of choosing the clearcoat lobe in sample()
+    float coat_scale = 1;          // 1 - E_c(mu_o): what the coat lets through
+    float coat_fresnel = 0;        // c (1 + F0 k_c(mu_o)): the coat lobe's factor
+    float coat_smith_r = 0;
     bool valid = false;            // above both the shading and the geometric surface
   };
   Outgoing outgoing(Vec3 wo) const;
@@ -120,7 +138,7 @@ class Bsdf {
   BsdfSample sample(const Outgoing& o, float u_lobe, Vec2 u) const;
   bool has_non_delta() const {
     return diffuse_weight_ > 0 || (has_specular_ && !delta_specular_) ||
-           (glass_weight_ > 0 && !glass_delta_);
+           (glass_weight_ > 0 && !glass_delta_) || (coat_weight_ > 0 && !coat_delta_);
   }
   // The relative IOR across the surface, far side over wo's side (1 without
   // transmission).
@@ -134,6 +152,11 @@ class Bsdf {
   // The glass lobe's reflection, added to f and *pdf (wi above the surface).
   void add_glass_reflection(const Outgoing& o, Vec3 wi, Vec3* f, float* pdf) const;
   BsdfSample sample_glass(const Outgoing& o, float u_lobe, Vec2 u) const;
+  // Everything but the clearcoat (evaluate() and sample() add it).
+  Vec3 evaluate_base(const Outgoing& o, Vec3 wi, float* pdf) const;
+  BsdfSample sample_base(const Outgoing& o, float u_lobe, Vec2 u) const;
+  BsdfSample sample_coated(const Outgoing& o, float u_lobe, Vec2 u) const;
+  void add_coat(const Outgoing& o, Vec3 wi, Vec3* f, float* pdf) const;
   // Single-scattering albedo terms A, B of the specular lobe at mu.
   ggx::Albedo specular_albedo(float mu) const;
   // 1 - E_s(mu) from mu's A and B: what the dielectric's specular layer lets
@@ -163,6 +186,11 @@ class Bsdf {
   float glass_ior_ = 1;     // the material's IOR
   bool glass_entering_ = true;
   Vec3 glass_tint_;         // the base colour, which tints refracted light
+  // The clearcoat (KHR_materials_clearcoat).
+  float coat_weight_ = 0;  // c
+  float coat_alpha_;
+  bool coat_delta_;
+  ggx::AlbedoRow coat_row_;
 };
 
 }  // namespace dofarm::render

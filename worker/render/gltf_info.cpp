@@ -19,13 +19,11 @@ namespace {
 // The extensions whose content dofarm reads (assimp: KHR_materials_ior,
 // KHR_lights_punctual; here: the others).
 const std::set<std::string>& implemented_extensions() {
-  static const std::set<std::string> names = {"KHR_materials_emissive_strength",
-                                              "KHR_materials_ior",
-                                              "KHR_materials_specular",
-                                              "KHR_materials_transmission",
-                                              "KHR_materials_volume",
-                                              "KHR_lights_punctual",
-                                              "KHR_texture_transform"};
+  static const std::set<std::string> names = {
+      "KHR_materials_clearcoat",    "KHR_materials_emissive_strength",
+      "KHR_materials_ior",          "KHR_materials_specular",
+      "KHR_materials_transmission", "KHR_materials_volume",
+      "KHR_lights_punctual",        "KHR_texture_transform"};
   return names;
 }
 
@@ -139,6 +137,20 @@ GltfInfo read_gltf_info(const std::filesystem::path& path) {
       }
     }
     if (m.contains("extensions") && m["extensions"].is_object() &&
+        m["extensions"].contains("KHR_materials_clearcoat")) {
+      const auto& ext = m["extensions"]["KHR_materials_clearcoat"];
+      if (ext.is_object()) {
+        for (auto [key, out] : {std::pair{"clearcoatFactor", &info.clearcoat},
+                                std::pair{"clearcoatRoughnessFactor", &info.clearcoat_roughness}})
+          if (ext.contains(key)) *out = ext[key].is_number() ? ext[key].get<double>() : NAN;
+        for (const char* key :
+             {"clearcoatTexture", "clearcoatRoughnessTexture", "clearcoatNormalTexture"})
+          if (ext.contains(key))
+            info.clearcoat_textures +=
+                (info.clearcoat_textures.empty() ? "" : " and ") + std::string(key);
+      }
+    }
+    if (m.contains("extensions") && m["extensions"].is_object() &&
         m["extensions"].contains("KHR_materials_volume")) {
       const auto& ext = m["extensions"]["KHR_materials_volume"];
       if (ext.is_object()) {
@@ -196,7 +208,8 @@ void check_extensions(const std::filesystem::path& path, const GltfInfo& info) {
         FileLoc{path.string()}, "scene",
         "extensionsRequired lists " + required +
             ", which dofarm does not implement (it implements " +
-            "KHR_lights_punctual, KHR_materials_emissive_strength, KHR_materials_ior, " +
+            "KHR_lights_punctual, KHR_materials_clearcoat, KHR_materials_emissive_strength, "
+            "KHR_materials_ior, " +
             "KHR_materials_specular, KHR_materials_transmission, KHR_materials_volume, "
             "KHR_texture_transform)");
   for (const std::string& e : info.extensions_used)

@@ -48,6 +48,10 @@ struct GltfMaterialInfo {
   // a ray tracer has.
   double attenuation_distance = INFINITY;
   double attenuation_color[3] = {1.0, 1.0, 1.0};
+  // KHR_materials_clearcoat's factors as written (0 without it; NaN: not a
+  // number); its textures are not applied.
+  double clearcoat = 0.0, clearcoat_roughness = 0.0;
+  std::string clearcoat_textures;  // the texture keys present, for the warning
 };
 struct GltfInfo {
   std::vector<GltfMaterialInfo> materials;

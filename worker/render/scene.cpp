@@ -326,6 +326,8 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
   hit->specular_color = m.specular_color;
   hit->transmission = m.transmission;
   hit->attenuation = m.attenuation;
+  hit->clearcoat = m.clearcoat;
+  hit->clearcoat_roughness = m.clearcoat_roughness;
   // Only textured materials pay for lookups.
   if (m.base_color_tex >= 0)
     hit->base_color =

@@ -29,6 +29,7 @@ struct SurfaceHit {
   Vec3 specular_color{1.0f};  // and specularColorFactor
   float transmission = 0;     // KHR_materials_transmission transmissionFactor
   Vec3 attenuation;           // KHR_materials_volume absorption coefficient (per unit length)
+  float clearcoat = 0, clearcoat_roughness = 0;  // KHR_materials_clearcoat
   bool front = true;          // the ray hit the side the triangle's winding faces
   Vec3 emission;  // radiance leaving the surface (both faces emit)
 };

@@ -235,6 +235,7 @@ class Loader {
       if (g) specular_layer(*g, i, &m);
       if (g) transmission(*g, i, &m);
       if (g) volume(*g, i, &m);
+      if (g) clearcoat(*g, i, &m);
       if (g && (g->mask || g->blend)) {
         m.alpha_mask = true;
         m.alpha_blend = g->blend;
@@ -369,6 +370,25 @@ class Loader {
       return float(std::min(-std::log(std::max(ck, 1e-30)) / d, 1e30));
     };
     m->attenuation = Vec3(sigma(c[0]), sigma(c[1]), sigma(c[2]));
+  }
+  // KHR_materials_clearcoat's factors (schema: both in [0, 1]); a value
+  // outside is named in a warning and the extension's default 0 used; its
+  // textures are named in a warning and not applied (the factors are).
+  void clearcoat(const GltfMaterialInfo& g, unsigned index, Material* m) const {
+    const std::string which = "material " + std::to_string(index) + " (\"" + m->name + "\")";
+    auto factor = [&](double v, const char* key, float* out) {
+      if (std::isfinite(v) && v >= 0 && v <= 1) {
+        *out = float(v);
+      } else {
+        spdlog::warn("{}: {}: KHR_materials_clearcoat {} {} is outside [0, 1]; using 0",
+                     path_.string(), which, key, v);
+      }
+    };
+    factor(g.clearcoat, "clearcoatFactor", &m->clearcoat);
+    factor(g.clearcoat_roughness, "clearcoatRoughnessFactor", &m->clearcoat_roughness);
+    if (!g.clearcoat_textures.empty())
+      spdlog::warn("{}: {}: KHR_materials_clearcoat {} ignored (its factors are used)",
+                   path_.string(), which, g.clearcoat_textures);
   }
   void check_material(const Material& m, unsigned index) const {
     const std::string which = "material " + std::to_string(index) + " (\"" + m.name + "\")";

@@ -93,6 +93,9 @@ struct Material {
   // per channel (attenuationColor c, attenuationDistance d) of the medium
   // a transmissive mesh encloses; 0 = clear.
   Vec3 attenuation{0.0f};
+  // KHR_materials_clearcoat: the coat's strength and roughness (bsdf.h).
+  float clearcoat = 0.0f;
+  float clearcoat_roughness = 0.0f;
   int base_color_tex = -1;   // index into SceneData::textures; multiplies base_color
   int metal_rough_tex = -1;  // glTF: G = roughness, B = metallic; multiplies the factors
   int emission_tex = -1;     // multiplies emission
