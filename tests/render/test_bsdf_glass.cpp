@@ -40,6 +40,7 @@ struct Glass {
   float metallic, roughness, transmission;
   bool entering;
   Vec3 base_color;
+  float coat = 0;  // KHR_materials_clearcoat at roughness 0.3
 };
 
 // Rough glass seen from outside and from inside (where total internal
@@ -53,6 +54,7 @@ const Glass kGlasses[] = {
     {"glass_r06_out", 0.0f, 0.6f, 1.0f, false, Vec3(0.6f, 0.8f, 1.0f)},
     {"half_glass_r05", 0.0f, 0.5f, 0.5f, true, Vec3(0.8f, 0.5f, 0.3f)},
     {"glass_metal_r04", 0.5f, 0.4f, 1.0f, false, Vec3(0.9f, 0.9f, 0.6f)},
+    {"coated_glass_r05", 0.0f, 0.5f, 1.0f, true, Vec3(0.8f, 0.9f, 1.0f), 1.0f},
 };
 const double kAngles[] = {0, 30, 60, 85};
 
@@ -67,7 +69,7 @@ Vec3 incident(double theta_deg, double phi = 0.7) {
 
 Bsdf make_bsdf(const Glass& g) {
   return Bsdf(kUp, kUp, g.base_color, g.metallic, g.roughness, kIor, {},
-              TransmissionLayer{g.transmission, g.entering});
+              TransmissionLayer{g.transmission, g.entering}, {g.coat, 0.3f});
 }
 
 float eta_of(const Glass& g) { return g.entering ? kIor : 1.0f / kIor; }
