@@ -39,6 +39,30 @@ Vec2 vec2_or(const nlohmann::json& obj, const char* key, Vec2 fallback) {
   return {obj[key][0].get<float>(), obj[key][1].get<float>()};
 }
 
+// An extension's number as written: untouched when the key is absent, NaN
+// when it is there but not a number (the loader names it in a warning).
+void read_number(const nlohmann::json& ext, const char* key, double* out) {
+  if (ext.contains(key)) *out = ext[key].is_number() ? ext[key].get<double>() : NAN;
+}
+
+// The same for an RGB array: NaN in every channel when it is not three
+// numbers.
+void read_color(const nlohmann::json& ext, const char* key, double out[3]) {
+  if (!ext.contains(key)) return;
+  const auto& c = ext[key];
+  const bool ok =
+      c.is_array() && c.size() == 3 && c[0].is_number() && c[1].is_number() && c[2].is_number();
+  for (int k = 0; k < 3; ++k) out[k] = ok ? c[k].get<double>() : NAN;
+}
+
+// The keys of `keys` that `ext` has, joined by " and " (for a warning).
+std::string present_keys(const nlohmann::json& ext, std::initializer_list<const char*> keys) {
+  std::string out;
+  for (const char* key : keys)
+    if (ext.contains(key)) out += (out.empty() ? "" : " and ") + std::string(key);
+  return out;
+}
+
 // A textureInfo object (glTF 5.22) with its optional KHR_texture_transform.
 GltfTextureInfo read_texture_info(const nlohmann::json& info) {
   GltfTextureInfo out;
@@ -95,76 +119,38 @@ GltfInfo read_gltf_info(const std::filesystem::path& path) {
       out.materials.push_back(info);
       continue;
     }
-    if (m.contains("extensions") && m["extensions"].is_object() &&
-        m["extensions"].contains("KHR_materials_emissive_strength")) {
-      info.emissive_strength =
-          number_or(m["extensions"]["KHR_materials_emissive_strength"], "emissiveStrength", 1.0f);
-    }
+    // The material's extension `name` as an object, or null.
+    auto extension = [&m](const char* name) -> const nlohmann::json* {
+      if (!m.contains("extensions") || !m["extensions"].is_object() ||
+          !m["extensions"].contains(name) || !m["extensions"][name].is_object())
+        return nullptr;
+      return &m["extensions"][name];
+    };
+    if (const auto* ext = extension("KHR_materials_emissive_strength"))
+      info.emissive_strength = number_or(*ext, "emissiveStrength", 1.0f);
     if (m.contains("extensions") && m["extensions"].is_object() &&
         m["extensions"].contains("KHR_materials_ior")) {
-      const auto& ext = m["extensions"]["KHR_materials_ior"];
       info.ior_present = true;
-      if (ext.is_object() && ext.contains("ior"))
-        info.ior = ext["ior"].is_number() ? ext["ior"].get<double>() : NAN;
+      if (const auto* ext = extension("KHR_materials_ior")) read_number(*ext, "ior", &info.ior);
     }
-    if (m.contains("extensions") && m["extensions"].is_object() &&
-        m["extensions"].contains("KHR_materials_specular")) {
-      const auto& ext = m["extensions"]["KHR_materials_specular"];
-      if (ext.is_object()) {
-        if (ext.contains("specularFactor"))
-          info.specular_factor =
-              ext["specularFactor"].is_number() ? ext["specularFactor"].get<double>() : NAN;
-        if (ext.contains("specularColorFactor")) {
-          const auto& c = ext["specularColorFactor"];
-          const bool ok = c.is_array() && c.size() == 3 && c[0].is_number() && c[1].is_number() &&
-                          c[2].is_number();
-          for (int k = 0; k < 3; ++k) info.specular_color[k] = ok ? c[k].get<double>() : NAN;
-        }
-        for (const char* key : {"specularTexture", "specularColorTexture"})
-          if (ext.contains(key))
-            info.specular_textures +=
-                (info.specular_textures.empty() ? "" : " and ") + std::string(key);
-      }
+    if (const auto* ext = extension("KHR_materials_specular")) {
+      read_number(*ext, "specularFactor", &info.specular_factor);
+      read_color(*ext, "specularColorFactor", info.specular_color);
+      info.specular_textures = present_keys(*ext, {"specularTexture", "specularColorTexture"});
     }
-    if (m.contains("extensions") && m["extensions"].is_object() &&
-        m["extensions"].contains("KHR_materials_transmission")) {
-      const auto& ext = m["extensions"]["KHR_materials_transmission"];
-      if (ext.is_object()) {
-        if (ext.contains("transmissionFactor"))
-          info.transmission =
-              ext["transmissionFactor"].is_number() ? ext["transmissionFactor"].get<double>() : NAN;
-        info.transmission_texture = ext.contains("transmissionTexture");
-      }
+    if (const auto* ext = extension("KHR_materials_transmission")) {
+      read_number(*ext, "transmissionFactor", &info.transmission);
+      info.transmission_texture = ext->contains("transmissionTexture");
     }
-    if (m.contains("extensions") && m["extensions"].is_object() &&
-        m["extensions"].contains("KHR_materials_clearcoat")) {
-      const auto& ext = m["extensions"]["KHR_materials_clearcoat"];
-      if (ext.is_object()) {
-        for (auto [key, out] : {std::pair{"clearcoatFactor", &info.clearcoat},
-                                std::pair{"clearcoatRoughnessFactor", &info.clearcoat_roughness}})
-          if (ext.contains(key)) *out = ext[key].is_number() ? ext[key].get<double>() : NAN;
-        for (const char* key :
-             {"clearcoatTexture", "clearcoatRoughnessTexture", "clearcoatNormalTexture"})
-          if (ext.contains(key))
-            info.clearcoat_textures +=
-                (info.clearcoat_textures.empty() ? "" : " and ") + std::string(key);
-      }
+    if (const auto* ext = extension("KHR_materials_clearcoat")) {
+      read_number(*ext, "clearcoatFactor", &info.clearcoat);
+      read_number(*ext, "clearcoatRoughnessFactor", &info.clearcoat_roughness);
+      info.clearcoat_textures = present_keys(
+          *ext, {"clearcoatTexture", "clearcoatRoughnessTexture", "clearcoatNormalTexture"});
     }
-    if (m.contains("extensions") && m["extensions"].is_object() &&
-        m["extensions"].contains("KHR_materials_volume")) {
-      const auto& ext = m["extensions"]["KHR_materials_volume"];
-      if (ext.is_object()) {
-        if (ext.contains("attenuationDistance"))
-          info.attenuation_distance = ext["attenuationDistance"].is_number()
-                                          ? ext["attenuationDistance"].get<double>()
-                                          : NAN;
-        if (ext.contains("attenuationColor")) {
-          const auto& c = ext["attenuationColor"];
-          const bool ok = c.is_array() && c.size() == 3 && c[0].is_number() && c[1].is_number() &&
-                          c[2].is_number();
-          for (int k = 0; k < 3; ++k) info.attenuation_color[k] = ok ? c[k].get<double>() : NAN;
-        }
-      }
+    if (const auto* ext = extension("KHR_materials_volume")) {
+      read_number(*ext, "attenuationDistance", &info.attenuation_distance);
+      read_color(*ext, "attenuationColor", info.attenuation_color);
     }
     if (m.contains("pbrMetallicRoughness") && m["pbrMetallicRoughness"].is_object()) {
       const auto& pbr = m["pbrMetallicRoughness"];
