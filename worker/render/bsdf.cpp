@@ -19,6 +19,24 @@ float schlick_weight(float cos_theta) {
 // 2 ∫_0^1 (1 - mu)^5 mu dmu: the cosine-weighted average of Schlick's weight.
 constexpr float kSchlickWeightAverage = 1.0f / 21.0f;
 
+// What a GGX reflection lobe of roughness alpha needs at (wo, wi), both
+// above the surface (so wo + wi is never zero): wo.h of their half vector
+// h, D(h) and the height-correlated G2 (smith_r_o: wo's smith_r).
+struct ReflectionTerms {
+  float wo_h, d, g;
+};
+[[gnu::always_inline]] inline ReflectionTerms reflection_terms(Vec3 wo, Vec3 wi, float alpha,
+                                                               float smith_r_o) {
+  const Vec3 sum = wo + wi;
+  const Vec3 h = sum * (1.0f / std::sqrt(dot(sum, sum)));
+  return {dot(wo, h), ggx::D(h, alpha),
+          ggx::G2_from_r(wo.z, smith_r_o, wi.z, ggx::smith_r(wi, alpha))};
+}
+
+// A lobe-choice number u >= p, mapped back onto [0, 1) for the lobes after
+// the one chosen below p.
+float rest_of(float u, float p) { return std::min((u - p) / (1.0f - p), 0.99999994f); }
+
 }  // namespace
 
 bool refract_through(Vec3 wo, Vec3 h, float cos_oh, float eta, Vec3* wi) {
@@ -43,8 +61,12 @@ float fresnel_dielectric(float cos_i, float eta) {
 }
 
 namespace {
-// The clearcoat's F0: IOR 1.5 (glTF KHR_materials_clearcoat).
+// The clearcoat's F0: IOR 1.5 (glTF KHR_materials_clearcoat), and its
+// Schlick Fresnel.
 constexpr float kCoatF0 = 0.04f;
+float coat_schlick(float cos_theta) {
+  return kCoatF0 + (1.0f - kCoatF0) * schlick_weight(cos_theta);
+}
 }  // namespace
 
 Bsdf::Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, float ior,
@@ -200,8 +222,6 @@ Bsdf::Outgoing Bsdf::outgoing(Vec3 wo_w) const {
     const bool others = diffuse_weight_ > 0 || has_specular_;
     o.glass_prob = others ? std::clamp(glass_weight_, 0.05f, 0.95f) : 1.0f;
     if (!glass_delta_) {
-      o.smith_r = ggx::smith_r(o.wo, alpha_);
-      o.inv_4_cos_o = 1.0f / (4.0f * o.wo.z);
       // Multiple-scattering compensation (glass_albedo.h).
       const float e =
           ggx::glass_albedo(ggx::glass_albedo_table(), glass_ior_, glass_entering_, alpha_, o.wo.z);
@@ -213,7 +233,7 @@ Bsdf::Outgoing Bsdf::outgoing(Vec3 wo_w) const {
     // mirror: c F(mu_o)); what it does not reflect reaches the rest.
     float e_c;
     if (coat_delta_) {
-      e_c = coat_weight_ * (kCoatF0 + (1.0f - kCoatF0) * schlick_weight(mu));
+      e_c = coat_weight_ * coat_schlick(mu);
     } else {
       const ggx::Albedo a = ggx::albedo(coat_row_, mu);
       o.coat_fresnel = coat_weight_ * (1.0f + kCoatF0 * a.k());
@@ -224,9 +244,12 @@ Bsdf::Outgoing Bsdf::outgoing(Vec3 wo_w) const {
     o.coat_scale = 1.0f - e_c;
     o.coat_prob = std::clamp(e_c, 0.05f, 0.95f);
   }
-  if (has_specular_ && !delta_specular_) {
+  // The rough specular and glass lobes share alpha, and so these.
+  if ((has_specular_ && !delta_specular_) || (glass_weight_ > 0 && !glass_delta_)) {
     o.smith_r = ggx::smith_r(o.wo, alpha_);
     o.inv_4_cos_o = 1.0f / (4.0f * o.wo.z);
+  }
+  if (has_specular_ && !delta_specular_) {
     // VNDF pdf of h (Heitz 2018: 2 (wo.h) D / (wo.z + r)) times the
     // reflection Jacobian 1 / (4 wo.h): wo.h cancels, D remains.
     o.specular_pdf_scale = o.specular_prob / (2.0f * (o.wo.z + o.smith_r));
@@ -247,15 +270,10 @@ Vec3 Bsdf::evaluate_local(const Outgoing& o, Vec3 wi, float* pdf_out) const {
     }
   }
   if (has_specular_ && !delta_specular_) {
-    // Both directions are above the surface, so wo + wi is never zero.
-    const Vec3 sum = wo + wi;
-    const Vec3 h = sum * (1.0f / std::sqrt(dot(sum, sum)));
-    const float d = ggx::D(h, alpha_);
-    const float g = ggx::G2_from_r(wo.z, o.smith_r, wi.z, ggx::smith_r(wi, alpha_));
-    const float wo_h = dot(wo, h);
-    const Vec3 fr = o.fresnel_c0 + o.fresnel_c1 * schlick_weight(wo_h);
-    f += fr * (d * g * o.inv_4_cos_o);  // times cos(wi) / cos(wi) cancels
-    if (wo_h > 0) p += d * o.specular_pdf_scale;
+    const ReflectionTerms r = reflection_terms(wo, wi, alpha_, o.smith_r);
+    const Vec3 fr = o.fresnel_c0 + o.fresnel_c1 * schlick_weight(r.wo_h);
+    f += fr * (r.d * r.g * o.inv_4_cos_o);  // times cos(wi) / cos(wi) cancels
+    if (r.wo_h > 0) p += r.d * o.specular_pdf_scale;
   }
   // Glass code stays out of line: opaque materials pay one branch.
   if (glass_weight_ > 0) [[unlikely]] {
@@ -268,18 +286,13 @@ Vec3 Bsdf::evaluate_local(const Outgoing& o, Vec3 wi, float* pdf_out) const {
 
 [[gnu::noinline]] void Bsdf::add_glass_reflection(const Outgoing& o, Vec3 wi, Vec3* f,
                                                   float* pdf) const {
-  const Vec3 wo = o.wo;
-  const Vec3 sum = wo + wi;
-  const Vec3 h = sum * (1.0f / std::sqrt(dot(sum, sum)));
-  const float wo_h = dot(wo, h);
-  if (!(wo_h > 0)) return;
-  const float fr = fresnel_dielectric(wo_h, eta_);
-  const float d = ggx::D(h, alpha_);
-  const float g = ggx::G2_from_r(wo.z, o.smith_r, wi.z, ggx::smith_r(wi, alpha_));
-  *f += Vec3(glass_weight_ * o.glass_scale * fr * d * g * o.inv_4_cos_o);
+  const ReflectionTerms r = reflection_terms(o.wo, wi, alpha_, o.smith_r);
+  if (!(r.wo_h > 0)) return;
+  const float fr = fresnel_dielectric(r.wo_h, eta_);
+  *f += Vec3(glass_weight_ * o.glass_scale * fr * r.d * r.g * o.inv_4_cos_o);
   // VNDF pdf of h times the reflection Jacobian 1 / (4 wo.h), times the
   // probability F of reflecting.
-  *pdf += o.glass_prob * fr * d / (2.0f * (wo.z + o.smith_r));
+  *pdf += o.glass_prob * fr * r.d / (2.0f * (o.wo.z + o.smith_r));
 }
 
 [[gnu::noinline]] Vec3 Bsdf::evaluate_refraction(const Outgoing& o, Vec3 wi, float* pdf_out) const {
@@ -323,16 +336,10 @@ Vec3 Bsdf::evaluate(const Outgoing& o, Vec3 wi_w, float* pdf_out) const {
   if (coat_delta_ || dot(wi_w, ng_) <= 0) return;
   const Vec3 wi = frame_.to_local(wi_w);
   if (wi.z <= 0) return;
-  const Vec3 wo = o.wo;
-  const Vec3 sum = wo + wi;
-  const Vec3 h = sum * (1.0f / std::sqrt(dot(sum, sum)));
-  const float wo_h = dot(wo, h);
-  if (!(wo_h > 0)) return;
-  const float d = ggx::D(h, coat_alpha_);
-  const float g = ggx::G2_from_r(wo.z, o.coat_smith_r, wi.z, ggx::smith_r(wi, coat_alpha_));
-  const float fr = kCoatF0 + (1.0f - kCoatF0) * schlick_weight(wo_h);
-  *f += Vec3(o.coat_fresnel * fr * d * g / (4.0f * wo.z));
-  *pdf += o.coat_prob * d / (2.0f * (wo.z + o.coat_smith_r));
+  const ReflectionTerms r = reflection_terms(o.wo, wi, coat_alpha_, o.coat_smith_r);
+  if (!(r.wo_h > 0)) return;
+  *f += Vec3(o.coat_fresnel * coat_schlick(r.wo_h) * r.d * r.g / (4.0f * o.wo.z));
+  *pdf += o.coat_prob * r.d / (2.0f * (o.wo.z + o.coat_smith_r));
 }
 
 Vec3 Bsdf::evaluate_base(const Outgoing& o, Vec3 wi_w, float* pdf_out) const {
@@ -382,9 +389,7 @@ BsdfSample Bsdf::sample(Vec3 wo_w, float u_lobe, Vec2 u) const {
     const float fr = fresnel_dielectric(wo.z, eta_);
     Vec3 wi;
     if (u_lobe < fr) {
-      wi = Vec3(-wo.x, -wo.y, wo.z);
-      s.wi = frame_.to_world(wi);
-      if (dot(s.wi, ng_) <= 0) return s;
+      if (!mirror(wo, &s.wi)) return s;
       s.weight = Vec3(glass_weight_ / o.glass_prob);
     } else {
       if (!refract_through(wo, Vec3(0, 0, 1), wo.z, eta_, &wi)) return s;
@@ -426,10 +431,8 @@ BsdfSample Bsdf::sample(const Outgoing& o, float u_lobe, Vec2 u) const {
   const Vec3 wo = o.wo;
   if (u_lobe < o.coat_prob) {
     if (coat_delta_) {
-      s.wi = frame_.to_world(Vec3(-wo.x, -wo.y, wo.z));
-      if (dot(s.wi, ng_) <= 0) return s;
-      s.weight =
-          Vec3(coat_weight_ * (kCoatF0 + (1.0f - kCoatF0) * schlick_weight(wo.z)) / o.coat_prob);
+      if (!mirror(wo, &s.wi)) return s;
+      s.weight = Vec3(coat_weight_ * coat_schlick(wo.z) / o.coat_prob);
       s.is_delta = true;
       s.valid = is_finite(s.weight);
       return s;
@@ -438,7 +441,7 @@ BsdfSample Bsdf::sample(const Outgoing& o, float u_lobe, Vec2 u) const {
     if (wi.z <= 0) return s;
     s.wi = frame_.to_world(wi);
   } else {
-    s = sample_base(o, std::min((u_lobe - o.coat_prob) / (1.0f - o.coat_prob), 0.99999994f), u);
+    s = sample_base(o, rest_of(u_lobe, o.coat_prob), u);
     if (!s.valid) return s;
     if (s.is_delta) {
       s.weight = s.weight * (o.coat_scale / (1.0f - o.coat_prob));
@@ -460,16 +463,14 @@ BsdfSample Bsdf::sample_base(const Outgoing& o, float u_lobe, Vec2 u) const {
   if (!o.valid) return s;
   if (glass_weight_ > 0) [[unlikely]] {
     if (u_lobe < o.glass_prob) return sample_glass(o, u_lobe / o.glass_prob, u);
-    u_lobe = std::min((u_lobe - o.glass_prob) / (1.0f - o.glass_prob), 0.99999994f);
+    u_lobe = rest_of(u_lobe, o.glass_prob);
   }
   const Vec3 wo = o.wo;
   const float ps = o.specular_prob;
   Vec3 wi;
   if (u_lobe < ps) {
     if (delta_specular_) {
-      wi = Vec3(-wo.x, -wo.y, wo.z);
-      s.wi = frame_.to_world(wi);
-      if (dot(s.wi, ng_) <= 0) return s;
+      if (!mirror(wo, &s.wi)) return s;
       // h = n, so wo.h = mu_o.
       s.weight = (o.fresnel_c0 + o.fresnel_c1 * schlick_weight(wo.z)) / ps;
       if (glass_weight_ > 0) [[unlikely]]

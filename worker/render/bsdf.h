@@ -140,9 +140,6 @@ class Bsdf {
     return diffuse_weight_ > 0 || (has_specular_ && !delta_specular_) ||
            (glass_weight_ > 0 && !glass_delta_) || (coat_weight_ > 0 && !coat_delta_);
   }
-  // The relative IOR across the surface, far side over wo's side (1 without
-  // transmission).
-  float eta() const { return eta_; }
 
  private:
   // evaluate() with both directions local and above the surfaces.
@@ -152,6 +149,12 @@ class Bsdf {
   // The glass lobe's reflection, added to f and *pdf (wi above the surface).
   void add_glass_reflection(const Outgoing& o, Vec3 wi, Vec3* f, float* pdf) const;
   BsdfSample sample_glass(const Outgoing& o, float u_lobe, Vec2 u) const;
+  // wo (local) mirrored about the shading normal, in world space; false
+  // where that lies below the geometric surface.
+  bool mirror(Vec3 wo, Vec3* wi_w) const {
+    *wi_w = frame_.to_world(Vec3(-wo.x, -wo.y, wo.z));
+    return dot(*wi_w, ng_) > 0;
+  }
   // Everything but the clearcoat (evaluate() and sample() add it).
   Vec3 evaluate_base(const Outgoing& o, Vec3 wi, float* pdf) const;
   BsdfSample sample_base(const Outgoing& o, float u_lobe, Vec2 u) const;
