@@ -2,6 +2,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -180,6 +181,112 @@ GltfInfo read_gltf_info(const std::filesystem::path& path) {
     out.materials.push_back(std::move(info));
   }
   return out;
+}
+
+namespace {
+
+// KHR_materials_specular's factors (schema: specularFactor in [0, 1],
+// specularColorFactor >= 0, above 1 allowed: F0 is clamped to 1); a value
+// outside them is named in a warning and the extension's default used.
+void read_specular_layer(const std::filesystem::path& path, const std::string& which,
+                         const GltfMaterialInfo& g, Material* m) {
+  if (std::isfinite(g.specular_factor) && g.specular_factor >= 0 && g.specular_factor <= 1) {
+    m->specular = float(g.specular_factor);
+  } else {
+    spdlog::warn("{}: {}: KHR_materials_specular specularFactor {} is outside [0, 1]; using 1",
+                 path.string(), which, g.specular_factor);
+  }
+  const double* c = g.specular_color;
+  const bool color_ok = std::isfinite(c[0]) && std::isfinite(c[1]) && std::isfinite(c[2]) &&
+                        c[0] >= 0 && c[1] >= 0 && c[2] >= 0 && c[0] <= 1e6 && c[1] <= 1e6 &&
+                        c[2] <= 1e6;
+  if (color_ok) {
+    m->specular_color = Vec3(float(c[0]), float(c[1]), float(c[2]));
+  } else {
+    spdlog::warn(
+        "{}: {}: KHR_materials_specular specularColorFactor [{}, {}, {}] is not three numbers in "
+        "[0, 1e6]; using [1, 1, 1]",
+        path.string(), which, c[0], c[1], c[2]);
+  }
+  if (!g.specular_textures.empty())
+    spdlog::warn("{}: {}: KHR_materials_specular {} ignored (its factors are used)", path.string(),
+                 which, g.specular_textures);
+}
+// KHR_materials_transmission's factor (schema: [0, 1]); a value outside
+// is named in a warning and the extension's default 0 used. Its texture
+// is not applied (the factor is).
+void read_transmission(const std::filesystem::path& path, const std::string& which,
+                       const GltfMaterialInfo& g, Material* m) {
+  if (std::isfinite(g.transmission) && g.transmission >= 0 && g.transmission <= 1) {
+    m->transmission = float(g.transmission);
+  } else {
+    spdlog::warn(
+        "{}: {}: KHR_materials_transmission transmissionFactor {} is outside [0, 1]; using 0",
+        path.string(), which, g.transmission);
+  }
+  if (g.transmission_texture)
+    spdlog::warn(
+        "{}: {}: KHR_materials_transmission transmissionTexture ignored (its factor "
+        "is used)",
+        path.string(), which);
+}
+// KHR_materials_volume's attenuation (schema: attenuationDistance > 0,
+// attenuationColor in [0, 1]): sigma_a = -ln(c) / d per channel; a value
+// outside is named in a warning and the extension's default (no
+// absorption) used. Only transmissive materials let light inside.
+void read_volume(const std::filesystem::path& path, const std::string& which,
+                 const GltfMaterialInfo& g, Material* m) {
+  const double d = g.attenuation_distance;
+  const double* c = g.attenuation_color;
+  if (!(d > 0)) {  // NaN too
+    spdlog::warn(
+        "{}: {}: KHR_materials_volume attenuationDistance {} is not above 0; no absorption",
+        path.string(), which, d);
+    return;
+  }
+  for (int k = 0; k < 3; ++k)
+    if (!(c[k] >= 0 && c[k] <= 1)) {
+      spdlog::warn(
+          "{}: {}: KHR_materials_volume attenuationColor [{}, {}, {}] is not three "
+          "numbers in [0, 1]; no absorption",
+          path.string(), which, c[0], c[1], c[2]);
+      return;
+    }
+  if (std::isinf(d)) return;  // the default: clear
+  // A channel of 0 absorbs everything: a large finite coefficient keeps
+  // exp(-sigma t) a plain 0 without infinities.
+  auto sigma = [&](double ck) { return float(std::min(-std::log(std::max(ck, 1e-30)) / d, 1e30)); };
+  m->attenuation = Vec3(sigma(c[0]), sigma(c[1]), sigma(c[2]));
+}
+// KHR_materials_clearcoat's factors (schema: both in [0, 1]); a value
+// outside is named in a warning and the extension's default 0 used; its
+// textures are named in a warning and not applied (the factors are).
+void read_clearcoat(const std::filesystem::path& path, const std::string& which,
+                    const GltfMaterialInfo& g, Material* m) {
+  auto factor = [&](double v, const char* key, float* out) {
+    if (std::isfinite(v) && v >= 0 && v <= 1) {
+      *out = float(v);
+    } else {
+      spdlog::warn("{}: {}: KHR_materials_clearcoat {} {} is outside [0, 1]; using 0",
+                   path.string(), which, key, v);
+    }
+  };
+  factor(g.clearcoat, "clearcoatFactor", &m->clearcoat);
+  factor(g.clearcoat_roughness, "clearcoatRoughnessFactor", &m->clearcoat_roughness);
+  if (!g.clearcoat_textures.empty())
+    spdlog::warn("{}: {}: KHR_materials_clearcoat {} ignored (its factors are used)", path.string(),
+                 which, g.clearcoat_textures);
+}
+
+}  // namespace
+
+void apply_material_extensions(const std::filesystem::path& path, const GltfMaterialInfo& g,
+                               unsigned index, Material* m) {
+  const std::string which = "material " + std::to_string(index) + " (\"" + m->name + "\")";
+  read_specular_layer(path, which, g, m);
+  read_transmission(path, which, g, m);
+  read_volume(path, which, g, m);
+  read_clearcoat(path, which, g, m);
 }
 
 // glTF 3.12: a required extension the loader does not implement means the

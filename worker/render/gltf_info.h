@@ -63,6 +63,14 @@ struct GltfInfo {
 // not JSON (assimp then gives the reason).
 GltfInfo read_gltf_info(const std::filesystem::path& path);
 
+// What the extensions read above do to material `index`: KHR_materials_
+// specular, _transmission, _volume and _clearcoat's factors, checked
+// against their schemas; a value outside is named in a warning (file,
+// material, key) and the extension's default used; their textures are
+// named in a warning and not applied.
+void apply_material_extensions(const std::filesystem::path& path, const GltfMaterialInfo& g,
+                               unsigned index, Material* m);
+
 // glTF 3.12: a required extension the loader does not implement means the
 // asset cannot be rendered correctly, so it is refused (SpecError naming
 // the file); one that is only used is named in one warning, so nothing is
