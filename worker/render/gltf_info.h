@@ -1,5 +1,6 @@
 // What the scene loader (scene_data.cpp) reads of a glTF file's JSON beyond
-// what assimp 5.2 gives it, and the check of the file's extension lists.
+// what assimp 5.2 gives it, what the material extensions among it do to a
+// material, and the check of the file's extension lists.
 #pragma once
 
 #include <cmath>
