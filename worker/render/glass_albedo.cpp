@@ -6,6 +6,7 @@
 #include "common/math.h"
 #include "worker/render/bsdf.h"
 #include "worker/render/microfacet.h"
+#include "worker/render/microfacet_albedo.h"
 
 namespace dofarm::render::ggx {
 
@@ -41,13 +42,11 @@ GlassAlbedoTable compute_glass_albedo_table(int n) {
       const float ior = 1.0f + float(k) / 8.0f;
       const float eta = side == 0 ? ior : 1.0f / ior;
       for (int i = 0; i < kR; ++i) {
-        const float x = float(i) / float(kR - 1);
-        const float alpha = std::max(kMinAlpha, (x * x) * (x * x));
+        const float alpha = node_alpha(i, kR);
         for (int j = 0; j < kM; ++j) {
           // Smooth glass (row 0) keeps everything; mu = 0 has no visible
           // normals, and a node just above it gives the limit.
-          const float y = float(j) / float(kM - 1);
-          const float mu = std::max(y * y, 1e-4f);
+          const float mu = node_mu(j, kM, 1e-4f);
           t.e[side][k][i][j] =
               i == 0 ? 1.0f : float(std::min(1.0, glass_albedo_by_quadrature(eta, alpha, mu, n)));
         }
@@ -71,11 +70,8 @@ float glass_albedo(const GlassAlbedoTable& t, float ior, bool entering, float al
   int k, r, m;
   float sk, sr, sm;
   axis((ior - 1.0f) * 8.0f, GlassAlbedoTable::kIor, &k, &sk);
-  axis(
-      std::sqrt(std::sqrt(std::clamp(alpha, 0.0f, 1.0f))) * float(GlassAlbedoTable::kRoughness - 1),
-      GlassAlbedoTable::kRoughness, &r, &sr);
-  axis(std::sqrt(std::clamp(mu, 0.0f, 1.0f)) * float(GlassAlbedoTable::kMu - 1),
-       GlassAlbedoTable::kMu, &m, &sm);
+  axis(alpha_axis(alpha, GlassAlbedoTable::kRoughness), GlassAlbedoTable::kRoughness, &r, &sr);
+  axis(mu_axis(mu, GlassAlbedoTable::kMu), GlassAlbedoTable::kMu, &m, &sm);
   const auto& e = t.e[entering ? 0 : 1];
   auto mix = [](float p, float q, float s) { return p + (q - p) * s; };
   auto plane = [&](int kk) {

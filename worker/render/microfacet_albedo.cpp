@@ -62,14 +62,11 @@ AlbedoTable compute_albedo_table(int n) {
     t.entry[0][j] = {1.0f - w, w};
   }
   for (int i = 1; i < kR; ++i) {
-    const float x = float(i) / float(kR - 1);
-    const float alpha = std::max(kMinAlpha, (x * x) * (x * x));
+    const float alpha = node_alpha(i, kR);
     for (int j = 0; j < kMu; ++j) {
       // mu = 0 itself has no visible normals; the albedo's limit there is
       // finite (G2 / mu_o stays finite) and a node just above 0 gives it.
-      const float x = float(j) / float(kMu - 1);
-      const float mu = std::max(x * x, 1e-6f);
-      t.entry[i][j] = entry_by_vndf(mu, alpha, n);
+      t.entry[i][j] = entry_by_vndf(node_mu(j, kMu, 1e-6f), alpha, n);
     }
   }
   // Averages over the rows as albedo() returns them (linear in x = sqrt(mu)),

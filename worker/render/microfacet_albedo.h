@@ -21,7 +21,28 @@
 #include <algorithm>
 #include <cmath>
 
+#include "worker/render/microfacet.h"
+
 namespace dofarm::render::ggx {
+
+// The node layout of this table and of glass_albedo.h's: n nodes in equal
+// steps of alpha^(1/4) and of sqrt(mu). A node's alpha and mu (mu at least
+// `mu_floor`: mu = 0 has no visible normals), and where an alpha or a mu
+// lies on its axis (in nodes, from 0 to n - 1).
+inline float node_alpha(int i, int n) {
+  const float x = float(i) / float(n - 1);
+  return std::max(kMinAlpha, (x * x) * (x * x));
+}
+inline float node_mu(int j, int n, float mu_floor) {
+  const float y = float(j) / float(n - 1);
+  return std::max(y * y, mu_floor);
+}
+inline float alpha_axis(float alpha, int n) {
+  return std::sqrt(std::sqrt(std::clamp(alpha, 0.0f, 1.0f))) * float(n - 1);  // NaN stays NaN
+}
+inline float mu_axis(float mu, int n) {
+  return std::sqrt(std::clamp(mu, 0.0f, 1.0f)) * float(n - 1);
+}
 
 struct AlbedoTable {
   static constexpr int kMu = 32;         // nodes sqrt(mu)_j = j / (kMu - 1)
@@ -57,8 +78,7 @@ struct AlbedoRow {
   int index = 0;                           // of `lo`
 };
 inline AlbedoRow albedo_row(const AlbedoTable& table, float alpha) {
-  float a = std::clamp(alpha, 0.0f, 1.0f);  // NaN stays NaN: caught below
-  float x = std::sqrt(std::sqrt(a)) * float(AlbedoTable::kRoughness - 1);  // alpha^(1/4)
+  float x = alpha_axis(alpha, AlbedoTable::kRoughness);  // NaN stays NaN: caught below
   if (!(x >= 0.0f)) x = 0.0f;
   AlbedoRow row;
   row.index = std::min(int(x), AlbedoTable::kRoughness - 2);
@@ -81,7 +101,7 @@ struct Albedo {
 
 // Bilinear lookup at mu in [0, 1] (clamped).
 inline Albedo albedo(const AlbedoRow& row, float mu) {
-  float x = std::sqrt(std::clamp(mu, 0.0f, 1.0f)) * float(AlbedoTable::kMu - 1);
+  float x = mu_axis(mu, AlbedoTable::kMu);
   int j = std::min(int(x), AlbedoTable::kMu - 2);
   float s = x - float(j);
   auto mix = [](float p, float q, float t) { return p + (q - p) * t; };
