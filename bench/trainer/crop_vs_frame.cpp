@@ -15,9 +15,14 @@
 // borders of the crops it was trained on falls behind its own tiles in the
 // interior, further from every border than any crop reached.
 //
+// --coc PX feeds the network a circle of confusion of PX pixels at every
+// pixel instead of the frame's own (as `dofarm-train eval --coc-override`),
+// so a failure can be put down to the CoC input or not.
+//
 // Usage: crop_vs_frame --run RUN --data DIR [--checkpoint best|last|PATH]
-//                      [--tiles 64,128] [--frames N] [--rings W]
+//                      [--tiles 64,128] [--frames N] [--rings W] [--coc PX]
 // Prints one line per frame and the means; asserts nothing.
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -51,7 +56,7 @@ std::vector<std::vector<uint8_t>> ring_masks(int width, int height, int ring, in
 int usage() {
   std::fprintf(stderr,
                "usage: crop_vs_frame --run RUN --data DIR [--checkpoint best|last|PATH] "
-               "[--tiles 64,128] [--frames N] [--rings W]\n");
+               "[--tiles 64,128] [--frames N] [--rings W] [--coc PX]\n");
   return 2;
 }
 
@@ -61,6 +66,7 @@ int main(int argc, char** argv) {
   fs::path run, data;
   std::string checkpoint = "best", tiles_arg = "64,128";
   int max_frames = 0, ring = 0;
+  float coc_px = -1.0f;  // < 0: the frame's own CoC
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     if (i + 1 >= argc) return usage();
@@ -76,10 +82,12 @@ int main(int argc, char** argv) {
       max_frames = std::atoi(argv[++i]);
     else if (a == "--rings")
       ring = std::atoi(argv[++i]);
+    else if (a == "--coc")
+      coc_px = std::strtof(argv[++i], nullptr);
     else
       return usage();
   }
-  if (run.empty() || data.empty() || ring < 0) return usage();
+  if (run.empty() || data.empty() || ring < 0 || !std::isfinite(coc_px)) return usage();
   std::vector<int> tiles;
   std::stringstream ss(tiles_arg);
   for (std::string t; std::getline(ss, t, ',');) {
@@ -89,8 +97,10 @@ int main(int argc, char** argv) {
   }
 
   FrameDenoiser den(run, torch::kCPU, checkpoint);
-  std::printf("run %s, checkpoint %s (step %lld)\n", run.c_str(), den.run().checkpoint.c_str(),
-              static_cast<long long>(den.run().state.step));
+  std::printf(
+      "run %s, checkpoint %s (step %lld)%s\n", run.c_str(), den.run().checkpoint.c_str(),
+      static_cast<long long>(den.run().state.step),
+      coc_px >= 0.0f ? (", CoC fed as " + std::to_string(coc_px) + " px everywhere").c_str() : "");
   std::printf("%-28s %6s %9s", "frame", "size", "whole");
   for (int t : tiles) std::printf("  tiles %-4d", t);
   std::printf("\n");
@@ -106,7 +116,8 @@ int main(int argc, char** argv) {
     ShardReader reader(data / sp.file);
     for (int f = sp.val_begin; f < sp.val_end; ++f) {
       if (max_frames > 0 && frames >= max_frames) break;
-      const FrameBuffers fb = reader.read_frame(f);
+      FrameBuffers fb = reader.read_frame(f);
+      if (coc_px >= 0.0f) std::fill(fb.coc.begin(), fb.coc.end(), coc_px);
       const int w = fb.width, h = fb.height;
       if (ring > 0 && rings == 0) {
         rings = std::max(1, (std::min(w, h) / 2 + ring - 1) / ring);
