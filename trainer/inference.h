@@ -37,6 +37,7 @@ class FrameDenoiser {
   void reset_sequence() { state_.clear(); }
   const TrainConfig& config() const { return run_.config; }
   const LoadedRun& run() const { return run_; }
+  Denoiser& model() { return run_.model; }
 
  private:
   LoadedRun run_;

@@ -153,9 +153,11 @@ torch::Tensor DenoiserImpl::forward_frame(const torch::Tensor& x,
     for (auto& c : enc_[i]) h = act(conv(c, h));
     if (cfg_.recurrent) state[i] = h;
     skips.push_back(h);
+    if (taps_) taps_->push_back(h.detach());
     h = torch::max_pool2d(h, {2, 2});
   }
   for (auto& c : mid_) h = act(conv(c, h));
+  if (taps_) taps_->push_back(h.detach());
   for (int i = kLevels - 1; i >= 0; --i) {
     h = torch::upsample_nearest2d(h, {h.size(2) * 2, h.size(3) * 2});  // nearest x2
     h = torch::cat({h, skips[i]}, 1);

@@ -43,6 +43,11 @@ class DenoiserImpl : public torch::nn::Module {
 
   const ModelConfig& config() const { return cfg_; }
 
+  // Diagnostics (bench/trainer/crop_vs_frame --taps): while set, every
+  // forward_frame appends to *taps each encoder level's output (before its
+  // pooling, levels 0..kLevels-1) and then the bottleneck's, detached.
+  void set_taps(std::vector<torch::Tensor>* taps) { taps_ = taps; }
+
   // Memory format of the activations and convolution weights. It changes no
   // value (up to float summation order) but the speed: on the CPU oneDNN's
   // convolutions work in NHWC (ChannelsLast), so NCHW tensors are reordered
@@ -78,6 +83,7 @@ class DenoiserImpl : public torch::nn::Module {
   torch::MemoryFormat format_ = torch::MemoryFormat::Contiguous;
   std::vector<int> widths_;
   int bottleneck_ = 0;
+  std::vector<torch::Tensor>* taps_ = nullptr;
   std::vector<std::vector<Conv>> enc_, dec_;
   std::vector<Conv> mid_;
   Conv out_;  // null with the thesis decoder

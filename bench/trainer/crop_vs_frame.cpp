@@ -19,10 +19,21 @@
 // pixel instead of the frame's own (as `dofarm-train eval --coc-override`),
 // so a failure can be put down to the CoC input or not.
 //
+// --taps prints, for the deepest levels of the network (the last two
+// encoder levels and the bottleneck), the RMS of the activations by each
+// cell's distance to the border of its own feature map, in cells: the whole
+// frame's against the tiles'. A network trained on 64-px crops sees a
+// bottleneck of 2 x 2 cells, every one of them on the zero padding; in a
+// 256-px frame most cells of its 8 x 8 bottleneck are not, and if their
+// activations leave the range the crops gave them, that is where the whole
+// frame goes wrong.
+//
 // Usage: crop_vs_frame --run RUN --data DIR [--checkpoint best|last|PATH]
 //                      [--tiles 64,128] [--frames N] [--rings W] [--coc PX]
+//                      [--taps]
 // Prints one line per frame and the means; asserts nothing.
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -53,10 +64,38 @@ std::vector<std::vector<uint8_t>> ring_masks(int width, int height, int ring, in
   return masks;
 }
 
+// Sums of squared activations (over channels) and cell counts per tapped
+// level and per distance of a cell to its feature map's border, in cells.
+struct TapStats {
+  static constexpr int kRings = 4;  // 0, 1, 2, >= 3 cells from the border
+  std::vector<std::array<double, kRings>> sq, cells;
+
+  // Adds the taps of one forward pass; only the last `levels` taps count.
+  void add(const std::vector<torch::Tensor>& taps, int levels) {
+    if (sq.empty()) {
+      sq.assign(levels, {});
+      cells.assign(levels, {});
+    }
+    for (int l = 0; l < levels; ++l) {
+      const torch::Tensor t = taps[taps.size() - levels + l].to(torch::kFloat).contiguous();
+      const torch::Tensor ms = t.pow(2).mean(1).squeeze(0).contiguous();  // h x w, mean over C
+      const int h = int(ms.size(0)), w = int(ms.size(1));
+      const float* v = ms.data_ptr<float>();
+      for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x) {
+          const int d =
+              std::min(std::min(std::min(x, w - 1 - x), std::min(y, h - 1 - y)), kRings - 1);
+          sq[l][d] += v[y * w + x];
+          cells[l][d] += 1;
+        }
+    }
+  }
+};
+
 int usage() {
   std::fprintf(stderr,
                "usage: crop_vs_frame --run RUN --data DIR [--checkpoint best|last|PATH] "
-               "[--tiles 64,128] [--frames N] [--rings W] [--coc PX]\n");
+               "[--tiles 64,128] [--frames N] [--rings W] [--coc PX] [--taps]\n");
   return 2;
 }
 
@@ -67,8 +106,13 @@ int main(int argc, char** argv) {
   std::string checkpoint = "best", tiles_arg = "64,128";
   int max_frames = 0, ring = 0;
   float coc_px = -1.0f;  // < 0: the frame's own CoC
+  bool taps = false;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
+    if (a == "--taps") {
+      taps = true;
+      continue;
+    }
     if (i + 1 >= argc) return usage();
     if (a == "--run")
       run = argv[++i];
@@ -111,6 +155,11 @@ int main(int argc, char** argv) {
   std::vector<std::vector<int>> ring_count;
   int rings = 0;
   int frames = 0;
+  // The last two encoder levels and the bottleneck, per image kind.
+  constexpr int kTapLevels = 3;
+  std::vector<torch::Tensor> tap_buffer;
+  std::vector<TapStats> tap_stats(tiles.size() + 1);
+  if (taps) den.model()->set_taps(&tap_buffer);
   for (const ShardSplit& sp : load_split_file(run)) {
     if (!fs::exists(data / sp.file)) continue;
     ShardReader reader(data / sp.file);
@@ -143,7 +192,9 @@ int main(int argc, char** argv) {
         return s[0];
       };
       den.reset_sequence();
+      tap_buffer.clear();
       const double whole = score(0, den.denoise(fb, 0));
+      if (taps) tap_stats[0].add(tap_buffer, kTapLevels);
       std::printf("%-22s %5d %4dx%-4d %7.4f", sp.file.c_str(), reader.info().frame_start + f,
                   fb.width, fb.height, whole);
       sum[0] += whole;
@@ -151,7 +202,10 @@ int main(int argc, char** argv) {
         const std::vector<float> joined =
             denoise_in_tiles(fb, tiles[k], [&](const FrameBuffers& part) {
               den.reset_sequence();
-              return den.denoise(part, 0);
+              tap_buffer.clear();
+              std::vector<float> out = den.denoise(part, 0);
+              if (taps) tap_stats[k + 1].add(tap_buffer, kTapLevels);
+              return out;
             });
         const double s = score(k + 1, joined);
         sum[k + 1] += s;
@@ -181,6 +235,26 @@ int main(int argc, char** argv) {
           std::printf(kind == 0 ? " %9.4f" : "  %10.4f", ring_sum[kind][k] / ring_count[kind][k]);
         else
           std::printf(kind == 0 ? " %9s" : "  %10s", "n/a");
+      }
+      std::printf("\n");
+    }
+  }
+  if (taps) {
+    den.model()->set_taps(nullptr);
+    std::printf(
+        "\nActivation RMS by distance to the feature map's border, in cells (0, 1, 2, >= 3):\n");
+    const char* names[kTapLevels] = {"encoder 1/8", "encoder 1/16", "bottleneck 1/32"};
+    for (int l = 0; l < kTapLevels; ++l) {
+      std::printf("%-16s", names[l]);
+      for (size_t kind = 0; kind < tap_stats.size(); ++kind) {
+        std::printf(kind == 0 ? "  whole" : "  tiles %d", kind == 0 ? 0 : tiles[kind - 1]);
+        for (int d = 0; d < TapStats::kRings; ++d) {
+          const double n = tap_stats[kind].cells.empty() ? 0 : tap_stats[kind].cells[l][d];
+          if (n > 0)
+            std::printf(" %7.3f", std::sqrt(tap_stats[kind].sq[l][d] / n));
+          else
+            std::printf(" %7s", "-");
+        }
       }
       std::printf("\n");
     }
