@@ -289,6 +289,28 @@ TEST(Denoiser, ThesisLastBlockIsLinear) {
   EXPECT_TRUE(s.equal(y));
 }
 
+// The taps (crop_vs_frame --taps) are the encoder levels' outputs and the
+// bottleneck's, at 1, 1/2, ... 1/32 of the frame, and change nothing.
+TEST(Denoiser, TapsRecordEveryLevelAndChangeNothing) {
+  torch::manual_seed(3);
+  Denoiser m(tiny(false));
+  torch::NoGradGuard ng;
+  torch::Tensor x = torch::rand({1, 12, 64, 96});
+  std::vector<torch::Tensor> none, taps;
+  const torch::Tensor plain = m->forward_frame(x, none);
+  m->set_taps(&taps);
+  const torch::Tensor tapped = m->forward_frame(x, none);
+  m->set_taps(nullptr);
+  EXPECT_TRUE(tapped.equal(plain));
+  ASSERT_EQ(int(taps.size()), kLevels + 1);
+  for (int l = 0; l <= kLevels; ++l) {
+    EXPECT_EQ(taps[l].size(2), 64 >> l) << l;
+    EXPECT_EQ(taps[l].size(3), 96 >> l) << l;
+  }
+  m->forward_frame(x, none);  // after set_taps(nullptr): nothing more recorded
+  EXPECT_EQ(int(taps.size()), kLevels + 1);
+}
+
 TEST(Denoiser, RecurrentOutputDependsOnEarlierFrames) {
   torch::manual_seed(1);
   Denoiser m(tiny(true));
