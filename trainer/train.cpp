@@ -37,6 +37,13 @@ constexpr double kExtentGap = 0.02;
 
 namespace fs = std::filesystem;
 
+FrameFailure whole_frame_failure(double frames, double crops, double tiles) {
+  if (!std::isfinite(frames)) return FrameFailure::kNonFinite;
+  if (std::isfinite(crops) && frames < crops - kWholeFrameGap) return FrameFailure::kBelowCrops;
+  if (std::isfinite(tiles) && frames < tiles - kExtentGap) return FrameFailure::kBelowTiles;
+  return FrameFailure::kNone;
+}
+
 double thesis_learning_rate(int64_t pass) {
   // Thesis eq. 4.5: a tenfold geometric rise over passes 0..9 (1.25893 =
   // 10^(1/10)), then 0.0001 * 10 / sqrt(E).
@@ -193,6 +200,7 @@ TrainResult train_in(const TrainOptions& opt_in) {
   const fs::path run = opt_in.run_dir;
   const fs::path ckpt_dir = run / "checkpoints";
   const fs::path last = ckpt_dir / "last.pt", best = ckpt_dir / "best.pt";
+  bool frames_failed = false;  // some epoch of this call failed whole-frame validation
   TrainResult result;
 
   // The run folder is the unit of resume (STYLE.md 10).
@@ -374,6 +382,7 @@ TrainResult train_in(const TrainOptions& opt_in) {
     // into crop-sized tiles tell a failure on the frame's extent from one
     // on its content.
     double val_frame_ssim = NAN, val_tile_ssim = NAN;
+    FrameFailure frame_failure = FrameFailure::kNone;
     if (cfg.train.val_frames > 0 && !vs.empty()) {
       model->eval();
       const FrameScores fs_scores =
@@ -381,20 +390,23 @@ TrainResult train_in(const TrainOptions& opt_in) {
                             cfg.train.val_frames, cfg.data.crop);
       val_frame_ssim = fs_scores.whole;
       val_tile_ssim = fs_scores.tiles;
-      if (!std::isfinite(val_frame_ssim))
+      frame_failure = whole_frame_failure(val_frame_ssim, val_ssim, val_tile_ssim);
+      frames_failed |= frame_failure != FrameFailure::kNone;
+      if (frame_failure == FrameFailure::kNonFinite)
         log(spdlog::level::warn, "epoch {}: whole validation frames: non-finite output",
             st.epoch + 1);
-      else if (val_frame_ssim < val_ssim - kWholeFrameGap)
+      else if (frame_failure == FrameFailure::kBelowCrops)
         log(spdlog::level::warn,
             "epoch {}: whole validation frames score SSIM {:.3f} against {:.3f} on the "
-            "validation crops: the network does not carry over from crops to whole frames",
+            "validation crops: the network does not carry over from crops to whole frames; "
+            "this epoch cannot become best.pt",
             st.epoch + 1, val_frame_ssim, val_ssim);
-      else if (val_frame_ssim < val_tile_ssim - kExtentGap)
+      else if (frame_failure == FrameFailure::kBelowTiles)
         log(spdlog::level::warn,
             "epoch {}: whole validation frames score SSIM {:.3f} against {:.3f} for the same "
             "frames denoised as {}-px tiles: the network fails far from the borders of its "
-            "crops (docs/results.md, \"Where whole frames fail\"; train.best_by = \"frames\" "
-            "keeps such epochs out of best.pt)",
+            "crops (docs/results.md, \"Where whole frames fail\"); this epoch cannot become "
+            "best.pt",
             st.epoch + 1, val_frame_ssim, val_tile_ssim, cfg.data.crop);
     }
     double train_loss = good ? loss_sum / good : NAN;
@@ -425,13 +437,18 @@ TrainResult train_in(const TrainOptions& opt_in) {
     // (train.val_frames > 0 is checked with the config).
     double score = vs.empty() || cfg.train.best_by == BestBy::kTraining ? train_loss : val;
     if (!vs.empty() && cfg.train.best_by == BestBy::kFrames) score = 1.0 - val_frame_ssim;
-    bool improved = std::isfinite(score) && score < st.best;
+    // An epoch whose whole frames fail is never best, whatever its score.
+    bool improved = std::isfinite(score) && score < st.best && frame_failure == FrameFailure::kNone;
     if (improved) st.best = score;
     save_checkpoint(last, model, adam, st, cfg);
     if (improved) fs::copy_file(last, best, fs::copy_options::overwrite_existing);
     ++result.epochs;
   }
   steps_csv.flush();
+  if (frames_failed && !fs::exists(best))
+    log(spdlog::level::warn,
+        "no epoch so far passed the whole-frame validation: no best.pt, and \"best\" reads "
+        "last.pt");
   if (result.stopped) {
     save_checkpoint(last, model, adam, st, cfg);
     log(spdlog::level::warn,

@@ -84,4 +84,13 @@ double learning_rate(const OptimConfig& o, int64_t step, int epoch, int64_t step
 // Thesis eq. 4.5: 1e-4 * 1.25893^E for E <= 9, else 1e-3 / sqrt(E).
 double thesis_learning_rate(int64_t pass);
 
+// Whether an epoch's whole validation frames show that its weights fail on
+// whole frames (docs/results.md, "Where whole frames fail"): their SSIM is
+// not finite, or more than 0.2 below the validation crops' (`crops`), or
+// more than 0.02 below the same frames denoised as crop-sized tiles
+// (`tiles`; NaN `crops` or `tiles`: not compared). The trainer logs such
+// an epoch, and it never becomes best.pt.
+enum class FrameFailure { kNone, kNonFinite, kBelowCrops, kBelowTiles };
+FrameFailure whole_frame_failure(double frames, double crops, double tiles);
+
 }  // namespace dofarm::trainer
