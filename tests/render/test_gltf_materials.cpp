@@ -371,9 +371,8 @@ TEST(GltfMaterials, SpecularFactorsAreRead) {
 // KHR_materials_transmission's factor as written (what Blender 3.4 exports
 // for a Principled BSDF with Transmission > 0, beside KHR_materials_ior); no
 // extension or no key is 0; a value outside [0, 1] is warned about, naming
-// the material and the key, and 0 used; the texture is named in a warning
-// (factor only). The extension is read, so it is not in the "ignores"
-// warning.
+// the material and the key, and 0 used (its texture: the next test). The
+// extension is read, so it is not in the "ignores" warning.
 TEST(GltfMaterials, TransmissionFactorIsRead) {
   TempDir dir("transmission");
   LogCapture log;
@@ -392,23 +391,72 @@ TEST(GltfMaterials, TransmissionFactorIsRead) {
         material_with_extension(dir.path, c.name, "KHR_materials_transmission", c.ext);
     EXPECT_FLOAT_EQ(m.transmission, c.factor);
   }
-  {
-    // assimp checks that the texture exists in the file (the image itself
-    // is never read).
-    GltfQuad q = gltf_quad();
-    q.doc["materials"][0]["name"] = "textured";
-    q.doc["materials"][0]["extensions"] = {
-        {"KHR_materials_transmission",
-         {{"transmissionFactor", 0.75}, {"transmissionTexture", {{"index", 0}}}}}};
-    q.doc["extensionsUsed"] = {"KHR_materials_transmission"};
-    q.doc["textures"] = Json::array({{{"source", 0}}});
-    q.doc["images"] = Json::array({{{"uri", "transmission.png"}}});
-    write_gltf(dir.path / "textured.gltf", q);
-    SceneData s = load_scene_data(dir.path / "textured.gltf");
-    EXPECT_FLOAT_EQ(s.materials[s.tri_material[0]].transmission, 0.75f);
-  }
-  expect_warnings(log.lines(), {{"\"above\"", "transmissionFactor 1.5"},
-                                {"\"textured\"", "transmissionTexture ignored"}});
+  expect_warnings(log.lines(), {{"\"above\"", "transmissionFactor 1.5"}});
+  expect_extension_read(log.lines());
+}
+
+// The extensions' textures as Blender 3.4 exports them (a Principled BSDF
+// whose Transmission, Clearcoat or Clearcoat Roughness is fed by an image):
+// transmissionTexture's R multiplies transmissionFactor, clearcoatTexture's
+// R clearcoatFactor and clearcoatRoughnessTexture's G
+// clearcoatRoughnessFactor, read linearly, with their own
+// KHR_texture_transform. A 2 x 1 image: texel 0 (R 0, G 255), texel 1
+// (R 255, G 51); looked up at the texel centres u = 0.25 and 0.75 through
+// Scene::intersect. Only the coat's own normal map is warned about.
+TEST(GltfMaterials, TransmissionAndClearcoatTexturesScaleTheirFactors) {
+  TempDir dir("extension_textures");
+  const unsigned char px[] = {0, 255, 0, 255, 51, 0};
+  std::string png;
+  stbi_write_png_to_func(
+      [](void* ctx, void* data, int size) {
+        static_cast<std::string*>(ctx)->append(static_cast<const char*>(data), size_t(size));
+      },
+      &png, 2, 1, 3, px, 2 * 3);
+  write_bytes(dir.path / "mask.png", png);
+  GltfQuad q = gltf_quad();
+  q.doc["materials"][0]["name"] = "painted";
+  // The clearcoat texture mirrors u (scale -1, offset 1): texel 1 at u = 0.25.
+  const Json mirrored = {
+      {"index", 0},
+      {"extensions", {{"KHR_texture_transform", {{"offset", {1, 0}}, {"scale", {-1, 1}}}}}}};
+  q.doc["materials"][0]["extensions"] = {
+      {"KHR_materials_transmission",
+       {{"transmissionFactor", 0.75}, {"transmissionTexture", {{"index", 0}}}}},
+      {"KHR_materials_clearcoat",
+       {{"clearcoatFactor", 0.5},
+        {"clearcoatTexture", mirrored},
+        {"clearcoatRoughnessFactor", 0.6},
+        {"clearcoatRoughnessTexture", {{"index", 0}}},
+        {"clearcoatNormalTexture", {{"index", 0}}}}}};
+  q.doc["extensionsUsed"] = {"KHR_materials_transmission", "KHR_materials_clearcoat",
+                             "KHR_texture_transform"};
+  q.doc["textures"] = Json::array({{{"source", 0}}});
+  q.doc["images"] = Json::array({{{"uri", "mask.png"}}});
+  write_gltf(dir.path / "painted.gltf", q);
+  LogCapture log;
+  SceneData d = load_scene_data(dir.path / "painted.gltf");
+  const Material& m = d.materials[d.tri_material[0]];
+  EXPECT_FLOAT_EQ(m.transmission, 0.75f);
+  EXPECT_FLOAT_EQ(m.clearcoat, 0.5f);
+  EXPECT_FLOAT_EQ(m.clearcoat_roughness, 0.6f);
+  ASSERT_GE(m.transmission_tex, 0);
+  ASSERT_GE(m.clearcoat_tex, 0);
+  ASSERT_GE(m.clearcoat_rough_tex, 0);
+  EXPECT_TRUE(m.has_textures());
+  Scene scene(d, std::make_unique<Environment>(Vec3(1.0f)));
+  auto at = [&](float x) {
+    SurfaceHit hit;
+    EXPECT_TRUE(scene.intersect(Ray{Vec3(x, 1.0f, 0.5f), Vec3(0, -1, 0)}, &hit));
+    return hit;
+  };
+  const SurfaceHit left = at(0.25f), right = at(0.75f);
+  EXPECT_NEAR(left.transmission, 0.0f, 1e-6f);
+  EXPECT_NEAR(right.transmission, 0.75f, 1e-6f);
+  EXPECT_NEAR(left.clearcoat, 0.5f, 1e-6f);  // mirrored: texel 1
+  EXPECT_NEAR(right.clearcoat, 0.0f, 1e-6f);
+  EXPECT_NEAR(left.clearcoat_roughness, 0.6f, 1e-6f);
+  EXPECT_NEAR(right.clearcoat_roughness, 0.6f * 0.2f, 1e-6f);  // 51 / 255, linear
+  expect_warnings(log.lines(), {{"\"painted\"", "clearcoatNormalTexture ignored"}});
   expect_extension_read(log.lines());
 }
 

@@ -68,6 +68,7 @@ std::string present_keys(const nlohmann::json& ext, std::initializer_list<const 
 GltfTextureInfo read_texture_info(const nlohmann::json& info) {
   GltfTextureInfo out;
   if (!info.is_object()) return out;
+  out.present = true;
   out.tex_coord = static_cast<int>(number_or(info, "texCoord", 0));
   if (info.contains("extensions") && info["extensions"].is_object() &&
       info["extensions"].contains("KHR_texture_transform")) {
@@ -141,13 +142,17 @@ GltfInfo read_gltf_info(const std::filesystem::path& path) {
     }
     if (const auto* ext = extension("KHR_materials_transmission")) {
       read_number(*ext, "transmissionFactor", &info.transmission);
-      info.transmission_texture = ext->contains("transmissionTexture");
+      if (ext->contains("transmissionTexture"))
+        info.transmission_tex = read_texture_info((*ext)["transmissionTexture"]);
     }
     if (const auto* ext = extension("KHR_materials_clearcoat")) {
       read_number(*ext, "clearcoatFactor", &info.clearcoat);
       read_number(*ext, "clearcoatRoughnessFactor", &info.clearcoat_roughness);
-      info.clearcoat_textures = present_keys(
-          *ext, {"clearcoatTexture", "clearcoatRoughnessTexture", "clearcoatNormalTexture"});
+      if (ext->contains("clearcoatTexture"))
+        info.clearcoat_tex = read_texture_info((*ext)["clearcoatTexture"]);
+      if (ext->contains("clearcoatRoughnessTexture"))
+        info.clearcoat_rough_tex = read_texture_info((*ext)["clearcoatRoughnessTexture"]);
+      info.clearcoat_normal_texture = ext->contains("clearcoatNormalTexture");
     }
     if (const auto* ext = extension("KHR_materials_volume")) {
       read_number(*ext, "attenuationDistance", &info.attenuation_distance);
@@ -213,8 +218,8 @@ void read_specular_layer(const std::filesystem::path& path, const std::string& w
                  which, g.specular_textures);
 }
 // KHR_materials_transmission's factor (schema: [0, 1]); a value outside
-// is named in a warning and the extension's default 0 used. Its texture
-// is not applied (the factor is).
+// is named in a warning and the extension's default 0 used. Its texture is
+// the loader's (scene_data.cpp).
 void read_transmission(const std::filesystem::path& path, const std::string& which,
                        const GltfMaterialInfo& g, Material* m) {
   if (std::isfinite(g.transmission) && g.transmission >= 0 && g.transmission <= 1) {
@@ -224,11 +229,6 @@ void read_transmission(const std::filesystem::path& path, const std::string& whi
         "{}: {}: KHR_materials_transmission transmissionFactor {} is outside [0, 1]; using 0",
         path.string(), which, g.transmission);
   }
-  if (g.transmission_texture)
-    spdlog::warn(
-        "{}: {}: KHR_materials_transmission transmissionTexture ignored (its factor "
-        "is used)",
-        path.string(), which);
 }
 // KHR_materials_volume's attenuation (schema: attenuationDistance > 0,
 // attenuationColor in [0, 1]): sigma_a = -ln(c) / d per channel; a value
@@ -259,8 +259,9 @@ void read_volume(const std::filesystem::path& path, const std::string& which,
   m->attenuation = Vec3(sigma(c[0]), sigma(c[1]), sigma(c[2]));
 }
 // KHR_materials_clearcoat's factors (schema: both in [0, 1]); a value
-// outside is named in a warning and the extension's default 0 used; its
-// textures are named in a warning and not applied (the factors are).
+// outside is named in a warning and the extension's default 0 used. Its
+// textures are the loader's (scene_data.cpp), but for the coat's own normal
+// map, which is named in a warning and not applied.
 void read_clearcoat(const std::filesystem::path& path, const std::string& which,
                     const GltfMaterialInfo& g, Material* m) {
   auto factor = [&](double v, const char* key, float* out) {
@@ -273,9 +274,11 @@ void read_clearcoat(const std::filesystem::path& path, const std::string& which,
   };
   factor(g.clearcoat, "clearcoatFactor", &m->clearcoat);
   factor(g.clearcoat_roughness, "clearcoatRoughnessFactor", &m->clearcoat_roughness);
-  if (!g.clearcoat_textures.empty())
-    spdlog::warn("{}: {}: KHR_materials_clearcoat {} ignored (its factors are used)", path.string(),
-                 which, g.clearcoat_textures);
+  if (g.clearcoat_normal_texture)
+    spdlog::warn(
+        "{}: {}: KHR_materials_clearcoat clearcoatNormalTexture ignored (the coat takes the "
+        "base's shading normal)",
+        path.string(), which);
 }
 
 }  // namespace

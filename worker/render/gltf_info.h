@@ -18,6 +18,7 @@ namespace dofarm::render {
 // aiUVTransform convention; the file's numbers are taken as the extension
 // defines them instead); the file's extension lists.
 struct GltfTextureInfo {
+  bool present = false;  // the material names this texture
   UvTransform transform;
   int tex_coord = 0;  // TEXCOORD_n the texture reads (texCoord, or the transform's override)
 };
@@ -40,9 +41,9 @@ struct GltfMaterialInfo {
   double specular_color[3] = {1.0, 1.0, 1.0};
   std::string specular_textures;  // the texture keys present, for the warning
   // KHR_materials_transmission's factor as written (0 without the
-  // extension; NaN: not a number); its texture is not applied.
+  // extension; NaN: not a number) and its texture (R).
   double transmission = 0.0;
-  bool transmission_texture = false;
+  GltfTextureInfo transmission_tex;
   // KHR_materials_volume's attenuation as written (distance +inf and
   // colour white without the extension; NaN: not a number or the wrong
   // shape); thickness is a rasteriser's stand-in for the geometry, which
@@ -50,9 +51,11 @@ struct GltfMaterialInfo {
   double attenuation_distance = INFINITY;
   double attenuation_color[3] = {1.0, 1.0, 1.0};
   // KHR_materials_clearcoat's factors as written (0 without it; NaN: not a
-  // number); its textures are not applied.
+  // number) and their textures (clearcoatTexture R, clearcoatRoughnessTexture
+  // G); the coat's own normal map is not applied.
   double clearcoat = 0.0, clearcoat_roughness = 0.0;
-  std::string clearcoat_textures;  // the texture keys present, for the warning
+  GltfTextureInfo clearcoat_tex, clearcoat_rough_tex;
+  bool clearcoat_normal_texture = false;
 };
 struct GltfInfo {
   std::vector<GltfMaterialInfo> materials;

@@ -337,6 +337,14 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
     hit->roughness *= mr.y;
     hit->metallic *= mr.z;
   }
+  if (m.transmission_tex >= 0)
+    hit->transmission *=
+        data_.textures[m.transmission_tex].lookup(m.transmission_uv.apply(hit->uv)).x;
+  if (m.clearcoat_tex >= 0)
+    hit->clearcoat *= data_.textures[m.clearcoat_tex].lookup(m.clearcoat_uv.apply(hit->uv)).x;
+  if (m.clearcoat_rough_tex >= 0)
+    hit->clearcoat_roughness *=
+        data_.textures[m.clearcoat_rough_tex].lookup(m.clearcoat_rough_uv.apply(hit->uv)).y;
   hit->emission = material_emission(m, hit->uv);
   return true;
 }

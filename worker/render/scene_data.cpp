@@ -249,16 +249,30 @@ class Loader {
         // glTF normalTexture (assimp files it under NORMALS): linear values.
         // Other formats' bump and normal maps are not read.
         m.normal_tex = texture(am, {aiTextureType_NORMALS}, false);
+        // The extensions' textures, linear (glTF: R transmission, R clearcoat,
+        // G clearcoat roughness), only where the file names them.
+        if (g->transmission_tex.present)
+          m.transmission_tex = texture(am, {aiTextureType_TRANSMISSION}, false);
+        if (g->clearcoat_tex.present)
+          m.clearcoat_tex = texture(am, {aiTextureType_CLEARCOAT}, false, false, 0);
+        if (g->clearcoat_rough_tex.present)
+          m.clearcoat_rough_tex = texture(am, {aiTextureType_CLEARCOAT}, false, false, 1);
         m.normal_scale = std::isfinite(g->normal_scale) ? g->normal_scale : 1.0f;
         m.base_color_uv = g->base_color.transform;
         m.metal_rough_uv = g->metal_rough.transform;
         m.emission_uv = g->emission.transform;
         m.normal_uv = g->normal.transform;
+        m.transmission_uv = g->transmission_tex.transform;
+        m.clearcoat_uv = g->clearcoat_tex.transform;
+        m.clearcoat_rough_uv = g->clearcoat_rough_tex.transform;
         const std::pair<const char*, const GltfTextureInfo*> slots[] = {
             {"baseColorTexture", &g->base_color},
             {"metallicRoughnessTexture", &g->metal_rough},
             {"emissiveTexture", &g->emission},
-            {"normalTexture", &g->normal}};
+            {"normalTexture", &g->normal},
+            {"transmissionTexture", &g->transmission_tex},
+            {"clearcoatTexture", &g->clearcoat_tex},
+            {"clearcoatRoughnessTexture", &g->clearcoat_rough_tex}};
         for (const auto& [slot, tex] : slots) {
           if (tex->tex_coord != 0)
             spdlog::warn(
@@ -288,9 +302,11 @@ class Loader {
   const std::vector<SceneData::Tangent>& given_tangents() const { return given_tangents_; }
 
  private:
-  // `with_alpha`: also the image's alpha channel (Texture::alpha).
+  // `with_alpha`: also the image's alpha channel (Texture::alpha). `slot`:
+  // the index within the type (assimp files clearcoatRoughnessTexture as
+  // CLEARCOAT, 1).
   int texture(const aiMaterial* am, std::initializer_list<aiTextureType> types, bool srgb,
-              bool with_alpha = false);
+              bool with_alpha = false, unsigned slot = 0);
   static RgbImage decode_embedded(const aiTexture* t, const std::string& name, bool srgb);
   void mesh(const aiMesh* m, const aiMatrix4x4& world, const char* node_name);
   void check_material(const Material& m, unsigned index) const {
@@ -327,10 +343,10 @@ class Loader {
 };
 
 int Loader::texture(const aiMaterial* am, std::initializer_list<aiTextureType> types, bool srgb,
-                    bool with_alpha) {
+                    bool with_alpha, unsigned slot) {
   for (aiTextureType type : types) {
     aiString file;
-    if (am->GetTexture(type, 0, &file) != AI_SUCCESS) continue;
+    if (am->GetTexture(type, slot, &file) != AI_SUCCESS) continue;
     std::string name = file.C_Str();
     if (name.empty()) continue;
     // Embedded (a .glb buffer view or a data: URI): assimp names it "*<index>".
@@ -341,7 +357,7 @@ int Loader::texture(const aiMaterial* am, std::initializer_list<aiTextureType> t
     // The glTF sampler, as assimp reads it (other formats: repeat, bilinear).
     TextureSampler sampler;
     int filter = 0;
-    if (am->Get(AI_MATKEY_GLTF_MAPPINGFILTER_MAG(type, 0), filter) == AI_SUCCESS)
+    if (am->Get(AI_MATKEY_GLTF_MAPPINGFILTER_MAG(type, slot), filter) == AI_SUCCESS)
       sampler.nearest = filter == 9728;  // glTF NEAREST
     auto wrap_of = [&](const char* key, unsigned t, unsigned i) {
       int mode = aiTextureMapMode_Wrap;
@@ -350,8 +366,8 @@ int Loader::texture(const aiMaterial* am, std::initializer_list<aiTextureType> t
              : mode == aiTextureMapMode_Mirror ? TextureWrap::kMirror
                                                : TextureWrap::kRepeat;
     };
-    sampler.wrap_u = wrap_of(AI_MATKEY_MAPPINGMODE_U(type, 0));
-    sampler.wrap_v = wrap_of(AI_MATKEY_MAPPINGMODE_V(type, 0));
+    sampler.wrap_u = wrap_of(AI_MATKEY_MAPPINGMODE_U(type, slot));
+    sampler.wrap_v = wrap_of(AI_MATKEY_MAPPINGMODE_V(type, slot));
     auto key =
         std::make_tuple(embedded ? name : tex_path.lexically_normal().string(), srgb, sampler);
     // The alpha channel, once per texture, when a material asks for it.
