@@ -94,17 +94,23 @@ inline std::string base64(const std::string& in) {
   return out;
 }
 
-// A 3x2 RGB PNG with distinct texels, encoded in memory.
-inline std::string test_png() {
-  const unsigned char px[] = {255, 0,   0,   0,  255, 0, 0,   0,   255,
-                              10,  128, 250, 77, 33,  1, 200, 200, 9};
+// A w x h PNG of `channels` 8-bit channels (row-major texels), encoded in
+// memory.
+inline std::string encode_png(const unsigned char* px, int w, int h, int channels) {
   std::string out;
   stbi_write_png_to_func(
       [](void* ctx, void* data, int size) {
         static_cast<std::string*>(ctx)->append(static_cast<const char*>(data), size_t(size));
       },
-      &out, 3, 2, 3, px, 3 * 3);
+      &out, w, h, channels, px, w * channels);
   return out;
+}
+
+// A 3x2 RGB PNG with distinct texels, encoded in memory.
+inline std::string test_png() {
+  const unsigned char px[] = {255, 0,   0,   0,  255, 0, 0,   0,   255,
+                              10,  128, 250, 77, 33,  1, 200, 200, 9};
+  return encode_png(px, 3, 2, 3);
 }
 
 inline std::string floats_bytes(std::initializer_list<float> v) {

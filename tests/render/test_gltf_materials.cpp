@@ -38,13 +38,7 @@ TEST(GltfExtensions, NormalMapsAndBlendLoadWithoutWarnings) {
 TEST(GltfAlphaMask, MaskReadsCutoffFactorAndTheTexturesAlpha) {
   TempDir dir("alpha_mask");
   const unsigned char px[] = {200, 10, 10, 0, 10, 200, 10, 255};
-  std::string png;
-  stbi_write_png_to_func(
-      [](void* ctx, void* data, int size) {
-        static_cast<std::string*>(ctx)->append(static_cast<const char*>(data), size_t(size));
-      },
-      &png, 2, 1, 4, px, 2 * 4);
-  write_bytes(dir.path / "leaf.png", png);
+  write_bytes(dir.path / "leaf.png", encode_png(px, 2, 1, 4));
   GltfQuad q = gltf_quad();
   use_base_color_image(&q, {{"uri", "leaf.png"}});
   q.doc["materials"][0]["name"] = "leaf";
@@ -164,13 +158,7 @@ unsigned char q8(float x) { return static_cast<unsigned char>(std::lround((x + 1
 
 std::string png_1x1(unsigned char r, unsigned char g, unsigned char b) {
   const unsigned char px[] = {r, g, b};
-  std::string out;
-  stbi_write_png_to_func(
-      [](void* ctx, void* data, int size) {
-        static_cast<std::string*>(ctx)->append(static_cast<const char*>(data), size_t(size));
-      },
-      &out, 1, 1, 3, px, 3);
-  return out;
+  return encode_png(px, 1, 1, 3);
 }
 
 // The shading normal where a ray straight down meets the quad (y = 0, facing
@@ -406,13 +394,7 @@ TEST(GltfMaterials, TransmissionFactorIsRead) {
 TEST(GltfMaterials, TransmissionAndClearcoatTexturesScaleTheirFactors) {
   TempDir dir("extension_textures");
   const unsigned char px[] = {0, 255, 0, 255, 51, 0};
-  std::string png;
-  stbi_write_png_to_func(
-      [](void* ctx, void* data, int size) {
-        static_cast<std::string*>(ctx)->append(static_cast<const char*>(data), size_t(size));
-      },
-      &png, 2, 1, 3, px, 2 * 3);
-  write_bytes(dir.path / "mask.png", png);
+  write_bytes(dir.path / "mask.png", encode_png(px, 2, 1, 3));
   GltfQuad q = gltf_quad();
   q.doc["materials"][0]["name"] = "painted";
   // The clearcoat texture mirrors u (scale -1, offset 1): texel 1 at u = 0.25.
