@@ -1,8 +1,9 @@
 // Cost of the material model (worker/render/bsdf.h) per path vertex: Bsdf()
 // and outgoing() once, evaluate() for the light sample, sample() for the
-// continuation, over a mix of materials and directions. Prints nanoseconds
-// per vertex and the white-furnace albedo of the same calls (what the cost
-// buys: 1 is exact); never asserts.
+// continuation, over a mix of materials and directions: the opaque ones,
+// then the same under a clearcoat, then glass under a clearcoat. Prints
+// nanoseconds per vertex and the white-furnace albedo of the same calls
+// (what the cost buys: 1 is exact); never asserts.
 //
 //   build/bench/bsdf_cost [--calls 4000000]
 #include <chrono>
@@ -15,6 +16,7 @@
 
 #include "common/math.h"
 #include "worker/render/bsdf.h"
+#include "worker/render/glass_albedo.h"
 #include "worker/render/microfacet_albedo.h"
 
 using dofarm::Vec2;
@@ -70,44 +72,62 @@ int main(int argc, char** argv) {
   const Vec3 up(0, 0, 1);
   const Vec3 white(1.0f);
 
-  // The table is built on first use (~0.1 s): not part of any per-call cost.
+  // The tables are built on first use (~0.1 s and ~0.6 s): not part of any
+  // per-call cost.
   (void)dofarm::render::ggx::albedo_table();
+  (void)dofarm::render::ggx::glass_albedo_table();
 
-  // Construction + outgoing(): once per path vertex.
   double sink = 0;
-  auto t0 = std::chrono::steady_clock::now();
-  for (long i = 0; i < calls; ++i) {
-    const Input& in = inputs[i & (kInputs - 1)];
-    const Bsdf bsdf(up, up, white, in.metallic, in.roughness, 1.5f);
-    sink += bsdf.outgoing(in.wo).specular_prob;
-  }
-  const double ns_vertex = 1e9 * seconds_since(t0) / calls;
+  // The three material sets: {transmission, clearcoat} factors.
+  struct Set {
+    const char* label;
+    dofarm::render::TransmissionLayer transmission;
+    dofarm::render::ClearcoatLayer clearcoat;
+  } const sets[] = {{"opaque", {}, {}},
+                    {"opaque under a clearcoat (factor 1, roughness 0.3)", {}, {1.0f, 0.3f}},
+                    {"glass (transmission 1) under a clearcoat", {1.0f, true}, {1.0f, 0.3f}}};
+  for (const Set& set : sets) {
+    auto make = [&](const Input& in) {
+      return Bsdf(up, up, white, in.metallic, in.roughness, 1.5f, {}, set.transmission,
+                  set.clearcoat);
+    };
+    // Construction + outgoing(): once per path vertex.
+    auto t0 = std::chrono::steady_clock::now();
+    for (long i = 0; i < calls; ++i) {
+      const Input& in = inputs[i & (kInputs - 1)];
+      const Bsdf bsdf = make(in);
+      sink += bsdf.outgoing(in.wo).specular_prob;
+    }
+    const double ns_vertex = 1e9 * seconds_since(t0) / calls;
 
-  // What the integrator does at a vertex: Bsdf(), outgoing(), evaluate() for
-  // the light sample, sample() for the continuation. wi is cosine-distributed,
-  // so f cos / (cos / pi) estimates the albedo too.
-  t0 = std::chrono::steady_clock::now();
-  double furnace_eval = 0, furnace_sample = 0;
-  for (long i = 0; i < calls; ++i) {
-    const Input& in = inputs[i & (kInputs - 1)];
-    const Bsdf bsdf(up, up, white, in.metallic, in.roughness, 1.5f);
-    const Bsdf::Outgoing o = bsdf.outgoing(in.wo);
-    float pdf;
-    const Vec3 f = bsdf.evaluate(o, in.wi, &pdf);
-    sink += pdf;
-    furnace_eval += f.x * dofarm::kPi / in.wi.z;
-    const BsdfSample s = bsdf.sample(o, in.u_lobe, in.u);
-    if (s.valid) furnace_sample += s.weight.x;
-  }
-  const double ns_full = 1e9 * seconds_since(t0) / calls;
+    // What the integrator does at a vertex: Bsdf(), outgoing(), evaluate()
+    // for the light sample, sample() for the continuation. wi is
+    // cosine-distributed, so f cos / (cos / pi) estimates the albedo too
+    // (of the reflection only: glass sends the rest below).
+    t0 = std::chrono::steady_clock::now();
+    double furnace_eval = 0, furnace_sample = 0;
+    for (long i = 0; i < calls; ++i) {
+      const Input& in = inputs[i & (kInputs - 1)];
+      const Bsdf bsdf = make(in);
+      const Bsdf::Outgoing o = bsdf.outgoing(in.wo);
+      float pdf;
+      const Vec3 f = bsdf.evaluate(o, in.wi, &pdf);
+      sink += pdf;
+      furnace_eval += f.x * dofarm::kPi / in.wi.z;
+      const BsdfSample s = bsdf.sample(o, in.u_lobe, in.u);
+      if (s.valid) furnace_sample += s.weight.x;
+    }
+    const double ns_full = 1e9 * seconds_since(t0) / calls;
 
-  std::printf("materials: metallic {0, 0.5, 1} x roughness {0.05, 0.3, 0.6, 1}, white, ior 1.5\n");
-  std::printf("  Bsdf() + outgoing():                        %6.1f ns per vertex\n", ns_vertex);
-  std::printf("  Bsdf() + outgoing() + evaluate() + sample(): %6.1f ns per vertex\n", ns_full);
-  // The evaluate() estimate is noisy (narrow lobes, cosine-distributed wi);
-  // the sample() estimate is what the path tracer's continuation sees.
-  std::printf("  white-furnace albedo over these calls: sample %.4f, evaluate %.4f\n",
-              furnace_sample / calls, furnace_eval / calls);
+    std::printf("%s: metallic {0, 0.5, 1} x roughness {0.05, 0.3, 0.6, 1}, white, ior 1.5\n",
+                set.label);
+    std::printf("  Bsdf() + outgoing():                        %6.1f ns per vertex\n", ns_vertex);
+    std::printf("  Bsdf() + outgoing() + evaluate() + sample(): %6.1f ns per vertex\n", ns_full);
+    // The evaluate() estimate is noisy (narrow lobes, cosine-distributed
+    // wi); the sample() estimate is what the path tracer's continuation sees.
+    std::printf("  white-furnace albedo over these calls: sample %.4f, evaluate %.4f\n",
+                furnace_sample / calls, furnace_eval / calls);
+  }
   std::printf("(checksum %g)\n", sink);
   return 0;
 }

@@ -380,7 +380,8 @@ BsdfSample Bsdf::sample(Vec3 wo_w, float u_lobe, Vec2 u) const {
   return sample(outgoing(wo_w), u_lobe, u);
 }
 
-[[gnu::noinline]] BsdfSample Bsdf::sample_glass(const Outgoing& o, float u_lobe, Vec2 u) const {
+[[gnu::noinline]] BsdfSample Bsdf::sample_glass(const Outgoing& o, float u_lobe, Vec2 u,
+                                                bool direction_only) const {
   BsdfSample s;
   const Vec3 wo = o.wo;
   if (glass_delta_) {
@@ -412,6 +413,10 @@ BsdfSample Bsdf::sample(Vec3 wo_w, float u_lobe, Vec2 u) const {
     if (!refract_through(wo, h, wo_h, eta_, &wi) || wi.z >= 0) return s;
   }
   s.wi = frame_.to_world(wi);
+  if (direction_only) {
+    s.valid = true;
+    return s;
+  }
   Vec3 f = evaluate(o, s.wi, &s.pdf);
   if (!(s.pdf > 0)) return s;
   s.weight = f / s.pdf;
@@ -441,7 +446,7 @@ BsdfSample Bsdf::sample(const Outgoing& o, float u_lobe, Vec2 u) const {
     if (wi.z <= 0) return s;
     s.wi = frame_.to_world(wi);
   } else {
-    s = sample_base(o, rest_of(u_lobe, o.coat_prob), u);
+    s = sample_base(o, rest_of(u_lobe, o.coat_prob), u, /*direction_only=*/true);
     if (!s.valid) return s;
     if (s.is_delta) {
       s.weight = s.weight * (o.coat_scale / (1.0f - o.coat_prob));
@@ -458,11 +463,11 @@ BsdfSample Bsdf::sample(const Outgoing& o, float u_lobe, Vec2 u) const {
   return s;
 }
 
-BsdfSample Bsdf::sample_base(const Outgoing& o, float u_lobe, Vec2 u) const {
+BsdfSample Bsdf::sample_base(const Outgoing& o, float u_lobe, Vec2 u, bool direction_only) const {
   BsdfSample s;
   if (!o.valid) return s;
   if (glass_weight_ > 0) [[unlikely]] {
-    if (u_lobe < o.glass_prob) return sample_glass(o, u_lobe / o.glass_prob, u);
+    if (u_lobe < o.glass_prob) return sample_glass(o, u_lobe / o.glass_prob, u, direction_only);
     u_lobe = rest_of(u_lobe, o.glass_prob);
   }
   const Vec3 wo = o.wo;
@@ -492,6 +497,10 @@ BsdfSample Bsdf::sample_base(const Outgoing& o, float u_lobe, Vec2 u) const {
   if (wi.z <= 0) return s;
   s.wi = frame_.to_world(wi);
   if (dot(s.wi, ng_) <= 0) return s;
+  if (direction_only) [[unlikely]] {
+    s.valid = true;
+    return s;
+  }
   Vec3 f = evaluate_local(o, wi, &s.pdf);
   if (!(s.pdf > 0)) return s;
   s.weight = f / s.pdf;

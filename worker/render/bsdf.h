@@ -148,7 +148,11 @@ class Bsdf {
   Vec3 evaluate_refraction(const Outgoing& o, Vec3 wi, float* pdf) const;
   // The glass lobe's reflection, added to f and *pdf (wi above the surface).
   void add_glass_reflection(const Outgoing& o, Vec3 wi, Vec3* f, float* pdf) const;
-  BsdfSample sample_glass(const Outgoing& o, float u_lobe, Vec2 u) const;
+  // `direction_only` (for sample_coated, which weighs the direction
+  // against the whole material itself): a non-delta direction comes back
+  // valid with only wi set, not evaluated. Delta samples are complete.
+  BsdfSample sample_glass(const Outgoing& o, float u_lobe, Vec2 u,
+                          bool direction_only = false) const;
   // wo (local) mirrored about the shading normal, in world space; false
   // where that lies below the geometric surface.
   bool mirror(Vec3 wo, Vec3* wi_w) const {
@@ -157,7 +161,8 @@ class Bsdf {
   }
   // Everything but the clearcoat (evaluate() and sample() add it).
   Vec3 evaluate_base(const Outgoing& o, Vec3 wi, float* pdf) const;
-  BsdfSample sample_base(const Outgoing& o, float u_lobe, Vec2 u) const;
+  BsdfSample sample_base(const Outgoing& o, float u_lobe, Vec2 u,
+                         bool direction_only = false) const;
   BsdfSample sample_coated(const Outgoing& o, float u_lobe, Vec2 u) const;
   void add_coat(const Outgoing& o, Vec3 wi, Vec3* f, float* pdf) const;
   // Single-scattering albedo terms A, B of the specular lobe at mu.
