@@ -63,17 +63,15 @@ void alpha_mask_filter(const RTCFilterFunctionNArguments* args) {
     const float f[6] = {RTCRayN_org_x(args->ray, args->N, i), RTCRayN_org_y(args->ray, args->N, i),
                         RTCRayN_org_z(args->ray, args->N, i), RTCRayN_dir_x(args->ray, args->N, i),
                         RTCRayN_dir_y(args->ray, args->N, i), RTCRayN_dir_z(args->ray, args->N, i)};
-    uint64_t key = 0;
-    for (float v : f) key = hash_combine(key, std::bit_cast<uint32_t>(v));
     if (scene->cut_out(RTCHitN_primID(args->hit, args->N, i), RTCHitN_u(args->hit, args->N, i),
-                       RTCHitN_v(args->hit, args->N, i), key))
+                       RTCHitN_v(args->hit, args->N, i), f))
       args->valid[i] = 0;
   }
 }
 
 }  // namespace
 
-bool Scene::cut_out(uint32_t prim, float b1, float b2, uint64_t ray_key) const {
+bool Scene::cut_out(uint32_t prim, float b1, float b2, const float (&ray)[6]) const {
   const Material& m = data_.materials[data_.tri_material[prim]];
   if (!m.alpha_mask) return false;
   float alpha = m.base_alpha;
@@ -83,8 +81,10 @@ bool Scene::cut_out(uint32_t prim, float b1, float b2, uint64_t ray_key) const {
     alpha *= data_.textures[m.base_color_tex].alpha_lookup(m.base_color_uv.apply(uv));
   }
   if (!m.alpha_blend) return alpha < m.alpha_cutoff;
+  uint64_t key = 0;
+  for (float v : ray) key = hash_combine(key, std::bit_cast<uint32_t>(v));
   // 24 bits of the hash: a float in [0, 1).
-  const float u = float(hash_combine(ray_key, prim) >> 40) * 0x1p-24f;
+  const float u = float(hash_combine(key, prim) >> 40) * 0x1p-24f;
   return u >= alpha;
 }
 

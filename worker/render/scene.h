@@ -129,11 +129,12 @@ class Scene {
   // Whether a ray passes the point at barycentrics (b1, b2) of triangle
   // `prim` (an Embree filter function asks): its material's alpha (alpha =
   // base_alpha times the base colour texture's alpha) is below alpha_cutoff
-  // (glTF alphaMode MASK), or, for BLEND, a uniform number drawn from
-  // `ray_key` (a hash of the ray) and the triangle is at least alpha, so a
-  // ray stops with probability alpha and the same ray always decides the
-  // same way. False for materials without alpha.
-  bool cut_out(uint32_t prim, float b1, float b2, uint64_t ray_key) const;
+  // (glTF alphaMode MASK), or, for BLEND, a uniform number drawn from a
+  // hash of the ray (`ray`: its origin and direction, hashed only for
+  // BLEND) and the triangle is at least alpha, so a ray stops with
+  // probability alpha and the same ray always decides the same way. False
+  // for materials without alpha.
+  bool cut_out(uint32_t prim, float b1, float b2, const float (&ray)[6]) const;
 
  private:
   Vec3 material_emission(const Material& m, Vec2 uv) const;
