@@ -52,13 +52,19 @@ using namespace dofarm::trainer;
 
 namespace {
 
+// Distance of (x, y) to the nearest border of a w x h image, in pixels
+// (or cells of a feature map).
+int border_distance(int x, int y, int w, int h) {
+  return std::min(std::min(x, w - 1 - x), std::min(y, h - 1 - y));
+}
+
 // Masks of the rings: pixels whose distance to the nearest border, in
 // pixels, lies in [k W, (k + 1) W), the last ring open-ended.
 std::vector<std::vector<uint8_t>> ring_masks(int width, int height, int ring, int rings) {
   std::vector<std::vector<uint8_t>> masks(rings, std::vector<uint8_t>(size_t(width) * height, 0));
   for (int y = 0; y < height; ++y)
     for (int x = 0; x < width; ++x) {
-      const int d = std::min(std::min(x, width - 1 - x), std::min(y, height - 1 - y));
+      const int d = border_distance(x, y, width, height);
       masks[std::min(d / ring, rings - 1)][size_t(y) * width + x] = 1;
     }
   return masks;
@@ -83,8 +89,7 @@ struct TapStats {
       const float* v = ms.data_ptr<float>();
       for (int y = 0; y < h; ++y)
         for (int x = 0; x < w; ++x) {
-          const int d =
-              std::min(std::min(std::min(x, w - 1 - x), std::min(y, h - 1 - y)), kRings - 1);
+          const int d = std::min(border_distance(x, y, w, h), kRings - 1);
           sq[l][d] += v[y * w + x];
           cells[l][d] += 1;
         }

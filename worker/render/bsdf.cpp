@@ -417,7 +417,9 @@ BsdfSample Bsdf::sample(Vec3 wo_w, float u_lobe, Vec2 u) const {
     s.valid = true;
     return s;
   }
-  Vec3 f = evaluate(o, s.wi, &s.pdf);
+  // Only reached without a coat (sample_coated asks for the direction
+  // alone): the base is the whole material.
+  Vec3 f = evaluate_base(o, s.wi, &s.pdf);
   if (!(s.pdf > 0)) return s;
   s.weight = f / s.pdf;
   s.valid = is_finite(s.weight);

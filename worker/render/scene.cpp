@@ -329,22 +329,20 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
   hit->clearcoat = m.clearcoat;
   hit->clearcoat_roughness = m.clearcoat_roughness;
   // Only textured materials pay for lookups.
+  auto texel = [&](int tex, const UvTransform& uv) {
+    return data_.textures[tex].lookup(uv.apply(hit->uv));
+  };
   if (m.base_color_tex >= 0)
-    hit->base_color =
-        hit->base_color * data_.textures[m.base_color_tex].lookup(m.base_color_uv.apply(hit->uv));
+    hit->base_color = hit->base_color * texel(m.base_color_tex, m.base_color_uv);
   if (m.metal_rough_tex >= 0) {
-    Vec3 mr = data_.textures[m.metal_rough_tex].lookup(m.metal_rough_uv.apply(hit->uv));
+    const Vec3 mr = texel(m.metal_rough_tex, m.metal_rough_uv);
     hit->roughness *= mr.y;
     hit->metallic *= mr.z;
   }
-  if (m.transmission_tex >= 0)
-    hit->transmission *=
-        data_.textures[m.transmission_tex].lookup(m.transmission_uv.apply(hit->uv)).x;
-  if (m.clearcoat_tex >= 0)
-    hit->clearcoat *= data_.textures[m.clearcoat_tex].lookup(m.clearcoat_uv.apply(hit->uv)).x;
+  if (m.transmission_tex >= 0) hit->transmission *= texel(m.transmission_tex, m.transmission_uv).x;
+  if (m.clearcoat_tex >= 0) hit->clearcoat *= texel(m.clearcoat_tex, m.clearcoat_uv).x;
   if (m.clearcoat_rough_tex >= 0)
-    hit->clearcoat_roughness *=
-        data_.textures[m.clearcoat_rough_tex].lookup(m.clearcoat_rough_uv.apply(hit->uv)).y;
+    hit->clearcoat_roughness *= texel(m.clearcoat_rough_tex, m.clearcoat_rough_uv).y;
   hit->emission = material_emission(m, hit->uv);
   return true;
 }
