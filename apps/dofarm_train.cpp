@@ -61,10 +61,24 @@ void add_precision_option(CLI::App* cmd, std::string* which) {
       ->check(CLI::IsMember(names));
 }
 
-void add_checkpoint_option(CLI::App* cmd, std::string* which) {
+// --checkpoint and --weights: which file of a run, and which of its weights.
+void add_checkpoint_option(CLI::App* cmd, std::string* which, std::string* weights) {
   cmd->add_option("--checkpoint", *which,
                   "best (lowest validation loss), last, or a checkpoint file")
       ->capture_default_str();
+  std::vector<std::string> names;
+  for (const auto& [name, w] : weights_names()) names.push_back(name);
+  cmd->add_option("--weights", *weights,
+                  "auto (the moving average when the run kept one, train.ema), averaged, or raw "
+                  "(the trained weights after the checkpoint's last step)")
+      ->capture_default_str()
+      ->check(CLI::IsMember(names));
+}
+
+Weights parse_weights(const std::string& name) {
+  for (const auto& [n, w] : weights_names())
+    if (n == name) return w;
+  throw SpecError(FileLoc{"--weights"}, "", "unknown weights '" + name + "'");
 }
 
 Command add_train(CLI::App& app) {
@@ -124,7 +138,7 @@ Command add_train(CLI::App& app) {
 Command add_eval(CLI::App& app) {
   auto* cmd = app.add_subcommand("eval", "score the run on its validation frames (report)");
   struct Opts {
-    std::string run, data, out, checkpoint = "best", precision = "fp32";
+    std::string run, data, out, checkpoint = "best", precision = "fp32", weights = "auto";
     int frames = 0, images = 8, version = 0, time_size = 0, time_reps = 3, crops = 2,
         crop_size = 64;
     bool validation_only = false;
@@ -145,7 +159,7 @@ Command add_eval(CLI::App& app) {
   cmd->add_option("--noisy-version", o->version, "noisy version fed to the network")
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
-  add_checkpoint_option(cmd, &o->checkpoint);
+  add_checkpoint_option(cmd, &o->checkpoint, &o->weights);
   add_precision_option(cmd, &o->precision);
   cmd->add_flag("--validation-only", o->validation_only,
                 "score only the validation frames (by default the report also has a table over "
@@ -189,6 +203,7 @@ Command add_eval(CLI::App& app) {
             e.time_side = o->time_size;
             e.time_reps = o->time_reps;
             e.precision = parse_precision(o->precision, "--precision");
+            e.weights = parse_weights(o->weights);
             e.crops = o->crops;
             e.crop_side = o->crop_size;
             EvalSummary s = evaluate(e);
@@ -210,7 +225,8 @@ Command add_denoise(CLI::App& app) {
       "denoise one frame: a dofarm frame EXR, a Blender/Cycles multilayer EXR, or a colour "
       "image with --albedo/--normal/--depth files (docs/trainer.md)");
   struct Opts {
-    std::string run, in, out, checkpoint = "best", albedo, normal, depth, view_layer;
+    std::string run, in, out, checkpoint = "best", weights = "auto", albedo, normal, depth,
+                              view_layer;
     std::string normal_space = "view", device = "auto", precision = "fp32";
     int version = 0;
     bool repair = false;
@@ -226,7 +242,7 @@ Command add_denoise(CLI::App& app) {
   cmd->add_option("--noisy-version", o->version, "noisy version to denoise (dofarm frames)")
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
-  add_checkpoint_option(cmd, &o->checkpoint);
+  add_checkpoint_option(cmd, &o->checkpoint, &o->weights);
   cmd->add_option("--device", o->device,
                   "where the network runs: auto (CUDA when usable), cpu or cuda")
       ->capture_default_str()
@@ -285,7 +301,7 @@ Command add_denoise(CLI::App& app) {
                                 "); denoise writes a new file and never replaces its input");
         }
         FrameDenoiser den(o->run, pick_device(o->device), o->checkpoint,
-                          parse_precision(o->precision, "--precision"));
+                          parse_precision(o->precision, "--precision"), parse_weights(o->weights));
         ForeignInputs fi;
         fi.input = o->in;
         fi.albedo = o->albedo;
@@ -335,6 +351,7 @@ Command add_denoise(CLI::App& app) {
             {"dofarm.denoise.run", fs::absolute(o->run).lexically_normal().string()},
             {"dofarm.denoise.checkpoint", run.checkpoint.string()},
             {"dofarm.denoise.step", std::to_string(run.state.step)},
+            {"dofarm.denoise.weights", run.averaged ? "moving average" : "trained"},
         };
         write_rgb_exr_like(o->out, img, input.alpha, o->in, made_by);
         spdlog::info("denoised {}x{} ({} frame) in {:.1f} ms -> {}", fb.width, fb.height,
@@ -346,17 +363,17 @@ Command add_denoise(CLI::App& app) {
 Command add_export(CLI::App& app) {
   auto* cmd = app.add_subcommand("export", "write the trained model as TorchScript");
   struct Opts {
-    std::string run, out, checkpoint = "best";
+    std::string run, out, checkpoint = "best", weights = "auto";
   };
   auto o = std::make_shared<Opts>();
   cmd->add_option("--run", o->run, "run folder")->required()->check(CLI::ExistingDirectory);
   cmd->add_option("--out", o->out, "TorchScript file (torch.jit.load)")->required();
-  add_checkpoint_option(cmd, &o->checkpoint);
+  add_checkpoint_option(cmd, &o->checkpoint, &o->weights);
   return {cmd, [o] {
-            LoadedRun r = load_run(o->run, torch::kCPU, o->checkpoint);
+            LoadedRun r = load_run(o->run, torch::kCPU, o->checkpoint, parse_weights(o->weights));
             r.model->export_torchscript(o->out, {{kContractFile, denoiser_contract(r)}});
-            spdlog::info("exported {} ({} parameters{}) to {}", r.checkpoint.string(),
-                         parameter_count(*r.model),
+            spdlog::info("exported {}{} ({} parameters{}) to {}", r.checkpoint.string(),
+                         r.averaged ? " (moving average)" : "", parameter_count(*r.model),
                          r.config.model.recurrent ? ", recurrent: forward(x, s0..s4)" : "", o->out);
             return kExitOk;
           }};

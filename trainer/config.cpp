@@ -225,6 +225,7 @@ std::vector<Field> fields(TrainConfig& c) {
   f.push_back(enum_field("model.padding", &m.padding,
                          {{"zeros", PaddingMode::kZeros}, {"replicate", PaddingMode::kReplicate}},
                          true));
+  f.push_back(number_field("model.replicate_from", &m.replicate_from, 0, 5, true));
   f.push_back(bool_field("model.recurrent", &m.recurrent, true));
   f.push_back(number_field("model.leaky_slope", &m.leaky_slope, 0.0, 1.0, true));
   auto& d = c.data;
@@ -285,6 +286,7 @@ std::vector<Field> fields(TrainConfig& c) {
   f.push_back(number_field("train.max_bad_steps", &o.max_bad_steps, 1, 1000000, false));
   f.push_back(number_field("train.grad_clip", &o.grad_clip, 0.0, 1e9, false));
   f.push_back(number_field("train.rollback_lr_factor", &o.rollback_lr_factor, 0.01, 1.0, false));
+  f.push_back(number_field("train.ema", &o.ema, 0.0, 0.999999, false));
   f.push_back(number_field("train.cpu_replicas", &o.cpu_replicas, 0, 256, false));
   f.push_back(enum_field("train.precision", &o.precision, precision_names(), false));
   return f;

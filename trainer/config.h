@@ -63,6 +63,10 @@ struct ModelConfig {
   int bottleneck_convs = 2;   // thesis 4.3.1: 3, like the encoder blocks
   DecoderForm decoder = DecoderForm::kProject;
   PaddingMode padding = PaddingMode::kZeros;
+  // With replicate padding: the first level that replicates; shallower ones
+  // pad with zeros. Level i works at 1/2^i of the frame (encoder and decoder
+  // blocks), 5 is the bottleneck; 0 = every convolution replicates.
+  int replicate_from = 0;
   bool recurrent = false;    // Chaitanya 2017 recurrent encoder blocks
   float leaky_slope = 0.1f;  // LeakyReLU negative slope (thesis 4.2)
 
@@ -163,6 +167,15 @@ struct OptimConfig {
   // runs and scored higher on three seeds of 1000 steps (docs/results.md).
   float grad_clip = 1.0f;
   float rollback_lr_factor = 0.5f;
+  // Exponential moving average of the weights (Polyak and Juditsky 1992):
+  // after every Adam step avg = d * avg + (1 - d) * w with
+  // d = min(ema, (1 + t) / (10 + t)) at step t (ema_decay() in train.h), so
+  // that early averages do not hold the random initial weights. Validation,
+  // best.pt, eval, denoise and export use the average (--weights raw reads
+  // the trained weights); checkpoints keep both, and a resumed run continues
+  // the average bit for bit. One bad step moves the average by 1 - d only
+  // (docs/results.md, "Weight averaging"). 0 = off.
+  float ema = 0.0f;
   // Model copies a CPU step is split across, one thread each (StepRunner in
   // train.h); 0 = auto: 2 when on the CPU with >= 2 intra-op threads and a
   // batch of >= 2, else 1. Changes the float summation order, not the step.

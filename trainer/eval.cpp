@@ -237,7 +237,7 @@ class CropPicker {
 
 EvalSummary evaluate(const EvalOptions& o) {
   const torch::Device device = pick_device("auto");
-  FrameDenoiser den(o.run_dir, device, o.checkpoint, o.precision);
+  FrameDenoiser den(o.run_dir, device, o.checkpoint, o.precision, o.weights);
   const LoadedRun& used = den.run();
   const TrainConfig& cfg = den.config();
   fs::create_directories(o.out_dir);
@@ -472,6 +472,7 @@ EvalSummary evaluate(const EvalOptions& o) {
        {{"file", used.checkpoint.string()},
         {"epoch", used.state.epoch},
         {"step", used.state.step},
+        {"weights", used.averaged ? "moving average" : "trained"},
         {"best_loss", std::isfinite(used.state.best) ? json(used.state.best) : json()}}},
       {"metrics_note",
        "SSIM and PSNR on sRGB-encoded images clamped to [0,1]; relative MSE on "
@@ -507,7 +508,8 @@ EvalSummary evaluate(const EvalOptions& o) {
      << "Run `" << o.run_dir.string() << "`, data `" << o.data_dir.string() << "`, " << done
      << " validation frames, device " << device.str() << ".\n\n"
      << "Checkpoint `" << used.checkpoint.string() << "`: epoch " << used.state.epoch << ", step "
-     << used.state.step << ", best loss " << cell(used.state.best, 5) << ".\n\n"
+     << used.state.step << ", " << (used.averaged ? "moving average of the" : "trained")
+     << " weights, best loss " << cell(used.state.best, 5) << ".\n\n"
      << "SSIM and PSNR are taken on sRGB-encoded images clamped to [0, 1]; relative MSE on "
         "linear HDR radiance, mean of (d - r)^2 / (r^2 + 0.01). Flicker: the same relative MSE "
         "of the frame-to-frame differences, ((d_t - d_t-1) - (r_t - r_t-1))^2 / (m^2 + 0.01) "
@@ -611,16 +613,19 @@ EvalSummary evaluate(const EvalOptions& o) {
           "grid-template-columns:repeat(4,1fr);font-size:13px;text-align:center}"
        << "figure{margin:16px 0}</style></head><body>"
        << "<h1>Denoiser evaluation</h1><p>Run <code>" << html_escape(o.run_dir.string())
-       << "</code>, data <code>" << html_escape(o.data_dir.string()) << "</code>, <span id=\"frames\">"
-       << done << "</span> validation frames, device " << html_escape(device.str()) << ".</p>"
+       << "</code>, data <code>" << html_escape(o.data_dir.string())
+       << "</code>, <span id=\"frames\">" << done << "</span> validation frames, device "
+       << html_escape(device.str()) << ".</p>"
        << "<p>Checkpoint <code id=\"checkpoint\">" << html_escape(used.checkpoint.string())
-       << "</code>: epoch " << used.state.epoch << ", step " << used.state.step << ", best loss "
+       << "</code>: epoch " << used.state.epoch << ", step " << used.state.step << ", "
+       << (used.averaged ? "moving average of the" : "trained") << " weights, best loss "
        << cell(used.state.best, 5) << ".</p>"
        << "<p>SSIM and PSNR on sRGB-encoded images clamped to [0, 1]; relative MSE on linear HDR "
           "radiance, mean of (d − r)² / (r² + 0.01). Flicker: that relative MSE of the "
           "frame-to-frame differences, ((d<sub>t</sub> − d<sub>t−1</sub>) − (r<sub>t</sub> − "
           "r<sub>t−1</sub>))² / (m² + 0.01), m the mean of r<sub>t</sub> and r<sub>t−1</sub>, over "
-          "consecutive frames (Chaitanya et al. 2017, eq. 4). In focus: CoC &lt; 1 pixel. Time: network + "
+          "consecutive frames (Chaitanya et al. 2017, eq. 4). In focus: CoC &lt; 1 pixel. Time: "
+          "network + "
           "remodulation per frame, no IO.</p><table id=\"summary\">"
        << html_header;
   auto html_rows = [&html](const Rows& rows) {

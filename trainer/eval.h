@@ -18,6 +18,7 @@ struct EvalOptions {
   int max_images = 8;  // comparison PNGs written (first frames)
   int version = 0;     // noisy version fed to the network
   std::string checkpoint = "best";  // best | last | PATH
+  Weights weights = Weights::kAuto;  // the moving average or the trained weights
   // Also score every frame of the data, training frames included (thesis
   // 5.1: table 5.1 averages over each scene's complete set of frames): a
   // second table in the report, "all_frames" in report.json.

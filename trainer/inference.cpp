@@ -17,8 +17,8 @@ namespace dofarm::trainer {
 namespace fs = std::filesystem;
 
 FrameDenoiser::FrameDenoiser(const fs::path& run_dir, torch::Device device,
-                             const std::string& checkpoint, Precision precision)
-    : run_(load_run(run_dir, device, checkpoint)), device_(device), precision_(precision) {
+                             const std::string& checkpoint, Precision precision, Weights weights)
+    : run_(load_run(run_dir, device, checkpoint, weights)), device_(device), precision_(precision) {
   warn_if_not_applied(precision, device, "--precision");
 }
 

@@ -27,8 +27,10 @@ class FrameDenoiser {
   // `checkpoint`: "best", "last" or a checkpoint file (load_run).
   // `precision`: the network under bf16 autocast on the CPU
   // (trainer/precision.h); fp32 is the exact one.
+  // `weights`: the moving average or the trained weights (load_run).
   FrameDenoiser(const std::filesystem::path& run_dir, torch::Device device,
-                const std::string& checkpoint = "best", Precision precision = Precision::kFp32);
+                const std::string& checkpoint = "best", Precision precision = Precision::kFp32,
+                Weights weights = Weights::kAuto);
   // Linear RGB (3, H, W) from noisy version `version` of `frame`.
   // `seconds` receives the time of network + remodulation (no IO, no input
   // preparation; with data.albedo_prefilter the prefilter too), synchronised

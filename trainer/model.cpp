@@ -31,15 +31,15 @@ DenoiserImpl::DenoiserImpl(const ModelConfig& cfg)
     // Recurrent block (Chaitanya 2017, fig. 3): the previous frame's block
     // output is concatenated with this frame's block input.
     const int first_in = in + (cfg.recurrent ? w : 0);
-    enc_[i].push_back(add_conv(layer_name('e', i, 0), first_in, w));
-    enc_[i].push_back(add_conv(layer_name('e', i, 1), w, w));
-    enc_[i].push_back(add_conv(layer_name('e', i, 2), w, w));
+    enc_[i].push_back(add_conv(layer_name('e', i, 0), i, first_in, w));
+    enc_[i].push_back(add_conv(layer_name('e', i, 1), i, w, w));
+    enc_[i].push_back(add_conv(layer_name('e', i, 2), i, w, w));
     in = w;
   }
   // Thesis 4.3.1: the bottleneck is like an encoder block whose convolutions
   // keep the channel count.
   for (int k = 0; k < cfg.bottleneck_convs; ++k) {
-    mid_.push_back(add_conv("m_" + std::to_string(k), in, bottleneck_));
+    mid_.push_back(add_conv("m_" + std::to_string(k), kLevels, in, bottleneck_));
     in = bottleneck_;
   }
   dec_.resize(kLevels);
@@ -50,25 +50,27 @@ DenoiserImpl::DenoiserImpl(const ModelConfig& cfg)
       // width, the second gives the next level's (3 channels at the end);
       // the last block has no activation (thesis 4.3.1, fig. 4.3).
       const int next = i > 0 ? widths_[i - 1] : 3;
-      dec_[i].push_back(add_conv(layer_name('d', i, 0), in + w, w, i > 0));
-      dec_[i].push_back(add_conv(layer_name('d', i, 1), w, next, i > 0));
+      dec_[i].push_back(add_conv(layer_name('d', i, 0), i, in + w, w, i > 0));
+      dec_[i].push_back(add_conv(layer_name('d', i, 1), i, w, next, i > 0));
       in = next;
     } else {
-      dec_[i].push_back(add_conv(layer_name('d', i, 0), in + w, w));
-      dec_[i].push_back(add_conv(layer_name('d', i, 1), w, w));
+      dec_[i].push_back(add_conv(layer_name('d', i, 0), i, in + w, w));
+      dec_[i].push_back(add_conv(layer_name('d', i, 1), i, w, w));
       in = w;
     }
   }
-  if (!thesis) out_ = add_conv("out", in, 3, false);
+  if (!thesis) out_ = add_conv("out", 0, in, 3, false);
 }
 
-DenoiserImpl::Conv DenoiserImpl::add_conv(const std::string& name, int in, int out, bool activate) {
+DenoiserImpl::Conv DenoiserImpl::add_conv(const std::string& name, int level, int in, int out,
+                                          bool activate) {
   Conv c;
   c.name = name;
   c.activate = activate;
+  c.replicate = cfg_.padding == PaddingMode::kReplicate && level >= cfg_.replicate_from;
   // Replicate padding is applied by conv() (replicate_pad1), the
   // convolution itself then pads nothing.
-  const int pad = cfg_.padding == PaddingMode::kReplicate ? 0 : 1;
+  const int pad = c.replicate ? 0 : 1;
   c.conv =
       register_module(name, torch::nn::Conv2d(torch::nn::Conv2dOptions(in, out, 3).padding(pad)));
   // He initialisation for leaky ReLU keeps activations at unit scale through
@@ -126,8 +128,7 @@ struct ReplicatePad1 : torch::autograd::Function<ReplicatePad1> {
 torch::Tensor replicate_pad1(const torch::Tensor& x) { return ReplicatePad1::apply(x); }
 
 torch::Tensor DenoiserImpl::conv(Conv& c, const torch::Tensor& h) {
-  return cfg_.padding == PaddingMode::kReplicate ? c.conv->forward(replicate_pad1(h))
-                                                 : c.conv->forward(h);
+  return c.replicate ? c.conv->forward(replicate_pad1(h)) : c.conv->forward(h);
 }
 
 torch::Tensor DenoiserImpl::act(torch::Tensor x) const {
@@ -195,7 +196,7 @@ void DenoiserImpl::export_torchscript(const std::filesystem::path& path,
   };
   std::ostringstream src;
   auto conv = [&](const Conv& c, const std::string& x, bool activate) {
-    std::string e = cfg_.padding == PaddingMode::kReplicate
+    std::string e = c.replicate
                         ? "torch.conv2d(torch.replication_pad2d(" + x + ", [1, 1, 1, 1]), self." +
                               c.name + "_w, self." + c.name + "_b, [1, 1], [0, 0])"
                         : "torch.conv2d(" + x + ", self." + c.name + "_w, self." + c.name +

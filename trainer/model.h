@@ -72,9 +72,11 @@ class DenoiserImpl : public torch::nn::Module {
   struct Conv {
     torch::nn::Conv2d conv{nullptr};
     std::string name;
-    bool activate = true;  // LeakyReLU after it
+    bool activate = true;    // LeakyReLU after it
+    bool replicate = false;  // replicate padding (model.padding, model.replicate_from)
   };
-  Conv add_conv(const std::string& name, int in, int out, bool activate = true);
+  // `level`: the resolution it works at, 1/2^level (kLevels: the bottleneck).
+  Conv add_conv(const std::string& name, int level, int in, int out, bool activate = true);
   // c's convolution of h, padded as model.padding says.
   torch::Tensor conv(Conv& c, const torch::Tensor& h);
   torch::Tensor act(torch::Tensor x) const;  // on a convolution output, in place

@@ -68,14 +68,19 @@ std::string read_text_file(const fs::path& p) {
 void write_text_atomic(const fs::path& p, const std::string& text) { replace_file(p, text); }
 
 void save_checkpoint(const fs::path& path, Denoiser& model, torch::optim::Adam& opt,
-                     const RunState& st, const TrainConfig& cfg) {
+                     const RunState& st, const TrainConfig& cfg, Denoiser* average) {
   // No NaN/Inf ever reaches a checkpoint: a model that diverged is not saved.
-  if (!all_finite(*model)) throw RuntimeError("refusing to checkpoint non-finite weights");
-  torch::serialize::OutputArchive ar, m, o;
+  if (!all_finite(*model) || (average && !all_finite(**average)))
+    throw RuntimeError("refusing to checkpoint non-finite weights");
+  torch::serialize::OutputArchive ar, m, o, a;
   model->save(m);
   opt.save(o);
   ar.write("model", m);
   ar.write("optimizer", o);
+  if (average) {
+    (*average)->save(a);
+    ar.write("average", a);
+  }
   ar.write("state", torch::tensor({st.epoch, st.step, st.sample_index}, torch::kInt64));
   ar.write("state_f", torch::tensor({st.lr_scale, st.best}, torch::kFloat64));
   ar.write("config", c10::IValue(to_toml(cfg)));
@@ -90,8 +95,10 @@ void save_checkpoint(const fs::path& path, Denoiser& model, torch::optim::Adam& 
   replace_file(path, file);
 }
 
-RunState load_checkpoint(const fs::path& path, Denoiser& model, torch::optim::Adam* opt,
-                         torch::Device device) {
+namespace {
+
+// The checkpoint's archive, after its header and content hash are verified.
+void open_archive(const fs::path& path, torch::Device device, torch::serialize::InputArchive& ar) {
   std::string file;
   try {
     file = read_regular_file(path, kMaxCheckpointBytes);
@@ -119,12 +126,19 @@ RunState load_checkpoint(const fs::path& path, Denoiser& model, torch::optim::Ad
   if (actual != hash)
     damaged(path, "content hash " + actual + " does not match the recorded " + hash +
                       " (the file changed after it was written)");
-
-  torch::serialize::InputArchive ar, m, o;
-  torch::Tensor s, f;
   try {
     ar.load_from(payload.data(), payload.size(), device);
-    ar.read("model", m);
+  } catch (const c10::Error& e) {
+    damaged(path, std::string("cannot read the archive: ") + e.what_without_backtrace());
+  }
+}
+
+// The archive's weights `key` into `model`; false when it has no such entry.
+bool read_weights(torch::serialize::InputArchive& ar, const std::string& key, Denoiser& model,
+                  const fs::path& path) {
+  torch::serialize::InputArchive m;
+  try {
+    if (!ar.try_read(key, m)) return false;
   } catch (const c10::Error& e) {
     damaged(path, std::string("cannot read the archive: ") + e.what_without_backtrace());
   }
@@ -136,25 +150,19 @@ RunState load_checkpoint(const fs::path& path, Denoiser& model, torch::optim::Ad
                        "(model.* keys differ from the run that wrote it): " +
                        e.what_without_backtrace());
   }
+  // load() adopts the stored tensors' strides: back to the model's format.
+  model->set_memory_format(model->memory_format());
+  if (!all_finite(*model)) damaged(path, "non-finite weights (" + key + ")");
+  return true;
+}
+
+RunState read_state(torch::serialize::InputArchive& ar, const fs::path& path) {
+  torch::Tensor s, f;
   try {
-    if (opt) {
-      ar.read("optimizer", o);
-      opt->load(o);
-    }
     ar.read("state", s);
     ar.read("state_f", f);
   } catch (const c10::Error& e) {
     damaged(path, std::string("cannot read the archive: ") + e.what_without_backtrace());
-  }
-  // load() adopts the stored tensors' strides: back to the model's format.
-  model->set_memory_format(model->memory_format());
-  if (!all_finite(*model)) damaged(path, "non-finite weights");
-  if (opt) {
-    for (const auto& group : opt->state())
-      for (const auto& t : {static_cast<torch::optim::AdamParamState&>(*group.second).exp_avg(),
-                            static_cast<torch::optim::AdamParamState&>(*group.second).exp_avg_sq()})
-        if (t.defined() && !torch::isfinite(t).all().item<bool>())
-          damaged(path, "non-finite optimizer state");
   }
   s = s.to(torch::kCPU);
   f = f.to(torch::kCPU);
@@ -169,6 +177,44 @@ RunState load_checkpoint(const fs::path& path, Denoiser& model, torch::optim::Ad
       !std::isfinite(st.lr_scale) || std::isnan(st.best))
     damaged(path, "state out of range");
   return st;
+}
+
+}  // namespace
+
+void copy_weights(Denoiser& dst, Denoiser& src) {
+  torch::NoGradGuard no_grad;
+  const auto from = src->parameters();
+  auto to = dst->parameters();
+  if (from.size() != to.size())
+    throw RuntimeError("copy_weights: the two models differ in their parameters");
+  for (size_t i = 0; i < to.size(); ++i) to[i].copy_(from[i]);
+}
+
+RunState load_checkpoint(const fs::path& path, Denoiser& model, torch::optim::Adam* opt,
+                         torch::Device device, Denoiser* average, bool* had_average) {
+  torch::serialize::InputArchive ar;
+  open_archive(path, device, ar);
+  if (!read_weights(ar, "model", model, path)) damaged(path, "no model weights");
+  if (opt) {
+    try {
+      torch::serialize::InputArchive o;
+      ar.read("optimizer", o);
+      opt->load(o);
+    } catch (const c10::Error& e) {
+      damaged(path, std::string("cannot read the archive: ") + e.what_without_backtrace());
+    }
+    for (const auto& group : opt->state())
+      for (const auto& t : {static_cast<torch::optim::AdamParamState&>(*group.second).exp_avg(),
+                            static_cast<torch::optim::AdamParamState&>(*group.second).exp_avg_sq()})
+        if (t.defined() && !torch::isfinite(t).all().item<bool>())
+          damaged(path, "non-finite optimizer state");
+  }
+  if (average) {
+    const bool had = read_weights(ar, "average", *average, path);
+    if (!had) copy_weights(*average, model);
+    if (had_average) *had_average = had;
+  }
+  return read_state(ar, path);
 }
 
 torch::Device pick_device(const std::string& device) {
@@ -189,7 +235,14 @@ fs::path checkpoint_path(const fs::path& run_dir, const std::string& which) {
   return fs::path(which);
 }
 
-LoadedRun load_run(const fs::path& run_dir, torch::Device device, const std::string& which) {
+const std::vector<std::pair<std::string, Weights>>& weights_names() {
+  static const std::vector<std::pair<std::string, Weights>> names = {
+      {"auto", Weights::kAuto}, {"averaged", Weights::kAveraged}, {"raw", Weights::kRaw}};
+  return names;
+}
+
+LoadedRun load_run(const fs::path& run_dir, torch::Device device, const std::string& which,
+                   Weights weights) {
   LoadedRun r;
   if (!fs::exists(run_dir / "config.toml"))
     throw SpecError(FileLoc{run_dir.string()}, "", "not a training run (no config.toml)");
@@ -202,7 +255,16 @@ LoadedRun load_run(const fs::path& run_dir, torch::Device device, const std::str
   r.model = Denoiser(r.config.model);
   r.model->to(device);
   r.model->set_memory_format(preferred_memory_format(device));
-  r.state = load_checkpoint(r.checkpoint, r.model, nullptr, device);
+  torch::serialize::InputArchive ar;
+  open_archive(r.checkpoint, device, ar);
+  r.averaged = weights != Weights::kRaw && read_weights(ar, "average", r.model, r.checkpoint);
+  if (weights == Weights::kAveraged && !r.averaged)
+    throw SpecError(FileLoc{r.checkpoint.string()}, "",
+                    "the checkpoint holds no moving average of the weights (the run trained "
+                    "with train.ema = 0); use --weights raw or auto");
+  if (!r.averaged && !read_weights(ar, "model", r.model, r.checkpoint))
+    damaged(r.checkpoint, "no model weights");
+  r.state = read_state(ar, r.checkpoint);
   r.model->eval();
   return r;
 }

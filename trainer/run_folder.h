@@ -6,7 +6,8 @@
 //   line 1   "dofarm-checkpoint 1 <BLAKE2b-128 of the payload, hex> <payload bytes>\n"
 //   payload  a libtorch archive (torch::serialize::OutputArchive) holding
 //            model, optimizer, state (epoch, step, sample index),
-//            state_f (LR scale, best loss) and the run's config TOML.
+//            state_f (LR scale, best loss), the run's config TOML and, when
+//            train.ema is on, average (the weights' moving average).
 // A file whose payload does not match its header is refused with an error
 // naming it; nothing is ever trained or denoised from a damaged checkpoint.
 #pragma once
@@ -16,6 +17,8 @@
 #include <cstdint>
 #include <filesystem>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "trainer/config.h"
 #include "trainer/model.h"
@@ -33,15 +36,23 @@ struct RunState {
 
 // Writes `path` through a temporary file in the same folder, fsynced, then
 // renamed over the old one (a crash leaves the previous checkpoint intact).
+// `average` (train.ema; may be null) is stored beside the trained weights.
 // Throws RuntimeError for non-finite weights: no NaN/Inf reaches a checkpoint.
-void save_checkpoint(const std::filesystem::path& path, Denoiser& model,
-                     torch::optim::Adam& opt, const RunState& st, const TrainConfig& cfg);
+void save_checkpoint(const std::filesystem::path& path, Denoiser& model, torch::optim::Adam& opt,
+                     const RunState& st, const TrainConfig& cfg, Denoiser* average = nullptr);
 
-// Verifies the file's checksum, then loads the model (and the optimizer when
-// `opt` is given). Throws RuntimeError naming the file when it is missing,
-// damaged, not a checkpoint, or holds non-finite values.
+// Verifies the file's checksum, then loads the trained weights into `model`
+// (and the optimizer when `opt` is given; the moving average into `average`
+// when given: the stored one, or a copy of the trained weights when the
+// checkpoint has none, and *had_average says which). Throws RuntimeError
+// naming the file when it is missing, damaged, not a checkpoint, or holds
+// non-finite values.
 RunState load_checkpoint(const std::filesystem::path& path, Denoiser& model,
-                         torch::optim::Adam* opt, torch::Device device);
+                         torch::optim::Adam* opt, torch::Device device, Denoiser* average = nullptr,
+                         bool* had_average = nullptr);
+
+// `dst`'s weights become a copy of `src`'s (same model config).
+void copy_weights(Denoiser& dst, Denoiser& src);
 
 // Whole small text files; write_text_atomic as save_checkpoint.
 std::string read_text_file(const std::filesystem::path& path);
@@ -56,15 +67,26 @@ torch::Device pick_device(const std::string& device);
 std::filesystem::path checkpoint_path(const std::filesystem::path& run_dir,
                                       const std::string& which);
 
+// Which weights of a checkpoint a trained model is made of.
+enum class Weights {
+  kAuto,      // the moving average when the checkpoint holds one, else the trained
+  kAveraged,  // the moving average (an error when the run kept none: train.ema = 0)
+  kRaw,       // the trained weights, as after the checkpoint's last step
+};
+// Its names, as --weights spells them.
+const std::vector<std::pair<std::string, Weights>>& weights_names();
+
 // A trained model from a run folder, its config, on `device`, in eval mode,
-// with the checkpoint it came from and that checkpoint's state.
+// with the checkpoint it came from, that checkpoint's state and whether the
+// model is the moving average.
 struct LoadedRun {
   TrainConfig config;
   Denoiser model{nullptr};
   std::filesystem::path checkpoint;
   RunState state;
+  bool averaged = false;
 };
 LoadedRun load_run(const std::filesystem::path& run_dir, torch::Device device,
-                   const std::string& which = "best");
+                   const std::string& which = "best", Weights weights = Weights::kAuto);
 
 }  // namespace dofarm::trainer

@@ -44,6 +44,18 @@ FrameFailure whole_frame_failure(double frames, double crops, double tiles) {
   return FrameFailure::kNone;
 }
 
+double ema_decay(double ema, int64_t step) {
+  const double t = double(std::max<int64_t>(step - 1, 0));
+  return std::min(ema, (1.0 + t) / (10.0 + t));
+}
+
+void update_average(Denoiser& average, Denoiser& model, double d) {
+  torch::NoGradGuard no_grad;
+  const auto w = model->parameters();
+  auto a = average->parameters();
+  for (size_t i = 0; i < a.size(); ++i) a[i].mul_(d).add_(w[i], 1.0 - d);
+}
+
 double thesis_learning_rate(int64_t pass) {
   // Thesis eq. 4.5: a tenfold geometric rise over passes 0..9 (1.25893 =
   // 10^(1/10)), then 0.0001 * 10 / sqrt(E).
@@ -234,13 +246,30 @@ TrainResult train_in(const TrainOptions& opt_in) {
   torch::optim::Adam adam(
       model->parameters(),
       torch::optim::AdamOptions(cfg.train.lr).betas({cfg.train.beta1, cfg.train.beta2}));
+  // The weights' moving average (train.ema): what validation judges.
+  Denoiser average{nullptr};
+  Denoiser* avg = nullptr;
+  if (cfg.train.ema > 0) {
+    average = Denoiser(cfg.model);
+    average->to(device);
+    average->set_memory_format(format);
+    copy_weights(average, model);
+    for (auto& p : average->parameters()) p.set_requires_grad(false);
+    avg = &average;
+  }
+  Denoiser& judged = avg ? average : model;
   RunState st;
   if (result.resumed) {
-    st = load_checkpoint(last, model, &adam, device);
+    bool had_average = false;
+    st = load_checkpoint(last, model, &adam, device, avg, &had_average);
     log(spdlog::level::info, "resumed at epoch {} step {} from {}", st.epoch, st.step,
         last.string());
+    if (avg && !had_average)
+      log(spdlog::level::info,
+          "train.ema is on but {} holds no moving average: it starts from the weights of step {}",
+          last.string(), st.step);
   } else {
-    save_checkpoint(last, model, adam, st, cfg);  // something to roll back to from step 0
+    save_checkpoint(last, model, adam, st, cfg, avg);  // something to roll back to from step 0
     log(spdlog::level::info, "new run: {} parameters on {}", parameter_count(*model), device.str());
   }
 
@@ -317,12 +346,13 @@ TrainResult train_in(const TrainOptions& opt_in) {
                 << "\n";
       if (ok) {
         adam.step();
+        if (avg) update_average(average, model, ema_decay(cfg.train.ema, st.step));
         loss_sum += loss_value;
         ++good;
         bad_in_a_row = 0;
         if (opt_in.save_every > 0 && st.step % opt_in.save_every == 0) {
           steps_csv.flush();
-          save_checkpoint(last, model, adam, st, cfg);
+          save_checkpoint(last, model, adam, st, cfg, avg);
           const fs::path kept = ckpt_dir / fmt::format("step-{:08d}.pt", st.step);
           fs::copy_file(last, kept, fs::copy_options::overwrite_existing);
           log(spdlog::level::info, "step {}: checkpoint {}", st.step, kept.string());
@@ -338,7 +368,7 @@ TrainResult train_in(const TrainOptions& opt_in) {
       ++result.skipped_steps;
       log(spdlog::level::warn, "step {}: non-finite loss or gradient, step skipped", st.step);
       if (++bad_in_a_row >= cfg.train.max_bad_steps) {
-        RunState back = load_checkpoint(last, model, &adam, device);
+        RunState back = load_checkpoint(last, model, &adam, device, avg);
         // From the current scale: repeated rollbacks within an epoch keep lowering it.
         st.lr_scale = std::min(st.lr_scale, back.lr_scale) * cfg.train.rollback_lr_factor;
         ++result.rollbacks;
@@ -356,7 +386,7 @@ TrainResult train_in(const TrainOptions& opt_in) {
     std::vector<Sample> vs = stream.validation(cfg.train.val_sequences);
     if (!vs.empty()) {
       torch::NoGradGuard no_grad;
-      model->eval();
+      judged->eval();
       double sum = 0;
       ImageScores scores;
       for (size_t i = 0; i < vs.size(); i += cfg.train.batch) {
@@ -364,7 +394,7 @@ TrainResult train_in(const TrainOptions& opt_in) {
                                  vs.begin() + std::min(vs.size(), i + cfg.train.batch));
         Batch b = make_batch(part, device, format);
         torch::Tensor y =
-            float_output(cfg.train.precision, device, [&] { return model->forward(b.input); });
+            float_output(cfg.train.precision, device, [&] { return judged->forward(b.input); });
         sum += denoiser_loss(y, b.target, cfg.loss, kernel, b.coc).total.item<double>() *
                double(part.size());
         std::vector<torch::Tensor> albedo;
@@ -384,9 +414,9 @@ TrainResult train_in(const TrainOptions& opt_in) {
     double val_frame_ssim = NAN, val_tile_ssim = NAN;
     FrameFailure frame_failure = FrameFailure::kNone;
     if (cfg.train.val_frames > 0 && !vs.empty()) {
-      model->eval();
+      judged->eval();
       const FrameScores fs_scores =
-          full_frame_scores(model, cfg, device, opt_in.data_dir, stream.splits(),
+          full_frame_scores(judged, cfg, device, opt_in.data_dir, stream.splits(),
                             cfg.train.val_frames, cfg.data.crop);
       val_frame_ssim = fs_scores.whole;
       val_tile_ssim = fs_scores.tiles;
@@ -440,7 +470,7 @@ TrainResult train_in(const TrainOptions& opt_in) {
     // An epoch whose whole frames fail is never best, whatever its score.
     bool improved = std::isfinite(score) && score < st.best && frame_failure == FrameFailure::kNone;
     if (improved) st.best = score;
-    save_checkpoint(last, model, adam, st, cfg);
+    save_checkpoint(last, model, adam, st, cfg, avg);
     if (improved) fs::copy_file(last, best, fs::copy_options::overwrite_existing);
     ++result.epochs;
   }
@@ -450,13 +480,13 @@ TrainResult train_in(const TrainOptions& opt_in) {
         "no epoch so far passed the whole-frame validation: no best.pt, and \"best\" reads "
         "last.pt");
   if (result.stopped) {
-    save_checkpoint(last, model, adam, st, cfg);
+    save_checkpoint(last, model, adam, st, cfg, avg);
     log(spdlog::level::warn,
         "stopped on request at epoch {} step {}: {} written; run the same command to resume",
         st.epoch, st.step, last.string());
   } else if (opt_in.stop_at_step >= 0 && st.step >= opt_in.stop_at_step &&
              st.epoch < cfg.train.epochs) {
-    save_checkpoint(last, model, adam, st, cfg);
+    save_checkpoint(last, model, adam, st, cfg, avg);
   }
   result.steps = st.step;
   result.best_val = st.best;

@@ -9,6 +9,8 @@
 //   passes.json          training sequences per pass (eq. 4.5's E; epochs of
 //                        train.steps_per_epoch = 0)
 //   events.log           new run, resumes, stops, skipped non-finite steps, rollbacks
+// With train.ema > 0 the checkpoints also hold the weights' moving average,
+// which validation, best.pt and everything that loads a run use.
 // Batches: batches.h; the step itself: step_runner.h.
 //
 // Adam(0.9, 0.99); learning rate by learning_rate(); a non-finite loss or gradient skips the step,
@@ -83,6 +85,15 @@ TrainResult train(const TrainOptions& options);
 double learning_rate(const OptimConfig& o, int64_t step, int epoch, int64_t steps_per_pass);
 // Thesis eq. 4.5: 1e-4 * 1.25893^E for E <= 9, else 1e-3 / sqrt(E).
 double thesis_learning_rate(int64_t pass);
+
+// The moving average's decay after optimizer step `step` (1-based: the
+// number of steps taken) with train.ema = `ema`: min(ema, (1 + t) / (10 + t))
+// with t = step - 1 (the warm-up of TensorFlow's ExponentialMovingAverage
+// with num_updates), so the first update keeps 1/10 of the initial weights
+// and the average follows the trained weights closely while they move fast.
+double ema_decay(double ema, int64_t step);
+// avg <- d * avg + (1 - d) * w, parameter by parameter (float32 throughout).
+void update_average(Denoiser& average, Denoiser& model, double d);
 
 // Whether an epoch's whole validation frames show that its weights fail on
 // whole frames (docs/results.md, "Where whole frames fail"): their SSIM is

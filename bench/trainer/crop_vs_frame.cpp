@@ -29,7 +29,8 @@
 // frame goes wrong.
 //
 // Usage: crop_vs_frame --run RUN --data DIR [--checkpoint best|last|PATH]
-//                      [--tiles 64,128] [--frames N] [--rings W] [--coc PX]
+//                      [--weights auto|averaged|raw] [--tiles 64,128] [--frames N] [--rings W]
+//                      [--coc PX]
 //                      [--taps]
 // Prints one line per frame and the means; asserts nothing.
 #include <algorithm>
@@ -100,7 +101,8 @@ struct TapStats {
 int usage() {
   std::fprintf(stderr,
                "usage: crop_vs_frame --run RUN --data DIR [--checkpoint best|last|PATH] "
-               "[--tiles 64,128] [--frames N] [--rings W] [--coc PX] [--taps]\n");
+               "[--weights auto|averaged|raw] [--tiles 64,128] [--frames N] [--rings W] [--coc PX] "
+               "[--taps]\n");
   return 2;
 }
 
@@ -109,6 +111,7 @@ int usage() {
 int main(int argc, char** argv) {
   fs::path run, data;
   std::string checkpoint = "best", tiles_arg = "64,128";
+  Weights weights = Weights::kAuto;
   int max_frames = 0, ring = 0;
   float coc_px = -1.0f;  // < 0: the frame's own CoC
   bool taps = false;
@@ -125,7 +128,14 @@ int main(int argc, char** argv) {
       data = argv[++i];
     else if (a == "--checkpoint")
       checkpoint = argv[++i];
-    else if (a == "--tiles")
+    else if (a == "--weights") {
+      const std::string w = argv[++i];
+      const auto& names = weights_names();
+      auto it =
+          std::find_if(names.begin(), names.end(), [&](const auto& n) { return n.first == w; });
+      if (it == names.end()) return usage();
+      weights = it->second;
+    } else if (a == "--tiles")
       tiles_arg = argv[++i];
     else if (a == "--frames")
       max_frames = std::atoi(argv[++i]);
@@ -145,10 +155,11 @@ int main(int argc, char** argv) {
     tiles.push_back(v);
   }
 
-  FrameDenoiser den(run, torch::kCPU, checkpoint);
+  FrameDenoiser den(run, torch::kCPU, checkpoint, Precision::kFp32, weights);
   std::printf(
-      "run %s, checkpoint %s (step %lld)%s\n", run.c_str(), den.run().checkpoint.c_str(),
-      static_cast<long long>(den.run().state.step),
+      "run %s, checkpoint %s (step %lld, %s weights)%s\n", run.c_str(),
+      den.run().checkpoint.c_str(), static_cast<long long>(den.run().state.step),
+      den.run().averaged ? "averaged" : "trained",
       coc_px >= 0.0f ? (", CoC fed as " + std::to_string(coc_px) + " px everywhere").c_str() : "");
   std::printf("%-28s %6s %9s", "frame", "size", "whole");
   for (int t : tiles) std::printf("  tiles %-4d", t);

@@ -10,6 +10,7 @@
 #include <limits>
 #include <tuple>
 
+#include "common/error.h"
 #include "trainer/config.h"
 #include "trainer/losses.h"
 
@@ -380,6 +381,41 @@ TEST(Denoiser, ReplicatePaddingGivesNoPixelItsDistanceToTheBorder) {
   }
 }
 
+// model.replicate_from: the levels above it pad with zeros, the rest
+// replicate. With the same weights, every encoder level shallower than it
+// matches the zero-padded network exactly and the first one at it differs;
+// at 0 the whole network is the replicate-padded one.
+TEST(Denoiser, ReplicateFromPadsOnlyTheDeepLevels) {
+  torch::NoGradGuard ng;
+  torch::manual_seed(9);
+  const torch::Tensor x = torch::rand({1, 12, 64, 64});
+  auto taps_of = [&](PaddingMode mode, int from) {
+    torch::manual_seed(5);  // the same initial weights whatever the padding
+    ModelConfig cfg = tiny();
+    cfg.padding = mode;
+    cfg.replicate_from = from;
+    Denoiser m(cfg);
+    std::vector<torch::Tensor> taps, none;
+    m->set_taps(&taps);
+    taps.push_back(m->forward_frame(x, none));
+    return taps;  // encoder levels 0..4, the bottleneck, then the output
+  };
+  const auto zeros = taps_of(PaddingMode::kZeros, 0), all = taps_of(PaddingMode::kReplicate, 0);
+  for (int from : {1, 3, 4, 5}) {
+    const auto t = taps_of(PaddingMode::kReplicate, from);
+    ASSERT_EQ(t.size(), zeros.size());
+    for (int level = 0; level < from; ++level)
+      EXPECT_TRUE(torch::equal(t[level], zeros[level])) << "from " << from << " level " << level;
+    EXPECT_FALSE(torch::allclose(t[from], zeros[from])) << "from " << from;
+    EXPECT_FALSE(torch::allclose(t.back(), zeros.back())) << "from " << from;
+  }
+  const auto t0 = taps_of(PaddingMode::kReplicate, 0);
+  for (size_t i = 0; i < t0.size(); ++i) EXPECT_TRUE(torch::equal(t0[i], all[i])) << i;
+  EXPECT_FALSE(torch::allclose(all[0], zeros[0]));
+  EXPECT_THROW(parse_train_config("", "t.toml", {"model.replicate_from=6"}), SpecError);
+  EXPECT_EQ(parse_train_config("", "t.toml", {"model.replicate_from=4"}).model.replicate_from, 4);
+}
+
 // replicate_pad1 against ATen's replication_pad2d: the same values and the
 // same gradient for a random upstream gradient, in both memory layouts.
 TEST(Denoiser, ReplicatePad1EqualsReplicationPad2d) {
@@ -401,11 +437,12 @@ TEST(Denoiser, ReplicatePad1EqualsReplicationPad2d) {
 }
 
 TEST(Denoiser, TorchScriptExportComputesTheSame) {
-  for (int variant = 0; variant < 3; ++variant) {
+  for (int variant = 0; variant < 4; ++variant) {
     const bool recurrent = variant == 1;
     torch::manual_seed(3);
     ModelConfig cfg = tiny(recurrent);
-    if (variant == 2) cfg.padding = PaddingMode::kReplicate;
+    if (variant >= 2) cfg.padding = PaddingMode::kReplicate;
+    if (variant == 3) cfg.replicate_from = 4;  // zeros above 1/16, replicate below
     Denoiser m(cfg);
     auto path =
         std::filesystem::temp_directory_path() /

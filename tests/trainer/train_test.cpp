@@ -3,6 +3,7 @@
 #include <ATen/Parallel.h>
 #include <ATen/autocast_mode.h>
 #include <gtest/gtest.h>
+#include <spdlog/fmt/fmt.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -387,6 +388,89 @@ TEST(WholeFrameFailure, ThresholdsAndNonFinite) {
   // Without tiles or crops to compare against, only the crops' or nothing.
   EXPECT_EQ(whole_frame_failure(0.5, NAN, NAN), FrameFailure::kNone);
   EXPECT_EQ(whole_frame_failure(0.5, 0.8, NAN), FrameFailure::kBelowCrops);
+}
+
+// train.ema's decay: (1 + t) / (10 + t) at step t + 1 until it reaches the
+// setting, then the setting.
+TEST(Ema, DecayWarmsUpThenHoldsTheSetting) {
+  EXPECT_DOUBLE_EQ(ema_decay(0.999, 1), 0.1);
+  EXPECT_DOUBLE_EQ(ema_decay(0.999, 2), 2.0 / 11.0);
+  EXPECT_DOUBLE_EQ(ema_decay(0.999, 1000), 1000.0 / 1009.0);
+  EXPECT_DOUBLE_EQ(ema_decay(0.999, 8992), 0.999);  // 8992 / 9001 = 0.99900...
+  EXPECT_DOUBLE_EQ(ema_decay(0.999, 100000), 0.999);
+  EXPECT_DOUBLE_EQ(ema_decay(0.5, 3), 0.25);
+  EXPECT_DOUBLE_EQ(ema_decay(0.5, 9), 0.5);
+  EXPECT_THROW(parse_train_config("", "t.toml", {"train.ema=1"}), SpecError);
+  EXPECT_THROW(parse_train_config("", "t.toml", {"train.ema=-0.1"}), SpecError);
+}
+
+// The average the checkpoints keep is, to float rounding, the one computed
+// here from every step's trained weights (step-*.pt); a run stopped and
+// resumed keeps it bit for bit; --weights picks it or the trained weights.
+TEST(Train, EmaIsTheAverageOfEveryStepsWeightsAndResumesExactly) {
+  fs::path a = fresh_dir("run_ema_a"), b = fresh_dir("run_ema_b");
+  TrainConfig cfg = tiny_config();
+  cfg.train.ema = 0.6f;
+  TrainOptions o{shared_data(), a, cfg};
+  o.save_every = 1;
+  EXPECT_EQ(train(o).steps, 6);
+
+  // The initial weights: the trainer seeds, then builds the model.
+  torch::manual_seed(cfg.train.seed);
+  Denoiser init(cfg.model);
+  std::vector<torch::Tensor> avg;
+  for (const auto& p : init->parameters()) avg.push_back(p.detach().clone());
+  for (int step = 1; step <= 6; ++step) {
+    const fs::path ck = a / "checkpoints" / fmt::format("step-{:08d}.pt", step);
+    LoadedRun r = load_run(a, torch::kCPU, ck.string(), Weights::kRaw);
+    EXPECT_FALSE(r.averaged);
+    const double d = ema_decay(cfg.train.ema, step);
+    const auto w = r.model->parameters();
+    ASSERT_EQ(w.size(), avg.size());
+    for (size_t i = 0; i < avg.size(); ++i) avg[i].mul_(d).add_(w[i].detach(), 1.0 - d);
+  }
+  LoadedRun last = load_run(a, torch::kCPU, "last", Weights::kAveraged);
+  EXPECT_TRUE(last.averaged);
+  const auto got = last.model->parameters();
+  double worst = 0, moved = 0;
+  for (size_t i = 0; i < avg.size(); ++i) {
+    worst = std::max(worst, (got[i] - avg[i]).abs().max().item<double>());
+    moved = std::max(moved, (got[i] - init->parameters()[i]).abs().max().item<double>());
+  }
+  EXPECT_LT(worst, 1e-6);
+  EXPECT_GT(moved, 1e-4);  // the average did move away from the initial weights
+  // auto reads the average; raw the trained weights of the last step.
+  EXPECT_TRUE(load_run(a, torch::kCPU, "last").averaged);
+  LoadedRun raw = load_run(a, torch::kCPU, "last", Weights::kRaw);
+  LoadedRun step6 =
+      load_run(a, torch::kCPU, (a / "checkpoints" / "step-00000006.pt").string(), Weights::kRaw);
+  EXPECT_TRUE(torch::equal(raw.model->parameters()[0], step6.model->parameters()[0]));
+  EXPECT_FALSE(torch::equal(raw.model->parameters()[0], got[0]));
+
+  TrainOptions ob{shared_data(), b, cfg};
+  ob.stop_at_step = 4;
+  train(ob);
+  ob.stop_at_step = -1;
+  EXPECT_TRUE(train(ob).resumed);
+  for (Weights w : {Weights::kAveraged, Weights::kRaw}) {
+    const auto pa = load_run(a, torch::kCPU, "last", w).model->parameters();
+    const auto pb = load_run(b, torch::kCPU, "last", w).model->parameters();
+    for (size_t i = 0; i < pa.size(); ++i) EXPECT_TRUE(torch::equal(pa[i], pb[i])) << i;
+  }
+
+  // A run without the average: auto reads the trained weights, averaged is
+  // an error that names the key.
+  fs::path c = fresh_dir("run_ema_off");
+  TrainOptions oc{shared_data(), c, tiny_config()};
+  oc.stop_at_step = 1;
+  train(oc);
+  EXPECT_FALSE(load_run(c, torch::kCPU, "last").averaged);
+  try {
+    load_run(c, torch::kCPU, "last", Weights::kAveraged);
+    ADD_FAILURE() << "no error";
+  } catch (const SpecError& e) {
+    EXPECT_NE(std::string(e.what()).find("train.ema"), std::string::npos) << e.what();
+  }
 }
 
 // Thesis eq. 4.5: 0.0001 * 1.25893^E for E <= 9, else 0.0001 * 10 / sqrt(E),
