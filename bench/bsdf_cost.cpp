@@ -1,7 +1,8 @@
 // Cost of the material model (worker/render/bsdf.h) per path vertex: Bsdf()
 // and outgoing() once, evaluate() for the light sample, sample() for the
 // continuation, over a mix of materials and directions: the opaque ones,
-// then the same under a clearcoat, then glass under a clearcoat. Prints
+// then the same under a clearcoat, then glass under a clearcoat, then the
+// opaque ones under a white sheen, and under a sheen and a coat. Prints
 // nanoseconds per vertex and the white-furnace albedo of the same calls
 // (what the cost buys: 1 is exact); never asserts.
 //
@@ -18,6 +19,7 @@
 #include "worker/render/bsdf.h"
 #include "worker/render/glass_albedo.h"
 #include "worker/render/microfacet_albedo.h"
+#include "worker/render/sheen.h"
 
 using dofarm::Vec2;
 using dofarm::Vec3;
@@ -76,20 +78,24 @@ int main(int argc, char** argv) {
   // per-call cost.
   (void)dofarm::render::ggx::albedo_table();
   (void)dofarm::render::ggx::glass_albedo_table();
+  (void)dofarm::render::sheen::albedo_table();
 
   double sink = 0;
-  // The three material sets: {transmission, clearcoat} factors.
+  // The material sets: {transmission, clearcoat, sheen} factors.
   struct Set {
     const char* label;
     dofarm::render::TransmissionLayer transmission;
     dofarm::render::ClearcoatLayer clearcoat;
-  } const sets[] = {{"opaque", {}, {}},
-                    {"opaque under a clearcoat (factor 1, roughness 0.3)", {}, {1.0f, 0.3f}},
-                    {"glass (transmission 1) under a clearcoat", {1.0f, true}, {1.0f, 0.3f}}};
+    dofarm::render::SheenLayer sheen;
+  } const sets[] = {{"opaque", {}, {}, {}},
+                    {"opaque under a clearcoat (factor 1, roughness 0.3)", {}, {1.0f, 0.3f}, {}},
+                    {"glass (transmission 1) under a clearcoat", {1.0f, true}, {1.0f, 0.3f}, {}},
+                    {"opaque under a sheen (white, roughness 0.5)", {}, {}, {Vec3(1.0f), 0.5f}},
+                    {"opaque under a sheen and a clearcoat", {}, {1.0f, 0.3f}, {Vec3(1.0f), 0.5f}}};
   for (const Set& set : sets) {
     auto make = [&](const Input& in) {
       return Bsdf(up, up, white, in.metallic, in.roughness, 1.5f, {}, set.transmission,
-                  set.clearcoat);
+                  set.clearcoat, set.sheen);
     };
     // Construction + outgoing(): once per path vertex.
     auto t0 = std::chrono::steady_clock::now();

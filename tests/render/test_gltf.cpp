@@ -304,11 +304,11 @@ std::string load_error(const std::filesystem::path& p) {
 TEST(GltfExtensions, RequiredButUnimplementedIsAnErrorNamingIt) {
   TempDir dir("required");
   GltfQuad q = gltf_quad();
-  q.doc["extensionsUsed"] = {"KHR_materials_sheen", "KHR_texture_transform"};
-  q.doc["extensionsRequired"] = {"KHR_materials_sheen"};
+  q.doc["extensionsUsed"] = {"KHR_materials_anisotropy", "KHR_texture_transform"};
+  q.doc["extensionsRequired"] = {"KHR_materials_anisotropy"};
   write_gltf(dir.path / "required.gltf", q);
   std::string what = load_error(dir.path / "required.gltf");
-  EXPECT_NE(what.find("KHR_materials_sheen"), std::string::npos) << what;
+  EXPECT_NE(what.find("KHR_materials_anisotropy"), std::string::npos) << what;
   EXPECT_NE(what.find("extensionsRequired"), std::string::npos) << what;
   EXPECT_EQ(what.find("KHR_texture_transform,"), std::string::npos) << what;
 }
@@ -316,7 +316,7 @@ TEST(GltfExtensions, RequiredButUnimplementedIsAnErrorNamingIt) {
 TEST(GltfExtensions, UsedButUnimplementedAreNamedInOneWarning) {
   TempDir dir("used");
   GltfQuad q = gltf_quad();
-  q.doc["extensionsUsed"] = {"KHR_materials_sheen", "KHR_lights_punctual",
+  q.doc["extensionsUsed"] = {"KHR_materials_anisotropy", "KHR_lights_punctual",
                              "KHR_materials_iridescence"};
   write_gltf(dir.path / "used.gltf", q);
   LogCapture log;
@@ -325,7 +325,7 @@ TEST(GltfExtensions, UsedButUnimplementedAreNamedInOneWarning) {
   EXPECT_EQ(s.triangle_count(), 2u);
   ASSERT_EQ(lines.size(), 1u);
   EXPECT_NE(lines[0].find("used.gltf"), std::string::npos) << lines[0];
-  EXPECT_NE(lines[0].find("KHR_materials_sheen, KHR_materials_iridescence"), std::string::npos)
+  EXPECT_NE(lines[0].find("KHR_materials_anisotropy, KHR_materials_iridescence"), std::string::npos)
       << lines[0];
   EXPECT_EQ(lines[0].find("KHR_lights_punctual"), std::string::npos) << lines[0];
 }

@@ -442,6 +442,81 @@ TEST(GltfMaterials, TransmissionAndClearcoatTexturesScaleTheirFactors) {
   expect_extension_read(log.lines());
 }
 
+// KHR_materials_sheen: the factors as written, a value outside [0, 1]
+// warned about (material and key) and the extension's default used; the
+// colour texture (sRGB RGB) and the roughness texture (its alpha, linear),
+// here one RGBA image as exporters pack them, multiply the factors.
+TEST(GltfMaterials, SheenFactorsAndTexturesAreRead) {
+  TempDir dir("sheen");
+  {
+    LogCapture log;
+    struct Case {
+      const char* name;
+      Json ext;  // null: no extension
+      Vec3 color;
+      float roughness;
+    } cases[] = {{"velvet",
+                  {{"sheenColorFactor", {1.0, 0.5, 0.25}}, {"sheenRoughnessFactor", 0.3}},
+                  Vec3(1.0f, 0.5f, 0.25f),
+                  0.3f},
+                 {"none", nullptr, Vec3(0.0f), 0.0f},
+                 {"bright",
+                  {{"sheenColorFactor", {2.0, 0.5, 0.25}}, {"sheenRoughnessFactor", 0.3}},
+                  Vec3(0.0f),
+                  0.3f},
+                 {"rough_above",
+                  {{"sheenColorFactor", {1.0, 1.0, 1.0}}, {"sheenRoughnessFactor", -1}},
+                  Vec3(1.0f),
+                  0.0f}};
+    for (const Case& c : cases) {
+      SCOPED_TRACE(c.name);
+      const Material m = material_with_extension(dir.path, c.name, "KHR_materials_sheen", c.ext);
+      EXPECT_FLOAT_EQ(m.sheen_color.x, c.color.x);
+      EXPECT_FLOAT_EQ(m.sheen_color.y, c.color.y);
+      EXPECT_FLOAT_EQ(m.sheen_color.z, c.color.z);
+      EXPECT_FLOAT_EQ(m.sheen_roughness, c.roughness);
+    }
+    expect_warnings(log.lines(), {{"\"bright\"", "sheenColorFactor [2, 0.5, 0.25]"},
+                                  {"\"rough_above\"", "sheenRoughnessFactor -1"}});
+    expect_extension_read(log.lines());
+  }
+  const unsigned char px[] = {255, 128, 0, 255, 0, 0, 255, 51};
+  write_bytes(dir.path / "fibre.png", encode_png(px, 2, 1, 4));
+  GltfQuad q = gltf_quad();
+  q.doc["materials"][0]["name"] = "cloth";
+  q.doc["materials"][0]["extensions"] = {{"KHR_materials_sheen",
+                                          {{"sheenColorFactor", {1.0, 0.5, 1.0}},
+                                           {"sheenColorTexture", {{"index", 0}}},
+                                           {"sheenRoughnessFactor", 0.8},
+                                           {"sheenRoughnessTexture", {{"index", 0}}}}}};
+  q.doc["extensionsUsed"] = {"KHR_materials_sheen"};
+  q.doc["textures"] = Json::array({{{"source", 0}}});
+  q.doc["images"] = Json::array({{{"uri", "fibre.png"}}});
+  write_gltf(dir.path / "cloth.gltf", q);
+  LogCapture log;
+  SceneData d = load_scene_data(dir.path / "cloth.gltf");
+  const Material& m = d.materials[d.tri_material[0]];
+  ASSERT_GE(m.sheen_color_tex, 0);
+  ASSERT_GE(m.sheen_rough_tex, 0);
+  EXPECT_TRUE(m.has_textures());
+  Scene scene(d, std::make_unique<Environment>(Vec3(1.0f)));
+  auto at = [&](float x) {
+    SurfaceHit hit;
+    EXPECT_TRUE(scene.intersect(Ray{Vec3(x, 1.0f, 0.5f), Vec3(0, -1, 0)}, &hit));
+    return hit;
+  };
+  const SurfaceHit left = at(0.25f), right = at(0.75f);
+  const float half = srgb_to_linear(128.0f / 255.0f);
+  EXPECT_NEAR(left.sheen_color.x, 1.0f, 1e-5f);
+  EXPECT_NEAR(left.sheen_color.y, 0.5f * half, 1e-5f);
+  EXPECT_NEAR(left.sheen_color.z, 0.0f, 1e-5f);
+  EXPECT_NEAR(right.sheen_color.x, 0.0f, 1e-5f);
+  EXPECT_NEAR(right.sheen_color.z, 1.0f, 1e-5f);
+  EXPECT_NEAR(left.sheen_roughness, 0.8f, 1e-5f);
+  EXPECT_NEAR(right.sheen_roughness, 0.8f * 0.2f, 1e-5f);  // alpha 51 / 255, linear
+  expect_extension_read(log.lines());
+}
+
 // KHR_materials_clearcoat's factors as written (Blender 3.4 writes
 // clearcoatFactor = Clearcoat and clearcoatRoughnessFactor = Clearcoat
 // Roughness for a Principled BSDF whose Clearcoat is above 0); no

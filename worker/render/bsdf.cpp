@@ -4,6 +4,7 @@
 
 #include "worker/render/glass_albedo.h"
 #include "worker/render/microfacet.h"
+#include "worker/render/sheen.h"
 #include "worker/render/trig.h"
 
 namespace dofarm::render {
@@ -71,8 +72,17 @@ float coat_schlick(float cos_theta) {
 
 Bsdf::Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, float ior,
            const SpecularLayer& specular, const TransmissionLayer& transmission,
-           const ClearcoatLayer& clearcoat)
+           const ClearcoatLayer& clearcoat, const SheenLayer& sheen)
     : frame_(ns), ng_(ng) {
+  if (sheen.color.x > 0 || sheen.color.y > 0 || sheen.color.z > 0) [[unlikely]] {
+    auto channel = [](float c) { return std::isfinite(c) ? clamp01(c) : 0.0f; };
+    sheen_color_ = Vec3(channel(sheen.color.x), channel(sheen.color.y), channel(sheen.color.z));
+    sheen_weight_ = max_component(sheen_color_);
+    sheen_roughness_ = std::isfinite(sheen.roughness)
+                           ? std::clamp(sheen.roughness, sheen::kMinRoughness, 1.0f)
+                           : 1.0f;
+    sheen_alpha_ = sheen_roughness_ * sheen_roughness_;
+  }
   if (clearcoat.factor > 0) [[unlikely]] {  // false for NaN too
     coat_weight_ = std::min(clearcoat.factor, 1.0f);
     const float r = std::isfinite(clearcoat.roughness) ? clamp01(clearcoat.roughness) : 0.0f;
@@ -244,6 +254,18 @@ Bsdf::Outgoing Bsdf::outgoing(Vec3 wo_w) const {
     o.coat_scale = 1.0f - e_c;
     o.coat_prob = std::clamp(e_c, 0.05f, 0.95f);
   }
+  if (sheen_weight_ > 0) [[unlikely]] {
+    // The sheen's albedo is max(C) E(mu_o) at most; the layers beneath
+    // receive the rest (KHR_materials_sheen's albedo scaling). The Charlie
+    // lobe reflects more than it receives within a few degrees of the
+    // horizon at low roughness (E up to 2.9 at roughness 0.07): there it
+    // is scaled down to albedo 1.
+    const float e_lobe = sheen::albedo(sheen::albedo_table(), sheen_roughness_, mu);
+    o.sheen_norm = e_lobe > 1.0f ? 1.0f / e_lobe : 1.0f;
+    const float e = std::clamp(sheen_weight_ * std::min(e_lobe, 1.0f), 0.0f, 1.0f);
+    o.sheen_scale = 1.0f - e;
+    o.sheen_prob = std::clamp(e, 0.05f, 0.95f);
+  }
   // The rough specular and glass lobes share alpha, and so these.
   if ((has_specular_ && !delta_specular_) || (glass_weight_ > 0 && !glass_delta_)) {
     o.smith_r = ggx::smith_r(o.wo, alpha_);
@@ -324,9 +346,22 @@ Vec3 Bsdf::evaluate_local(const Outgoing& o, Vec3 wi, float* pdf_out) const {
 
 Vec3 Bsdf::evaluate(const Outgoing& o, Vec3 wi_w, float* pdf_out) const {
   Vec3 f = evaluate_base(o, wi_w, pdf_out);
+  if (sheen_weight_ > 0) [[unlikely]]
+    add_sheen(o, wi_w, &f, pdf_out);
   if (coat_weight_ > 0) [[unlikely]]
     add_coat(o, wi_w, &f, pdf_out);
   return f;
+}
+
+[[gnu::noinline]] void Bsdf::add_sheen(const Outgoing& o, Vec3 wi_w, Vec3* f, float* pdf) const {
+  if (!o.valid) return;
+  *f = *f * o.sheen_scale;
+  *pdf *= 1.0f - o.sheen_prob;
+  if (dot(wi_w, ng_) <= 0) return;
+  const Vec3 wi = frame_.to_local(wi_w);
+  if (wi.z <= 0) return;
+  *f += sheen_color_ * (o.sheen_norm * sheen::eval_cos(o.wo, wi, sheen_alpha_));
+  *pdf += o.sheen_prob * wi.z * kInvPi;  // cosine-weighted
 }
 
 [[gnu::noinline]] void Bsdf::add_coat(const Outgoing& o, Vec3 wi_w, Vec3* f, float* pdf) const {
@@ -417,7 +452,7 @@ BsdfSample Bsdf::sample(Vec3 wo_w, float u_lobe, Vec2 u) const {
     s.valid = true;
     return s;
   }
-  // Only reached without a coat (sample_coated asks for the direction
+  // Only reached without a coat or sheen (sample_layered asks for the direction
   // alone): the base is the whole material.
   Vec3 f = evaluate_base(o, s.wi, &s.pdf);
   if (!(s.pdf > 0)) return s;
@@ -427,16 +462,19 @@ BsdfSample Bsdf::sample(Vec3 wo_w, float u_lobe, Vec2 u) const {
 }
 
 BsdfSample Bsdf::sample(const Outgoing& o, float u_lobe, Vec2 u) const {
-  if (coat_weight_ > 0) [[unlikely]]
-    return sample_coated(o, u_lobe, u);
+  if (coat_weight_ > 0 || sheen_weight_ > 0) [[unlikely]]
+    return sample_layered(o, u_lobe, u);
   return sample_base(o, u_lobe, u);
 }
 
-[[gnu::noinline]] BsdfSample Bsdf::sample_coated(const Outgoing& o, float u_lobe, Vec2 u) const {
+[[gnu::noinline]] BsdfSample Bsdf::sample_layered(const Outgoing& o, float u_lobe, Vec2 u) const {
   BsdfSample s;
   if (!o.valid) return s;
   const Vec3 wo = o.wo;
-  if (u_lobe < o.coat_prob) {
+  // Without a coat coat_prob is 0 and coat_scale 1; without a sheen
+  // likewise sheen_prob and sheen_scale.
+  const float pc = coat_weight_ > 0 ? o.coat_prob : 0.0f;
+  if (u_lobe < pc) {
     if (coat_delta_) {
       if (!mirror(wo, &s.wi)) return s;
       s.weight = Vec3(coat_weight_ * coat_schlick(wo.z) / o.coat_prob);
@@ -448,14 +486,25 @@ BsdfSample Bsdf::sample(const Outgoing& o, float u_lobe, Vec2 u) const {
     if (wi.z <= 0) return s;
     s.wi = frame_.to_world(wi);
   } else {
-    s = sample_base(o, rest_of(u_lobe, o.coat_prob), u, /*direction_only=*/true);
-    if (!s.valid) return s;
-    if (s.is_delta) {
-      s.weight = s.weight * (o.coat_scale / (1.0f - o.coat_prob));
-      s.valid = is_finite(s.weight);
-      return s;
+    const float ub = pc > 0 ? rest_of(u_lobe, pc) : u_lobe;
+    if (sheen_weight_ > 0 && ub < o.sheen_prob) {
+      // Cosine-weighted hemisphere (Malley's method).
+      float r = std::sqrt(u.x), sin_phi, cos_phi;
+      precise_sincos(kTwoPi * u.y, &sin_phi, &cos_phi);
+      const Vec3 wi(r * cos_phi, r * sin_phi, safe_sqrt(1.0f - u.x));
+      if (wi.z <= 0) return s;
+      s.wi = frame_.to_world(wi);
+    } else {
+      const float ps = sheen_weight_ > 0 ? o.sheen_prob : 0.0f;
+      s = sample_base(o, ps > 0 ? rest_of(ub, ps) : ub, u, /*direction_only=*/true);
+      if (!s.valid) return s;
+      if (s.is_delta) {
+        s.weight = s.weight * (o.coat_scale * o.sheen_scale / ((1.0f - pc) * (1.0f - ps)));
+        s.valid = is_finite(s.weight);
+        return s;
+      }
+      s.valid = false;
     }
-    s.valid = false;
   }
   // Weighed against everything the material does in that direction.
   const Vec3 f = evaluate(o, s.wi, &s.pdf);

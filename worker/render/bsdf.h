@@ -47,6 +47,12 @@
 //   so that a white material under a coat still returns exactly 1 (as
 //   Turquin's compensation, it depends on wo alone).
 //
+// - KHR_materials_sheen (SheenLayer below): a Charlie microfibre lobe of
+//   colour C and its own roughness over the base, beneath the coat
+//   (sheen.h); the base scaled by 1 - max(C) E_sheen(mu_o), so that a white
+//   material under a white sheen returns exactly 1. Sampled
+//   cosine-weighted.
+//
 // docs/renderer.md (Materials) has the equations and the furnace figures.
 // All directions are in world space; the BSDF works in the shading frame.
 #pragma once
@@ -97,12 +103,19 @@ struct ClearcoatLayer {
   float roughness = 0.0f;
 };
 
+// glTF KHR_materials_sheen's sheenColorFactor and sheenRoughnessFactor
+// (sheen.h).
+struct SheenLayer {
+  Vec3 color{0.0f};
+  float roughness = 0.0f;
+};
+
 class Bsdf {
  public:
   // `ns` shading normal, `ng` geometric normal, both facing wo's side.
   Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, float ior,
        const SpecularLayer& specular = {}, const TransmissionLayer& transmission = {},
-       const ClearcoatLayer& clearcoat = {});
+       const ClearcoatLayer& clearcoat = {}, const SheenLayer& sheen = {});
 
   // What depends on the outgoing direction alone (its local form, the
   // compensated Fresnel, the base's share, lobe probability, Smith term),
@@ -124,6 +137,9 @@ class Bsdf {
     float coat_scale = 1;          // 1 - E_c(mu_o): what the coat lets through
     float coat_fresnel = 0;        // c (1 + F0 k_c(mu_o)): the coat lobe's factor
     float coat_smith_r = 0;
+    float sheen_prob = 0;          // of choosing the sheen lobe in sample(), under the coat
+    float sheen_scale = 1;         // 1 - max(C) E_sheen(mu_o): what the sheen lets through
+    float sheen_norm = 1;          // 1 / E_sheen(mu_o) where that exceeds 1 (grazing), else 1
     bool valid = false;            // above both the shading and the geometric surface
   };
   Outgoing outgoing(Vec3 wo) const;
@@ -138,7 +154,8 @@ class Bsdf {
   BsdfSample sample(const Outgoing& o, float u_lobe, Vec2 u) const;
   bool has_non_delta() const {
     return diffuse_weight_ > 0 || (has_specular_ && !delta_specular_) ||
-           (glass_weight_ > 0 && !glass_delta_) || (coat_weight_ > 0 && !coat_delta_);
+           (glass_weight_ > 0 && !glass_delta_) || (coat_weight_ > 0 && !coat_delta_) ||
+           sheen_weight_ > 0;
   }
 
  private:
@@ -148,7 +165,7 @@ class Bsdf {
   Vec3 evaluate_refraction(const Outgoing& o, Vec3 wi, float* pdf) const;
   // The glass lobe's reflection, added to f and *pdf (wi above the surface).
   void add_glass_reflection(const Outgoing& o, Vec3 wi, Vec3* f, float* pdf) const;
-  // `direction_only` (for sample_coated, which weighs the direction
+  // `direction_only` (for sample_layered, which weighs the direction
   // against the whole material itself): a non-delta direction comes back
   // valid with only wi set, not evaluated. Delta samples are complete.
   BsdfSample sample_glass(const Outgoing& o, float u_lobe, Vec2 u,
@@ -163,8 +180,11 @@ class Bsdf {
   Vec3 evaluate_base(const Outgoing& o, Vec3 wi, float* pdf) const;
   BsdfSample sample_base(const Outgoing& o, float u_lobe, Vec2 u,
                          bool direction_only = false) const;
-  BsdfSample sample_coated(const Outgoing& o, float u_lobe, Vec2 u) const;
+  // sample() with a coat or a sheen over the base: picks a layer's lobe for
+  // the direction, then weighs it against the whole material.
+  BsdfSample sample_layered(const Outgoing& o, float u_lobe, Vec2 u) const;
   void add_coat(const Outgoing& o, Vec3 wi, Vec3* f, float* pdf) const;
+  void add_sheen(const Outgoing& o, Vec3 wi, Vec3* f, float* pdf) const;
   // Single-scattering albedo terms A, B of the specular lobe at mu.
   ggx::Albedo specular_albedo(float mu) const;
   // 1 - E_s(mu) from mu's A and B: what the dielectric's specular layer lets
@@ -199,6 +219,11 @@ class Bsdf {
   float coat_alpha_;
   bool coat_delta_;
   ggx::AlbedoRow coat_row_;
+  // The sheen (KHR_materials_sheen), between the base and the coat.
+  float sheen_weight_ = 0;  // max(C); 0 = no sheen
+  Vec3 sheen_color_;
+  float sheen_roughness_ = 0;
+  float sheen_alpha_ = 0;
 };
 
 }  // namespace dofarm::render

@@ -21,10 +21,11 @@ namespace {
 // KHR_lights_punctual; here: the others).
 const std::set<std::string>& implemented_extensions() {
   static const std::set<std::string> names = {
-      "KHR_materials_clearcoat",    "KHR_materials_emissive_strength",
-      "KHR_materials_ior",          "KHR_materials_specular",
-      "KHR_materials_transmission", "KHR_materials_volume",
-      "KHR_lights_punctual",        "KHR_texture_transform"};
+      "KHR_materials_clearcoat", "KHR_materials_emissive_strength",
+      "KHR_materials_sheen",     "KHR_materials_ior",
+      "KHR_materials_specular",  "KHR_materials_transmission",
+      "KHR_materials_volume",    "KHR_lights_punctual",
+      "KHR_texture_transform"};
   return names;
 }
 
@@ -154,6 +155,14 @@ GltfInfo read_gltf_info(const std::filesystem::path& path) {
         info.clearcoat_rough_tex = read_texture_info((*ext)["clearcoatRoughnessTexture"]);
       info.clearcoat_normal_texture = ext->contains("clearcoatNormalTexture");
     }
+    if (const auto* ext = extension("KHR_materials_sheen")) {
+      read_color(*ext, "sheenColorFactor", info.sheen_color);
+      read_number(*ext, "sheenRoughnessFactor", &info.sheen_roughness);
+      if (ext->contains("sheenColorTexture"))
+        info.sheen_color_tex = read_texture_info((*ext)["sheenColorTexture"]);
+      if (ext->contains("sheenRoughnessTexture"))
+        info.sheen_rough_tex = read_texture_info((*ext)["sheenRoughnessTexture"]);
+    }
     if (const auto* ext = extension("KHR_materials_volume")) {
       read_number(*ext, "attenuationDistance", &info.attenuation_distance);
       read_color(*ext, "attenuationColor", info.attenuation_color);
@@ -281,6 +290,28 @@ void read_clearcoat(const std::filesystem::path& path, const std::string& which,
         path.string(), which);
 }
 
+// KHR_materials_sheen's factors (schema: each in [0, 1]); a value outside
+// is named in a warning and the extension's default (black, 0) used.
+void read_sheen(const std::filesystem::path& path, const std::string& which,
+                const GltfMaterialInfo& g, Material* m) {
+  auto in_range = [](double v) { return std::isfinite(v) && v >= 0 && v <= 1; };
+  const double* c = g.sheen_color;
+  if (in_range(c[0]) && in_range(c[1]) && in_range(c[2])) {
+    m->sheen_color = Vec3(float(c[0]), float(c[1]), float(c[2]));
+  } else {
+    spdlog::warn(
+        "{}: {}: KHR_materials_sheen sheenColorFactor [{}, {}, {}] is outside [0, 1]; "
+        "using black (no sheen)",
+        path.string(), which, c[0], c[1], c[2]);
+  }
+  if (in_range(g.sheen_roughness)) {
+    m->sheen_roughness = float(g.sheen_roughness);
+  } else {
+    spdlog::warn("{}: {}: KHR_materials_sheen sheenRoughnessFactor {} is outside [0, 1]; using 0",
+                 path.string(), which, g.sheen_roughness);
+  }
+}
+
 }  // namespace
 
 void apply_material_extensions(const std::filesystem::path& path, const GltfMaterialInfo& g,
@@ -290,6 +321,7 @@ void apply_material_extensions(const std::filesystem::path& path, const GltfMate
   read_transmission(path, which, g, m);
   read_volume(path, which, g, m);
   read_clearcoat(path, which, g, m);
+  read_sheen(path, which, g, m);
 }
 
 // glTF 3.12: a required extension the loader does not implement means the
@@ -305,7 +337,7 @@ void check_extensions(const std::filesystem::path& path, const GltfInfo& info) {
         "extensionsRequired lists " + required +
             ", which dofarm does not implement (it implements " +
             "KHR_lights_punctual, KHR_materials_clearcoat, KHR_materials_emissive_strength, "
-            "KHR_materials_ior, " +
+            "KHR_materials_ior, KHR_materials_sheen, " +
             "KHR_materials_specular, KHR_materials_transmission, KHR_materials_volume, "
             "KHR_texture_transform)");
   for (const std::string& e : info.extensions_used)

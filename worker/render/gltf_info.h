@@ -56,6 +56,12 @@ struct GltfMaterialInfo {
   double clearcoat = 0.0, clearcoat_roughness = 0.0;
   GltfTextureInfo clearcoat_tex, clearcoat_rough_tex;
   bool clearcoat_normal_texture = false;
+  // KHR_materials_sheen's factors as written (black and 0 without it; NaN:
+  // not a number or the wrong shape) and their textures (sheenColorTexture
+  // RGB, sRGB; sheenRoughnessTexture A).
+  double sheen_color[3] = {0.0, 0.0, 0.0};
+  double sheen_roughness = 0.0;
+  GltfTextureInfo sheen_color_tex, sheen_rough_tex;
 };
 struct GltfInfo {
   std::vector<GltfMaterialInfo> materials;
@@ -68,7 +74,7 @@ struct GltfInfo {
 GltfInfo read_gltf_info(const std::filesystem::path& path);
 
 // What the extensions read above do to material `index`: KHR_materials_
-// specular, _transmission, _volume and _clearcoat's factors, checked
+// specular, _transmission, _volume, _clearcoat and _sheen's factors, checked
 // against their schemas; a value outside is named in a warning (file,
 // material, key) and the extension's default used; their textures are
 // named in a warning and not applied.

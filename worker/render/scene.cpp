@@ -328,6 +328,8 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
   hit->attenuation = m.attenuation;
   hit->clearcoat = m.clearcoat;
   hit->clearcoat_roughness = m.clearcoat_roughness;
+  hit->sheen_color = m.sheen_color;
+  hit->sheen_roughness = m.sheen_roughness;
   // Only textured materials pay for lookups.
   auto texel = [&](int tex, const UvTransform& uv) {
     return data_.textures[tex].lookup(uv.apply(hit->uv));
@@ -343,6 +345,11 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
   if (m.clearcoat_tex >= 0) hit->clearcoat *= texel(m.clearcoat_tex, m.clearcoat_uv).x;
   if (m.clearcoat_rough_tex >= 0)
     hit->clearcoat_roughness *= texel(m.clearcoat_rough_tex, m.clearcoat_rough_uv).y;
+  if (m.sheen_color_tex >= 0)
+    hit->sheen_color = hit->sheen_color * texel(m.sheen_color_tex, m.sheen_color_uv);
+  if (m.sheen_rough_tex >= 0)
+    hit->sheen_roughness *=
+        data_.textures[m.sheen_rough_tex].alpha_lookup(m.sheen_rough_uv.apply(hit->uv));
   hit->emission = material_emission(m, hit->uv);
   return true;
 }

@@ -30,6 +30,8 @@ struct SurfaceHit {
   float transmission = 0;     // KHR_materials_transmission transmissionFactor
   Vec3 attenuation;           // KHR_materials_volume absorption coefficient (per unit length)
   float clearcoat = 0, clearcoat_roughness = 0;  // KHR_materials_clearcoat
+  Vec3 sheen_color;                              // KHR_materials_sheen
+  float sheen_roughness = 0;
   bool front = true;          // the ray hit the side the triangle's winding faces
   Vec3 emission;  // radiance leaving the surface (both faces emit)
 };

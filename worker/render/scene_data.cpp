@@ -170,6 +170,12 @@ class Loader {
           m.clearcoat_tex = texture(am, {aiTextureType_CLEARCOAT}, false, false, 0);
         if (g->clearcoat_rough_tex.present)
           m.clearcoat_rough_tex = texture(am, {aiTextureType_CLEARCOAT}, false, false, 1);
+        // KHR_materials_sheen: colour (sRGB) in slot 0, roughness in the
+        // alpha of slot 1 (often the same image).
+        if (g->sheen_color_tex.present)
+          m.sheen_color_tex = texture(am, {aiTextureType_SHEEN}, true, false, 0);
+        if (g->sheen_rough_tex.present)
+          m.sheen_rough_tex = texture(am, {aiTextureType_SHEEN}, true, /*with_alpha=*/true, 1);
         m.normal_scale = std::isfinite(g->normal_scale) ? g->normal_scale : 1.0f;
         m.base_color_uv = g->base_color.transform;
         m.metal_rough_uv = g->metal_rough.transform;
@@ -178,6 +184,8 @@ class Loader {
         m.transmission_uv = g->transmission_tex.transform;
         m.clearcoat_uv = g->clearcoat_tex.transform;
         m.clearcoat_rough_uv = g->clearcoat_rough_tex.transform;
+        m.sheen_color_uv = g->sheen_color_tex.transform;
+        m.sheen_rough_uv = g->sheen_rough_tex.transform;
         const std::pair<const char*, const GltfTextureInfo*> slots[] = {
             {"baseColorTexture", &g->base_color},
             {"metallicRoughnessTexture", &g->metal_rough},

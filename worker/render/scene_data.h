@@ -55,12 +55,17 @@ struct Material {
   // KHR_materials_clearcoat: the coat's strength and roughness (bsdf.h).
   float clearcoat = 0.0f;
   float clearcoat_roughness = 0.0f;
+  // KHR_materials_sheen: the sheen's colour (black = none) and roughness (bsdf.h).
+  Vec3 sheen_color{0.0f};
+  float sheen_roughness = 0.0f;
   int base_color_tex = -1;   // index into SceneData::textures; multiplies base_color
   int metal_rough_tex = -1;  // glTF: G = roughness, B = metallic; multiplies the factors
   int emission_tex = -1;     // multiplies emission
   // KHR_materials_transmission's and KHR_materials_clearcoat's textures
   // (linear): R multiplies transmission, R clearcoat, G clearcoat_roughness.
   int transmission_tex = -1, clearcoat_tex = -1, clearcoat_rough_tex = -1;
+  // KHR_materials_sheen's: RGB (sRGB) multiplies sheen_color, A sheen_roughness.
+  int sheen_color_tex = -1, sheen_rough_tex = -1;
   // glTF normalTexture (tangent space, linear RGB; SceneData::tangents) and
   // its scale, which multiplies the map's x and y (glTF 3.9.3).
   int normal_tex = -1;
@@ -76,11 +81,12 @@ struct Material {
   float base_alpha = 1.0f;
   // Each texture's KHR_texture_transform (identity when the file has none).
   UvTransform base_color_uv, metal_rough_uv, emission_uv, normal_uv, transmission_uv, clearcoat_uv,
-      clearcoat_rough_uv;
+      clearcoat_rough_uv, sheen_color_uv, sheen_rough_uv;
   bool is_emissive() const { return emission.x > 0 || emission.y > 0 || emission.z > 0; }
   bool has_textures() const {
     return base_color_tex >= 0 || metal_rough_tex >= 0 || emission_tex >= 0 || normal_tex >= 0 ||
-           transmission_tex >= 0 || clearcoat_tex >= 0 || clearcoat_rough_tex >= 0;
+           transmission_tex >= 0 || clearcoat_tex >= 0 || clearcoat_rough_tex >= 0 ||
+           sheen_color_tex >= 0 || sheen_rough_tex >= 0;
   }
 };
 
