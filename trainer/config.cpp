@@ -449,6 +449,7 @@ schedule = "thesis"  # eq. 4.5
 steps_per_epoch = 0  # an epoch is a pass over the training sequences
 best_by = "training"  # 5.1
 grad_clip = 0  # the thesis clips nothing
+ema = 0  # nor averages the weights
 )";
   static const std::string kDefault = "# default: the project's own configuration\n";
   if (name == "thesis") return kThesis;

@@ -174,8 +174,8 @@ struct OptimConfig {
   // best.pt, eval, denoise and export use the average (--weights raw reads
   // the trained weights); checkpoints keep both, and a resumed run continues
   // the average bit for bit. One bad step moves the average by 1 - d only
-  // (docs/results.md, "Weight averaging"). 0 = off.
-  float ema = 0.0f;
+  // (docs/results.md, "Weight averaging"). 0 = off (the thesis preset).
+  float ema = 0.999f;
   // Model copies a CPU step is split across, one thread each (StepRunner in
   // train.h); 0 = auto: 2 when on the CPU with >= 2 intra-op threads and a
   // batch of >= 2, else 1. Changes the float summation order, not the step.

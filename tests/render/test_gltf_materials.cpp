@@ -269,6 +269,18 @@ void expect_warnings(const std::vector<std::string>& lines,
       EXPECT_NE(lines[i].find(fragment), std::string::npos) << lines[i];
 }
 
+// What Scene::intersect gives where rays straight down meet the quad at
+// u = 0.25 and u = 0.75 (the left and right texel of a 2 x 1 image).
+std::pair<SurfaceHit, SurfaceHit> quad_hits(const SceneData& d) {
+  Scene scene(d, std::make_unique<Environment>(Vec3(1.0f)));
+  auto at = [&](float x) {
+    SurfaceHit hit;
+    EXPECT_TRUE(scene.intersect(Ray{Vec3(x, 1.0f, 0.5f), Vec3(0, -1, 0)}, &hit));
+    return hit;
+  };
+  return {at(0.25f), at(0.75f)};
+}
+
 // A material extension that is read is never named in the "ignores" warning.
 void expect_extension_read(const std::vector<std::string>& lines) {
   for (const std::string& l : lines)
@@ -425,13 +437,7 @@ TEST(GltfMaterials, TransmissionAndClearcoatTexturesScaleTheirFactors) {
   ASSERT_GE(m.clearcoat_tex, 0);
   ASSERT_GE(m.clearcoat_rough_tex, 0);
   EXPECT_TRUE(m.has_textures());
-  Scene scene(d, std::make_unique<Environment>(Vec3(1.0f)));
-  auto at = [&](float x) {
-    SurfaceHit hit;
-    EXPECT_TRUE(scene.intersect(Ray{Vec3(x, 1.0f, 0.5f), Vec3(0, -1, 0)}, &hit));
-    return hit;
-  };
-  const SurfaceHit left = at(0.25f), right = at(0.75f);
+  const auto [left, right] = quad_hits(d);
   EXPECT_NEAR(left.transmission, 0.0f, 1e-6f);
   EXPECT_NEAR(right.transmission, 0.75f, 1e-6f);
   EXPECT_NEAR(left.clearcoat, 0.5f, 1e-6f);  // mirrored: texel 1
@@ -499,13 +505,7 @@ TEST(GltfMaterials, SheenFactorsAndTexturesAreRead) {
   ASSERT_GE(m.sheen_color_tex, 0);
   ASSERT_GE(m.sheen_rough_tex, 0);
   EXPECT_TRUE(m.has_textures());
-  Scene scene(d, std::make_unique<Environment>(Vec3(1.0f)));
-  auto at = [&](float x) {
-    SurfaceHit hit;
-    EXPECT_TRUE(scene.intersect(Ray{Vec3(x, 1.0f, 0.5f), Vec3(0, -1, 0)}, &hit));
-    return hit;
-  };
-  const SurfaceHit left = at(0.25f), right = at(0.75f);
+  const auto [left, right] = quad_hits(d);
   const float half = srgb_to_linear(128.0f / 255.0f);
   EXPECT_NEAR(left.sheen_color.x, 1.0f, 1e-5f);
   EXPECT_NEAR(left.sheen_color.y, 0.5f * half, 1e-5f);

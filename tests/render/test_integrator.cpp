@@ -367,19 +367,29 @@ TEST(Integrator, WhiteFurnaceRoughGlassSphereIsOne) {
 
 // KHR_materials_clearcoat: a coat (mirror and rough) over white plastic and
 // white metal keeps the furnace sphere at 1, with NEE and BSDF sampling.
+// A white material of this metallic, roughness 0.5, made into the furnace
+// sphere and estimated with NEE and BSDF sampling.
+Material white_layered(float metallic) {
+  Material m;
+  m.base_color = Vec3(1);
+  m.metallic = metallic;
+  m.roughness = 0.5f;
+  return m;
+}
+Estimate furnace_sphere(const Material& m) {
+  SceneData d;
+  add_icosphere(d, Vec3(0), 1.0f, 3, m, /*smooth=*/false);
+  auto scene = make_scene(std::move(d), testing::constant_env(1.0f));
+  return estimate(*scene, sphere_view(), 64, LightStrategy::kMis);
+}
+
 TEST(Integrator, WhiteFurnaceClearcoatedSpheresAreOne) {
   for (float coat_roughness : {0.0f, 0.3f}) {
     for (float metallic : {0.0f, 1.0f}) {
-      SceneData d;
-      Material m;
-      m.base_color = Vec3(1);
-      m.metallic = metallic;
-      m.roughness = 0.5f;
+      Material m = white_layered(metallic);
       m.clearcoat = 1.0f;
       m.clearcoat_roughness = coat_roughness;
-      add_icosphere(d, Vec3(0), 1.0f, 3, m, /*smooth=*/false);
-      auto scene = make_scene(std::move(d), testing::constant_env(1.0f));
-      Estimate e = estimate(*scene, sphere_view(), 64, LightStrategy::kMis);
+      const Estimate e = furnace_sphere(m);
       EXPECT_NEAR(e.mean, 1.0, 3.0 * e.std_error + 3e-3)
           << "coat roughness " << coat_roughness << " metallic " << metallic;
     }
@@ -392,17 +402,11 @@ TEST(Integrator, WhiteFurnaceClearcoatedSpheresAreOne) {
 TEST(Integrator, WhiteFurnaceSheenSpheresAreOne) {
   for (float sheen_roughness : {0.1f, 1.0f}) {
     for (float metallic : {0.0f, 1.0f}) {
-      SceneData d;
-      Material m;
-      m.base_color = Vec3(1);
-      m.metallic = metallic;
-      m.roughness = 0.5f;
+      Material m = white_layered(metallic);
       m.sheen_color = Vec3(1);
       m.sheen_roughness = sheen_roughness;
       if (sheen_roughness < 0.5f) m.clearcoat = 1.0f;
-      add_icosphere(d, Vec3(0), 1.0f, 3, m, /*smooth=*/false);
-      auto scene = make_scene(std::move(d), testing::constant_env(1.0f));
-      Estimate e = estimate(*scene, sphere_view(), 64, LightStrategy::kMis);
+      const Estimate e = furnace_sphere(m);
       EXPECT_NEAR(e.mean, 1.0, 3.0 * e.std_error + 3e-3)
           << "sheen roughness " << sheen_roughness << " metallic " << metallic;
     }

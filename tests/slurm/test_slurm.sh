@@ -239,9 +239,9 @@ done
 [ -n "$victim" ] || fail "no worker element started a task within 60 s: $("$dofarm_slurm" status "$out")"
 log "worker element $victim: $(tail -n 1 "$out/.dofarm-slurm/logs/worker-$victim.log"); scancel $victim"
 scancel "$victim"
-for i in $(seq 1 80); do
+for i in $(seq 1 240); do
   [ -f "$out/.dofarm-slurm/elements/$victim.exit" ] && break
-  [ "$i" -lt 80 ] || fail "element $victim wrote no exit file within 20 s"
+  [ "$i" -lt 240 ] || fail "element $victim wrote no exit file within 60 s"
   sleep 0.25
 done
 # The submission's records and status, checked after the victim is chosen:

@@ -230,6 +230,8 @@ TEST(TrainConfig, ThesisPresetHasTheThesisValues) {
   EXPECT_EQ(t.train.best_by, BestBy::kTraining);
   EXPECT_EQ(t.train.grad_clip, 0.0f);
   EXPECT_EQ(TrainConfig{}.train.grad_clip, 1.0f);  // the project's default clips
+  EXPECT_EQ(t.train.ema, 0.0f);
+  EXPECT_EQ(TrainConfig{}.train.ema, 0.999f);  // and averages the weights
   EXPECT_EQ(t.model.inputs,
             (std::vector<std::string>{"radiance:linear", "albedo:as_stored", "normal:remap01",
                                       "depth:scene", "roughness:as_stored", "coc:thesis"}));

@@ -462,6 +462,7 @@ TEST(Train, EmaIsTheAverageOfEveryStepsWeightsAndResumesExactly) {
   // an error that names the key.
   fs::path c = fresh_dir("run_ema_off");
   TrainOptions oc{shared_data(), c, tiny_config()};
+  oc.config.train.ema = 0.0f;
   oc.stop_at_step = 1;
   train(oc);
   EXPECT_FALSE(load_run(c, torch::kCPU, "last").averaged);
