@@ -517,6 +517,33 @@ TEST(GltfMaterials, SheenFactorsAndTexturesAreRead) {
   expect_extension_read(log.lines());
 }
 
+// A texture that reads a texture coordinate set other than TEXCOORD_0
+// (texCoord, or KHR_texture_transform's override) is named in a warning per
+// slot, with its material; TEXCOORD_0 is used.
+TEST(GltfMaterials, TexturesReadingAnotherUvSetAreNamed) {
+  TempDir dir("texcoord");
+  const unsigned char px[] = {255, 128, 0, 255, 0, 0, 255, 51};
+  write_bytes(dir.path / "two.png", encode_png(px, 2, 1, 4));
+  GltfQuad q = gltf_quad();
+  q.doc["materials"][0]["name"] = "second_set";
+  q.doc["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"] = {{"index", 0},
+                                                                       {"texCoord", 1}};
+  q.doc["materials"][0]["extensions"] = {
+      {"KHR_materials_sheen",
+       {{"sheenColorFactor", {1.0, 1.0, 1.0}},
+        {"sheenColorTexture",
+         {{"index", 0}, {"extensions", {{"KHR_texture_transform", {{"texCoord", 2}}}}}}}}}};
+  q.doc["extensionsUsed"] = {"KHR_materials_sheen", "KHR_texture_transform"};
+  q.doc["textures"] = Json::array({{{"source", 0}}});
+  q.doc["images"] = Json::array({{{"uri", "two.png"}}});
+  write_gltf(dir.path / "second_set.gltf", q);
+  LogCapture log;
+  SceneData d = load_scene_data(dir.path / "second_set.gltf");
+  EXPECT_GE(d.materials[d.tri_material[0]].sheen_color_tex, 0);
+  expect_warnings(log.lines(), {{"\"second_set\"", "baseColorTexture reads TEXCOORD_1"},
+                                {"\"second_set\"", "sheenColorTexture reads TEXCOORD_2"}});
+}
+
 // KHR_materials_clearcoat's factors as written (Blender 3.4 writes
 // clearcoatFactor = Clearcoat and clearcoatRoughnessFactor = Clearcoat
 // Roughness for a Principled BSDF whose Clearcoat is above 0); no

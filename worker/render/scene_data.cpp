@@ -193,7 +193,9 @@ class Loader {
             {"normalTexture", &g->normal},
             {"transmissionTexture", &g->transmission_tex},
             {"clearcoatTexture", &g->clearcoat_tex},
-            {"clearcoatRoughnessTexture", &g->clearcoat_rough_tex}};
+            {"clearcoatRoughnessTexture", &g->clearcoat_rough_tex},
+            {"sheenColorTexture", &g->sheen_color_tex},
+            {"sheenRoughnessTexture", &g->sheen_rough_tex}};
         for (const auto& [slot, tex] : slots) {
           if (tex->tex_coord != 0)
             spdlog::warn(
