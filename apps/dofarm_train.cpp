@@ -351,7 +351,7 @@ Command add_denoise(CLI::App& app) {
             {"dofarm.denoise.run", fs::absolute(o->run).lexically_normal().string()},
             {"dofarm.denoise.checkpoint", run.checkpoint.string()},
             {"dofarm.denoise.step", std::to_string(run.state.step)},
-            {"dofarm.denoise.weights", run.averaged ? "moving average" : "trained"},
+            {"dofarm.denoise.weights", run.weights_label()},
         };
         write_rgb_exr_like(o->out, img, input.alpha, o->in, made_by);
         spdlog::info("denoised {}x{} ({} frame) in {:.1f} ms -> {}", fb.width, fb.height,

@@ -472,7 +472,7 @@ EvalSummary evaluate(const EvalOptions& o) {
        {{"file", used.checkpoint.string()},
         {"epoch", used.state.epoch},
         {"step", used.state.step},
-        {"weights", used.averaged ? "moving average" : "trained"},
+        {"weights", used.weights_label()},
         {"best_loss", std::isfinite(used.state.best) ? json(used.state.best) : json()}}},
       {"metrics_note",
        "SSIM and PSNR on sRGB-encoded images clamped to [0,1]; relative MSE on "

@@ -44,7 +44,7 @@ std::string denoiser_contract(const LoadedRun& run) {
        {{"file", run.checkpoint.string()},
         {"epoch", run.state.epoch},
         {"step", run.state.step},
-        {"weights", run.averaged ? "moving average" : "trained"},
+        {"weights", run.weights_label()},
         {"best_loss", std::isfinite(run.state.best) ? json(run.state.best) : json()}}},
       {"input_channels", cfg.model.input_channels()},
       {"inputs", inputs},

@@ -85,6 +85,9 @@ struct LoadedRun {
   std::filesystem::path checkpoint;
   RunState state;
   bool averaged = false;
+  // "moving average" or "trained": what reports, EXR headers and the export
+  // contract record.
+  const char* weights_label() const { return averaged ? "moving average" : "trained"; }
 };
 LoadedRun load_run(const std::filesystem::path& run_dir, torch::Device device,
                    const std::string& which = "best", Weights weights = Weights::kAuto);

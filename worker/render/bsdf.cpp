@@ -38,6 +38,13 @@ struct ReflectionTerms {
 // the one chosen below p.
 float rest_of(float u, float p) { return std::min((u - p) / (1.0f - p), 0.99999994f); }
 
+// A cosine-weighted direction on the local hemisphere (Malley's method).
+Vec3 cosine_hemisphere(Vec2 u) {
+  float r = std::sqrt(u.x), sin_phi, cos_phi;
+  precise_sincos(kTwoPi * u.y, &sin_phi, &cos_phi);
+  return Vec3(r * cos_phi, r * sin_phi, safe_sqrt(1.0f - u.x));
+}
+
 }  // namespace
 
 bool refract_through(Vec3 wo, Vec3 h, float cos_oh, float eta, Vec3* wi) {
@@ -265,6 +272,7 @@ Bsdf::Outgoing Bsdf::outgoing(Vec3 wo_w) const {
     const float e = std::clamp(sheen_weight_ * std::min(e_lobe, 1.0f), 0.0f, 1.0f);
     o.sheen_scale = 1.0f - e;
     o.sheen_prob = std::clamp(e, 0.05f, 0.95f);
+    o.sheen_lambda_o = sheen::lambda(mu, sheen_alpha_);
   }
   // The rough specular and glass lobes share alpha, and so these.
   if ((has_specular_ && !delta_specular_) || (glass_weight_ > 0 && !glass_delta_)) {
@@ -360,7 +368,7 @@ Vec3 Bsdf::evaluate(const Outgoing& o, Vec3 wi_w, float* pdf_out) const {
   if (dot(wi_w, ng_) <= 0) return;
   const Vec3 wi = frame_.to_local(wi_w);
   if (wi.z <= 0) return;
-  *f += sheen_color_ * (o.sheen_norm * sheen::eval_cos(o.wo, wi, sheen_alpha_));
+  *f += sheen_color_ * (o.sheen_norm * sheen::eval_cos(o.wo, wi, sheen_alpha_, o.sheen_lambda_o));
   *pdf += o.sheen_prob * wi.z * kInvPi;  // cosine-weighted
 }
 
@@ -472,8 +480,8 @@ BsdfSample Bsdf::sample(const Outgoing& o, float u_lobe, Vec2 u) const {
   if (!o.valid) return s;
   const Vec3 wo = o.wo;
   // Without a coat coat_prob is 0 and coat_scale 1; without a sheen
-  // likewise sheen_prob and sheen_scale.
-  const float pc = coat_weight_ > 0 ? o.coat_prob : 0.0f;
+  // likewise sheen_prob and sheen_scale (and rest_of(u, 0) is u).
+  const float pc = o.coat_prob, ps = o.sheen_prob;
   if (u_lobe < pc) {
     if (coat_delta_) {
       if (!mirror(wo, &s.wi)) return s;
@@ -486,17 +494,13 @@ BsdfSample Bsdf::sample(const Outgoing& o, float u_lobe, Vec2 u) const {
     if (wi.z <= 0) return s;
     s.wi = frame_.to_world(wi);
   } else {
-    const float ub = pc > 0 ? rest_of(u_lobe, pc) : u_lobe;
-    if (sheen_weight_ > 0 && ub < o.sheen_prob) {
-      // Cosine-weighted hemisphere (Malley's method).
-      float r = std::sqrt(u.x), sin_phi, cos_phi;
-      precise_sincos(kTwoPi * u.y, &sin_phi, &cos_phi);
-      const Vec3 wi(r * cos_phi, r * sin_phi, safe_sqrt(1.0f - u.x));
+    const float ub = rest_of(u_lobe, pc);
+    if (ub < ps) {
+      const Vec3 wi = cosine_hemisphere(u);
       if (wi.z <= 0) return s;
       s.wi = frame_.to_world(wi);
     } else {
-      const float ps = sheen_weight_ > 0 ? o.sheen_prob : 0.0f;
-      s = sample_base(o, ps > 0 ? rest_of(ub, ps) : ub, u, /*direction_only=*/true);
+      s = sample_base(o, rest_of(ub, ps), u, /*direction_only=*/true);
       if (!s.valid) return s;
       if (s.is_delta) {
         s.weight = s.weight * (o.coat_scale * o.sheen_scale / ((1.0f - pc) * (1.0f - ps)));
@@ -540,10 +544,7 @@ BsdfSample Bsdf::sample_base(const Outgoing& o, float u_lobe, Vec2 u, bool direc
     Vec3 h = ggx::sample_vndf(wo, alpha_, u);
     wi = reflect(wo, h);
   } else {
-    // Cosine-weighted hemisphere (Malley's method).
-    float r = std::sqrt(u.x), sin_phi, cos_phi;
-    precise_sincos(kTwoPi * u.y, &sin_phi, &cos_phi);
-    wi = Vec3(r * cos_phi, r * sin_phi, safe_sqrt(1.0f - u.x));
+    wi = cosine_hemisphere(u);
   }
   if (wi.z <= 0) return s;
   s.wi = frame_.to_world(wi);

@@ -140,6 +140,7 @@ class Bsdf {
     float sheen_prob = 0;          // of choosing the sheen lobe in sample(), under the coat
     float sheen_scale = 1;         // 1 - max(C) E_sheen(mu_o): what the sheen lets through
     float sheen_norm = 1;          // 1 / E_sheen(mu_o) where that exceeds 1 (grazing), else 1
+    float sheen_lambda_o = 0;      // the sheen's shadowing Lambda(mu_o) (sheen.h)
     bool valid = false;            // above both the shading and the geometric surface
   };
   Outgoing outgoing(Vec3 wo) const;

@@ -28,6 +28,8 @@ float fit_l(float x, float alpha) {
   return a / (1.0f + b * std::pow(x, c)) + d * x + e;
 }
 
+}  // namespace
+
 // Lambda(mu): exp(L(mu)) below mu = 0.5, mirrored above it so that it
 // falls smoothly to 0 at normal incidence (the paper's eq. 3).
 float lambda(float mu, float alpha) {
@@ -35,16 +37,14 @@ float lambda(float mu, float alpha) {
   return std::exp(2.0f * fit_l(0.5f, alpha) - fit_l(1.0f - mu, alpha));
 }
 
-}  // namespace
-
-float eval_cos(Vec3 wo, Vec3 wi, float alpha) {
+float eval_cos(Vec3 wo, Vec3 wi, float alpha, float lambda_o) {
   Vec3 h = wo + wi;
   const float len2 = dot(h, h);
   if (!(len2 > 0) || wo.z <= 0 || wi.z <= 0) return 0.0f;
   const float cos_h = h.z / std::sqrt(len2);
   // The height-correlated masking-shadowing 1 / (1 + Lambda_o + Lambda_i)
   // over the microfacet BRDF's 4 mu_o mu_i; mu_i cancels.
-  const float g = 1.0f / (1.0f + lambda(wo.z, alpha) + lambda(wi.z, alpha));
+  const float g = 1.0f / (1.0f + lambda_o + lambda(wi.z, alpha));
   return D(cos_h, alpha) * g / (4.0f * wo.z);
 }
 

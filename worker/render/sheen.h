@@ -22,8 +22,12 @@ inline constexpr float kMinRoughness = 0.07f;
 
 // The Charlie distribution at cos(theta_h) = cos_h, alpha = r^2.
 float D(float cos_h, float alpha);
-// f cos(wi) of the lobe with colour 1, local directions above the surface.
-float eval_cos(Vec3 wo, Vec3 wi, float alpha);
+// The paper's fitted Lambda(mu) of the lobe's shadowing.
+float lambda(float mu, float alpha);
+// f cos(wi) of the lobe with colour 1, local directions above the surface;
+// lambda_o = lambda(wo.z, alpha), which depends on wo alone (Bsdf keeps it
+// per path vertex).
+float eval_cos(Vec3 wo, Vec3 wi, float alpha, float lambda_o);
 
 struct AlbedoTable {
   static constexpr int kMu = 32;         // nodes sqrt(mu)_j = j / (kMu - 1)
