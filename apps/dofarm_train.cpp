@@ -52,13 +52,11 @@ using namespace dofarm::trainer;
 constexpr int kExitStopped = 3;
 
 void add_precision_option(CLI::App* cmd, std::string* which) {
-  std::vector<std::string> names;
-  for (const auto& [name, p] : precision_names()) names.push_back(name);
   cmd->add_option("--precision", *which,
                   "the network's arithmetic: fp32, or bf16 (bfloat16 autocast, CPU only; "
                   "docs/trainer.md)")
       ->capture_default_str()
-      ->check(CLI::IsMember(names));
+      ->check(CLI::IsMember(names_of(precision_names())));
 }
 
 // --checkpoint and --weights: which file of a run, and which of its weights.
@@ -66,19 +64,15 @@ void add_checkpoint_option(CLI::App* cmd, std::string* which, std::string* weigh
   cmd->add_option("--checkpoint", *which,
                   "best (lowest validation loss), last, or a checkpoint file")
       ->capture_default_str();
-  std::vector<std::string> names;
-  for (const auto& [name, w] : weights_names()) names.push_back(name);
   cmd->add_option("--weights", *weights,
                   "auto (the moving average when the run kept one, train.ema), averaged, or raw "
                   "(the trained weights after the checkpoint's last step)")
       ->capture_default_str()
-      ->check(CLI::IsMember(names));
+      ->check(CLI::IsMember(names_of(weights_names())));
 }
 
 Weights parse_weights(const std::string& name) {
-  for (const auto& [n, w] : weights_names())
-    if (n == name) return w;
-  throw SpecError(FileLoc{"--weights"}, "", "unknown weights '" + name + "'");
+  return value_of(weights_names(), name, "--weights");
 }
 
 Command add_train(CLI::App& app) {

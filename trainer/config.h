@@ -14,6 +14,8 @@
 #include <utility>
 #include <vector>
 
+#include "common/error.h"
+
 namespace dofarm::trainer {
 
 enum class AlbedoSource {
@@ -128,12 +130,33 @@ enum class Schedule {
 
 enum class BestBy { kValidation, kTraining, kFrames };
 
+// A table of an enum's names, as the command line spells them, e.g.
+// precision_names(); names_of() lists them, value_of() looks one up and
+// throws SpecError naming `key` and the allowed names for any other.
+template <typename E>
+using NameTable = std::vector<std::pair<std::string, E>>;
+template <typename E>
+std::vector<std::string> names_of(const NameTable<E>& table) {
+  std::vector<std::string> names;
+  for (const auto& entry : table) names.push_back(entry.first);
+  return names;
+}
+template <typename E>
+E value_of(const NameTable<E>& table, const std::string& name, const std::string& key) {
+  std::string allowed;
+  for (const auto& [n, value] : table) {
+    if (n == name) return value;
+    allowed += (allowed.empty() ? "" : " or ") + n;
+  }
+  throw SpecError(FileLoc{}, key, "expected " + allowed + ", got \"" + name + "\"");
+}
+
 // Arithmetic of the network's convolutions (trainer/precision.h).
 enum class Precision { kFp32, kBf16 };
 // Its names, as train.precision, --precision and the benchmarks spell them.
-inline const std::vector<std::pair<std::string, Precision>>& precision_names() {
-  static const std::vector<std::pair<std::string, Precision>> names = {
-      {"fp32", Precision::kFp32}, {"bf16", Precision::kBf16}};
+inline const NameTable<Precision>& precision_names() {
+  static const NameTable<Precision> names = {{"fp32", Precision::kFp32},
+                                             {"bf16", Precision::kBf16}};
   return names;
 }
 

@@ -8,12 +8,7 @@
 namespace dofarm::trainer {
 
 Precision parse_precision(const std::string& name, const std::string& key) {
-  std::string allowed;
-  for (const auto& [n, p] : precision_names()) {
-    if (n == name) return p;
-    allowed += (allowed.empty() ? "" : " or ") + n;
-  }
-  throw SpecError(FileLoc{}, key, "expected " + allowed + ", got \"" + name + "\"");
+  return value_of(precision_names(), name, key);
 }
 
 const char* precision_name(Precision p) {

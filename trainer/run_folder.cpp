@@ -235,8 +235,8 @@ fs::path checkpoint_path(const fs::path& run_dir, const std::string& which) {
   return fs::path(which);
 }
 
-const std::vector<std::pair<std::string, Weights>>& weights_names() {
-  static const std::vector<std::pair<std::string, Weights>> names = {
+const NameTable<Weights>& weights_names() {
+  static const NameTable<Weights> names = {
       {"auto", Weights::kAuto}, {"averaged", Weights::kAveraged}, {"raw", Weights::kRaw}};
   return names;
 }

@@ -74,7 +74,7 @@ enum class Weights {
   kRaw,       // the trained weights, as after the checkpoint's last step
 };
 // Its names, as --weights spells them.
-const std::vector<std::pair<std::string, Weights>>& weights_names();
+const NameTable<Weights>& weights_names();
 
 // A trained model from a run folder, its config, on `device`, in eval mode,
 // with the checkpoint it came from, that checkpoint's state and whether the

@@ -129,12 +129,11 @@ int main(int argc, char** argv) {
     else if (a == "--checkpoint")
       checkpoint = argv[++i];
     else if (a == "--weights") {
-      const std::string w = argv[++i];
-      const auto& names = weights_names();
-      auto it =
-          std::find_if(names.begin(), names.end(), [&](const auto& n) { return n.first == w; });
-      if (it == names.end()) return usage();
-      weights = it->second;
+      try {
+        weights = value_of(weights_names(), argv[++i], "--weights");
+      } catch (const SpecError&) {
+        return usage();
+      }
     } else if (a == "--tiles")
       tiles_arg = argv[++i];
     else if (a == "--frames")
