@@ -152,19 +152,29 @@ inline GltfQuad gltf_quad() {
   return q;
 }
 
-// Gives every vertex of the quad the attribute `name` with the value `v`
-// (3 or 4 floats), in a new accessor and buffer view.
-inline void add_attribute(GltfQuad* q, const char* name, std::initializer_list<float> v) {
+// Gives the quad's four vertices the attribute `name` with the values
+// `per_vertex` (4 x 2, 3 or 4 floats, vertex by vertex), in a new accessor
+// and buffer view.
+inline void add_vertex_attribute(GltfQuad* q, const char* name,
+                                 const std::vector<float>& per_vertex) {
   const size_t at = q->bin.size();
-  for (int k = 0; k < 4; ++k) q->bin += floats_bytes(v);
+  q->bin.append(reinterpret_cast<const char*>(per_vertex.data()), per_vertex.size() * 4);
   const size_t view = q->doc["bufferViews"].size();
   q->doc["accessors"].push_back({{"bufferView", view},
                                  {"componentType", 5126},
                                  {"count", 4},
-                                 {"type", v.size() == 4 ? "VEC4" : "VEC3"}});
+                                 {"type", "VEC" + std::to_string(per_vertex.size() / 4)}});
   q->doc["bufferViews"].push_back(
-      {{"buffer", 0}, {"byteOffset", at}, {"byteLength", 16 * v.size()}});
+      {{"buffer", 0}, {"byteOffset", at}, {"byteLength", 4 * per_vertex.size()}});
   q->doc["meshes"][0]["primitives"][0]["attributes"][name] = q->doc["accessors"].size() - 1;
+}
+
+// Gives every vertex of the quad the attribute `name` with the value `v`
+// (3 or 4 floats).
+inline void add_attribute(GltfQuad* q, const char* name, std::initializer_list<float> v) {
+  std::vector<float> all;
+  for (int k = 0; k < 4; ++k) all.insert(all.end(), v.begin(), v.end());
+  add_vertex_attribute(q, name, all);
 }
 
 // Writes `q` as a .gltf whose buffer is a data: URI.

@@ -517,7 +517,78 @@ TEST(GltfMaterials, SheenFactorsAndTexturesAreRead) {
   expect_extension_read(log.lines());
 }
 
-// A texture that reads a texture coordinate set other than TEXCOORD_0
+// glTF textureInfo.texCoord (or KHR_texture_transform's override) picks the
+// set a texture reads: here TEXCOORD_1 runs against TEXCOORD_0 (u1 = 1 -
+// u0), so a texture that reads it is mirrored. The base colour and the
+// metallic-roughness texture (by the transform's override) read set 1, the
+// emissive texture set 0, all from one 2 x 1 image. A normal map that reads
+// set 1 is oriented by it: the tangent follows +u of that set (glTF
+// 3.7.2.1). A mesh without TEXCOORD_1 whose material reads it is named in a
+// warning and reads TEXCOORD_0; a scene where no texture reads set 1 does
+// not load it.
+TEST(GltfMaterials, TexturesReadTheSetTheyName) {
+  TempDir dir("texcoord1");
+  const unsigned char px[] = {255, 128, 0, 0, 0, 255};
+  write_bytes(dir.path / "two.png", encode_png(px, 2, 1, 3));
+  auto quad = [](bool with_set1) {
+    GltfQuad q = gltf_quad();
+    // Vertices (0,0,0), (0,0,1), (1,0,1), (1,0,0); TEXCOORD_0 has u = x, v = z.
+    if (with_set1) add_vertex_attribute(&q, "TEXCOORD_1", {1, 0, 1, 1, 0, 1, 0, 0});
+    q.doc["textures"] = Json::array({{{"source", 0}}});
+    q.doc["images"] = Json::array({{{"uri", "two.png"}}});
+    Json& m = q.doc["materials"][0];
+    m["name"] = "two_sets";
+    m["pbrMetallicRoughness"]["baseColorTexture"] = {{"index", 0}, {"texCoord", 1}};
+    m["pbrMetallicRoughness"]["roughnessFactor"] = 1.0;
+    m["pbrMetallicRoughness"]["metallicRoughnessTexture"] = {
+        {"index", 0}, {"extensions", {{"KHR_texture_transform", {{"texCoord", 1}}}}}};
+    m["emissiveTexture"] = {{"index", 0}};
+    m["emissiveFactor"] = {1.0, 1.0, 1.0};
+    m["normalTexture"] = {{"index", 0}, {"texCoord", 1}};
+    q.doc["extensionsUsed"] = {"KHR_texture_transform"};
+    return q;
+  };
+  const float half = srgb_to_linear(128.0f / 255.0f);
+  write_gltf(dir.path / "two_sets.gltf", quad(true));
+  {
+    LogCapture log;
+    SceneData d = load_scene_data(dir.path / "two_sets.gltf");
+    EXPECT_TRUE(log.lines().empty()) << log.lines()[0];
+    ASSERT_EQ(d.uvs1.size(), d.positions.size());
+    const Material& m = d.materials[d.tri_material[0]];
+    EXPECT_EQ(m.base_color_uv.set, 1);
+    EXPECT_EQ(m.metal_rough_uv.set, 1);
+    EXPECT_EQ(m.emission_uv.set, 0);
+    // TANGENT from set 1: u1 = 1 - x, so +u1 is -x (set 0's +u is +x).
+    ASSERT_EQ(d.tangents.size(), d.positions.size());
+    for (const SceneData::Tangent& t : d.tangents) expect_near3(t.t, Vec3(-1, 0, 0), 1e-5f);
+    d.materials[0].normal_tex = -1;           // the hits below read the colours alone
+    const auto [left, right] = quad_hits(d);  // x = 0.25 and 0.75
+    expect_near3(left.base_color, Vec3(0.0f, 0.0f, 1.0f), 1e-5f);  // texel 1 through set 1
+    expect_near3(right.base_color, Vec3(1.0f, half, 0.0f), 1e-5f);
+    expect_near3(left.emission, Vec3(1.0f, half, 0.0f), 1e-5f);  // texel 0 through set 0
+    expect_near3(right.emission, Vec3(0.0f, 0.0f, 1.0f), 1e-5f);
+    EXPECT_NEAR(left.roughness, 0.0f, 1e-5f);              // G of texel 1 through set 1
+    EXPECT_NEAR(right.roughness, 128.0f / 255.0f, 1e-5f);  // linear
+  }
+  write_gltf(dir.path / "one_set.gltf", quad(false));
+  {
+    LogCapture log;
+    SceneData d = load_scene_data(dir.path / "one_set.gltf");
+    expect_warnings(log.lines(), {{"has no TEXCOORD_1", "\"two_sets\" reads; TEXCOORD_0 used"}});
+    const auto [left, right] = quad_hits(d);
+    expect_near3(left.base_color, Vec3(1.0f, half, 0.0f), 1e-5f);
+    for (const SceneData::Tangent& t : d.tangents) expect_near3(t.t, Vec3(1, 0, 0), 1e-5f);
+  }
+  GltfQuad set0 = quad(true);
+  set0.doc["materials"][0]["pbrMetallicRoughness"].erase("baseColorTexture");
+  set0.doc["materials"][0]["pbrMetallicRoughness"].erase("metallicRoughnessTexture");
+  set0.doc["materials"][0].erase("normalTexture");
+  write_gltf(dir.path / "set0.gltf", set0);
+  EXPECT_TRUE(load_scene_data(dir.path / "set0.gltf").uvs1.empty());
+}
+
+// A texture that reads a texture coordinate set above TEXCOORD_1
 // (texCoord, or KHR_texture_transform's override) is named in a warning per
 // slot, with its material; TEXCOORD_0 is used.
 TEST(GltfMaterials, TexturesReadingAnotherUvSetAreNamed) {
@@ -527,7 +598,7 @@ TEST(GltfMaterials, TexturesReadingAnotherUvSetAreNamed) {
   GltfQuad q = gltf_quad();
   q.doc["materials"][0]["name"] = "second_set";
   q.doc["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"] = {{"index", 0},
-                                                                       {"texCoord", 1}};
+                                                                       {"texCoord", 3}};
   q.doc["materials"][0]["extensions"] = {
       {"KHR_materials_sheen",
        {{"sheenColorFactor", {1.0, 1.0, 1.0}},
@@ -540,7 +611,7 @@ TEST(GltfMaterials, TexturesReadingAnotherUvSetAreNamed) {
   LogCapture log;
   SceneData d = load_scene_data(dir.path / "second_set.gltf");
   EXPECT_GE(d.materials[d.tri_material[0]].sheen_color_tex, 0);
-  expect_warnings(log.lines(), {{"\"second_set\"", "baseColorTexture reads TEXCOORD_1"},
+  expect_warnings(log.lines(), {{"\"second_set\"", "baseColorTexture reads TEXCOORD_3"},
                                 {"\"second_set\"", "sheenColorTexture reads TEXCOORD_2"}});
 }
 

@@ -226,8 +226,12 @@ TEST(SphericalTriangle, TexturedLightGivesTheRadianceOfTheSampledPoint) {
   // one, cosine-weighted directions traced to the light, whose hits read
   // the texture through Scene::intersect; near the light (solid angle,
   // where the sampled point's texture coordinates come from its
-  // barycentrics) and far from it (area).
-  for (Vec3 from : {Vec3(0.1f, 0, 0.05f), Vec3(0.3f, -2.5f, 0.2f)}) {
+  // barycentrics) and far from it (area). Then again with the texture
+  // read through a mirrored TEXCOORD_1 (both sides must read that set).
+  for (auto [from, set] :
+       {std::pair{Vec3(0.1f, 0, 0.05f), 0}, std::pair{Vec3(0.3f, -2.5f, 0.2f), 0},
+        std::pair{Vec3(0.1f, 0, 0.05f), 1}, std::pair{Vec3(0.3f, -2.5f, 0.2f), 1}}) {
+    SCOPED_TRACE(set);
     SceneData d;
     d.source = "light.gltf";
     Texture t;
@@ -239,6 +243,11 @@ TEST(SphericalTriangle, TexturedLightGivesTheRadianceOfTheSampledPoint) {
     m.emission_tex = 0;
     add_quad(d, Vec3(-0.5f, 0.02f, -0.5f), Vec3(0.5f, 0.02f, -0.5f), Vec3(0.5f, 0.02f, 0.5f),
              Vec3(-0.5f, 0.02f, 0.5f), m);
+    if (set == 1) {
+      d.uvs1 = d.uvs;
+      for (Vec2& uv : d.uvs1) uv.x = 1.0f - uv.x;
+      d.materials.back().emission_uv.set = 1;
+    }
     auto scene = make_scene(std::move(d));
     const int n = 200000;
     std::mt19937 rng(11);

@@ -77,7 +77,7 @@ bool Scene::cut_out(uint32_t prim, float b1, float b2, const float (&ray)[6]) co
   float alpha = m.base_alpha;
   if (m.base_color_tex >= 0) {
     const uint32_t* idx = &data_.indices[size_t(prim) * 3];
-    const Vec2 uv = texcoord(idx, 1.0f - b1 - b2, b1, b2);
+    const Vec2 uv = texcoord(idx, 1.0f - b1 - b2, b1, b2, m.base_color_uv.set);
     alpha *= data_.textures[m.base_color_tex].alpha_lookup(m.base_color_uv.apply(uv));
   }
   if (!m.alpha_blend) return alpha < m.alpha_cutoff;
@@ -92,6 +92,8 @@ Scene::Scene(SceneData data, std::unique_ptr<Environment> environment)
     : data_(std::move(data)), environment_(std::move(environment)) {
   const FileLoc loc{data_.source.string()};
   if (data_.triangle_count() == 0) throw SpecError(loc, "scene", "the scene has no triangles");
+  DOFARM_CHECK(data_.uvs.empty() || data_.uvs.size() == data_.positions.size());
+  DOFARM_CHECK(data_.uvs1.empty() || data_.uvs1.size() == data_.positions.size());
 
   // Bounds, for ray offsets and the environment's share of the light power.
   Vec3 lo(std::numeric_limits<float>::max()), hi(-std::numeric_limits<float>::max());
@@ -220,9 +222,10 @@ namespace {
 constexpr double kMinSolidAngle = 1e-12;
 }  // namespace
 
-Vec2 Scene::texcoord(const uint32_t* idx, float b0, float b1, float b2) const {
-  if (data_.uvs.empty()) return {b1, b2};  // no texture coordinates: barycentrics
-  return data_.uvs[idx[0]] * b0 + data_.uvs[idx[1]] * b1 + data_.uvs[idx[2]] * b2;
+Vec2 Scene::texcoord(const uint32_t* idx, float b0, float b1, float b2, unsigned set) const {
+  const std::vector<Vec2>& uvs = set == 1 && !data_.uvs1.empty() ? data_.uvs1 : data_.uvs;
+  if (uvs.empty()) return {b1, b2};  // no texture coordinates: barycentrics
+  return uvs[idx[0]] * b0 + uvs[idx[1]] * b1 + uvs[idx[2]] * b2;
 }
 
 float Scene::triangle_area(uint32_t t) const {
@@ -232,7 +235,7 @@ float Scene::triangle_area(uint32_t t) const {
 }
 
 Vec3 Scene::normal_mapped(const Material& m, const uint32_t* idx, float b0, float b1, float b2,
-                          Vec3 n, Vec2 uv) const {
+                          Vec3 n, Vec2 st) const {
   // glTF 3.9.3: the texel's (2 rgb - 1) in the frame (t, b, n), x and y
   // times the map's scale; b = cross(n, t) w, t made orthogonal to the
   // interpolated n first (SceneData::tangents).
@@ -247,7 +250,7 @@ Vec3 Scene::normal_mapped(const Material& m, const uint32_t* idx, float b0, floa
   t = t / len;
   const float w = a.w * b0 + b.w * b1 + c.w * b2 < 0.0f ? -1.0f : 1.0f;
   const Vec3 bt = cross(n, t) * w;
-  const Vec3 texel = data_.textures[m.normal_tex].lookup(m.normal_uv.apply(uv));
+  const Vec3 texel = data_.textures[m.normal_tex].lookup(st);
   const Vec3 v((2.0f * texel.x - 1.0f) * m.normal_scale, (2.0f * texel.y - 1.0f) * m.normal_scale,
                2.0f * texel.z - 1.0f);
   return normalize(t * v.x + bt * v.y + n * v.z, n);
@@ -289,6 +292,7 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
   if (!hit->front) ng = -ng;
   hit->ng = ng;
   hit->uv = texcoord(idx, b0, b1, b2);
+  hit->uv1 = data_.uvs1.empty() ? hit->uv : texcoord(idx, b0, b1, b2, 1);
   Vec3 ns = ng;
   // Tangents exist only when some material has a normal map: other scenes
   // do not wait for the material here.
@@ -301,7 +305,7 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
     if (!data_.normals.empty())
       n = normalize(
           data_.normals[idx[0]] * b0 + data_.normals[idx[1]] * b1 + data_.normals[idx[2]] * b2, n);
-    const Vec3 bent = normal_mapped(*mapped, idx, b0, b1, b2, n, hit->uv);
+    const Vec3 bent = normal_mapped(*mapped, idx, b0, b1, b2, n, hit->uv_of(mapped->normal_uv));
     // A bent normal below the surface (a map that points into it) is not
     // mirrored out of it: the unbent one is used.
     if (dot(bent, tri_normal_[prim]) > 0) n = bent;
@@ -332,7 +336,7 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
   hit->sheen_roughness = m.sheen_roughness;
   // Only textured materials pay for lookups.
   auto texel = [&](int tex, const UvTransform& uv) {
-    return data_.textures[tex].lookup(uv.apply(hit->uv));
+    return data_.textures[tex].lookup(hit->uv_of(uv));
   };
   if (m.base_color_tex >= 0)
     hit->base_color = hit->base_color * texel(m.base_color_tex, m.base_color_uv);
@@ -349,8 +353,8 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
     hit->sheen_color = hit->sheen_color * texel(m.sheen_color_tex, m.sheen_color_uv);
   if (m.sheen_rough_tex >= 0)
     hit->sheen_roughness *=
-        data_.textures[m.sheen_rough_tex].alpha_lookup(m.sheen_rough_uv.apply(hit->uv));
-  hit->emission = material_emission(m, hit->uv);
+        data_.textures[m.sheen_rough_tex].alpha_lookup(hit->uv_of(m.sheen_rough_uv));
+  hit->emission = material_emission(m, m.emission_uv.set == 1 ? hit->uv1 : hit->uv);
   return true;
 }
 
@@ -415,7 +419,7 @@ bool Scene::sample_light(Vec3 from, const LightChoice& choice, LightSample* out)
     if (!(dist > 0) || !std::isfinite(dist)) return false;
     const Material& m = data_.materials[data_.tri_material[t]];
     Vec2 uv;
-    if (m.emission_tex >= 0) uv = texcoord_at(idx, from + wi * float(dist));
+    if (m.emission_tex >= 0) uv = texcoord_at(idx, from + wi * float(dist), m.emission_uv.set);
     out->wi = wi;
     out->distance = float(dist);
     out->radiance = material_emission(m, uv);
@@ -433,10 +437,11 @@ bool Scene::sample_light(Vec3 from, const LightChoice& choice, LightSample* out)
   Vec3 wi = d / dist;
   float cos_l = std::fabs(dot(n, wi));
   if (!(cos_l > 1e-7f)) return false;
-  Vec2 uv = texcoord(idx, b0, b1, b2);
+  const Material& m = data_.materials[data_.tri_material[t]];
+  const Vec2 uv = texcoord(idx, b0, b1, b2, m.emission_uv.set);
   out->wi = wi;
   out->distance = dist;
-  out->radiance = material_emission(data_.materials[data_.tri_material[t]], uv);
+  out->radiance = material_emission(m, uv);
   out->pdf = pmf * dist2 / (cos_l * light_tri_area_[i]);
   return std::isfinite(out->pdf);
 }
@@ -485,17 +490,17 @@ bool Scene::by_solid_angle(size_t i, Vec3 from, double* solid_angle) const {
   return true;
 }
 
-Vec2 Scene::texcoord_at(const uint32_t* idx, Vec3 p) const {
+Vec2 Scene::texcoord_at(const uint32_t* idx, Vec3 p, unsigned set) const {
   // Barycentrics of p (in the triangle's plane) from the edge vectors.
   const Vec3 p0 = data_.positions[idx[0]];
   const Vec3 e1 = data_.positions[idx[1]] - p0, e2 = data_.positions[idx[2]] - p0, d = p - p0;
   const float d11 = dot(e1, e1), d12 = dot(e1, e2), d22 = dot(e2, e2);
   const float d1 = dot(d, e1), d2 = dot(d, e2);
   const float det = d11 * d22 - d12 * d12;
-  if (!(det > 0)) return texcoord(idx, 1, 0, 0);
+  if (!(det > 0)) return texcoord(idx, 1, 0, 0, set);
   const float b1 = std::clamp((d22 * d1 - d12 * d2) / det, 0.0f, 1.0f);
   const float b2 = std::clamp((d11 * d2 - d12 * d1) / det, 0.0f, 1.0f - b1);
-  return texcoord(idx, 1.0f - b1 - b2, b1, b2);
+  return texcoord(idx, 1.0f - b1 - b2, b1, b2, set);
 }
 
 float Scene::light_pdf(Vec3 from, const SurfaceHit& hit) const {

@@ -21,7 +21,8 @@ struct SurfaceHit {
   Vec3 p;
   Vec3 ng;  // geometric normal, facing the incoming ray
   Vec3 ns;  // shading normal, same side as ng
-  Vec2 uv;
+  Vec2 uv;  // TEXCOORD_0 (barycentrics where the scene has none)
+  Vec2 uv1;  // TEXCOORD_1 where the scene has it (SceneData::uvs1), else uv
   uint32_t prim = 0;
   Vec3 base_color;
   float metallic = 0, roughness = 0, ior = 1.5f;
@@ -34,6 +35,8 @@ struct SurfaceHit {
   float sheen_roughness = 0;
   bool front = true;          // the ray hit the side the triangle's winding faces
   Vec3 emission;  // radiance leaving the surface (both faces emit)
+  // Where a texture slot reads this hit: its set's coordinates, transformed.
+  Vec2 uv_of(const UvTransform& t) const { return t.apply(t.set == 1 ? uv1 : uv); }
 };
 
 // One ray as the renderer asked Scene for it: a closest-hit query over
@@ -139,11 +142,14 @@ class Scene {
   bool cut_out(uint32_t prim, float b1, float b2, const float (&ray)[6]) const;
 
  private:
+  // m's emission where its emission texture reads `uv` (coordinates of the
+  // texture's set, untransformed).
   Vec3 material_emission(const Material& m, Vec2 uv) const;
   // The unit normal n (front side, unflipped) bent by m's normal map at the
-  // barycentrics (b0, b1, b2) of triangle `idx`; n where it cannot be.
+  // barycentrics (b0, b1, b2) of triangle `idx`, the map read at `st`
+  // (transformed coordinates); n where it cannot be.
   Vec3 normal_mapped(const Material& m, const uint32_t* idx, float b0, float b1, float b2, Vec3 n,
-                     Vec2 uv) const;
+                     Vec2 st) const;
   float triangle_area(uint32_t prim) const;
   bool sample_punctual(const PunctualLight& light, Vec3 from, LightSample* out) const;
   // Whether sample_light() and light_pdf() treat light triangle i, seen
@@ -156,10 +162,11 @@ class Scene {
   // Sets *solid_angle when true (0 where the triangle is seen edge-on, and
   // for a point in its plane: then neither technique samples it there).
   bool by_solid_angle(size_t i, Vec3 from, double* solid_angle) const;
-  // Texture coordinates at barycentrics (b0, b1, b2) of the triangle `idx`.
-  Vec2 texcoord(const uint32_t* idx, float b0, float b1, float b2) const;
-  // Texture coordinates at a point p in the plane of the triangle `idx`.
-  Vec2 texcoord_at(const uint32_t* idx, Vec3 p) const;
+  // Texture coordinates of set `set` (TEXCOORD_0 or _1; set 0 where the
+  // scene has no TEXCOORD_1) at barycentrics (b0, b1, b2) of the triangle `idx`.
+  Vec2 texcoord(const uint32_t* idx, float b0, float b1, float b2, unsigned set = 0) const;
+  // The same at a point p in the plane of the triangle `idx`.
+  Vec2 texcoord_at(const uint32_t* idx, Vec3 p, unsigned set = 0) const;
 
   SceneData data_;
   std::unique_ptr<Environment> environment_;

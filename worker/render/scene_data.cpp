@@ -14,6 +14,7 @@
 #include <fstream>
 #include <map>
 #include <set>
+#include <tuple>
 
 #include "common/content_hash.h"
 #include "common/error.h"
@@ -64,6 +65,12 @@ uint32_t SceneData::add_mesh(const std::vector<Vec3>& p, const std::vector<Vec3>
     } else {
       uvs.insert(uvs.end(), uv.begin(), uv.end());
     }
+  }
+  if (!uvs1.empty()) {
+    uvs1.resize(base, Vec2(0, 0));
+    if (uvs.size() == positions.size())
+      uvs1.insert(uvs1.end(), uvs.begin() + ptrdiff_t(base), uvs.end());
+    uvs1.resize(positions.size(), Vec2(0, 0));
   }
   for (uint32_t i : idx) indices.push_back(static_cast<uint32_t>(base + i));
   const auto material = static_cast<uint32_t>(materials.size());
@@ -177,31 +184,28 @@ class Loader {
         if (g->sheen_rough_tex.present)
           m.sheen_rough_tex = texture(am, {aiTextureType_SHEEN}, true, /*with_alpha=*/true, 1);
         m.normal_scale = std::isfinite(g->normal_scale) ? g->normal_scale : 1.0f;
-        m.base_color_uv = g->base_color.transform;
-        m.metal_rough_uv = g->metal_rough.transform;
-        m.emission_uv = g->emission.transform;
-        m.normal_uv = g->normal.transform;
-        m.transmission_uv = g->transmission_tex.transform;
-        m.clearcoat_uv = g->clearcoat_tex.transform;
-        m.clearcoat_rough_uv = g->clearcoat_rough_tex.transform;
-        m.sheen_color_uv = g->sheen_color_tex.transform;
-        m.sheen_rough_uv = g->sheen_rough_tex.transform;
-        const std::pair<const char*, const GltfTextureInfo*> slots[] = {
-            {"baseColorTexture", &g->base_color},
-            {"metallicRoughnessTexture", &g->metal_rough},
-            {"emissiveTexture", &g->emission},
-            {"normalTexture", &g->normal},
-            {"transmissionTexture", &g->transmission_tex},
-            {"clearcoatTexture", &g->clearcoat_tex},
-            {"clearcoatRoughnessTexture", &g->clearcoat_rough_tex},
-            {"sheenColorTexture", &g->sheen_color_tex},
-            {"sheenRoughnessTexture", &g->sheen_rough_tex}};
-        for (const auto& [slot, tex] : slots) {
-          if (tex->tex_coord != 0)
+        // Each slot's transform and texture coordinate set (0 or 1; a
+        // higher set is named in a warning and TEXCOORD_0 read instead).
+        const std::tuple<const char*, const GltfTextureInfo*, UvTransform*> slots[] = {
+            {"baseColorTexture", &g->base_color, &m.base_color_uv},
+            {"metallicRoughnessTexture", &g->metal_rough, &m.metal_rough_uv},
+            {"emissiveTexture", &g->emission, &m.emission_uv},
+            {"normalTexture", &g->normal, &m.normal_uv},
+            {"transmissionTexture", &g->transmission_tex, &m.transmission_uv},
+            {"clearcoatTexture", &g->clearcoat_tex, &m.clearcoat_uv},
+            {"clearcoatRoughnessTexture", &g->clearcoat_rough_tex, &m.clearcoat_rough_uv},
+            {"sheenColorTexture", &g->sheen_color_tex, &m.sheen_color_uv},
+            {"sheenRoughnessTexture", &g->sheen_rough_tex, &m.sheen_rough_uv}};
+        for (const auto& [slot, tex, uv] : slots) {
+          *uv = tex->transform;
+          if (tex->tex_coord == 1) {
+            uv->set = 1;
+          } else if (tex->tex_coord != 0) {
             spdlog::warn(
                 "{}: material {} (\"{}\"): {} reads TEXCOORD_{}; dofarm reads TEXCOORD_0 "
-                "only and uses that",
+                "and TEXCOORD_1 only and uses TEXCOORD_0",
                 path_.string(), i, m.name, slot, tex->tex_coord);
+          }
         }
       }
       check_material(m, i);
@@ -362,6 +366,18 @@ void Loader::mesh(const aiMesh* m, const aiMatrix4x4& world, const char* node_na
   const auto base = static_cast<uint32_t>(out_->positions.size());
   const bool has_uv = m->HasTextureCoords(0);
   if (has_uv && out_->uvs.empty()) out_->uvs.assign(base, Vec2(0, 0));
+  // TEXCOORD_1 only where the mesh's material reads it. A mesh without the
+  // set (glTF requires it then) reads its TEXCOORD_0 in its place.
+  const uint32_t material = m->mMaterialIndex;
+  const bool wants_uv1 = material < out_->materials.size() && out_->materials[material].reads_uv1();
+  const bool has_uv1 = wants_uv1 && m->HasTextureCoords(1);
+  if (wants_uv1 && out_->uvs1.empty()) out_->uvs1.assign(base, Vec2(0, 0));
+  const bool keep_uv1 = wants_uv1 || !out_->uvs1.empty();
+  if (wants_uv1 && !has_uv1)
+    spdlog::warn(
+        "{}: mesh \"{}\" of node \"{}\" has no TEXCOORD_1, which its material \"{}\" reads; "
+        "TEXCOORD_0 used",
+        path_.string(), m->mName.C_Str(), node_name, out_->materials[material].name);
   for (unsigned v = 0; v < m->mNumVertices; ++v) {
     Vec3 p = to_vec3(world * m->mVertices[v]);
     if (!is_finite(p)) {
@@ -391,8 +407,13 @@ void Loader::mesh(const aiMesh* m, const aiMatrix4x4& world, const char* node_na
     } else if (!out_->uvs.empty()) {
       out_->uvs.emplace_back(0.0f, 0.0f);
     }
+    if (keep_uv1) {
+      const unsigned set = has_uv1 ? 1 : 0;
+      out_->uvs1.push_back(set || has_uv
+                               ? Vec2(m->mTextureCoords[set][v].x, m->mTextureCoords[set][v].y)
+                               : Vec2(0.0f, 0.0f));
+    }
   }
-  const uint32_t material = m->mMaterialIndex;
   for (unsigned f = 0; f < m->mNumFaces; ++f) {
     const aiFace& face = m->mFaces[f];
     if (face.mNumIndices != 3) continue;  // points and lines have no area to render
@@ -656,16 +677,16 @@ SceneData load_scene_data(const std::filesystem::path& path) {
                    " meshes, only points or lines)");
   loader.camera_track();
   loader.lights();
-  // Normal maps need tangents, which need texture coordinates.
+  // Normal maps need tangents, which need the texture coordinates they read.
   std::string no_uv;
   for (Material& m : out.materials) {
-    if (m.normal_tex < 0 || !out.uvs.empty()) continue;
+    if (m.normal_tex < 0 || !(m.normal_uv.set == 1 ? out.uvs1 : out.uvs).empty()) continue;
     no_uv += (no_uv.empty() ? "\"" : ", \"") + m.name + "\"";
     m.normal_tex = -1;
   }
   if (!no_uv.empty())
     spdlog::warn(
-        "{}: normal maps ignored (the scene has no TEXCOORD_0 to orient them) in "
+        "{}: normal maps ignored (the scene has no texture coordinates to orient them) in "
         "materials {}",
         path.string(), no_uv);
   for (const Material& m : out.materials)
@@ -681,7 +702,7 @@ SceneData load_scene_data(const std::filesystem::path& path) {
 
 void compute_tangents(SceneData* d) {
   const size_t n = d->positions.size();
-  if (d->uvs.size() != n) {
+  if (d->uvs.size() != n && d->uvs1.size() != n) {
     d->tangents.clear();
     return;
   }
@@ -689,9 +710,15 @@ void compute_tangents(SceneData* d) {
   for (size_t t = 0; t + 2 < d->indices.size(); t += 3) {
     const uint32_t i0 = d->indices[t], i1 = d->indices[t + 1], i2 = d->indices[t + 2];
     const Vec3 e1 = d->positions[i1] - d->positions[i0], e2 = d->positions[i2] - d->positions[i0];
-    const Vec2 w1 = d->uvs[i1] - d->uvs[i0], w2 = d->uvs[i2] - d->uvs[i0];
     const Vec3 fn = cross(e1, e2);
     for (uint32_t i : {i0, i1, i2}) face_normal[i] += fn;
+    // The set the triangle's normal map reads (glTF 3.7.2.1: tangents follow
+    // the normal texture's texture coordinates).
+    const uint32_t mat = t / 3 < d->tri_material.size() ? d->tri_material[t / 3] : 0;
+    const bool set1 = mat < d->materials.size() && d->materials[mat].normal_uv.set == 1;
+    const std::vector<Vec2>& uv = set1 && d->uvs1.size() == n ? d->uvs1 : d->uvs;
+    if (uv.size() != n) continue;
+    const Vec2 w1 = uv[i1] - uv[i0], w2 = uv[i2] - uv[i0];
     // e1 = w1.x dp/du + w1.y dp/dv, e2 likewise: solve for the derivatives.
     const float det = w1.x * w2.y - w2.x * w1.y;
     if (!(std::fabs(det) > 0.0f) || !std::isfinite(det)) continue;

@@ -83,6 +83,14 @@ struct Material {
   UvTransform base_color_uv, metal_rough_uv, emission_uv, normal_uv, transmission_uv, clearcoat_uv,
       clearcoat_rough_uv, sheen_color_uv, sheen_rough_uv;
   bool is_emissive() const { return emission.x > 0 || emission.y > 0 || emission.z > 0; }
+  // Whether some texture slot reads TEXCOORD_1.
+  bool reads_uv1() const {
+    for (const UvTransform* t :
+         {&base_color_uv, &metal_rough_uv, &emission_uv, &normal_uv, &transmission_uv,
+          &clearcoat_uv, &clearcoat_rough_uv, &sheen_color_uv, &sheen_rough_uv})
+      if (t->set == 1) return true;
+    return false;
+  }
   bool has_textures() const {
     return base_color_tex >= 0 || metal_rough_tex >= 0 || emission_tex >= 0 || normal_tex >= 0 ||
            transmission_tex >= 0 || clearcoat_tex >= 0 || clearcoat_rough_tex >= 0 ||
@@ -129,6 +137,10 @@ struct SceneData {
   // writes zeros when meshes with and without normals are mixed).
   std::vector<Vec3> normals;
   std::vector<Vec2> uvs;               // per vertex; empty = no texture coordinates
+  // TEXCOORD_1 per vertex, for textures whose UvTransform::set is 1; empty
+  // unless a material reads it (then as long as `positions`; a mesh without
+  // the set repeats its TEXCOORD_0 here).
+  std::vector<Vec2> uvs1;
   // Per vertex, for normal maps: the tangent along +u, orthogonal to the
   // vertex normal, and the sign w that makes cross(n, t) w point along the
   // image's up (glTF's TANGENT convention; v grows downwards in glTF, so up
@@ -148,7 +160,8 @@ struct SceneData {
 
   size_t triangle_count() const { return tri_material.size(); }
   // Appends a mesh with its own material; returns the material index. `n` and
-  // `uv` are empty or one per vertex of `p`; indices refer to `p`.
+  // `uv` are empty or one per vertex of `p`; indices refer to `p`. Where
+  // `uvs1` is in use, the mesh's TEXCOORD_1 is its `uv`.
   uint32_t add_mesh(const std::vector<Vec3>& p, const std::vector<Vec3>& n,
                     const std::vector<Vec2>& uv, const std::vector<uint32_t>& idx,
                     const Material& m);
@@ -169,7 +182,8 @@ struct SceneData {
 // through assimp's aiLight, placed by their node at time 0.
 SceneData load_scene_data(const std::filesystem::path& path);
 
-// Fills data->tangents from positions, normals and uvs: per triangle the
+// Fills data->tangents from positions, normals and uvs (uvs1 for triangles
+// whose material's normal map reads TEXCOORD_1): per triangle the
 // derivatives dp/du and -dp/dv (Lengyel 2001, "Computing Tangent Space Basis
 // Vectors for an Arbitrary Mesh"), as unit vectors weighted by the
 // triangle's area and summed at its vertices, then per vertex made orthogonal to the normal

@@ -39,11 +39,15 @@ struct Texture {
   float alpha_lookup(Vec2 uv) const;  // the same filter over `alpha`; 1 without
 };
 
-// KHR_texture_transform as a 2x3 affine map of glTF texture coordinates:
-// uv' = offset + R(rotation) * (scale * uv), with R as the extension defines
-// it (u' = cos u + sin v, v' = -sin u + cos v before the offset).
+// How a texture slot reads texture coordinates: from the set TEXCOORD_`set`
+// (glTF textureInfo.texCoord, or KHR_texture_transform's override; dofarm
+// reads sets 0 and 1), then KHR_texture_transform as a 2x3 affine map of
+// glTF texture coordinates: uv' = offset + R(rotation) * (scale * uv), with
+// R as the extension defines it (u' = cos u + sin v, v' = -sin u + cos v
+// before the offset).
 struct UvTransform {
   float m[6] = {1, 0, 0, 0, 1, 0};  // u' = m0 u + m1 v + m2, v' = m3 u + m4 v + m5
+  uint8_t set = 0;                  // TEXCOORD_0 or TEXCOORD_1
   static UvTransform from_gltf(Vec2 offset, float rotation, Vec2 scale);
   Vec2 apply(Vec2 uv) const {
     return {m[0] * uv.x + m[1] * uv.y + m[2], m[3] * uv.x + m[4] * uv.y + m[5]};
