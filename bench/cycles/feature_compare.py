@@ -14,6 +14,8 @@
 #               the wrong way), nomap (normalTexture removed); the same for
 #   normal_map_tangents (the file carries TANGENT)
 #   alpha_mask, alpha_blend  file, opaque (alphaMode removed)
+#   uv_map      file, set0 (control: every texCoord removed, so the texture
+#               reads TEXCOORD_0: how dofarm rendered it before reading set 1)
 #   transmission  file, opaque (KHR_materials_transmission removed: how
 #               dofarm rendered it before reading the extension), ior1
 #               (control: IOR 1, so nothing bends); these jobs add the
@@ -35,10 +37,12 @@ import zlib
 
 VARIANTS = {"specular": ["file", "ignored"], "clearcoat": ["file", "ignored", "quarter"], "normal_map": ["file", "flipped", "nomap"],
             "normal_map_tangents": ["file", "flipped", "nomap"], "alpha_mask": ["file", "opaque"],
-            "alpha_blend": ["file", "opaque"], "transmission": ["file", "opaque", "ior1"]}
+            "alpha_blend": ["file", "opaque"], "transmission": ["file", "opaque", "ior1"],
+            "uv_map": ["file", "set0"]}
 WHAT = {"file": "the exported file", "ignored": "KHR_materials_specular ignored",
         "flipped": "control: the map's green inverted", "nomap": "control: no normal map",
-        "opaque": "control: alphaMode ignored (opaque)", "ior1": "control: IOR 1 (no bending)"}
+        "opaque": "control: alphaMode ignored (opaque)", "ior1": "control: IOR 1 (no bending)",
+        "set0": "control: the texture reads TEXCOORD_0"}
 
 
 def read_png(path):
@@ -108,6 +112,10 @@ def variants(feature, d, size):
         elif name == "opaque":
             for m in mats:
                 m.pop("alphaMode", None)
+        elif name == "set0":
+            for m in mats:
+                for info in [m.get("pbrMetallicRoughness", {}).get("baseColorTexture", {})]:
+                    info.pop("texCoord", None)
         elif name == "ior1":
             for m in mats:
                 if "KHR_materials_transmission" in m.get("extensions", {}):

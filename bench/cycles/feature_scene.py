@@ -17,6 +17,10 @@
 #   alpha_blend the same with alpha 0.4 and 0 (Alpha Blend: alphaMode BLEND)
 #   clearcoat   the specular scene's plane (Specular 0.5) with Clearcoat 1 and
 #               the given Clearcoat Roughness (KHR_materials_clearcoat); 64 x 64
+#   uv_map      a 4 m plane (base colour from an 8 x 8 checker, Closest) whose
+#               texture is read through a UV Map node picking the mesh's
+#               second UV map, an affine map of the first (texCoord 1 on
+#               TEXCOORD_1), a sun from the side; 96 x 96
 #   transmission  a glass sphere (Transmission 1, IOR 1.45, base 0.95, 0.9,
 #               0.8, the given Roughness) of radius 0.6 m, 1.2 m over a 4 m
 #               checkered floor (base colour texture, Closest interpolation)
@@ -66,6 +70,11 @@ def bumps(x, y):
 def checker(x, y, alpha=1.0):
     on = (int(x * 8) + int(y * 8)) % 2 == 0
     return [0.9, 0.6, 0.1, alpha if on else 0.0]
+
+
+def opaque_checker(x, y):
+    # checker() with its holes dark grey instead of transparent.
+    return checker(x, y)[:3] + [1.0] if checker(x, y)[3] else [0.1, 0.1, 0.1, 1.0]
 
 
 def principled(name, base, roughness, specular=0.5, tint=0.0):
@@ -151,14 +160,29 @@ def main():
         mat.alpha_threshold = 0.5
         plane(2.0, 1.0, mat)
         light(scene, "SUN", 3.0, rotation=sun_rotation)
+    elif feature == "uv_map":
+        size = 96
+        mat, p = principled("decal", (1.0, 1.0, 1.0), 1.0, specular=0.0)
+        nodes, links = mat.node_tree.nodes, mat.node_tree.links
+        tex = nodes.new("ShaderNodeTexImage")
+        tex.image = image("checker", 64, opaque_checker, os.path.join(out, "checker.png"), "sRGB")
+        tex.interpolation = "Closest"
+        uv = nodes.new("ShaderNodeUVMap")
+        uv.uv_map = "second"
+        links.new(uv.outputs["UV"], tex.inputs["Vector"])
+        links.new(tex.outputs["Color"], p.inputs["Base Color"])
+        me = plane(4.0, 0.0, mat).data
+        first, second = me.uv_layers[0], me.uv_layers.new(name="second")
+        for loop in me.loops:
+            u, v = first.data[loop.index].uv
+            second.data[loop.index].uv = (0.6 * v + 0.13, 0.45 * u + 0.31)
+        light(scene, "SUN", 3.0, rotation=sun_rotation)
     elif feature == "transmission":
         size = 96
         floor, fp = principled("floor", (1.0, 1.0, 1.0), 1.0, specular=0.0)
         nodes, links = floor.node_tree.nodes, floor.node_tree.links
         tex = nodes.new("ShaderNodeTexImage")
-        tex.image = image("checker", 64, lambda x, y: checker(x, y, 1.0)[:3] + [1.0]
-                          if checker(x, y)[3] else [0.1, 0.1, 0.1, 1.0],
-                          os.path.join(out, "checker.png"), "sRGB")
+        tex.image = image("checker", 64, opaque_checker, os.path.join(out, "checker.png"), "sRGB")
         # Closest (glTF magFilter NEAREST): the glass magnifies a few texels
         # of the floor many times, and Cycles blends 8-bit sRGB texels
         # before decoding them (dofarm after), which would show there.
