@@ -14,6 +14,9 @@
 #               the wrong way), nomap (normalTexture removed); the same for
 #   normal_map_tangents (the file carries TANGENT)
 #   alpha_mask, alpha_blend  file, opaque (alphaMode removed)
+#   clearcoat_normal  file, flipped (the coat map's green inverted), nomap
+#               (clearcoatNormalTexture removed: how dofarm rendered it
+#               before reading it)
 #   uv_map      file, set0 (control: every texCoord removed, so the texture
 #               reads TEXCOORD_0: how dofarm rendered it before reading set 1)
 #   transmission  file, opaque (KHR_materials_transmission removed: how
@@ -38,7 +41,7 @@ import zlib
 VARIANTS = {"specular": ["file", "ignored"], "clearcoat": ["file", "ignored", "quarter"], "normal_map": ["file", "flipped", "nomap"],
             "normal_map_tangents": ["file", "flipped", "nomap"], "alpha_mask": ["file", "opaque"],
             "alpha_blend": ["file", "opaque"], "transmission": ["file", "opaque", "ior1"],
-            "uv_map": ["file", "set0"]}
+            "uv_map": ["file", "set0"], "clearcoat_normal": ["file", "flipped", "nomap"]}
 WHAT = {"file": "the exported file", "ignored": "KHR_materials_specular ignored",
         "flipped": "control: the map's green inverted", "nomap": "control: no normal map",
         "opaque": "control: alphaMode ignored (opaque)", "ior1": "control: IOR 1 (no bending)",
@@ -104,6 +107,8 @@ def variants(feature, d, size):
         elif name == "nomap":
             for m in mats:
                 m.pop("normalTexture", None)
+                m.get("extensions", {}).get("KHR_materials_clearcoat", {}).pop(
+                    "clearcoatNormalTexture", None)
         elif name == "opaque" and feature == "transmission":
             for m in mats:
                 m.get("extensions", {}).pop("KHR_materials_transmission", None)
@@ -121,8 +126,10 @@ def variants(feature, d, size):
                 if "KHR_materials_transmission" in m.get("extensions", {}):
                     m["extensions"]["KHR_materials_ior"] = {"ior": 1.0}
         elif name == "flipped":
-            m = next(m for m in mats if "normalTexture" in m)
-            image = v["images"][v["textures"][m["normalTexture"]["index"]]["source"]]
+            infos = [m["normalTexture"] for m in mats if "normalTexture" in m] + [
+                m["extensions"]["KHR_materials_clearcoat"]["clearcoatNormalTexture"] for m in mats
+                if "clearcoatNormalTexture" in m.get("extensions", {}).get("KHR_materials_clearcoat", {})]
+            image = v["images"][v["textures"][infos[0]["index"]]["source"]]
             w, h, ch, rows = read_png(d + "/" + image["uri"])
             rows = [bytes(x if i % ch != 1 else 255 - x for i, x in enumerate(r)) for r in rows]
             write_png(d + "/flipped_green.png", w, h, ch, rows)

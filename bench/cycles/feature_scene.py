@@ -17,6 +17,11 @@
 #   alpha_blend the same with alpha 0.4 and 0 (Alpha Blend: alphaMode BLEND)
 #   clearcoat   the specular scene's plane (Specular 0.5) with Clearcoat 1 and
 #               the given Clearcoat Roughness (KHR_materials_clearcoat); 64 x 64
+#   clearcoat_normal  a 4 m plane (base 0.1, roughness 1, Specular 0) with
+#               Clearcoat 1, Clearcoat Roughness 0.15 and the bumps map
+#               feeding Clearcoat Normal through a Normal Map node
+#               (clearcoatNormalTexture), the base flat, a sun 20 degrees
+#               from overhead, so the pattern is the coat's highlights; 96 x 96
 #   uv_map      a 4 m plane (base colour from an 8 x 8 checker, Closest) whose
 #               texture is read through a UV Map node picking the mesh's
 #               second UV map, an affine map of the first (texCoord 1 on
@@ -160,6 +165,20 @@ def main():
         mat.alpha_threshold = 0.5
         plane(2.0, 1.0, mat)
         light(scene, "SUN", 3.0, rotation=sun_rotation)
+    elif feature == "clearcoat_normal":
+        size = 96
+        mat, p = principled("lacquer", (0.1, 0.1, 0.1), 1.0, specular=0.0)
+        p.inputs["Clearcoat"].default_value = 1.0
+        p.inputs["Clearcoat Roughness"].default_value = 0.15
+        nodes, links = mat.node_tree.nodes, mat.node_tree.links
+        tex = nodes.new("ShaderNodeTexImage")
+        tex.image = image("bumps", 128, bumps, os.path.join(out, "bumps.png"), "Non-Color")
+        nmap = nodes.new("ShaderNodeNormalMap")
+        nmap.space = "TANGENT"
+        links.new(tex.outputs["Color"], nmap.inputs["Color"])
+        links.new(nmap.outputs["Normal"], p.inputs["Clearcoat Normal"])
+        plane(4.0, 0.0, mat)
+        light(scene, "SUN", 3.0, rotation=(math.radians(-15.0), math.radians(12.0), 0.0))
     elif feature == "uv_map":
         size = 96
         mat, p = principled("decal", (1.0, 1.0, 1.0), 1.0, specular=0.0)

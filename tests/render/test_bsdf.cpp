@@ -35,6 +35,10 @@ using dofarm::test::SphereCells;
 namespace {
 
 const Vec3 kUp(0, 0, 1);
+// A coat normal 23 degrees from kUp, in neither the x-z nor the y-z plane
+// and tilted away from incident()'s azimuth, so that directions beyond 67
+// degrees from kUp lie below it.
+const Vec3 kCoatNormal = normalize(Vec3(-0.35f, -0.25f, 1.0f));
 
 struct Material {
   const char* name;
@@ -87,6 +91,11 @@ const Material kMaterials[] = {
      {},
      {1.0f, 0.0f},
      {Vec3(1.0f, 1.0f, 0.5f), 1.0f}},
+    // clearcoatNormalTexture: a glossy coat and a mirror coat on a normal of
+    // their own, 23 degrees from the base's (at 80 and 89 degrees wo lies
+    // below it: the coat then takes the base's frame).
+    {"coat_own_normal", 0.0f, 0.6f, Vec3(0.8f, 0.2f, 0.1f), {}, {1.0f, 0.2f, kCoatNormal}},
+    {"mirror_coat_own_normal", 0.5f, 0.5f, Vec3(0.5f, 0.6f, 0.7f), {}, {1.0f, 0.0f, kCoatNormal}},
 };
 const double kAngles[] = {0, 45, 80, 89};
 
@@ -348,6 +357,21 @@ TEST(BsdfFurnace, WhiteMaterialUnderAClearcoatReflectsOne) {
               << " roughness " << roughness << " mu " << mu;
         }
       }
+  // A coat on a normal of its own (clearcoatNormalTexture), 23 degrees from
+  // the base's: the coat's albedo and what it lets through are both taken
+  // in the coat's frame, so the sum stays 1 wherever the coat's lobe stays
+  // above the surface (here wo within 20 degrees of the base's normal).
+  for (const dofarm::render::ClearcoatLayer coat :
+       {dofarm::render::ClearcoatLayer{1.0f, 0.0f, kCoatNormal},
+        dofarm::render::ClearcoatLayer{1.0f, 0.2f, kCoatNormal}})
+    for (float metallic : {0.0f, 1.0f}) {
+      const Bsdf bsdf(kUp, kUp, Vec3(1.0f), metallic, 0.5f, kIor, {}, {}, coat);
+      for (float mu : {1.0f, 0.95f}) {
+        const MeanWeight s = albedo_by_sampling(bsdf, incident_mu(mu), ++seed, 120);
+        EXPECT_NEAR(s.mean, 1.0, 3.0 * s.std_error + 0.01)
+            << "tilted coat " << coat.roughness << " metallic " << metallic << " mu " << mu;
+      }
+    }
   // A coat over black (and no interface of its own: IOR 1) reflects what
   // the coat alone reflects: F0 0.04 at normal incidence.
   const Bsdf black(kUp, kUp, Vec3(0.0f), 0.0f, 1.0f, 1.0f, {}, {}, {1.0f, 0.0f});

@@ -96,6 +96,10 @@ Bsdf::Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, f
     coat_alpha_ = ggx::alpha_from_roughness(r);
     coat_delta_ = r * r < ggx::kDeltaAlpha;
     if (!coat_delta_) coat_row_ = ggx::albedo_row(ggx::albedo_table(), coat_alpha_);
+    if (is_finite(clearcoat.normal) && dot(clearcoat.normal, clearcoat.normal) > 0.5f) {
+      coat_normal_ = true;
+      coat_frame_ = Frame(clearcoat.normal);
+    }
   }
   metallic = clamp01(metallic);
   roughness = clamp01(roughness);
@@ -247,15 +251,26 @@ Bsdf::Outgoing Bsdf::outgoing(Vec3 wo_w) const {
   }
   if (coat_weight_ > 0) [[unlikely]] {
     // The coat's compensated albedo E_c(mu_o) = c (F0 A + B)(1 + F0 k) (a
-    // mirror: c F(mu_o)); what it does not reflect reaches the rest.
+    // mirror: c F(mu_o)); what it does not reflect reaches the rest. With
+    // its own normal (clearcoatNormalTexture) the coat works in that
+    // normal's frame, unless wo lies below it (then in the shading frame).
+    o.coat_wo = o.wo;
+    if (coat_normal_) [[unlikely]] {
+      const Vec3 wo_c = coat_frame_.to_local(wo_w);
+      if (wo_c.z > 0) {
+        o.coat_wo = wo_c;
+        o.coat_own_frame = true;
+      }
+    }
+    const float mu_c = o.coat_wo.z;
     float e_c;
     if (coat_delta_) {
-      e_c = coat_weight_ * coat_schlick(mu);
+      e_c = coat_weight_ * coat_schlick(mu_c);
     } else {
-      const ggx::Albedo a = ggx::albedo(coat_row_, mu);
+      const ggx::Albedo a = ggx::albedo(coat_row_, mu_c);
       o.coat_fresnel = coat_weight_ * (1.0f + kCoatF0 * a.k());
       e_c = o.coat_fresnel * (kCoatF0 * a.a + a.b);
-      o.coat_smith_r = ggx::smith_r(o.wo, coat_alpha_);
+      o.coat_smith_r = ggx::smith_r(o.coat_wo, coat_alpha_);
     }
     e_c = std::clamp(e_c, 0.0f, 1.0f);
     o.coat_scale = 1.0f - e_c;
@@ -377,12 +392,13 @@ Vec3 Bsdf::evaluate(const Outgoing& o, Vec3 wi_w, float* pdf_out) const {
   *f = *f * o.coat_scale;
   *pdf *= 1.0f - o.coat_prob;
   if (coat_delta_ || dot(wi_w, ng_) <= 0) return;
-  const Vec3 wi = frame_.to_local(wi_w);
+  const Vec3 wi = coat_frame(o).to_local(wi_w);
   if (wi.z <= 0) return;
-  const ReflectionTerms r = reflection_terms(o.wo, wi, coat_alpha_, o.coat_smith_r);
+  const Vec3 wo = o.coat_wo;
+  const ReflectionTerms r = reflection_terms(wo, wi, coat_alpha_, o.coat_smith_r);
   if (!(r.wo_h > 0)) return;
-  *f += Vec3(o.coat_fresnel * coat_schlick(r.wo_h) * r.d * r.g / (4.0f * o.wo.z));
-  *pdf += o.coat_prob * r.d / (2.0f * (o.wo.z + o.coat_smith_r));
+  *f += Vec3(o.coat_fresnel * coat_schlick(r.wo_h) * r.d * r.g / (4.0f * wo.z));
+  *pdf += o.coat_prob * r.d / (2.0f * (wo.z + o.coat_smith_r));
 }
 
 Vec3 Bsdf::evaluate_base(const Outgoing& o, Vec3 wi_w, float* pdf_out) const {
@@ -478,21 +494,21 @@ BsdfSample Bsdf::sample(const Outgoing& o, float u_lobe, Vec2 u) const {
 [[gnu::noinline]] BsdfSample Bsdf::sample_layered(const Outgoing& o, float u_lobe, Vec2 u) const {
   BsdfSample s;
   if (!o.valid) return s;
-  const Vec3 wo = o.wo;
   // Without a coat coat_prob is 0 and coat_scale 1; without a sheen
   // likewise sheen_prob and sheen_scale (and rest_of(u, 0) is u).
   const float pc = o.coat_prob, ps = o.sheen_prob;
   if (u_lobe < pc) {
+    const Vec3 wo_c = o.coat_wo;
     if (coat_delta_) {
-      if (!mirror(wo, &s.wi)) return s;
-      s.weight = Vec3(coat_weight_ * coat_schlick(wo.z) / o.coat_prob);
+      if (!mirror(coat_frame(o), wo_c, &s.wi)) return s;
+      s.weight = Vec3(coat_weight_ * coat_schlick(wo_c.z) / o.coat_prob);
       s.is_delta = true;
       s.valid = is_finite(s.weight);
       return s;
     }
-    const Vec3 wi = reflect(wo, ggx::sample_vndf(wo, coat_alpha_, u));
+    const Vec3 wi = reflect(wo_c, ggx::sample_vndf(wo_c, coat_alpha_, u));
     if (wi.z <= 0) return s;
-    s.wi = frame_.to_world(wi);
+    s.wi = coat_frame(o).to_world(wi);
   } else {
     const float ub = rest_of(u_lobe, pc);
     if (ub < ps) {

@@ -45,7 +45,10 @@
 //   1.5), compensated for multiple scattering as the specular lobe is, and
 //   the material beneath scaled by 1 - E_c(mu_o), E_c the coat's albedo,
 //   so that a white material under a coat still returns exactly 1 (as
-//   Turquin's compensation, it depends on wo alone).
+//   Turquin's compensation, it depends on wo alone). With a normal of its
+//   own (clearcoatNormalTexture) the coat's lobe, albedo and what it lets
+//   through are all taken in that normal's frame, while wo lies above it
+//   (else in the shading frame).
 //
 // - KHR_materials_sheen (SheenLayer below): a Charlie microfibre lobe of
 //   colour C and its own roughness over the base, beneath the coat
@@ -97,10 +100,13 @@ struct TransmissionLayer {
 };
 
 // glTF KHR_materials_clearcoat's clearcoatFactor and
-// clearcoatRoughnessFactor.
+// clearcoatRoughnessFactor, and the coat's own shading normal
+// (clearcoatNormalTexture), unit and on wo's side of the geometric surface;
+// zero = the material's shading normal.
 struct ClearcoatLayer {
   float factor = 0.0f;
   float roughness = 0.0f;
+  Vec3 normal{0.0f};
 };
 
 // glTF KHR_materials_sheen's sheenColorFactor and sheenRoughnessFactor
@@ -137,6 +143,10 @@ class Bsdf {
     float coat_scale = 1;          // 1 - E_c(mu_o): what the coat lets through
     float coat_fresnel = 0;        // c (1 + F0 k_c(mu_o)): the coat lobe's factor
     float coat_smith_r = 0;
+    // wo in the coat's frame (its own normal where it has one and wo lies
+    // above it; else wo) and which frame that is.
+    Vec3 coat_wo;
+    bool coat_own_frame = false;
     float sheen_prob = 0;          // of choosing the sheen lobe in sample(), under the coat
     float sheen_scale = 1;         // 1 - max(C) E_sheen(mu_o): what the sheen lets through
     float sheen_norm = 1;          // 1 / E_sheen(mu_o) where that exceeds 1 (grazing), else 1
@@ -171,11 +181,16 @@ class Bsdf {
   // valid with only wi set, not evaluated. Delta samples are complete.
   BsdfSample sample_glass(const Outgoing& o, float u_lobe, Vec2 u,
                           bool direction_only = false) const;
-  // wo (local) mirrored about the shading normal, in world space; false
+  // wo (local to `frame`) mirrored about its normal, in world space; false
   // where that lies below the geometric surface.
-  bool mirror(Vec3 wo, Vec3* wi_w) const {
-    *wi_w = frame_.to_world(Vec3(-wo.x, -wo.y, wo.z));
+  bool mirror(Vec3 wo, Vec3* wi_w) const { return mirror(frame_, wo, wi_w); }
+  bool mirror(const Frame& frame, Vec3 wo, Vec3* wi_w) const {
+    *wi_w = frame.to_world(Vec3(-wo.x, -wo.y, wo.z));
     return dot(*wi_w, ng_) > 0;
+  }
+  // The frame the coat's lobe works in for this wo.
+  const Frame& coat_frame(const Outgoing& o) const {
+    return o.coat_own_frame ? coat_frame_ : frame_;
   }
   // Everything but the clearcoat (evaluate() and sample() add it).
   Vec3 evaluate_base(const Outgoing& o, Vec3 wi, float* pdf) const;
@@ -220,6 +235,8 @@ class Bsdf {
   float coat_alpha_;
   bool coat_delta_;
   ggx::AlbedoRow coat_row_;
+  bool coat_normal_ = false;  // the coat has its own normal, coat_frame_'s
+  Frame coat_frame_;
   // The sheen (KHR_materials_sheen), between the base and the coat.
   float sheen_weight_ = 0;  // max(C); 0 = no sheen
   Vec3 sheen_color_;

@@ -153,7 +153,10 @@ GltfInfo read_gltf_info(const std::filesystem::path& path) {
         info.clearcoat_tex = read_texture_info((*ext)["clearcoatTexture"]);
       if (ext->contains("clearcoatRoughnessTexture"))
         info.clearcoat_rough_tex = read_texture_info((*ext)["clearcoatRoughnessTexture"]);
-      info.clearcoat_normal_texture = ext->contains("clearcoatNormalTexture");
+      if (ext->contains("clearcoatNormalTexture")) {
+        info.clearcoat_normal_tex = read_texture_info((*ext)["clearcoatNormalTexture"]);
+        info.clearcoat_normal_scale = number_or((*ext)["clearcoatNormalTexture"], "scale", 1.0f);
+      }
     }
     if (const auto* ext = extension("KHR_materials_sheen")) {
       read_color(*ext, "sheenColorFactor", info.sheen_color);
@@ -283,11 +286,6 @@ void read_clearcoat(const std::filesystem::path& path, const std::string& which,
   };
   factor(g.clearcoat, "clearcoatFactor", &m->clearcoat);
   factor(g.clearcoat_roughness, "clearcoatRoughnessFactor", &m->clearcoat_roughness);
-  if (g.clearcoat_normal_texture)
-    spdlog::warn(
-        "{}: {}: KHR_materials_clearcoat clearcoatNormalTexture ignored (the coat takes the "
-        "base's shading normal)",
-        path.string(), which);
 }
 
 // KHR_materials_sheen's factors (schema: each in [0, 1]); a value outside

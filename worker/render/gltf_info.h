@@ -52,10 +52,10 @@ struct GltfMaterialInfo {
   double attenuation_color[3] = {1.0, 1.0, 1.0};
   // KHR_materials_clearcoat's factors as written (0 without it; NaN: not a
   // number) and their textures (clearcoatTexture R, clearcoatRoughnessTexture
-  // G); the coat's own normal map is not applied.
+  // G, clearcoatNormalTexture: the coat's own normal map).
   double clearcoat = 0.0, clearcoat_roughness = 0.0;
-  GltfTextureInfo clearcoat_tex, clearcoat_rough_tex;
-  bool clearcoat_normal_texture = false;
+  GltfTextureInfo clearcoat_tex, clearcoat_rough_tex, clearcoat_normal_tex;
+  float clearcoat_normal_scale = 1.0f;  // clearcoatNormalTexture.scale
   // KHR_materials_sheen's factors as written (black and 0 without it; NaN:
   // not a number or the wrong shape) and their textures (sheenColorTexture
   // RGB, sRGB; sheenRoughnessTexture A).

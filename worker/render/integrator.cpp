@@ -108,7 +108,8 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
 
     Bsdf bsdf(hit.ns, hit.ng, hit.base_color, hit.metallic, hit.roughness, hit.ior,
               {hit.specular, hit.specular_color}, {hit.transmission, hit.front},
-              {hit.clearcoat, hit.clearcoat_roughness}, {hit.sheen_color, hit.sheen_roughness});
+              {hit.clearcoat, hit.clearcoat_roughness, hit.coat_ns},
+              {hit.sheen_color, hit.sheen_roughness});
     const Bsdf::Outgoing out = bsdf.outgoing(-ray.d);
 
     if (use_nee && bsdf.has_non_delta()) {

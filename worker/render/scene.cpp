@@ -234,7 +234,7 @@ float Scene::triangle_area(uint32_t t) const {
   return 0.5f * length(cross(p1 - p0, p2 - p0));
 }
 
-Vec3 Scene::normal_mapped(const Material& m, const uint32_t* idx, float b0, float b1, float b2,
+Vec3 Scene::normal_mapped(int tex, float scale, const uint32_t* idx, float b0, float b1, float b2,
                           Vec3 n, Vec2 st) const {
   // glTF 3.9.3: the texel's (2 rgb - 1) in the frame (t, b, n), x and y
   // times the map's scale; b = cross(n, t) w, t made orthogonal to the
@@ -250,10 +250,40 @@ Vec3 Scene::normal_mapped(const Material& m, const uint32_t* idx, float b0, floa
   t = t / len;
   const float w = a.w * b0 + b.w * b1 + c.w * b2 < 0.0f ? -1.0f : 1.0f;
   const Vec3 bt = cross(n, t) * w;
-  const Vec3 texel = data_.textures[m.normal_tex].lookup(st);
-  const Vec3 v((2.0f * texel.x - 1.0f) * m.normal_scale, (2.0f * texel.y - 1.0f) * m.normal_scale,
+  const Vec3 texel = data_.textures[tex].lookup(st);
+  const Vec3 v((2.0f * texel.x - 1.0f) * scale, (2.0f * texel.y - 1.0f) * scale,
                2.0f * texel.z - 1.0f);
   return normalize(t * v.x + bt * v.y + n * v.z, n);
+}
+
+Vec3 Scene::smooth_normal(const uint32_t* idx, float b0, float b1, float b2, Vec3 ng,
+                          Vec3 d) const {
+  if (data_.normals.empty()) return ng;
+  Vec3 ns = normalize(
+      data_.normals[idx[0]] * b0 + data_.normals[idx[1]] * b1 + data_.normals[idx[2]] * b2, ng);
+  if (dot(ns, ng) < 0) ns = -ns;
+  // A shading normal that faces away from the viewer (grazing views of
+  // smoothed low-poly geometry) would make the BSDF reject every
+  // direction; the geometric normal is the safe fallback.
+  if (dot(ns, d) >= 0) ns = ng;
+  return ns;
+}
+
+Vec3 Scene::mapped_normal(int tex, float scale, Vec2 st, uint32_t prim, const uint32_t* idx,
+                          float b0, float b1, float b2, Vec3 ng, Vec3 d) const {
+  // The interpolated normal (or the triangle's own) bent by the map, on
+  // the surface's front side, then turned to the side the ray is on.
+  Vec3 n = tri_normal_[prim];
+  if (!data_.normals.empty())
+    n = normalize(
+        data_.normals[idx[0]] * b0 + data_.normals[idx[1]] * b1 + data_.normals[idx[2]] * b2, n);
+  const Vec3 bent = normal_mapped(tex, scale, idx, b0, b1, b2, n, st);
+  // A bent normal below the surface (a map that points into it) is not
+  // mirrored out of it: the unbent one is used.
+  if (dot(bent, tri_normal_[prim]) > 0) n = bent;
+  Vec3 ns = dot(n, ng) < 0 ? -n : n;
+  if (!(length(ns) > 0) || dot(ns, d) >= 0) ns = ng;
+  return ns;
 }
 
 Vec3 Scene::material_emission(const Material& m, Vec2 uv) const {
@@ -293,32 +323,26 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
   hit->ng = ng;
   hit->uv = texcoord(idx, b0, b1, b2);
   hit->uv1 = data_.uvs1.empty() ? hit->uv : texcoord(idx, b0, b1, b2, 1);
-  Vec3 ns = ng;
   // Tangents exist only when some material has a normal map: other scenes
   // do not wait for the material here.
   const Material* mapped =
       data_.tangents.empty() ? nullptr : &data_.materials[data_.tri_material[prim]];
-  if (mapped && mapped->normal_tex >= 0) {
-    // The interpolated normal (or the triangle's own) bent by the map, on
-    // the surface's front side, then turned to the side the ray is on.
-    Vec3 n = tri_normal_[prim];
-    if (!data_.normals.empty())
-      n = normalize(
-          data_.normals[idx[0]] * b0 + data_.normals[idx[1]] * b1 + data_.normals[idx[2]] * b2, n);
-    const Vec3 bent = normal_mapped(*mapped, idx, b0, b1, b2, n, hit->uv_of(mapped->normal_uv));
-    // A bent normal below the surface (a map that points into it) is not
-    // mirrored out of it: the unbent one is used.
-    if (dot(bent, tri_normal_[prim]) > 0) n = bent;
-    ns = dot(n, ng) < 0 ? -n : n;
-    if (!(length(ns) > 0) || dot(ns, ray.d) >= 0) ns = ng;
-  } else if (!data_.normals.empty()) {
-    ns = normalize(
-        data_.normals[idx[0]] * b0 + data_.normals[idx[1]] * b1 + data_.normals[idx[2]] * b2, ng);
-    if (dot(ns, ng) < 0) ns = -ns;
-    // A shading normal that faces away from the viewer (grazing views of
-    // smoothed low-poly geometry) would make the BSDF reject every
-    // direction; the geometric normal is the safe fallback.
-    if (dot(ns, ray.d) >= 0) ns = ng;
+  const Vec3 ns =
+      mapped && mapped->normal_tex >= 0
+          ? mapped_normal(mapped->normal_tex, mapped->normal_scale, hit->uv_of(mapped->normal_uv),
+                          prim, idx, b0, b1, b2, ng, ray.d)
+          : smooth_normal(idx, b0, b1, b2, ng, ray.d);
+  // KHR_materials_clearcoat: the coat has its own normal map, or none even
+  // where the base has one (the extension: no normal mapping is applied to
+  // the coat unless clearcoatNormalTexture is given).
+  hit->coat_ns = Vec3(0.0f);
+  if (mapped && mapped->clearcoat > 0 &&
+      (mapped->normal_tex >= 0 || mapped->clearcoat_normal_tex >= 0)) [[unlikely]] {
+    hit->coat_ns = mapped->clearcoat_normal_tex >= 0
+                       ? mapped_normal(mapped->clearcoat_normal_tex, mapped->clearcoat_normal_scale,
+                                       hit->uv_of(mapped->clearcoat_normal_uv), prim, idx, b0, b1,
+                                       b2, ng, ray.d)
+                       : smooth_normal(idx, b0, b1, b2, ng, ray.d);
   }
   hit->ns = ns;
   const Material& m = data_.materials[data_.tri_material[prim]];

@@ -31,6 +31,7 @@ struct SurfaceHit {
   float transmission = 0;     // KHR_materials_transmission transmissionFactor
   Vec3 attenuation;           // KHR_materials_volume absorption coefficient (per unit length)
   float clearcoat = 0, clearcoat_roughness = 0;  // KHR_materials_clearcoat
+  Vec3 coat_ns;  // the coat's own shading normal where it differs from ns, else zero
   Vec3 sheen_color;                              // KHR_materials_sheen
   float sheen_roughness = 0;
   bool front = true;          // the ray hit the side the triangle's winding faces
@@ -145,11 +146,19 @@ class Scene {
   // m's emission where its emission texture reads `uv` (coordinates of the
   // texture's set, untransformed).
   Vec3 material_emission(const Material& m, Vec2 uv) const;
-  // The unit normal n (front side, unflipped) bent by m's normal map at the
-  // barycentrics (b0, b1, b2) of triangle `idx`, the map read at `st`
-  // (transformed coordinates); n where it cannot be.
-  Vec3 normal_mapped(const Material& m, const uint32_t* idx, float b0, float b1, float b2, Vec3 n,
-                     Vec2 st) const;
+  // The unit normal n (front side, unflipped) bent by the normal map
+  // `tex` of the given scale at the barycentrics (b0, b1, b2) of triangle
+  // `idx`, the map read at `st` (transformed coordinates); n where it
+  // cannot be.
+  Vec3 normal_mapped(int tex, float scale, const uint32_t* idx, float b0, float b1, float b2,
+                     Vec3 n, Vec2 st) const;
+  // Shading normals at a hit on triangle `prim` (vertices `idx`) by a ray
+  // along d, on the ray's side of the geometric normal ng (facing it):
+  // interpolated from the vertex normals (ng without them), or that normal
+  // bent by a normal map. ng where the result would face away from the ray.
+  Vec3 smooth_normal(const uint32_t* idx, float b0, float b1, float b2, Vec3 ng, Vec3 d) const;
+  Vec3 mapped_normal(int tex, float scale, Vec2 st, uint32_t prim, const uint32_t* idx, float b0,
+                     float b1, float b2, Vec3 ng, Vec3 d) const;
   float triangle_area(uint32_t prim) const;
   bool sample_punctual(const PunctualLight& light, Vec3 from, LightSample* out) const;
   // Whether sample_light() and light_pdf() treat light triangle i, seen

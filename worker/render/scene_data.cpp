@@ -177,6 +177,12 @@ class Loader {
           m.clearcoat_tex = texture(am, {aiTextureType_CLEARCOAT}, false, false, 0);
         if (g->clearcoat_rough_tex.present)
           m.clearcoat_rough_tex = texture(am, {aiTextureType_CLEARCOAT}, false, false, 1);
+        // clearcoatNormalTexture (assimp: CLEARCOAT, 2), linear like normalTexture.
+        if (g->clearcoat_normal_tex.present) {
+          m.clearcoat_normal_tex = texture(am, {aiTextureType_CLEARCOAT}, false, false, 2);
+          m.clearcoat_normal_scale =
+              std::isfinite(g->clearcoat_normal_scale) ? g->clearcoat_normal_scale : 1.0f;
+        }
         // KHR_materials_sheen: colour (sRGB) in slot 0, roughness in the
         // alpha of slot 1 (often the same image).
         if (g->sheen_color_tex.present)
@@ -195,7 +201,8 @@ class Loader {
             {"clearcoatTexture", &g->clearcoat_tex, &m.clearcoat_uv},
             {"clearcoatRoughnessTexture", &g->clearcoat_rough_tex, &m.clearcoat_rough_uv},
             {"sheenColorTexture", &g->sheen_color_tex, &m.sheen_color_uv},
-            {"sheenRoughnessTexture", &g->sheen_rough_tex, &m.sheen_rough_uv}};
+            {"sheenRoughnessTexture", &g->sheen_rough_tex, &m.sheen_rough_uv},
+            {"clearcoatNormalTexture", &g->clearcoat_normal_tex, &m.clearcoat_normal_uv}};
         for (const auto& [slot, tex, uv] : slots) {
           *uv = tex->transform;
           if (tex->tex_coord == 1) {
@@ -680,9 +687,10 @@ SceneData load_scene_data(const std::filesystem::path& path) {
   // Normal maps need tangents, which need the texture coordinates they read.
   std::string no_uv;
   for (Material& m : out.materials) {
-    if (m.normal_tex < 0 || !(m.normal_uv.set == 1 ? out.uvs1 : out.uvs).empty()) continue;
+    if (!m.has_normal_map() || !(m.normal_map_set() == 1 ? out.uvs1 : out.uvs).empty()) continue;
     no_uv += (no_uv.empty() ? "\"" : ", \"") + m.name + "\"";
     m.normal_tex = -1;
+    m.clearcoat_normal_tex = -1;
   }
   if (!no_uv.empty())
     spdlog::warn(
@@ -690,7 +698,7 @@ SceneData load_scene_data(const std::filesystem::path& path) {
         "materials {}",
         path.string(), no_uv);
   for (const Material& m : out.materials)
-    if (m.normal_tex >= 0) {
+    if (m.has_normal_map()) {
       compute_tangents(&out);
       const auto& given = loader.given_tangents();
       for (size_t i = 0; i < given.size() && i < out.tangents.size(); ++i)
@@ -715,7 +723,7 @@ void compute_tangents(SceneData* d) {
     // The set the triangle's normal map reads (glTF 3.7.2.1: tangents follow
     // the normal texture's texture coordinates).
     const uint32_t mat = t / 3 < d->tri_material.size() ? d->tri_material[t / 3] : 0;
-    const bool set1 = mat < d->materials.size() && d->materials[mat].normal_uv.set == 1;
+    const bool set1 = mat < d->materials.size() && d->materials[mat].normal_map_set() == 1;
     const std::vector<Vec2>& uv = set1 && d->uvs1.size() == n ? d->uvs1 : d->uvs;
     if (uv.size() != n) continue;
     const Vec2 w1 = uv[i1] - uv[i0], w2 = uv[i2] - uv[i0];

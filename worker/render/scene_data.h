@@ -70,6 +70,11 @@ struct Material {
   // its scale, which multiplies the map's x and y (glTF 3.9.3).
   int normal_tex = -1;
   float normal_scale = 1.0f;
+  // KHR_materials_clearcoat's clearcoatNormalTexture and its scale: the
+  // coat's own normal map (without it the coat is not normal-mapped, even
+  // where the base is).
+  int clearcoat_normal_tex = -1;
+  float clearcoat_normal_scale = 1.0f;
   // glTF alphaMode MASK: a surface point whose alpha (baseColorFactor's
   // alpha times the base colour texture's) is below alpha_cutoff is not
   // there for any ray (an Embree filter, worker/render/scene.cpp). BLEND
@@ -81,20 +86,25 @@ struct Material {
   float base_alpha = 1.0f;
   // Each texture's KHR_texture_transform (identity when the file has none).
   UvTransform base_color_uv, metal_rough_uv, emission_uv, normal_uv, transmission_uv, clearcoat_uv,
-      clearcoat_rough_uv, sheen_color_uv, sheen_rough_uv;
+      clearcoat_rough_uv, sheen_color_uv, sheen_rough_uv, clearcoat_normal_uv;
   bool is_emissive() const { return emission.x > 0 || emission.y > 0 || emission.z > 0; }
   // Whether some texture slot reads TEXCOORD_1.
   bool reads_uv1() const {
-    for (const UvTransform* t :
-         {&base_color_uv, &metal_rough_uv, &emission_uv, &normal_uv, &transmission_uv,
-          &clearcoat_uv, &clearcoat_rough_uv, &sheen_color_uv, &sheen_rough_uv})
+    for (const UvTransform* t : {&base_color_uv, &metal_rough_uv, &emission_uv, &normal_uv,
+                                 &transmission_uv, &clearcoat_uv, &clearcoat_rough_uv,
+                                 &sheen_color_uv, &sheen_rough_uv, &clearcoat_normal_uv})
       if (t->set == 1) return true;
     return false;
+  }
+  bool has_normal_map() const { return normal_tex >= 0 || clearcoat_normal_tex >= 0; }
+  // The set the material's normal maps read (the base's, else the coat's).
+  uint8_t normal_map_set() const {
+    return normal_tex >= 0 ? normal_uv.set : clearcoat_normal_uv.set;
   }
   bool has_textures() const {
     return base_color_tex >= 0 || metal_rough_tex >= 0 || emission_tex >= 0 || normal_tex >= 0 ||
            transmission_tex >= 0 || clearcoat_tex >= 0 || clearcoat_rough_tex >= 0 ||
-           sheen_color_tex >= 0 || sheen_rough_tex >= 0;
+           sheen_color_tex >= 0 || sheen_rough_tex >= 0 || clearcoat_normal_tex >= 0;
   }
 };
 
