@@ -10,6 +10,9 @@
 # Variants (each a job of its own, rendered by bench/render_spp):
 #   specular    file (as exported), ignored (KHR_materials_specular removed:
 #               how dofarm rendered it before reading the extension)
+#   specular_texture  file, untextured (specularTexture and
+#               specularColorTexture removed: how dofarm rendered it before
+#               reading them)
 #   normal_map  file, flipped (the map's green inverted: a frame whose up is
 #               the wrong way), nomap (normalTexture removed); the same for
 #   normal_map_tangents (the file carries TANGENT)
@@ -31,7 +34,8 @@
 # Cycles' Disney diffuse equals Lambert's there); the others, the
 # correlation of pixel luminances with Cycles' (the pattern of light and
 # shade, or of holes) and the ratio of the means; for transmission over the
-# centre 32 x 32 pixels (inside the sphere's disk: the refracted floor).
+# centre 32 x 32 pixels (inside the sphere's disk: the refracted floor), and
+# for specular_texture too (the highlight, which the checker modulates).
 import copy
 import json
 import struct
@@ -41,11 +45,12 @@ import zlib
 VARIANTS = {"specular": ["file", "ignored"], "clearcoat": ["file", "ignored", "quarter"], "normal_map": ["file", "flipped", "nomap"],
             "normal_map_tangents": ["file", "flipped", "nomap"], "alpha_mask": ["file", "opaque"],
             "alpha_blend": ["file", "opaque"], "transmission": ["file", "opaque", "ior1"],
-            "uv_map": ["file", "set0"], "clearcoat_normal": ["file", "flipped", "nomap"]}
+            "uv_map": ["file", "set0"], "specular_texture": ["file", "untextured"], "clearcoat_normal": ["file", "flipped", "nomap"]}
 WHAT = {"file": "the exported file", "ignored": "KHR_materials_specular ignored",
         "flipped": "control: the map's green inverted", "nomap": "control: no normal map",
         "opaque": "control: alphaMode ignored (opaque)", "ior1": "control: IOR 1 (no bending)",
-        "set0": "control: the texture reads TEXCOORD_0"}
+        "set0": "control: the texture reads TEXCOORD_0",
+        "untextured": "control: the specular textures removed (factors only)"}
 
 
 def read_png(path):
@@ -117,6 +122,10 @@ def variants(feature, d, size):
         elif name == "opaque":
             for m in mats:
                 m.pop("alphaMode", None)
+        elif name == "untextured":
+            for m in mats:
+                for key in ("specularTexture", "specularColorTexture"):
+                    m.get("extensions", {}).get("KHR_materials_specular", {}).pop(key, None)
         elif name == "set0":
             for m in mats:
                 for info in [m.get("pbrMetallicRoughness", {}).get("baseColorTexture", {})]:
@@ -206,7 +215,7 @@ def rows(feature, d, spp, extra):
         ratio = lambda name: ", ".join("%.3f" % (a / b) for a, b in zip(centre(image(name)), cy))
         print("| %s | %s | %s | %s |" % (extra[0], ratio("file"), ratio("ignored"), ratio("quarter")))
         return
-    window = 32 if feature == "transmission" else 0
+    window = 32 if feature in ("transmission", "specular_texture") else 0
     cy = luminance(d + "/cycles.pfm", window)
     for name in VARIANTS[feature]:
         x = luminance(image(name), window)

@@ -6,6 +6,9 @@
 #   specular    a 4 m plane (base colour 0.8, 0.4, 0.2, roughness 0.5) of the
 #               given Specular and Specular Tint, 2 m below a 1000 W point
 #               lamp (KHR_materials_specular); 64 x 64
+#   specular_texture  the specular scene's plane (Specular from an 8 x 8
+#               checker of 0 and 1, Non-Color, Closest: the exporter bakes a
+#               specularColorTexture), 96 x 96
 #   normal_map  a 4 m plane (base 0.7, roughness 1, Specular 0) whose normal
 #               comes from a tangent-space map of bumps along both image
 #               axes (Image Texture, Non-Color -> Normal Map node: the
@@ -127,6 +130,17 @@ def main():
     if feature == "specular":
         size = 64
         mat, _ = principled("plane", (0.8, 0.4, 0.2), 0.5, float(argv[3]), float(argv[4]))
+        plane(4.0, 0.0, mat)
+        light(scene, "POINT", 1000.0, location=(0.0, 0.0, 2.0))
+    elif feature == "specular_texture":
+        size = 96
+        mat, p = principled("plane", (0.8, 0.4, 0.2), 0.5)
+        nodes, links = mat.node_tree.nodes, mat.node_tree.links
+        tex = nodes.new("ShaderNodeTexImage")
+        tex.image = image("spec", 64, lambda x, y: [float(checker(x, y)[3])] * 3 + [1.0],
+                          os.path.join(out, "spec.png"), "Non-Color")
+        tex.interpolation = "Closest"
+        links.new(tex.outputs["Color"], p.inputs["Specular"])
         plane(4.0, 0.0, mat)
         light(scene, "POINT", 1000.0, location=(0.0, 0.0, 2.0))
     elif feature == "clearcoat":

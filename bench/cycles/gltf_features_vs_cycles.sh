@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # What Blender's glTF exporter writes from a Principled BSDF, rendered by
 # dofarm against Cycles' render of the same Blender scene: the coat's
-# Specular and Specular Tint (KHR_materials_specular), a tangent-space
+# Specular and Specular Tint (KHR_materials_specular; Specular from an
+# image, which the exporter bakes into specularColorTexture), a tangent-space
 # normal map (normalTexture; exported without and with TANGENT), an Alpha
 # Clip cut-out (alphaMode MASK), Alpha Blend (BLEND), Clearcoat
 # (KHR_materials_clearcoat) and a glass sphere (Transmission:
@@ -45,7 +46,8 @@ for pair in "0 0" "0.5 0" "1 0" "0.5 1"; do
   set -- $pair
   scene specular "$out/specular-s$1-t$2" 64 "$1" "$2"
 done
-for feature in normal_map normal_map_tangents alpha_mask alpha_blend uv_map clearcoat_normal; do
+for feature in specular_texture normal_map normal_map_tangents alpha_mask alpha_blend uv_map \
+  clearcoat_normal; do
   echo
   echo "$feature ($spp spp):"
   python3 "$here/feature_compare.py" header "$feature"

@@ -333,7 +333,8 @@ TEST(GltfMaterials, IorOneIsReadAsOne) {
 // a Principled BSDF whose Specular is not 0.5: specularColorFactor =
 // 0.08 specular / F0(ior)); no extension is factor 1 and white; a value
 // outside the schema is warned about, naming the material and the key, and
-// the default used; textures are named in a warning (factors only). The
+// the default used; a texture the file does not have is named in a warning
+// (GltfMaterials.SpecularTexturesScaleTheirFactors reads real ones). The
 // extension is read, so it is not in the "ignores" warning.
 TEST(GltfMaterials, SpecularFactorsAreRead) {
   TempDir dir("specular");
@@ -364,8 +365,96 @@ TEST(GltfMaterials, SpecularFactorsAreRead) {
   }
   expect_warnings(log.lines(), {{"\"factor_above\"", "specularFactor 1.5"},
                                 {"\"color_negative\"", "specularColorFactor"},
-                                {"\"textured\"", "specularTexture ignored"}});
+                                {"\"textured\"", "specularTexture names texture 0, which"}});
   expect_extension_read(log.lines());
+}
+
+// KHR_materials_specular's textures, which assimp 5.2 does not read and
+// dofarm resolves from the file's JSON (textures -> images -> a file, or
+// assimp's "*k" for the k-th image held in the file): specularTexture's A
+// multiplies specularFactor (linear) and specularColorTexture's RGB (sRGB)
+// specularColorFactor, each with its own transform. The images are the
+// second and third of the file, in a .gltf beside it and in a .glb (where
+// the first image, the base colour's, is embedded too, so the numbering of
+// embedded images is what is checked), and under a NEAREST, CLAMP sampler.
+TEST(GltfMaterials, SpecularTexturesScaleTheirFactors) {
+  TempDir dir("specular_textures");
+  const std::string base = test_png();
+  // Texel 0: colour (255, 128, 0), alpha 51; texel 1: (0, 0, 255), alpha 255.
+  const unsigned char px[] = {255, 128, 0, 51, 0, 0, 255, 255};
+  const std::string spec = encode_png(px, 2, 1, 4);
+  auto material = [](GltfQuad* q) {
+    Json& m = q->doc["materials"][0];
+    m["name"] = "spec";
+    m["pbrMetallicRoughness"]["baseColorTexture"] = {{"index", 0}};
+    // specularColorTexture mirrored in u: texel 1 at x = 0.25.
+    Json mirrored = {{"offset", {1, 0}}, {"scale", {-1, 1}}};
+    Json color_tex = {{"index", 2}};
+    color_tex["extensions"]["KHR_texture_transform"] = mirrored;
+    Json ext = {{"specularFactor", 0.8}, {"specularColorFactor", {1.0, 0.5, 2.0}}};
+    ext["specularTexture"] = {{"index", 1}};
+    ext["specularColorTexture"] = color_tex;
+    m["extensions"]["KHR_materials_specular"] = ext;
+    q->doc["extensionsUsed"] = {"KHR_materials_specular", "KHR_texture_transform"};
+    q->doc["samplers"] = Json::array({{{"magFilter", 9728}, {"wrapS", 33071}}});
+    q->doc["textures"] =
+        Json::array({{{"source", 0}}, {{"source", 1}}, {{"source", 2}, {"sampler", 0}}});
+  };
+  GltfQuad beside = gltf_quad();
+  material(&beside);
+  write_bytes(dir.path / "base.png", base);
+  write_bytes(dir.path / "spec.png", spec);
+  write_bytes(dir.path / "tint.png", spec);
+  beside.doc["images"] =
+      Json::array({{{"uri", "base.png"}}, {{"uri", "spec.png"}}, {{"uri", "tint.png"}}});
+  write_gltf(dir.path / "beside.gltf", beside);
+  GltfQuad glb = gltf_quad();
+  material(&glb);
+  Json images = Json::array();
+  for (const std::string* png : {&base, &spec, &spec}) {
+    glb.doc["bufferViews"].push_back(
+        {{"buffer", 0}, {"byteOffset", glb.bin.size()}, {"byteLength", png->size()}});
+    glb.bin += *png;
+    images.push_back(
+        {{"bufferView", glb.doc["bufferViews"].size() - 1}, {"mimeType", "image/png"}});
+  }
+  glb.doc["images"] = images;
+  write_glb(dir.path / "spec.glb", glb);
+  GltfQuad data_uri = gltf_quad();
+  material(&data_uri);
+  const std::string spec_uri = "data:image/png;base64," + base64(spec);
+  data_uri.doc["images"] =
+      Json::array({{{"uri", "base.png"}}, {{"uri", spec_uri}}, {{"uri", spec_uri}}});
+  write_gltf(dir.path / "data_uri.gltf", data_uri);
+  const float orange_g = srgb_to_linear(128.0f / 255.0f);
+  for (const char* file : {"beside.gltf", "spec.glb", "data_uri.gltf"}) {
+    SCOPED_TRACE(file);
+    LogCapture log;
+    SceneData d = load_scene_data(dir.path / file);
+    EXPECT_TRUE(log.lines().empty()) << log.lines()[0];
+    const Material& m = d.materials[d.tri_material[0]];
+    ASSERT_GE(m.specular_tex, 0);
+    ASSERT_GE(m.specular_color_tex, 0);
+    EXPECT_NE(m.specular_tex, m.base_color_tex);
+    EXPECT_TRUE(d.textures[size_t(m.specular_color_tex)].sampler.nearest);
+    EXPECT_EQ(d.textures[size_t(m.specular_color_tex)].sampler.wrap_u, TextureWrap::kClamp);
+    const auto [left, right] = quad_hits(d);         // u = 0.25 and 0.75
+    EXPECT_NEAR(left.specular, 0.8f * 0.2f, 1e-6f);  // alpha 51 / 255, linear
+    EXPECT_NEAR(right.specular, 0.8f, 1e-6f);
+    expect_near3(left.specular_color, Vec3(0.0f, 0.0f, 2.0f), 1e-6f);  // mirrored: texel 1
+    expect_near3(right.specular_color, Vec3(1.0f, 0.5f * orange_g, 0.0f), 1e-6f);
+  }
+  // A buffer view that reaches beyond its buffer is refused, naming the image.
+  glb.doc["bufferViews"][glb.doc["bufferViews"].size() - 1]["byteLength"] = 1u << 20;
+  write_glb(dir.path / "cut.glb", glb);
+  try {
+    load_scene_data(dir.path / "cut.glb");
+    ADD_FAILURE() << "cut.glb loaded";
+  } catch (const SpecError& e) {
+    EXPECT_NE(std::string(e.what()).find("image 2: its buffer view lies outside its buffer"),
+              std::string::npos)
+        << e.what();
+  }
 }
 
 // KHR_materials_transmission's factor as written (what Blender 3.4 exports

@@ -1,5 +1,6 @@
 #include "worker/render/gltf_info.h"
 
+#include <sodium.h>
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
@@ -57,19 +58,13 @@ void read_color(const nlohmann::json& ext, const char* key, double out[3]) {
   for (int k = 0; k < 3; ++k) out[k] = ok ? c[k].get<double>() : NAN;
 }
 
-// The keys of `keys` that `ext` has, joined by " and " (for a warning).
-std::string present_keys(const nlohmann::json& ext, std::initializer_list<const char*> keys) {
-  std::string out;
-  for (const char* key : keys)
-    if (ext.contains(key)) out += (out.empty() ? "" : " and ") + std::string(key);
-  return out;
-}
-
 // A textureInfo object (glTF 5.22) with its optional KHR_texture_transform.
 GltfTextureInfo read_texture_info(const nlohmann::json& info) {
   GltfTextureInfo out;
   if (!info.is_object()) return out;
   out.present = true;
+  if (info.contains("index") && info["index"].is_number_integer())
+    out.index = info["index"].get<int>();
   out.tex_coord = static_cast<int>(number_or(info, "texCoord", 0));
   if (info.contains("extensions") && info["extensions"].is_object() &&
       info["extensions"].contains("KHR_texture_transform")) {
@@ -79,6 +74,48 @@ GltfTextureInfo read_texture_info(const nlohmann::json& info) {
                                vec2_or(t, "scale", Vec2(1, 1)));
     if (t.is_object() && t.contains("texCoord") && t["texCoord"].is_number_integer())
       out.tex_coord = t["texCoord"].get<int>();
+  }
+  return out;
+}
+
+// The file's textures as GltfTextureRef (glTF 2.0, 5.29 textures, 5.18
+// images, 5.26 samplers; 9728 is NEAREST, 33071 CLAMP_TO_EDGE, 33648
+// MIRRORED_REPEAT).
+std::vector<GltfTextureRef> texture_refs(const nlohmann::json& doc) {
+  const auto& images =
+      doc.contains("images") && doc["images"].is_array() ? doc["images"] : nlohmann::json::array();
+  std::vector<GltfTextureRef> out;
+  if (!doc.contains("textures") || !doc["textures"].is_array()) return out;
+  for (const auto& t : doc["textures"]) {
+    GltfTextureRef ref;
+    if (t.is_object() && t.contains("source") && t["source"].is_number_integer()) {
+      const int source = t["source"].get<int>();
+      if (source >= 0 && size_t(source) < images.size() && images[size_t(source)].is_object()) {
+        const auto& img = images[size_t(source)];
+        const std::string uri =
+            img.contains("uri") && img["uri"].is_string() ? img["uri"].get<std::string>() : "";
+        ref.image = source;
+        ref.held = img.contains("bufferView") || uri.compare(0, 5, "data:") == 0;
+        ref.name = ref.held ? "image " + std::to_string(source) : uri;
+      }
+    }
+    if (t.is_object() && t.contains("sampler") && t["sampler"].is_number_integer() &&
+        doc.contains("samplers") && doc["samplers"].is_array()) {
+      const int s = t["sampler"].get<int>();
+      if (s >= 0 && size_t(s) < doc["samplers"].size() && doc["samplers"][size_t(s)].is_object()) {
+        const auto& sampler = doc["samplers"][size_t(s)];
+        auto wrap = [&](const char* key) {
+          const float mode = number_or(sampler, key, 10497);
+          return mode == 33071   ? TextureWrap::kClamp
+                 : mode == 33648 ? TextureWrap::kMirror
+                                 : TextureWrap::kRepeat;
+        };
+        ref.sampler.nearest = number_or(sampler, "magFilter", 9729) == 9728;
+        ref.sampler.wrap_u = wrap("wrapS");
+        ref.sampler.wrap_v = wrap("wrapT");
+      }
+    }
+    out.push_back(std::move(ref));
   }
   return out;
 }
@@ -93,17 +130,98 @@ std::vector<std::string> string_list(const nlohmann::json& doc, const char* key)
 
 }  // namespace
 
-GltfInfo read_gltf_info(const std::filesystem::path& path) {
+namespace {
+
+std::string read_bytes(const std::filesystem::path& path) {
   std::ifstream in(path, std::ios::binary);
-  std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  std::string json_text = bytes;
-  if (bytes.size() >= 20 && bytes.compare(0, 4, "glTF") == 0) {
-    // .glb: 12-byte header, then the JSON chunk (length, type "JSON", data).
-    uint32_t length = 0;
-    std::memcpy(&length, bytes.data() + 12, 4);
-    if (bytes.compare(16, 4, "JSON") != 0 || 20 + size_t{length} > bytes.size()) return {};
-    json_text = bytes.substr(20, length);
+  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+}
+
+// A glTF file's JSON and, for a .glb, its binary chunk (glTF 2.0, 4.4:
+// a 12-byte header, then chunks of length, type and data); false where a
+// .glb's JSON chunk is not whole.
+bool split_gltf(const std::string& bytes, std::string* json, std::string* bin) {
+  if (bytes.size() < 20 || bytes.compare(0, 4, "glTF") != 0) {
+    *json = bytes;
+    return true;
   }
+  uint32_t length = 0;
+  std::memcpy(&length, bytes.data() + 12, 4);
+  if (bytes.compare(16, 4, "JSON") != 0 || 20 + size_t{length} > bytes.size()) return false;
+  *json = bytes.substr(20, length);
+  const size_t at = 20 + size_t{length};
+  if (at + 8 <= bytes.size() && bytes.compare(at + 4, 4, std::string("BIN\0", 4)) == 0) {
+    uint32_t bin_length = 0;
+    std::memcpy(&bin_length, bytes.data() + at, 4);
+    if (at + 8 + size_t{bin_length} <= bytes.size()) *bin = bytes.substr(at + 8, bin_length);
+  }
+  return true;
+}
+
+// The payload of a base64 data: URI.
+std::string data_uri_bytes(const std::string& uri, const std::string& what) {
+  const size_t comma = uri.find(',');
+  if (comma == std::string::npos || uri.rfind(";base64", comma) == std::string::npos)
+    throw RuntimeError(what + ": a data: URI that is not base64");
+  const std::string text = uri.substr(comma + 1);
+  std::string out(text.size() / 4 * 3 + 3, '\0');
+  size_t length = 0;
+  if (sodium_base642bin(reinterpret_cast<unsigned char*>(out.data()), out.size(), text.data(),
+                        text.size(), " \r\n", &length, nullptr,
+                        sodium_base64_VARIANT_ORIGINAL) != 0)
+    throw RuntimeError(what + ": its data: URI is not valid base64");
+  out.resize(length);
+  return out;
+}
+
+}  // namespace
+
+std::string read_gltf_image(const std::filesystem::path& path, int image) {
+  const std::string what = path.string() + ": image " + std::to_string(image);
+  std::string json_text, bin;
+  if (!split_gltf(read_bytes(path), &json_text, &bin))
+    throw RuntimeError(what + ": the .glb's JSON chunk is cut short");
+  const auto doc = nlohmann::json::parse(json_text, nullptr, /*allow_exceptions=*/false);
+  auto element = [&](const char* array, const nlohmann::json& index) -> const nlohmann::json& {
+    if (!index.is_number_integer() || !doc.contains(array) || !doc[array].is_array() ||
+        index.get<int64_t>() < 0 || size_t(index.get<int64_t>()) >= doc[array].size() ||
+        !doc[array][size_t(index.get<int64_t>())].is_object())
+      throw RuntimeError(what + ": " + array + " " + index.dump() + " is not in the file");
+    return doc[array][size_t(index.get<int64_t>())];
+  };
+  const auto& img = element("images", image);
+  if (img.contains("uri") && img["uri"].is_string())
+    return data_uri_bytes(img["uri"].get<std::string>(), what);
+  if (!img.contains("bufferView")) throw RuntimeError(what + ": neither a uri nor a bufferView");
+  const auto& view = element("bufferViews", img["bufferView"]);
+  const auto& buffer =
+      element("buffers", view.contains("buffer") ? view["buffer"] : nlohmann::json());
+  std::string data;
+  if (!buffer.contains("uri")) {
+    data = std::move(bin);  // the .glb's binary chunk
+  } else if (!buffer["uri"].is_string()) {
+    throw RuntimeError(what + ": its buffer's uri is not a string");
+  } else if (const std::string uri = buffer["uri"].get<std::string>();
+             uri.compare(0, 5, "data:") == 0) {
+    data = data_uri_bytes(uri, what);
+  } else {
+    data = read_bytes(path.parent_path() / uri);
+  }
+  auto size_of = [&](const char* key, bool required) -> uint64_t {
+    if (!view.contains(key) && !required) return 0;
+    if (!view.contains(key) || !view[key].is_number_unsigned())
+      throw RuntimeError(what + ": its buffer view's " + key + " is not a count of bytes");
+    return view[key].get<uint64_t>();
+  };
+  const uint64_t offset = size_of("byteOffset", false), length = size_of("byteLength", true);
+  if (offset > data.size() || length > data.size() - offset)
+    throw RuntimeError(what + ": its buffer view lies outside its buffer");
+  return data.substr(size_t(offset), size_t(length));
+}
+
+GltfInfo read_gltf_info(const std::filesystem::path& path) {
+  std::string json_text, bin;
+  if (!split_gltf(read_bytes(path), &json_text, &bin)) return {};
   GltfInfo out;
   auto doc = nlohmann::json::parse(json_text, nullptr, /*allow_exceptions=*/false);
   if (!doc.is_object()) return out;  // assimp gives the reason
@@ -115,6 +233,7 @@ GltfInfo read_gltf_info(const std::filesystem::path& path) {
         for (const auto& prim : mesh["primitives"])
           if (prim.is_object() && prim.contains("attributes") && prim["attributes"].is_object())
             out.vertex_colors |= prim["attributes"].contains("COLOR_0");
+  out.textures = texture_refs(doc);
   if (!doc.contains("materials") || !doc["materials"].is_array()) return out;
   for (const auto& m : doc["materials"]) {
     GltfMaterialInfo info;
@@ -139,7 +258,10 @@ GltfInfo read_gltf_info(const std::filesystem::path& path) {
     if (const auto* ext = extension("KHR_materials_specular")) {
       read_number(*ext, "specularFactor", &info.specular_factor);
       read_color(*ext, "specularColorFactor", info.specular_color);
-      info.specular_textures = present_keys(*ext, {"specularTexture", "specularColorTexture"});
+      if (ext->contains("specularTexture"))
+        info.specular_tex = read_texture_info((*ext)["specularTexture"]);
+      if (ext->contains("specularColorTexture"))
+        info.specular_color_tex = read_texture_info((*ext)["specularColorTexture"]);
     }
     if (const auto* ext = extension("KHR_materials_transmission")) {
       read_number(*ext, "transmissionFactor", &info.transmission);
@@ -225,9 +347,6 @@ void read_specular_layer(const std::filesystem::path& path, const std::string& w
         "[0, 1e6]; using [1, 1, 1]",
         path.string(), which, c[0], c[1], c[2]);
   }
-  if (!g.specular_textures.empty())
-    spdlog::warn("{}: {}: KHR_materials_specular {} ignored (its factors are used)", path.string(),
-                 which, g.specular_textures);
 }
 // KHR_materials_transmission's factor (schema: [0, 1]); a value outside
 // is named in a warning and the extension's default 0 used. Its texture is

@@ -19,8 +19,21 @@ namespace dofarm::render {
 // defines them instead); the file's extension lists.
 struct GltfTextureInfo {
   bool present = false;  // the material names this texture
+  int index = -1;        // into the file's textures (GltfInfo::textures)
   UvTransform transform;
   int tex_coord = 0;  // TEXCOORD_n the texture reads (texCoord, or the transform's override)
+};
+// A glTF texture's image and sampler, for textures assimp 5.2 does not hand
+// out itself (KHR_materials_specular's): a file beside the scene (its uri
+// as `name`), or an image held in the file (a buffer view or a data: URI:
+// `held`, `name` "image <index>", read by read_gltf_image(); assimp names
+// only the embedded images its own materials use, so its "*k" cannot be
+// relied on); `name` empty where the texture has no image.
+struct GltfTextureRef {
+  std::string name;
+  int image = -1;
+  bool held = false;
+  TextureSampler sampler;
 };
 struct GltfMaterialInfo {
   std::string name;  // to check that assimp kept the order
@@ -36,10 +49,11 @@ struct GltfMaterialInfo {
   bool ior_present = false;
   double ior = 1.5;
   // KHR_materials_specular's factors as written (NaN: not a number, or the
-  // wrong shape); its textures are not applied.
+  // wrong shape) and textures (specularTexture A, specularColorTexture RGB,
+  // sRGB).
   double specular_factor = 1.0;
   double specular_color[3] = {1.0, 1.0, 1.0};
-  std::string specular_textures;  // the texture keys present, for the warning
+  GltfTextureInfo specular_tex, specular_color_tex;
   // KHR_materials_transmission's factor as written (0 without the
   // extension; NaN: not a number) and its texture (R).
   double transmission = 0.0;
@@ -65,6 +79,7 @@ struct GltfMaterialInfo {
 };
 struct GltfInfo {
   std::vector<GltfMaterialInfo> materials;
+  std::vector<GltfTextureRef> textures;  // the file's textures, in order
   std::vector<std::string> extensions_used, extensions_required;
   bool vertex_colors = false;  // a primitive has COLOR_0 (not applied)
 };
@@ -73,11 +88,18 @@ struct GltfInfo {
 // not JSON (assimp then gives the reason).
 GltfInfo read_gltf_info(const std::filesystem::path& path);
 
+// The encoded bytes (PNG, JPEG, ...) of image `image` held in the glTF file
+// `path`: a data: URI, or a buffer view of the .glb's binary chunk or of a
+// buffer given by a data: URI or a file beside the scene. Throws
+// RuntimeError naming the image and what is wrong (out of range, not
+// base64, a view beyond its buffer).
+std::string read_gltf_image(const std::filesystem::path& path, int image);
+
 // What the extensions read above do to material `index`: KHR_materials_
 // specular, _transmission, _volume, _clearcoat and _sheen's factors, checked
 // against their schemas; a value outside is named in a warning (file,
-// material, key) and the extension's default used; their textures are
-// named in a warning and not applied.
+// material, key) and the extension's default used. Their textures are the
+// loader's (scene_data.cpp).
 void apply_material_extensions(const std::filesystem::path& path, const GltfMaterialInfo& g,
                                unsigned index, Material* m);
 

@@ -373,6 +373,10 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
   if (m.clearcoat_tex >= 0) hit->clearcoat *= texel(m.clearcoat_tex, m.clearcoat_uv).x;
   if (m.clearcoat_rough_tex >= 0)
     hit->clearcoat_roughness *= texel(m.clearcoat_rough_tex, m.clearcoat_rough_uv).y;
+  if (m.specular_tex >= 0)
+    hit->specular *= data_.textures[m.specular_tex].alpha_lookup(hit->uv_of(m.specular_uv));
+  if (m.specular_color_tex >= 0)
+    hit->specular_color = hit->specular_color * texel(m.specular_color_tex, m.specular_color_uv);
   if (m.sheen_color_tex >= 0)
     hit->sheen_color = hit->sheen_color * texel(m.sheen_color_tex, m.sheen_color_uv);
   if (m.sheen_rough_tex >= 0)

@@ -178,6 +178,13 @@ class Loader {
         if (g->clearcoat_rough_tex.present)
           m.clearcoat_rough_tex = texture(am, {aiTextureType_CLEARCOAT}, false, false, 1);
         // clearcoatNormalTexture (assimp: CLEARCOAT, 2), linear like normalTexture.
+        // KHR_materials_specular's, which assimp 5.2 does not read: A
+        // multiplies specularFactor, RGB (sRGB) specularColorFactor.
+        const std::string which = "material " + std::to_string(i) + " (\"" + m.name + "\")";
+        m.specular_tex =
+            gltf_texture(g->specular_tex, false, /*with_alpha=*/true, which, "specularTexture");
+        m.specular_color_tex =
+            gltf_texture(g->specular_color_tex, true, false, which, "specularColorTexture");
         if (g->clearcoat_normal_tex.present) {
           m.clearcoat_normal_tex = texture(am, {aiTextureType_CLEARCOAT}, false, false, 2);
           m.clearcoat_normal_scale =
@@ -202,7 +209,9 @@ class Loader {
             {"clearcoatRoughnessTexture", &g->clearcoat_rough_tex, &m.clearcoat_rough_uv},
             {"sheenColorTexture", &g->sheen_color_tex, &m.sheen_color_uv},
             {"sheenRoughnessTexture", &g->sheen_rough_tex, &m.sheen_rough_uv},
-            {"clearcoatNormalTexture", &g->clearcoat_normal_tex, &m.clearcoat_normal_uv}};
+            {"clearcoatNormalTexture", &g->clearcoat_normal_tex, &m.clearcoat_normal_uv},
+            {"specularTexture", &g->specular_tex, &m.specular_uv},
+            {"specularColorTexture", &g->specular_color_tex, &m.specular_color_uv}};
         for (const auto& [slot, tex, uv] : slots) {
           *uv = tex->transform;
           if (tex->tex_coord == 1) {
@@ -241,6 +250,18 @@ class Loader {
   // CLEARCOAT, 1).
   int texture(const aiMaterial* am, std::initializer_list<aiTextureType> types, bool srgb,
               bool with_alpha = false, unsigned slot = 0);
+  // A texture assimp 5.2 does not hand out, from the file's JSON
+  // (GltfTextureRef); -1 where the info names none.
+  // A reference to a texture the file does not have is named in a warning
+  // (`which` material, `key`).
+  int gltf_texture(const GltfTextureInfo& info, bool srgb, bool with_alpha,
+                   const std::string& which, const char* key);
+  // The texture `name` (a file beside the scene, assimp's "*k" for an
+  // embedded image, or, with `held_image` >= 0, that image of the file read
+  // by read_gltf_image()) read through `sampler`, loaded once per (name,
+  // srgb, sampler); with its alpha channel when `with_alpha`.
+  int load_texture(const std::string& name, const TextureSampler& sampler, bool srgb,
+                   bool with_alpha, int held_image = -1);
   static RgbImage decode_embedded(const aiTexture* t, const std::string& name, bool srgb);
   void mesh(const aiMesh* m, const aiMatrix4x4& world, const char* node_name);
   void check_material(const Material& m, unsigned index) const {
@@ -283,11 +304,6 @@ int Loader::texture(const aiMaterial* am, std::initializer_list<aiTextureType> t
     if (am->GetTexture(type, slot, &file) != AI_SUCCESS) continue;
     std::string name = file.C_Str();
     if (name.empty()) continue;
-    // Embedded (a .glb buffer view or a data: URI): assimp names it "*<index>".
-    // Its bytes are part of the scene file, which the job snapshot hashes.
-    const aiTexture* embedded = scene_->GetEmbeddedTexture(file.C_Str());
-    if (!embedded && name[0] == '*') fail(path_, "texture \"" + name + "\" is not in the file");
-    std::filesystem::path tex_path = path_.parent_path() / name;
     // The glTF sampler, as assimp reads it (other formats: repeat, bilinear).
     TextureSampler sampler;
     int filter = 0;
@@ -302,48 +318,86 @@ int Loader::texture(const aiMaterial* am, std::initializer_list<aiTextureType> t
     };
     sampler.wrap_u = wrap_of(AI_MATKEY_MAPPINGMODE_U(type, slot));
     sampler.wrap_v = wrap_of(AI_MATKEY_MAPPINGMODE_V(type, slot));
-    auto key =
-        std::make_tuple(embedded ? name : tex_path.lexically_normal().string(), srgb, sampler);
-    // The alpha channel, once per texture, when a material asks for it.
-    auto add_alpha = [&](int index) {
-      if (!with_alpha || !alpha_loaded_.insert(index).second) return index;
-      Texture& tex = out_->textures[size_t(index)];
-      try {
-        if (embedded && embedded->mHeight != 0) {  // raw texels
-          tex.alpha.resize(size_t(embedded->mWidth) * embedded->mHeight);
-          for (size_t k = 0; k < tex.alpha.size(); ++k)
-            tex.alpha[k] = embedded->pcData[k].a / 255.0f;
-        } else {
-          tex.alpha = embedded ? decode_image_alpha(embedded->pcData, embedded->mWidth, name)
-                               : load_image_alpha(tex_path);
-        }
-      } catch (const std::exception& e) {
-        fail(path_, std::string("texture: ") + e.what());
-      }
-      if (!tex.alpha.empty() && tex.alpha.size() != size_t(tex.width) * size_t(tex.height))
-        fail(path_, "texture \"" + name + "\": its alpha channel and colour differ in size");
-      return index;
-    };
-    if (auto it = texture_index_.find(key); it != texture_index_.end())
-      return add_alpha(it->second);
-    RgbImage image;
+    return load_texture(name, sampler, srgb, with_alpha);
+  }
+  return -1;
+}
+
+int Loader::gltf_texture(const GltfTextureInfo& info, bool srgb, bool with_alpha,
+                         const std::string& which, const char* key) {
+  if (!info.present) return -1;
+  if (info.index < 0 || size_t(info.index) >= gltf_.textures.size() ||
+      gltf_.textures[size_t(info.index)].name.empty()) {
+    spdlog::warn(
+        "{}: {}: {} names texture {}, which the file does not have (or which has no "
+        "image); ignored",
+        path_.string(), which, key, info.index);
+    return -1;
+  }
+  const GltfTextureRef& ref = gltf_.textures[size_t(info.index)];
+  return load_texture(ref.name, ref.sampler, srgb, with_alpha, ref.held ? ref.image : -1);
+}
+
+int Loader::load_texture(const std::string& name, const TextureSampler& sampler, bool srgb,
+                         bool with_alpha, int held_image) {
+  // Held in the file: assimp's "*<index>" (a .glb buffer view or a data:
+  // URI it decoded), or image `held_image` of the glTF read here (one
+  // assimp did not load). Their bytes are part of the scene file, which the
+  // job snapshot hashes.
+  const aiTexture* embedded = held_image < 0 ? scene_->GetEmbeddedTexture(name.c_str()) : nullptr;
+  if (!embedded && held_image < 0 && name[0] == '*')
+    fail(path_, "texture \"" + name + "\" is not in the file");
+  const bool in_file = embedded || held_image >= 0;
+  std::filesystem::path tex_path = path_.parent_path() / name;
+  auto key = std::make_tuple(in_file ? name : tex_path.lexically_normal().string(), srgb, sampler);
+  auto held_bytes = [&] { return read_gltf_image(path_, held_image); };
+  // The alpha channel, once per texture, when a material asks for it.
+  auto add_alpha = [&](int index) {
+    if (!with_alpha || !alpha_loaded_.insert(index).second) return index;
+    Texture& tex = out_->textures[size_t(index)];
     try {
-      image = embedded ? decode_embedded(embedded, name, srgb) : load_rgb_image(tex_path, srgb);
+      if (embedded && embedded->mHeight != 0) {  // raw texels
+        tex.alpha.resize(size_t(embedded->mWidth) * embedded->mHeight);
+        for (size_t k = 0; k < tex.alpha.size(); ++k) tex.alpha[k] = embedded->pcData[k].a / 255.0f;
+      } else if (embedded) {
+        tex.alpha = decode_image_alpha(embedded->pcData, embedded->mWidth, name);
+      } else if (held_image >= 0) {
+        const std::string bytes = held_bytes();
+        tex.alpha = decode_image_alpha(bytes.data(), bytes.size(), name);
+      } else {
+        tex.alpha = load_image_alpha(tex_path);
+      }
     } catch (const std::exception& e) {
       fail(path_, std::string("texture: ") + e.what());
     }
-    Texture tex;
-    tex.width = image.width;
-    tex.height = image.height;
-    tex.rgb = std::move(image.rgb);
-    tex.name = name;
-    tex.sampler = sampler;
-    out_->textures.push_back(std::move(tex));
-    int index = static_cast<int>(out_->textures.size()) - 1;
-    texture_index_.emplace(key, index);
-    return add_alpha(index);
+    if (!tex.alpha.empty() && tex.alpha.size() != size_t(tex.width) * size_t(tex.height))
+      fail(path_, "texture \"" + name + "\": its alpha channel and colour differ in size");
+    return index;
+  };
+  if (auto it = texture_index_.find(key); it != texture_index_.end()) return add_alpha(it->second);
+  RgbImage image;
+  try {
+    if (embedded) {
+      image = decode_embedded(embedded, name, srgb);
+    } else if (held_image >= 0) {
+      const std::string bytes = held_bytes();
+      image = decode_rgb_image(bytes.data(), bytes.size(), name, srgb);
+    } else {
+      image = load_rgb_image(tex_path, srgb);
+    }
+  } catch (const std::exception& e) {
+    fail(path_, std::string("texture: ") + e.what());
   }
-  return -1;
+  Texture tex;
+  tex.width = image.width;
+  tex.height = image.height;
+  tex.rgb = std::move(image.rgb);
+  tex.name = name;
+  tex.sampler = sampler;
+  out_->textures.push_back(std::move(tex));
+  int index = static_cast<int>(out_->textures.size()) - 1;
+  texture_index_.emplace(key, index);
+  return add_alpha(index);
 }
 
 RgbImage Loader::decode_embedded(const aiTexture* t, const std::string& name, bool srgb) {

@@ -66,6 +66,8 @@ struct Material {
   int transmission_tex = -1, clearcoat_tex = -1, clearcoat_rough_tex = -1;
   // KHR_materials_sheen's: RGB (sRGB) multiplies sheen_color, A sheen_roughness.
   int sheen_color_tex = -1, sheen_rough_tex = -1;
+  // KHR_materials_specular's: A multiplies specular, RGB (sRGB) specular_color.
+  int specular_tex = -1, specular_color_tex = -1;
   // glTF normalTexture (tangent space, linear RGB; SceneData::tangents) and
   // its scale, which multiplies the map's x and y (glTF 3.9.3).
   int normal_tex = -1;
@@ -86,13 +88,15 @@ struct Material {
   float base_alpha = 1.0f;
   // Each texture's KHR_texture_transform (identity when the file has none).
   UvTransform base_color_uv, metal_rough_uv, emission_uv, normal_uv, transmission_uv, clearcoat_uv,
-      clearcoat_rough_uv, sheen_color_uv, sheen_rough_uv, clearcoat_normal_uv;
+      clearcoat_rough_uv, sheen_color_uv, sheen_rough_uv, clearcoat_normal_uv, specular_uv,
+      specular_color_uv;
   bool is_emissive() const { return emission.x > 0 || emission.y > 0 || emission.z > 0; }
   // Whether some texture slot reads TEXCOORD_1.
   bool reads_uv1() const {
-    for (const UvTransform* t : {&base_color_uv, &metal_rough_uv, &emission_uv, &normal_uv,
-                                 &transmission_uv, &clearcoat_uv, &clearcoat_rough_uv,
-                                 &sheen_color_uv, &sheen_rough_uv, &clearcoat_normal_uv})
+    for (const UvTransform* t :
+         {&base_color_uv, &metal_rough_uv, &emission_uv, &normal_uv, &transmission_uv,
+          &clearcoat_uv, &clearcoat_rough_uv, &sheen_color_uv, &sheen_rough_uv,
+          &clearcoat_normal_uv, &specular_uv, &specular_color_uv})
       if (t->set == 1) return true;
     return false;
   }
@@ -104,7 +108,8 @@ struct Material {
   bool has_textures() const {
     return base_color_tex >= 0 || metal_rough_tex >= 0 || emission_tex >= 0 || normal_tex >= 0 ||
            transmission_tex >= 0 || clearcoat_tex >= 0 || clearcoat_rough_tex >= 0 ||
-           sheen_color_tex >= 0 || sheen_rough_tex >= 0 || clearcoat_normal_tex >= 0;
+           sheen_color_tex >= 0 || sheen_rough_tex >= 0 || clearcoat_normal_tex >= 0 ||
+           specular_tex >= 0 || specular_color_tex >= 0;
   }
 };
 
