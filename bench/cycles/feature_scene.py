@@ -80,9 +80,28 @@ def checker(x, y, alpha=1.0):
     return [0.9, 0.6, 0.1, alpha if on else 0.0]
 
 
+def bump_map(mat, socket, out):
+    """The bumps image (Non-Color) through a tangent-space Normal Map node into socket."""
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    tex = nodes.new("ShaderNodeTexImage")
+    tex.image = image("bumps", 128, bumps, os.path.join(out, "bumps.png"), "Non-Color")
+    nmap = nodes.new("ShaderNodeNormalMap")
+    nmap.space = "TANGENT"
+    links.new(tex.outputs["Color"], nmap.inputs["Color"])
+    links.new(nmap.outputs["Normal"], socket)
+
+
 def opaque_checker(x, y):
     # checker() with its holes dark grey instead of transparent.
     return checker(x, y)[:3] + [1.0] if checker(x, y)[3] else [0.1, 0.1, 0.1, 1.0]
+
+
+def checker_texture(mat, out):
+    """An Image Texture node of the opaque checker (sRGB, Closest) in mat."""
+    tex = mat.node_tree.nodes.new("ShaderNodeTexImage")
+    tex.image = image("checker", 64, opaque_checker, os.path.join(out, "checker.png"), "sRGB")
+    tex.interpolation = "Closest"
+    return tex
 
 
 def principled(name, base, roughness, specular=0.5, tint=0.0):
@@ -153,13 +172,7 @@ def main():
     elif feature in ("normal_map", "normal_map_tangents"):
         size = 96
         mat, p = principled("bumpy", (0.7, 0.7, 0.7), 1.0, specular=0.0)
-        nodes, links = mat.node_tree.nodes, mat.node_tree.links
-        tex = nodes.new("ShaderNodeTexImage")
-        tex.image = image("bumps", 128, bumps, os.path.join(out, "bumps.png"), "Non-Color")
-        nmap = nodes.new("ShaderNodeNormalMap")
-        nmap.space = "TANGENT"
-        links.new(tex.outputs["Color"], nmap.inputs["Color"])
-        links.new(nmap.outputs["Normal"], p.inputs["Normal"])
+        bump_map(mat, p.inputs["Normal"], out)
         plane(4.0, 0.0, mat)
         light(scene, "SUN", 3.0, rotation=sun_rotation)
     elif feature in ("alpha_mask", "alpha_blend"):
@@ -184,22 +197,14 @@ def main():
         mat, p = principled("lacquer", (0.1, 0.1, 0.1), 1.0, specular=0.0)
         p.inputs["Clearcoat"].default_value = 1.0
         p.inputs["Clearcoat Roughness"].default_value = 0.15
-        nodes, links = mat.node_tree.nodes, mat.node_tree.links
-        tex = nodes.new("ShaderNodeTexImage")
-        tex.image = image("bumps", 128, bumps, os.path.join(out, "bumps.png"), "Non-Color")
-        nmap = nodes.new("ShaderNodeNormalMap")
-        nmap.space = "TANGENT"
-        links.new(tex.outputs["Color"], nmap.inputs["Color"])
-        links.new(nmap.outputs["Normal"], p.inputs["Clearcoat Normal"])
+        bump_map(mat, p.inputs["Clearcoat Normal"], out)
         plane(4.0, 0.0, mat)
         light(scene, "SUN", 3.0, rotation=(math.radians(-15.0), math.radians(12.0), 0.0))
     elif feature == "uv_map":
         size = 96
         mat, p = principled("decal", (1.0, 1.0, 1.0), 1.0, specular=0.0)
         nodes, links = mat.node_tree.nodes, mat.node_tree.links
-        tex = nodes.new("ShaderNodeTexImage")
-        tex.image = image("checker", 64, opaque_checker, os.path.join(out, "checker.png"), "sRGB")
-        tex.interpolation = "Closest"
+        tex = checker_texture(mat, out)
         uv = nodes.new("ShaderNodeUVMap")
         uv.uv_map = "second"
         links.new(uv.outputs["UV"], tex.inputs["Vector"])
@@ -213,14 +218,11 @@ def main():
     elif feature == "transmission":
         size = 96
         floor, fp = principled("floor", (1.0, 1.0, 1.0), 1.0, specular=0.0)
-        nodes, links = floor.node_tree.nodes, floor.node_tree.links
-        tex = nodes.new("ShaderNodeTexImage")
-        tex.image = image("checker", 64, opaque_checker, os.path.join(out, "checker.png"), "sRGB")
         # Closest (glTF magFilter NEAREST): the glass magnifies a few texels
         # of the floor many times, and Cycles blends 8-bit sRGB texels
         # before decoding them (dofarm after), which would show there.
-        tex.interpolation = "Closest"
-        links.new(tex.outputs["Color"], fp.inputs["Base Color"])
+        tex = checker_texture(floor, out)
+        floor.node_tree.links.new(tex.outputs["Color"], fp.inputs["Base Color"])
         # Off centre, so that the floor under the sphere is no symmetric
         # checker corner (which looks the same refracted or not).
         plane(4.0, 0.0, floor).location = (0.17, 0.11, 0.0)
