@@ -165,10 +165,21 @@ Scene::Scene(SceneData data, std::unique_ptr<Environment> environment)
   if (env_sampled_) power.push_back(kPi * kPi * radius_ * radius_ * environment_->mean_luminance());
   bool any_power = false;
   for (float p : power) any_power = any_power || p > 0;
-  if (!any_power)
+  if (!any_power) {
+    // Blender's glTF exporter leaves the lamps out unless "Punctual
+    // Lights" is ticked, and never writes the World.
+    const std::string ext = data_.source.extension().string();
+    const bool gltf = ext == ".gltf" || ext == ".glb";
     throw SpecError(loc, "scene",
-                    "the scene has no light: no emissive triangle with area > 0, no "
-                    "punctual light with a positive intensity and no environment");
+                    std::string("the scene has no light: no emissive triangle with area > 0, no "
+                                "punctual light with a positive intensity and no environment") +
+                        (gltf && data_.lights.empty()
+                             ? " (the file has no KHR_lights_punctual lights: Blender's glTF "
+                               "exporter writes its lamps only with Include > Punctual Lights "
+                               "ticked, and never its World; the job's [environment] can light "
+                               "the scene)"
+                             : ""));
+  }
   light_select_ = Distribution1D(power);
   if (env_sampled_) env_select_pmf_ = light_select_.pmf(power.size() - 1);
 
