@@ -130,7 +130,11 @@ namespace {
 constexpr float kPad = 2.0f;  // above every u in [0, 1): never counted
 
 // How many of the 16 floats at p (a 64-byte-aligned line) are <= u: four
-// vector compares and a population count, no branches. (The plain loop
+// vector compares and a bit scan, no branches. A line is non-decreasing
+// (cell starts, then kPad), so the compares that hold are a prefix and
+// their count is the mask's trailing ones: a bit scan, which every x86-64
+// has, where std::popcount without -mpopcnt is a call into libgcc
+// (__popcountdi2, 2.6% of a courtyard render's samples). (The plain loop
 // below is what it computes; inside the search's loop over summary lines
 // the compiler left it as 16 scalar compares.)
 inline int count_at_most(const float* p, float u) {
@@ -140,7 +144,7 @@ inline int count_at_most(const float* p, float u) {
                    (_mm_movemask_ps(_mm_cmple_ps(_mm_load_ps(p + 4), v)) << 4) |
                    (_mm_movemask_ps(_mm_cmple_ps(_mm_load_ps(p + 8), v)) << 8) |
                    (_mm_movemask_ps(_mm_cmple_ps(_mm_load_ps(p + 12), v)) << 12);
-  return std::popcount(static_cast<unsigned>(mask));
+  return std::countr_one(static_cast<unsigned>(mask));
 #else
   int c = 0;
   for (int k = 0; k < 16; ++k) c += p[k] <= u ? 1 : 0;
