@@ -238,10 +238,29 @@ TEST(GltfLights, AnAnimatedLightIsPlacedAtTimeZero) {
       Json::parse(R"([{"type": "point", "intensity": 683}])");
   q.doc["extensionsUsed"] = {"KHR_lights_punctual"};
   write_gltf(dir.path / "animated.gltf", q);
-  SceneData s = load_scene_data(dir.path / "animated.gltf");
-  ASSERT_EQ(s.lights.size(), 1u);
-  expect_near3(s.lights[0].position, Vec3(0, 4.5f, 0), 1e-5f);
-  expect_near3(s.lights[0].intensity, Vec3(1.0f), 1e-6f);  // 683 cd: 1 W/sr
+  {
+    LogCapture log;
+    SceneData s = load_scene_data(dir.path / "animated.gltf");
+    ASSERT_EQ(s.lights.size(), 1u);
+    expect_near3(s.lights[0].position, Vec3(0, 4.5f, 0), 1e-5f);
+    expect_near3(s.lights[0].intensity, Vec3(1.0f), 1e-6f);  // 683 cd: 1 W/sr
+    // The animation moves no mesh: no warning about it.
+    for (const std::string& line : log.lines())
+      EXPECT_EQ(line.find("animation moves"), std::string::npos) << line;
+  }
+  // The same animation on a parent of the quad (a mesh): dofarm renders
+  // meshes at their nodes' own transforms, and says so, naming the node.
+  q.doc["nodes"][1]["children"] = {0, 2};
+  q.doc["scenes"][0]["nodes"] = {1};
+  write_gltf(dir.path / "moving_mesh.gltf", q);
+  LogCapture log;
+  SceneData s = load_scene_data(dir.path / "moving_mesh.gltf");
+  EXPECT_EQ(s.triangle_count(), 2u);
+  bool named = false;
+  for (const std::string& line : log.lines())
+    named |=
+        line.find("the animation moves 1 node(s) that hold meshes (\"quad\")") != std::string::npos;
+  EXPECT_TRUE(named) << (log.lines().empty() ? "no warning" : log.lines()[0]);
 }
 
 TEST(GltfLights, SpotFalloffFollowsTheExtension) {

@@ -601,6 +601,37 @@ void Loader::camera_track() {
   }
 }
 
+// Node animation moves only the camera (and places lights at time 0):
+// meshes stay where their nodes' transforms put them (a Blender export: the
+// frame it was exported at) in every frame. A file whose animations move a
+// node that holds meshes, or one of its parents, is named in a warning with
+// up to five such nodes, so that the difference is never silent.
+void warn_animated_meshes(const std::filesystem::path& path, const aiScene* scene) {
+  std::set<std::string> animated;
+  for (unsigned a = 0; a < scene->mNumAnimations; ++a)
+    for (unsigned c = 0; c < scene->mAnimations[a]->mNumChannels; ++c)
+      animated.insert(scene->mAnimations[a]->mChannels[c]->mNodeName.C_Str());
+  if (animated.empty()) return;
+  std::vector<std::string> moving;
+  size_t count = 0;
+  auto visit = [&](auto&& self, const aiNode* n, bool parent_moves) -> void {
+    const bool moves = parent_moves || animated.count(n->mName.C_Str()) > 0;
+    if (moves && n->mNumMeshes > 0 && count++ < 5)
+      moving.push_back("\"" + std::string(n->mName.C_Str()) + "\"");
+    for (unsigned c = 0; c < n->mNumChildren; ++c) self(self, n->mChildren[c], moves);
+  };
+  visit(visit, scene->mRootNode, false);
+  if (count == 0) return;
+  std::string names;
+  for (const std::string& m : moving) names += (names.empty() ? "" : ", ") + m;
+  if (count > moving.size()) names += fmt::format(" and {} more", count - moving.size());
+  spdlog::warn(
+      "{}: the animation moves {} node(s) that hold meshes ({}); dofarm follows only the "
+      "camera's animation and renders every mesh where its node's own transform puts it in "
+      "every frame (from Blender: the frame the file was exported at)",
+      path.string(), count, names);
+}
+
 // --- lights --------------------------------------------------------------------
 
 // A node's world transform at time 0 of the first animation that moves it or
@@ -738,6 +769,7 @@ SceneData load_scene_data(const std::filesystem::path& path) {
                    " meshes, only points or lines)");
   loader.camera_track();
   loader.lights();
+  warn_animated_meshes(path, scene);
   // Normal maps need tangents, which need the texture coordinates they read.
   std::string no_uv;
   for (Material& m : out.materials) {
