@@ -13,6 +13,7 @@
 #include <cstring>
 #include <fstream>
 #include <map>
+#include <optional>
 #include <set>
 #include <tuple>
 
@@ -350,7 +351,12 @@ int Loader::load_texture(const std::string& name, const TextureSampler& sampler,
   const bool in_file = embedded || held_image >= 0;
   std::filesystem::path tex_path = path_.parent_path() / name;
   auto key = std::make_tuple(in_file ? name : tex_path.lexically_normal().string(), srgb, sampler);
-  auto held_bytes = [&] { return read_gltf_image(path_, held_image); };
+  // Read (and the file's JSON parsed) once, though colour and alpha both need them.
+  std::optional<std::string> held;
+  auto held_bytes = [&]() -> const std::string& {
+    if (!held) held = read_gltf_image(path_, held_image);
+    return *held;
+  };
   // The alpha channel, once per texture, when a material asks for it.
   auto add_alpha = [&](int index) {
     if (!with_alpha || !alpha_loaded_.insert(index).second) return index;
@@ -362,7 +368,7 @@ int Loader::load_texture(const std::string& name, const TextureSampler& sampler,
       } else if (embedded) {
         tex.alpha = decode_image_alpha(embedded->pcData, embedded->mWidth, name);
       } else if (held_image >= 0) {
-        const std::string bytes = held_bytes();
+        const std::string& bytes = held_bytes();
         tex.alpha = decode_image_alpha(bytes.data(), bytes.size(), name);
       } else {
         tex.alpha = load_image_alpha(tex_path);
@@ -380,7 +386,7 @@ int Loader::load_texture(const std::string& name, const TextureSampler& sampler,
     if (embedded) {
       image = decode_embedded(embedded, name, srgb);
     } else if (held_image >= 0) {
-      const std::string bytes = held_bytes();
+      const std::string& bytes = held_bytes();
       image = decode_rgb_image(bytes.data(), bytes.size(), name, srgb);
     } else {
       image = load_rgb_image(tex_path, srgb);
