@@ -5,6 +5,7 @@
 // The files are written by the tests, except one .glb exported by Blender
 // (tests/data/blender/).
 #include "tests/render/gltf_fixture.h"
+#include "worker/render/scene_motion.h"
 
 namespace dofarm::render {
 namespace {
@@ -212,9 +213,11 @@ TEST(GltfLights, BlenderUnitsGiveCyclesIntensityAndIrradiance) {
   expect_near3(sun.direction, Vec3(0, std::sin(a), -std::cos(a)), 1e-5f);
 }
 
-TEST(GltfLights, AnAnimatedLightIsPlacedAtTimeZero) {
+TEST(GltfLights, AnAnimatedLightMovesWithItsParent) {
   // The light hangs 0.5 below a parent whose static translation (0, 1, 0) is
-  // animated: (0, 5, 0) at t = 0, (0, 9, 0) at t = 1. The light takes t = 0.
+  // animated: (0, 5, 0) at t = 0, (0, 9, 0) at t = 1. As loaded it is where
+  // the static transforms put it; each frame's pose moves it
+  // (tests/render/test_scene_motion.cpp has the poses in detail).
   TempDir dir("animated_light");
   GltfQuad q = gltf_quad();
   q.bin += floats_bytes({0, 1, 0, 5, 0, 0, 9, 0});  // times at 92, translations at 100
@@ -242,25 +245,26 @@ TEST(GltfLights, AnAnimatedLightIsPlacedAtTimeZero) {
     LogCapture log;
     SceneData s = load_scene_data(dir.path / "animated.gltf");
     ASSERT_EQ(s.lights.size(), 1u);
-    expect_near3(s.lights[0].position, Vec3(0, 4.5f, 0), 1e-5f);
+    expect_near3(s.lights[0].position, Vec3(0, 0.5f, 0), 1e-5f);
     expect_near3(s.lights[0].intensity, Vec3(1.0f), 1e-6f);  // 683 cd: 1 W/sr
-    // The animation moves no mesh: no warning about it.
-    for (const std::string& line : log.lines())
-      EXPECT_EQ(line.find("animation moves"), std::string::npos) << line;
+    ASSERT_NE(s.motion, nullptr);
+    expect_near3(pose(s, 0.0f).lights[0].position, Vec3(0, 4.5f, 0), 1e-5f);
+    expect_near3(pose(s, 0.5f).lights[0].position, Vec3(0, 6.5f, 0), 1e-5f);
+    for (const std::string& line : log.lines()) ADD_FAILURE() << "unexpected warning: " << line;
   }
-  // The same animation on a parent of the quad (a mesh): dofarm renders
-  // meshes at their nodes' own transforms, and says so, naming the node.
+  // The same animation on a parent of the quad (a mesh): the quad moves too,
+  // without a warning.
   q.doc["nodes"][1]["children"] = {0, 2};
   q.doc["scenes"][0]["nodes"] = {1};
   write_gltf(dir.path / "moving_mesh.gltf", q);
   LogCapture log;
   SceneData s = load_scene_data(dir.path / "moving_mesh.gltf");
   EXPECT_EQ(s.triangle_count(), 2u);
-  bool named = false;
-  for (const std::string& line : log.lines())
-    named |=
-        line.find("the animation moves 1 node(s) that hold meshes (\"quad\")") != std::string::npos;
-  EXPECT_TRUE(named) << (log.lines().empty() ? "no warning" : log.lines()[0]);
+  ASSERT_NE(s.motion, nullptr);
+  EXPECT_EQ(s.motion->parts.size(), 1u);
+  expect_near3(s.positions[2], Vec3(1, 1, 1), 1e-6f);
+  expect_near3(pose(s, 1.0f).positions[2], Vec3(1, 9, 1), 1e-6f);
+  for (const std::string& line : log.lines()) ADD_FAILURE() << "unexpected warning: " << line;
 }
 
 TEST(GltfLights, SpotFalloffFollowsTheExtension) {

@@ -238,7 +238,7 @@ CameraState camera_for_frame(const JobSpec& spec, const SceneData& scene, int fr
                              const Autofocus& autofocus) {
   CameraState s;
   s.frame = frame;
-  s.time = float(frame) / spec.fps;
+  s.time = frame_time(spec, frame);
   size_t i0, i1;
   float w;
   const auto& keys = spec.camera_keys;

@@ -93,6 +93,10 @@ using Autofocus = std::function<std::optional<float>(const CameraState&)>;
 CameraState camera_for_frame(const JobSpec& spec, const SceneData& scene, int frame,
                              const Autofocus& autofocus = {});
 
+// The time of `frame` in seconds, frame / fps: where the scene file's
+// animation (camera track, moving meshes and lights) is sampled.
+inline float frame_time(const JobSpec& spec, int frame) { return float(frame) / spec.fps; }
+
 // Lens radius in scene units (metres) of an f-number: Blender/Cycles' thin
 // lens, radius = focal_length / (2 N). Without a focal length it is
 // sensor_width / (2 tan(fov/2)) over the image's longer side, as Blender

@@ -219,6 +219,46 @@ std::string read_gltf_image(const std::filesystem::path& path, int image) {
   return data.substr(size_t(offset), size_t(length));
 }
 
+namespace {
+
+// The animation channels that move named nodes (glTF 2.0, 3.11).
+std::vector<GltfInfo::AnimatedPath> animated_paths(const nlohmann::json& doc) {
+  std::vector<GltfInfo::AnimatedPath> out;
+  if (!doc.contains("animations") || !doc["animations"].is_array() || !doc.contains("nodes") ||
+      !doc["nodes"].is_array())
+    return out;
+  const auto& nodes = doc["nodes"];
+  for (size_t a = 0; a < doc["animations"].size(); ++a) {
+    const auto& anim = doc["animations"][a];
+    if (!anim.is_object() || !anim.contains("channels") || !anim["channels"].is_array() ||
+        !anim.contains("samplers") || !anim["samplers"].is_array())
+      continue;
+    const auto& samplers = anim["samplers"];
+    for (const auto& ch : anim["channels"]) {
+      if (!ch.is_object() || !ch.contains("target") || !ch["target"].is_object()) continue;
+      const auto& target = ch["target"];
+      const auto s = ch.value("sampler", nlohmann::json()),
+                 n = target.value("node", nlohmann::json());
+      if (!s.is_number_unsigned() || s.get<size_t>() >= samplers.size() ||
+          !n.is_number_unsigned() || n.get<size_t>() >= nodes.size())
+        continue;
+      const auto& sampler = samplers[s.get<size_t>()];
+      const auto& node = nodes[n.get<size_t>()];
+      const std::string mode = sampler.is_object() && sampler.contains("interpolation") &&
+                                       sampler["interpolation"].is_string()
+                                   ? sampler["interpolation"].get<std::string>()
+                                   : "LINEAR";
+      if (!node.is_object() || !node.contains("name") || !node["name"].is_string() ||
+          !target.contains("path") || !target["path"].is_string())
+        continue;
+      out.push_back({a, node["name"].get<std::string>(), target["path"].get<std::string>(), mode});
+    }
+  }
+  return out;
+}
+
+}  // namespace
+
 GltfInfo read_gltf_info(const std::filesystem::path& path) {
   std::string json_text, bin;
   if (!split_gltf(read_bytes(path), &json_text, &bin)) return {};
@@ -234,6 +274,7 @@ GltfInfo read_gltf_info(const std::filesystem::path& path) {
           if (prim.is_object() && prim.contains("attributes") && prim["attributes"].is_object())
             out.vertex_colors |= prim["attributes"].contains("COLOR_0");
   out.textures = texture_refs(doc);
+  out.animated_paths = animated_paths(doc);
   if (!doc.contains("materials") || !doc["materials"].is_array()) return out;
   for (const auto& m : doc["materials"]) {
     GltfMaterialInfo info;

@@ -82,6 +82,16 @@ struct GltfInfo {
   std::vector<GltfTextureRef> textures;  // the file's textures, in order
   std::vector<std::string> extensions_used, extensions_required;
   bool vertex_colors = false;  // a primitive has COLOR_0 (not applied)
+  // Every animation channel that targets a named node's translation,
+  // rotation or scale: the animation's index, the node's name, the path and
+  // the sampler's interpolation ("LINEAR", "STEP" or "CUBICSPLINE"; assimp
+  // 5.2 hands out the keys of all three alike, and fills each channel's
+  // other paths with the node's static value).
+  struct AnimatedPath {
+    size_t animation = 0;
+    std::string node, path, interpolation;
+  };
+  std::vector<AnimatedPath> animated_paths;
 };
 
 // The JSON of a .gltf, or of a .glb's JSON chunk; empty where the file is

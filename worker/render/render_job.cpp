@@ -209,7 +209,9 @@ CameraState frame_camera(const Scene& scene, const JobSpec& spec, int frame) {
     const Camera pinhole(pose, spec.width, spec.height);
     SurfaceHit hit;
     const Vec2 centre(0.5f * float(spec.width), 0.5f * float(spec.height));
-    if (!scene.intersect(pinhole.pinhole_ray(centre), &hit)) return std::nullopt;
+    // The scene as it is at the frame's time (moving meshes).
+    if (!scene.at_time(frame_time(spec, frame))->intersect(pinhole.pinhole_ray(centre), &hit))
+      return std::nullopt;
     return pinhole.view_depth(hit.p);
   };
   return camera_for_frame(spec, scene.data(), frame, autofocus);
@@ -235,9 +237,12 @@ Rect checked_rect(const JobSpec& spec, int frame, std::optional<Rect> tile) {
   return r;
 }
 
-FrameBuffers render_frame(const Scene& scene, const JobSpec& spec, int frame,
+FrameBuffers render_frame(const Scene& loaded, const JobSpec& spec, int frame,
                           std::optional<Rect> tile, const RenderOptions& options) {
   const Rect rect = checked_rect(spec, frame, tile);
+  // The scene at the frame's time: itself unless its meshes or lights move.
+  const std::shared_ptr<const Scene> posed = loaded.at_time(frame_time(spec, frame));
+  const Scene& scene = *posed;
   FrameBuffers out;
   out.allocate(rect.w, rect.h, spec.versions);
   out.rect = rect;

@@ -52,13 +52,16 @@ FrameBuffers render_frame(const JobSpec& spec, int frame, std::optional<Rect> ti
 
 class Scene;
 // The same with a scene already loaded (a worker keeps it across tasks).
+// A scene whose meshes or lights move is rendered as it is at the frame's
+// time (Scene::at_time).
 FrameBuffers render_frame(const Scene& scene, const JobSpec& spec, int frame,
                           std::optional<Rect> tile = std::nullopt,
                           const RenderOptions& options = {});
 
 // The camera of `frame` (camera_for_frame) with focus = "auto" resolved in
-// `scene`: the view depth of the first hit of the pinhole ray through the
-// centre of the image (deterministic: one ray, no sampling).
+// `scene` at the frame's time: the view depth of the first hit of the
+// pinhole ray through the centre of the image (deterministic: one ray, no
+// sampling).
 CameraState frame_camera(const Scene& scene, const JobSpec& spec, int frame);
 
 // Checks that `frame` is in the job's range and `tile` inside the image;

@@ -8,6 +8,7 @@
 
 #include "common/error.h"
 #include "worker/render/sampler.h"
+#include "worker/render/scene_motion.h"
 #include "worker/render/spherical_triangle.h"
 
 namespace dofarm::render {
@@ -78,7 +79,7 @@ bool Scene::cut_out(uint32_t prim, float b1, float b2, const float (&ray)[6]) co
   if (m.base_color_tex >= 0) {
     const uint32_t* idx = &data_.indices[size_t(prim) * 3];
     const Vec2 uv = texcoord(idx, 1.0f - b1 - b2, b1, b2, m.base_color_uv.set);
-    alpha *= data_.textures[m.base_color_tex].alpha_lookup(m.base_color_uv.apply(uv));
+    alpha *= textures()[m.base_color_tex].alpha_lookup(m.base_color_uv.apply(uv));
   }
   if (!m.alpha_blend) return alpha < m.alpha_cutoff;
   uint64_t key = 0;
@@ -90,6 +91,39 @@ bool Scene::cut_out(uint32_t prim, float b1, float b2, const float (&ray)[6]) co
 
 Scene::Scene(SceneData data, std::unique_ptr<Environment> environment)
     : data_(std::move(data)), environment_(std::move(environment)) {
+  textures_ = std::make_shared<const std::vector<Texture>>(std::move(data_.textures));
+  data_.textures.clear();
+  build();
+}
+
+Scene::Scene(SceneData posed, std::shared_ptr<const std::vector<Texture>> textures,
+             std::shared_ptr<const Environment> environment, float time)
+    : data_(std::move(posed)),
+      textures_(std::move(textures)),
+      environment_(std::move(environment)),
+      pose_time_(time) {
+  build();
+}
+
+std::shared_ptr<const Scene> Scene::at_time(float time) const {
+  // Not owned: the caller holds this scene for as long as it uses it.
+  if (!data_.motion || time == pose_time_)
+    return std::shared_ptr<const Scene>(std::shared_ptr<const Scene>(), this);
+  // A pose has no rest data to pose again from.
+  DOFARM_CHECK(std::isnan(pose_time_));
+  std::lock_guard<std::mutex> lock(posed_mutex_);
+  for (const auto& [t, scene] : posed_)
+    if (t == time) return scene;
+  // Built under the lock: whoever else asks wants the same pose or waits
+  // for its BVH in any case.
+  auto scene =
+      std::shared_ptr<const Scene>(new Scene(pose(data_, time), textures_, environment_, time));
+  if (posed_.size() >= 2) posed_.erase(posed_.begin());
+  posed_.emplace_back(time, scene);
+  return scene;
+}
+
+void Scene::build() {
   const FileLoc loc{data_.source.string()};
   if (data_.triangle_count() == 0) throw SpecError(loc, "scene", "the scene has no triangles");
   DOFARM_CHECK(data_.uvs.empty() || data_.uvs.size() == data_.positions.size());
@@ -117,8 +151,8 @@ Scene::Scene(SceneData data, std::unique_ptr<Environment> environment)
   // Lights: every emissive triangle with a positive area, selected by power.
   std::vector<float> power;
   light_index_of_prim_.assign(data_.triangle_count(), -1);
-  std::vector<Vec3> tex_mean(data_.textures.size());
-  for (size_t i = 0; i < data_.textures.size(); ++i) tex_mean[i] = texture_mean(data_.textures[i]);
+  std::vector<Vec3> tex_mean(textures().size());
+  for (size_t i = 0; i < textures().size(); ++i) tex_mean[i] = texture_mean(textures()[i]);
   for (uint32_t t = 0; t < data_.triangle_count(); ++t) {
     const Material& m = data_.materials[data_.tri_material[t]];
     if (!m.is_emissive()) continue;
@@ -261,7 +295,7 @@ Vec3 Scene::normal_mapped(int tex, float scale, const uint32_t* idx, float b0, f
   t = t / len;
   const float w = a.w * b0 + b.w * b1 + c.w * b2 < 0.0f ? -1.0f : 1.0f;
   const Vec3 bt = cross(n, t) * w;
-  const Vec3 texel = data_.textures[tex].lookup(st);
+  const Vec3 texel = textures()[tex].lookup(st);
   const Vec3 v((2.0f * texel.x - 1.0f) * scale, (2.0f * texel.y - 1.0f) * scale,
                2.0f * texel.z - 1.0f);
   return normalize(t * v.x + bt * v.y + n * v.z, n);
@@ -300,7 +334,7 @@ Vec3 Scene::mapped_normal(int tex, float scale, Vec2 st, uint32_t prim, const ui
 Vec3 Scene::material_emission(const Material& m, Vec2 uv) const {
   if (!m.is_emissive()) return Vec3(0);
   if (m.emission_tex >= 0)
-    return m.emission * data_.textures[m.emission_tex].lookup(m.emission_uv.apply(uv));
+    return m.emission * textures()[m.emission_tex].lookup(m.emission_uv.apply(uv));
   return m.emission;
 }
 
@@ -371,7 +405,7 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
   hit->sheen_roughness = m.sheen_roughness;
   // Only textured materials pay for lookups.
   auto texel = [&](int tex, const UvTransform& uv) {
-    return data_.textures[tex].lookup(hit->uv_of(uv));
+    return textures()[tex].lookup(hit->uv_of(uv));
   };
   if (m.base_color_tex >= 0)
     hit->base_color = hit->base_color * texel(m.base_color_tex, m.base_color_uv);
@@ -385,14 +419,14 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
   if (m.clearcoat_rough_tex >= 0)
     hit->clearcoat_roughness *= texel(m.clearcoat_rough_tex, m.clearcoat_rough_uv).y;
   if (m.specular_tex >= 0)
-    hit->specular *= data_.textures[m.specular_tex].alpha_lookup(hit->uv_of(m.specular_uv));
+    hit->specular *= textures()[m.specular_tex].alpha_lookup(hit->uv_of(m.specular_uv));
   if (m.specular_color_tex >= 0)
     hit->specular_color = hit->specular_color * texel(m.specular_color_tex, m.specular_color_uv);
   if (m.sheen_color_tex >= 0)
     hit->sheen_color = hit->sheen_color * texel(m.sheen_color_tex, m.sheen_color_uv);
   if (m.sheen_rough_tex >= 0)
     hit->sheen_roughness *=
-        data_.textures[m.sheen_rough_tex].alpha_lookup(hit->uv_of(m.sheen_rough_uv));
+        textures()[m.sheen_rough_tex].alpha_lookup(hit->uv_of(m.sheen_rough_uv));
   hit->emission = material_emission(m, m.emission_uv.set == 1 ? hit->uv1 : hit->uv);
   return true;
 }

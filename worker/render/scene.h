@@ -4,7 +4,10 @@
 
 #include <embree3/rtcore.h>
 
+#include <cmath>
 #include <memory>
+#include <mutex>
+#include <utility>
 #include <vector>
 
 #include "common/jobspec.h"
@@ -82,8 +85,17 @@ class Scene {
   // by an amount that scales with the coordinates (works from 1e-4 to 1e5).
   Vec3 offset_origin(const SurfaceHit& hit, Vec3 dir) const;
 
+  // The scene's data. Its `textures` are empty: the texels live in
+  // textures(), shared by every pose of the scene.
   const SceneData& data() const { return data_; }
+  const std::vector<Texture>& textures() const { return *textures_; }
   const Environment* environment() const { return environment_.get(); }
+  // The scene at `time` seconds (a frame's time, frame_time()): this scene
+  // itself where nothing moves (SceneData::motion is null), else a scene of
+  // pose(data(), time) that shares this one's textures and environment,
+  // built on first use and kept for the last two times asked for (a worker
+  // renders the tiles of a frame or two at a time). Thread-safe.
+  std::shared_ptr<const Scene> at_time(float time) const;
   bool has_lights() const { return !light_tris_.empty() || env_sampled_ || !data_.lights.empty(); }
 
   // Next-event estimation: pick a light by power (emissive triangles, the
@@ -177,8 +189,18 @@ class Scene {
   // The same at a point p in the plane of the triangle `idx`.
   Vec2 texcoord_at(const uint32_t* idx, Vec3 p, unsigned set = 0) const;
 
+  // A pose of a moving scene at `time` (at_time()).
+  Scene(SceneData posed, std::shared_ptr<const std::vector<Texture>> textures,
+        std::shared_ptr<const Environment> environment, float time);
+  // The BVH, the lights and their selection, from data_.
+  void build();
+
   SceneData data_;
-  std::unique_ptr<Environment> environment_;
+  std::shared_ptr<const std::vector<Texture>> textures_;
+  std::shared_ptr<const Environment> environment_;
+  float pose_time_ = std::nanf("");  // NaN: the scene as loaded
+  mutable std::mutex posed_mutex_;
+  mutable std::vector<std::pair<float, std::shared_ptr<const Scene>>> posed_;
   RTCDevice device_ = nullptr;
   RTCScene rtc_scene_ = nullptr;
   std::vector<float> vertex_buffer_;  // xyz + padding Embree may read past the end

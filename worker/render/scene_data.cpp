@@ -21,6 +21,7 @@
 #include "common/error.h"
 #include "common/exr_io.h"
 #include "worker/render/gltf_info.h"
+#include "worker/render/scene_motion.h"
 
 namespace dofarm::render {
 
@@ -230,16 +231,29 @@ class Loader {
     }
   }
 
+  // Flattens the hierarchy below `node` into world space at the nodes' own
+  // transforms; the meshes of nodes that the animation moves (or whose
+  // parents it moves) are also kept in their nodes' space
+  // (SceneData::motion).
   void node(const aiNode* node, const aiMatrix4x4& parent) {
     const aiMatrix4x4 world = parent * node->mTransformation;
+    const int moving = node->mNumMeshes > 0 && moves(node) ? int(motion_node(node)) : -1;
     for (unsigned k = 0; k < node->mNumMeshes; ++k) {
-      mesh(scene_->mMeshes[node->mMeshes[k]], world, node->mName.C_Str());
+      mesh(scene_->mMeshes[node->mMeshes[k]], world, node->mName.C_Str(), moving);
     }
     for (unsigned c = 0; c < node->mNumChildren; ++c) this->node(node->mChildren[c], world);
   }
 
   void camera_track();
   void lights();
+  // The node animation of every node: the channel of the first animation
+  // that has one for it (each of Blender's actions is an animation of its
+  // own; together they are the timeline). Call before node() and lights().
+  void animation_channels();
+  // Hands the motion of the moving meshes and lights to the SceneData
+  // (none when nothing but the camera moves); warns about animation that
+  // is not followed.
+  void finish_motion();
   // The file's TANGENTs, per vertex (a zero t where it gives none): they
   // replace the computed ones (glTF 3.7.2.1: MikkTSpace is only the
   // fallback when the file has none).
@@ -264,7 +278,25 @@ class Loader {
   int load_texture(const std::string& name, const TextureSampler& sampler, bool srgb,
                    bool with_alpha, int held_image = -1);
   static RgbImage decode_embedded(const aiTexture* t, const std::string& name, bool srgb);
-  void mesh(const aiMesh* m, const aiMatrix4x4& world, const char* node_name);
+  // `motion_node` >= 0: the node moves; its vertices are also kept in its space.
+  void mesh(const aiMesh* m, const aiMatrix4x4& world, const char* node_name, int motion_node);
+  // Whether the animation moves `n` or one of its parents.
+  bool moves(const aiNode* n) const {
+    for (; n; n = n->mParent)
+      if (channels_.count(n->mName.C_Str())) return true;
+    return false;
+  }
+  // `n`'s index in motion_->nodes, adding it and its parents on first use.
+  uint32_t motion_node(const aiNode* n);
+  // The channel whose keys animate `path` ("translation", "rotation",
+  // "scale") of node `name`, or null: in a glTF file the first animation
+  // whose JSON targets that path (assimp fills a channel's other paths with
+  // the node's static value, so a later animation's real keys would be
+  // hidden); else (other formats, unnamed nodes) the first animation with a
+  // channel for the node. Sets its ticks per second, and `step` for a STEP
+  // sampler; a CUBICSPLINE one is named in a warning.
+  const aiNodeAnim* path_channel(const std::string& name, const char* path,
+                                 double* ticks_per_second, bool* step) const;
   void check_material(const Material& m, unsigned index) const {
     const std::string which = "material " + std::to_string(index) + " (\"" + m.name + "\")";
     bool ok = is_finite(m.base_color) && is_finite(m.emission) && std::isfinite(m.metallic) &&
@@ -296,6 +328,13 @@ class Loader {
   std::set<int> alpha_loaded_;  // textures whose alpha channel was asked for
   // Per vertex, where the file gives tangents (a zero t elsewhere).
   std::vector<SceneData::Tangent> given_tangents_;
+  struct Channel {
+    const aiNodeAnim* keys;
+    double ticks_per_second;
+  };
+  std::map<std::string, Channel> channels_;  // by node name
+  std::shared_ptr<SceneMotion> motion_ = std::make_shared<SceneMotion>();
+  std::map<const aiNode*, uint32_t> motion_index_;
 };
 
 int Loader::texture(const aiMaterial* am, std::initializer_list<aiTextureType> types, bool srgb,
@@ -424,13 +463,15 @@ RgbImage Loader::decode_embedded(const aiTexture* t, const std::string& name, bo
   return img;
 }
 
-void Loader::mesh(const aiMesh* m, const aiMatrix4x4& world, const char* node_name) {
+void Loader::mesh(const aiMesh* m, const aiMatrix4x4& world, const char* node_name,
+                  int motion_node) {
   // Normals transform by the inverse transpose, so non-uniform scale keeps
   // them perpendicular to the surface.
   aiMatrix3x3 normal_matrix(world);
   const bool mirrored = normal_matrix.Determinant() < 0;
   normal_matrix.Inverse().Transpose();
   const auto base = static_cast<uint32_t>(out_->positions.size());
+  const auto first_index = static_cast<uint32_t>(out_->indices.size());
   const bool has_uv = m->HasTextureCoords(0);
   if (has_uv && out_->uvs.empty()) out_->uvs.assign(base, Vec2(0, 0));
   // TEXCOORD_1 only where the mesh's material reads it. A mesh without the
@@ -491,6 +532,32 @@ void Loader::mesh(const aiMesh* m, const aiMatrix4x4& world, const char* node_na
     out_->indices.insert(out_->indices.end(), {base + a, base + b, base + c});
     out_->tri_material.push_back(material);
   }
+  if (motion_node < 0) return;
+  // A moving node's mesh, also in the node's space, for pose().
+  SceneMotion& mo = *motion_;
+  MovingPart part;
+  part.node = uint32_t(motion_node);
+  part.first_vertex = base;
+  part.vertex_count = m->mNumVertices;
+  part.first_index = first_index;
+  part.index_count = uint32_t(out_->indices.size()) - first_index;
+  part.local_first = uint32_t(mo.positions.size());
+  part.mirrored = mirrored;
+  const bool tangents = m->HasTangentsAndBitangents() && m->HasNormals();
+  if (tangents) {
+    mo.tangents.resize(mo.positions.size());
+    mo.bitangents.resize(mo.positions.size());
+  }
+  for (unsigned v = 0; v < m->mNumVertices; ++v) {
+    mo.positions.push_back(to_vec3(m->mVertices[v]));
+    mo.normals.push_back(m->HasNormals() ? normalize(to_vec3(m->mNormals[v]), Vec3(0.0f))
+                                         : Vec3(0.0f));
+    if (tangents) {
+      mo.tangents.push_back(to_vec3(m->mTangents[v]));
+      mo.bitangents.push_back(to_vec3(m->mBitangents[v]));
+    }
+  }
+  mo.parts.push_back(part);
 }
 
 // --- camera animation --------------------------------------------------------
@@ -607,60 +674,154 @@ void Loader::camera_track() {
   }
 }
 
-// Node animation moves only the camera (and places lights at time 0):
-// meshes stay where their nodes' transforms put them (a Blender export: the
-// frame it was exported at) in every frame. A file whose animations move a
-// node that holds meshes, or one of its parents, is named in a warning with
-// up to five such nodes, so that the difference is never silent.
-void warn_animated_meshes(const std::filesystem::path& path, const aiScene* scene) {
-  std::set<std::string> animated;
-  for (unsigned a = 0; a < scene->mNumAnimations; ++a)
-    for (unsigned c = 0; c < scene->mAnimations[a]->mNumChannels; ++c)
-      animated.insert(scene->mAnimations[a]->mChannels[c]->mNodeName.C_Str());
-  if (animated.empty()) return;
-  std::vector<std::string> moving;
-  size_t count = 0;
-  auto visit = [&](auto&& self, const aiNode* n, bool parent_moves) -> void {
-    const bool moves = parent_moves || animated.count(n->mName.C_Str()) > 0;
-    if (moves && n->mNumMeshes > 0 && count++ < 5)
-      moving.push_back("\"" + std::string(n->mName.C_Str()) + "\"");
-    for (unsigned c = 0; c < n->mNumChildren; ++c) self(self, n->mChildren[c], moves);
-  };
-  visit(visit, scene->mRootNode, false);
-  if (count == 0) return;
-  std::string names;
-  for (const std::string& m : moving) names += (names.empty() ? "" : ", ") + m;
-  if (count > moving.size()) names += fmt::format(" and {} more", count - moving.size());
-  spdlog::warn(
-      "{}: the animation moves {} node(s) that hold meshes ({}); dofarm follows only the "
-      "camera's animation and renders every mesh where its node's own transform puts it in "
-      "every frame (from Blender: the frame the file was exported at)",
-      path.string(), count, names);
+// --- node animation (meshes and lights) ---------------------------------------
+
+void Loader::animation_channels() {
+  for (unsigned a = 0; a < scene_->mNumAnimations; ++a) {
+    const aiAnimation* anim = scene_->mAnimations[a];
+    const double tps = anim->mTicksPerSecond > 0 ? anim->mTicksPerSecond : 1.0;
+    for (unsigned c = 0; c < anim->mNumChannels; ++c)
+      channels_.emplace(anim->mChannels[c]->mNodeName.C_Str(), Channel{anim->mChannels[c], tps});
+  }
+}
+
+namespace {
+
+Affine to_affine(const aiMatrix4x4& m) {
+  Affine a;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) a.l[r][c] = m[r][c];
+  a.t = Vec3(m.a4, m.b4, m.c4);
+  return a;
+}
+
+// assimp's keys (ticks) as a track in seconds. assimp 5.2 gives every key
+// of a glTF sampler as a value (of a CUBICSPLINE sampler: the spline's
+// points, without their tangents).
+template <typename Key, typename T, typename Convert>
+void read_keys(const Key* keys, unsigned count, double ticks_per_second, Track<T>* track,
+               Convert convert) {
+  for (unsigned i = 0; i < count; ++i) {
+    track->times.push_back(float(keys[i].mTime / ticks_per_second));
+    track->values.push_back(convert(keys[i].mValue));
+  }
+}
+
+}  // namespace
+
+uint32_t Loader::motion_node(const aiNode* n) {
+  if (auto it = motion_index_.find(n); it != motion_index_.end()) return it->second;
+  MotionNode node;
+  node.parent = n->mParent ? int(motion_node(n->mParent)) : -1;
+  node.fixed = to_affine(n->mTransformation);
+  const std::string name = n->mName.C_Str();
+  if (auto it = channels_.find(name); it != channels_.end()) {
+    // glTF: an animated node has translation, rotation and scale, not a
+    // matrix (3.11), so the decomposition is exact.
+    aiVector3D s, t;
+    aiQuaternion r;
+    n->mTransformation.Decompose(s, r, t);
+    node.translation = to_vec3(t);
+    node.scale = to_vec3(s);
+    node.rotation = Quat{r.w, r.x, r.y, r.z};
+    auto vec = [](const aiVector3D& v) { return to_vec3(v); };
+    double tps = 1;
+    bool step = false;
+    if (const aiNodeAnim* ch = path_channel(name, "translation", &tps, &step)) {
+      read_keys(ch->mPositionKeys, ch->mNumPositionKeys, tps, &node.translation_keys, vec);
+      node.translation_keys.step = step;
+    }
+    if (const aiNodeAnim* ch = path_channel(name, "scale", &tps, &step)) {
+      read_keys(ch->mScalingKeys, ch->mNumScalingKeys, tps, &node.scale_keys, vec);
+      node.scale_keys.step = step;
+    }
+    if (const aiNodeAnim* ch = path_channel(name, "rotation", &tps, &step)) {
+      read_keys(ch->mRotationKeys, ch->mNumRotationKeys, tps, &node.rotation_keys,
+                [](const aiQuaternion& q) {
+                  return Quat{q.w, q.x, q.y, q.z};
+                });
+      node.rotation_keys.step = step;
+    }
+    // Keys as glTF requires them (3.11): finite values at increasing times;
+    // rotations are made unit.
+    const std::string bad = "the animation of node \"" + name + "\" has ";
+    auto check_times = [&](const std::vector<float>& times) {
+      for (size_t i = 0; i < times.size(); ++i)
+        if (!std::isfinite(times[i]) || (i > 0 && !(times[i] > times[i - 1])))
+          fail(path_, bad + "key times that are not finite and increasing");
+    };
+    for (const Track<Vec3>* track : {&node.translation_keys, &node.scale_keys}) {
+      check_times(track->times);
+      for (Vec3 v : track->values)
+        if (!is_finite(v)) fail(path_, bad + "a non-finite key");
+    }
+    check_times(node.rotation_keys.times);
+    for (Quat& q : node.rotation_keys.values) {
+      const float len = std::sqrt(q.w * q.w + q.x * q.x + q.y * q.y + q.z * q.z);
+      if (!std::isfinite(len) || !(len > 0))
+        fail(path_, bad + "a rotation key that is not a rotation");
+      q = Quat{q.w / len, q.x / len, q.y / len, q.z / len};
+    }
+  }
+  motion_->nodes.push_back(std::move(node));
+  const auto index = uint32_t(motion_->nodes.size() - 1);
+  motion_index_.emplace(n, index);
+  return index;
+}
+
+const aiNodeAnim* Loader::path_channel(const std::string& name, const char* path,
+                                       double* ticks_per_second, bool* step) const {
+  *step = false;
+  bool named = false;
+  for (const GltfInfo::AnimatedPath& ap : gltf_.animated_paths) {
+    if (ap.node != name) continue;
+    named = true;
+    if (ap.path != path || ap.animation >= scene_->mNumAnimations) continue;
+    const aiAnimation* anim = scene_->mAnimations[ap.animation];
+    for (unsigned c = 0; c < anim->mNumChannels; ++c) {
+      if (anim->mChannels[c]->mNodeName.C_Str() != name) continue;
+      *ticks_per_second = anim->mTicksPerSecond > 0 ? anim->mTicksPerSecond : 1.0;
+      *step = ap.interpolation == "STEP";
+      if (ap.interpolation == "CUBICSPLINE")
+        spdlog::warn(
+            "{}: the {} of node \"{}\" is animated by a CUBICSPLINE sampler; dofarm "
+            "interpolates linearly between its keys (the spline's tangents are not read)",
+            path_.string(), path, name);
+      return anim->mChannels[c];
+    }
+  }
+  if (named) return nullptr;  // the file's animations do not move this path
+  const auto it = channels_.find(name);
+  if (it == channels_.end()) return nullptr;
+  *ticks_per_second = it->second.ticks_per_second;
+  return it->second.keys;
+}
+
+// Node animation moves meshes and lights frame by frame (SceneMotion);
+// what it cannot move is named in a warning: morph target weights, and
+// skinned meshes (bones), which stay in their bind pose.
+void Loader::finish_motion() {
+  if (!motion_->parts.empty() || !motion_->lights.empty()) {
+    if (!motion_->tangents.empty()) {
+      motion_->tangents.resize(motion_->positions.size());
+      motion_->bitangents.resize(motion_->positions.size());
+    }
+    out_->motion = motion_;
+  }
+  unsigned morph = 0, skinned = 0;
+  for (unsigned a = 0; a < scene_->mNumAnimations; ++a)
+    morph +=
+        scene_->mAnimations[a]->mNumMorphMeshChannels + scene_->mAnimations[a]->mNumMeshChannels;
+  for (unsigned m = 0; m < scene_->mNumMeshes; ++m) skinned += scene_->mMeshes[m]->mNumBones > 0;
+  if (morph > 0)
+    spdlog::warn("{}: {} morph-target animation channel(s) ignored: meshes keep their base shape",
+                 path_.string(), morph);
+  if (skinned > 0)
+    spdlog::warn("{}: {} skinned mesh(es) rendered in their bind pose: skinning is not applied",
+                 path_.string(), skinned);
 }
 
 // --- lights --------------------------------------------------------------------
-
-// A node's world transform at time 0 of the first animation that moves it or
-// one of its parents (its static transform when none does).
-aiMatrix4x4 world_at_start(const aiScene* scene, const aiNode* node) {
-  std::vector<const aiNode*> chain;  // root ... node
-  for (const aiNode* n = node; n; n = n->mParent) chain.insert(chain.begin(), n);
-  std::vector<const aiNodeAnim*> channels(chain.size(), nullptr);
-  bool found = false;
-  for (unsigned a = 0; a < scene->mNumAnimations && !found; ++a) {
-    const aiAnimation* anim = scene->mAnimations[a];
-    for (unsigned c = 0; c < anim->mNumChannels; ++c)
-      for (size_t k = 0; k < chain.size(); ++k)
-        if (anim->mChannels[c]->mNodeName == chain[k]->mName) {
-          channels[k] = anim->mChannels[c];
-          found = true;
-        }
-  }
-  aiMatrix4x4 world;
-  for (size_t k = 0; k < chain.size(); ++k)
-    world = world * local_transform(chain[k], channels[k], 0.0);
-  return world;
-}
 
 void Loader::lights() {
   if (scene_->mNumLights == 0) return;
@@ -679,7 +840,8 @@ void Loader::lights() {
       spdlog::warn("{}: light \"{}\" is on no node; ignored", path_.string(), name);
       continue;
     }
-    const aiMatrix4x4 world = world_at_start(scene_, node);
+    aiMatrix4x4 world;  // at the nodes' own transforms; pose() moves an animated one
+    for (const aiNode* n = node; n; n = n->mParent) world = n->mTransformation * world;
     PunctualLight light;
     light.name = name;
     light.position = to_vec3(world * al->mPosition);
@@ -716,6 +878,14 @@ void Loader::lights() {
     if (max_component(light.intensity) > kMaxRadiance)
       fail(path_, which + " has intensity " + fmt::format("{:g}", max_component(light.intensity)) +
                       " (after dividing by 683 lm/W), above the bound kMaxRadiance = 1e12");
+    if (moves(node)) {
+      MovingLight moving;
+      moving.light = uint32_t(out_->lights.size());
+      moving.node = motion_node(node);
+      moving.position = to_vec3(al->mPosition);
+      moving.direction = to_vec3(al->mDirection);
+      motion_->lights.push_back(moving);
+    }
     out_->lights.push_back(std::move(light));
   }
 }
@@ -769,13 +939,14 @@ SceneData load_scene_data(const std::filesystem::path& path) {
   out.source = path;
   Loader loader(path, scene, gltf, &out);
   loader.materials();
+  loader.animation_channels();
   loader.node(scene->mRootNode, aiMatrix4x4());
   if (out.triangle_count() == 0)
     fail(path, "the scene has no triangles (" + std::to_string(scene->mNumMeshes) +
                    " meshes, only points or lines)");
   loader.camera_track();
   loader.lights();
-  warn_animated_meshes(path, scene);
+  loader.finish_motion();
   // Normal maps need tangents, which need the texture coordinates they read.
   std::string no_uv;
   for (Material& m : out.materials) {

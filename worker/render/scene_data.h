@@ -144,6 +144,8 @@ struct PunctualLight {
 // the denominator kept above 1e-3.
 float spot_falloff(float cos_angle, float cos_inner, float cos_outer);
 
+struct SceneMotion;  // worker/render/scene_motion.h
+
 struct SceneData {
   std::filesystem::path source;  // file it came from (empty if built in code)
   std::vector<Vec3> positions;
@@ -172,6 +174,11 @@ struct SceneData {
   std::vector<Texture> textures;
   std::vector<CameraTrackKey> camera_track;  // empty = no camera in the file
   std::vector<PunctualLight> lights;         // glTF KHR_lights_punctual
+  // Meshes and lights that the file's node animation moves; null when
+  // nothing but the camera moves. The arrays above then hold the nodes'
+  // own transforms (from Blender: the frame the file was exported at), and
+  // a frame is rendered from pose() at its time (Scene::at_time).
+  std::shared_ptr<const SceneMotion> motion;
 
   size_t triangle_count() const { return tri_material.size(); }
   // Appends a mesh with its own material; returns the material index. `n` and
@@ -194,7 +201,9 @@ struct SceneData {
 // docs/renderer.md, "glTF coverage". KHR_materials_emissive_strength and
 // KHR_texture_transform are read from the file's JSON (assimp 5.2 drops the
 // first and converts the second into its own convention); lights come
-// through assimp's aiLight, placed by their node at time 0.
+// through assimp's aiLight. Node animation moves the camera
+// (camera_track), and meshes and lights (motion); morph targets and
+// skinning are named in a warning and not applied.
 SceneData load_scene_data(const std::filesystem::path& path);
 
 // Fills data->tangents from positions, normals and uvs (uvs1 for triangles

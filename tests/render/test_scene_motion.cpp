@@ -1,0 +1,299 @@
+// Meshes and lights moved by the scene file's node animation
+// (worker/render/scene_motion.h): the transforms against hand-computed
+// values, glTF samplers (LINEAR, STEP) through the loader, and frames
+// rendered where the moving quad is at each frame's time.
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "tests/render/gltf_fixture.h"
+#include "tests/render/render_fixtures.h"
+#include "worker/render/render_job.h"
+#include "worker/render/scene_motion.h"
+
+namespace dofarm::render {
+namespace {
+
+using gltf_fixture::expect_near3;
+using gltf_fixture::floats_bytes;
+using gltf_fixture::GltfQuad;
+using gltf_fixture::Json;
+using gltf_fixture::LogCapture;
+using gltf_fixture::TempDir;
+
+Quat about_axis(Vec3 axis, float radians) {
+  const Vec3 a = normalize(axis) * std::sin(0.5f * radians);
+  return Quat{std::cos(0.5f * radians), a.x, a.y, a.z};
+}
+
+TEST(Affine, TrsIsTranslationAfterRotationAfterScale) {
+  const Quat r = about_axis(Vec3(0, 0, 1), 0.5f * kPi);  // x -> y
+  const Affine a = Affine::trs(Vec3(1, 2, 3), r, Vec3(2, 3, 4));
+  // (1, 1, 1) scaled (2, 3, 4), turned a quarter about z (-3, 2, 4), moved.
+  expect_near3(a.point(Vec3(1, 1, 1)), Vec3(-2, 4, 7), 1e-5f);
+  EXPECT_NEAR(a.determinant(), 24.0f, 1e-4f);
+  // Composition: b after a.
+  const Affine b = Affine::trs(Vec3(0, 0, -1), Quat{}, Vec3(1, 1, 2));
+  expect_near3((b * a).point(Vec3(1, 1, 1)), Vec3(-2, 4, 13), 1e-5f);
+}
+
+TEST(Affine, NormalsStayPerpendicularAndSurviveSingularScale) {
+  const Affine a = Affine::trs(Vec3(0.0f), about_axis(Vec3(1, 2, 3), 0.7f), Vec3(3, 0.5f, 1));
+  // Two directions in a surface, and its normal.
+  const Vec3 u = normalize(Vec3(1, -1, 0)), v = normalize(Vec3(0, 1, -2));
+  const Vec3 n = normalize(cross(u, v));
+  const Vec3 n2 = normalize(a.normal(n));
+  EXPECT_NEAR(dot(n2, a.linear(u)), 0.0f, 1e-5f);
+  EXPECT_NEAR(dot(n2, a.linear(v)), 0.0f, 1e-5f);
+  EXPECT_GT(dot(n2, cross(a.linear(u), a.linear(v))), 0.0f);  // the same side
+  // A mirror keeps the normal on the side the inverse transpose gives.
+  const Affine m = Affine::trs(Vec3(0.0f), Quat{}, Vec3(-1, 1, 1));
+  expect_near3(normalize(m.normal(Vec3(1, 0, 0))), Vec3(-1, 0, 0), 1e-6f);
+  expect_near3(normalize(m.normal(Vec3(0, 1, 0))), Vec3(0, 1, 0), 1e-6f);
+  // Scaled to nothing (an object hidden by scale 0): no NaN, a zero normal.
+  const Affine z = Affine::trs(Vec3(0.0f), Quat{}, Vec3(0.0f));
+  const Vec3 nz = z.normal(Vec3(0, 0, 1));
+  EXPECT_TRUE(is_finite(nz));
+  EXPECT_EQ(length(nz), 0.0f);
+}
+
+TEST(MotionNode, TracksInterpolateClampAndStep) {
+  MotionNode n;
+  n.translation = Vec3(7, 7, 7);  // stands in for a property without keys
+  n.scale = Vec3(1.0f);
+  n.translation_keys.times = {1.0f, 3.0f};
+  n.translation_keys.values = {Vec3(0, 0, 0), Vec3(4, 0, 0)};
+  n.rotation_keys.times = {0.0f, 2.0f};
+  n.rotation_keys.values = {Quat{}, about_axis(Vec3(0, 1, 0), kPi * 0.5f)};
+  expect_near3(n.local(0.0f).point(Vec3(0.0f)), Vec3(0, 0, 0), 1e-6f);  // clamped before
+  expect_near3(n.local(2.0f).point(Vec3(0.0f)), Vec3(2, 0, 0), 1e-6f);
+  expect_near3(n.local(9.0f).point(Vec3(0.0f)), Vec3(4, 0, 0), 1e-6f);  // clamped after
+  // Spherical: halfway through a quarter turn about y is 45 degrees.
+  expect_near3(n.local(1.0f).linear(Vec3(1, 0, 0)), Vec3(std::cos(kPi / 4), 0, -std::sin(kPi / 4)),
+               1e-5f);
+  expect_near3(n.local(2.0f).linear(Vec3(1, 0, 0)), Vec3(0, 0, -1), 1e-5f);
+  n.translation_keys.step = true;
+  expect_near3(n.local(2.9f).point(Vec3(0.0f)), Vec3(0, 0, 0), 1e-6f);
+  expect_near3(n.local(3.0f).point(Vec3(0.0f)), Vec3(4, 0, 0), 1e-6f);
+  // Without keys: the node's fixed transform.
+  MotionNode still;
+  still.fixed = Affine::trs(Vec3(1, 2, 3), Quat{}, Vec3(1.0f));
+  expect_near3(still.local(5.0f).point(Vec3(0.0f)), Vec3(1, 2, 3), 1e-6f);
+}
+
+// Appends an animation sampler of `values` (VEC3 or VEC4 per key) at `times`
+// targeting node `node`'s `path`, as its own animation.
+void add_channel(GltfQuad* q, int node, const char* path, const std::vector<float>& times,
+                 const std::vector<float>& values, const char* interpolation = "LINEAR") {
+  const int width = int(values.size() / times.size());
+  auto view = [&](const std::vector<float>& v) {
+    while (q->bin.size() % 4) q->bin += '\0';
+    const size_t at = q->bin.size();
+    q->bin.append(reinterpret_cast<const char*>(v.data()), v.size() * 4);
+    q->doc["bufferViews"].push_back(
+        {{"buffer", 0}, {"byteOffset", at}, {"byteLength", 4 * v.size()}});
+    return q->doc["bufferViews"].size() - 1;
+  };
+  const size_t in_view = view(times), out_view = view(values);
+  const float lo = *std::min_element(times.begin(), times.end());
+  const float hi = *std::max_element(times.begin(), times.end());
+  q->doc["accessors"].push_back({{"bufferView", in_view},
+                                 {"componentType", 5126},
+                                 {"count", times.size()},
+                                 {"type", "SCALAR"},
+                                 {"min", {lo}},
+                                 {"max", {hi}}});
+  q->doc["accessors"].push_back({{"bufferView", out_view},
+                                 {"componentType", 5126},
+                                 {"count", times.size()},
+                                 {"type", width == 4 ? "VEC4" : "VEC3"}});
+  const size_t acc = q->doc["accessors"].size();
+  Json anim;
+  anim["channels"] = {{{"sampler", 0}, {"target", {{"node", node}, {"path", path}}}}};
+  anim["samplers"] = {{{"input", acc - 2}, {"output", acc - 1}, {"interpolation", interpolation}}};
+  q->doc["animations"].push_back(anim);
+}
+
+// The quad (node 0, static scale 2 in x) under node 1 "rig" at (0, 1, 0).
+GltfQuad quad_on_rig() {
+  GltfQuad q = gltf_fixture::gltf_quad();
+  q.doc["nodes"][0]["scale"] = {2, 1, 1};
+  q.doc["nodes"].push_back(Json::parse(R"({"name": "rig", "translation": [0, 1, 0],
+                                           "children": [0]})"));
+  q.doc["scenes"][0]["nodes"] = {1};
+  return q;
+}
+
+SceneData load(const TempDir& dir, const char* name, const GltfQuad& q) {
+  gltf_fixture::write_gltf(dir.path / name, q);
+  return load_scene_data(dir.path / name);
+}
+
+TEST(SceneMotion, AMeshFollowsItsAnimatedParent) {
+  TempDir dir("motion_parent");
+  GltfQuad q = quad_on_rig();
+  add_channel(&q, 1, "translation", {0, 1}, {0, 5, 0, 0, 9, 0});
+  add_channel(&q, 1, "rotation", {0, 2}, {0, 0, 0, 1, 0, std::sqrt(0.5f), 0, std::sqrt(0.5f)});
+  LogCapture log;
+  SceneData s = load(dir, "parent.gltf", q);
+  for (const std::string& line : log.lines()) ADD_FAILURE() << "unexpected warning: " << line;
+  ASSERT_NE(s.motion, nullptr);
+  ASSERT_EQ(s.motion->parts.size(), 1u);
+  // As loaded: the nodes' own transforms; vertex 2 = (1, 0, 1) -> (2, 1, 1).
+  expect_near3(s.positions[2], Vec3(2, 1, 1), 1e-6f);
+  // t = 0.5: the rig at (0, 7, 0), turned an eighth about y (half of the
+  // quarter turn that takes 2 s): (2, 0, 1) turned, then moved.
+  const float a = kPi / 8;
+  const Vec3 turned(2 * std::cos(a) + std::sin(a), 0, -2 * std::sin(a) + std::cos(a));
+  SceneData p = pose(s, 0.5f);
+  expect_near3(p.positions[2], turned + Vec3(0, 7, 0), 1e-5f);
+  expect_near3(p.positions[0], Vec3(0, 7, 0), 1e-5f);
+  // The normal turns with the quad and stays +y; nothing else changes.
+  expect_near3(p.normals[2], Vec3(0, 1, 0), 1e-5f);
+  EXPECT_EQ(p.indices, s.indices);
+  ASSERT_EQ(p.uvs.size(), s.uvs.size());
+  for (size_t v = 0; v < p.uvs.size(); ++v) EXPECT_EQ(p.uvs[v].x, s.uvs[v].x);
+  EXPECT_TRUE(p.textures.empty());
+  // Clamped after the last key: t = 5 is t = 1 for the translation, t = 2
+  // for the rotation: (2, 0, 1) a quarter turn about y is (1, 0, -2).
+  expect_near3(pose(s, 5.0f).positions[2], Vec3(1, 9, -2), 1e-5f);
+}
+
+TEST(SceneMotion, StepSamplersHoldTheirKey) {
+  TempDir dir("motion_step");
+  GltfQuad q = quad_on_rig();
+  add_channel(&q, 1, "translation", {0, 1}, {0, 0, 0, 0, 4, 0}, "STEP");
+  SceneData s = load(dir, "step.gltf", q);
+  ASSERT_NE(s.motion, nullptr);
+  expect_near3(pose(s, 0.99f).positions[0], Vec3(0, 0, 0), 1e-6f);
+  expect_near3(pose(s, 1.0f).positions[0], Vec3(0, 4, 0), 1e-6f);
+  // The same sampler as LINEAR moves it smoothly.
+  GltfQuad linear = quad_on_rig();
+  add_channel(&linear, 1, "translation", {0, 1}, {0, 0, 0, 0, 4, 0});
+  expect_near3(pose(load(dir, "linear.gltf", linear), 0.5f).positions[0], Vec3(0, 2, 0), 1e-6f);
+}
+
+TEST(SceneMotion, AMirroringScaleKeepsTheFrontFace) {
+  // Scale x from 1 to -1: past 0 the transform mirrors, and the winding
+  // must turn with it so that the triangles' front still faces the normals.
+  TempDir dir("motion_mirror");
+  GltfQuad q = quad_on_rig();
+  add_channel(&q, 1, "scale", {0, 1}, {1, 1, 1, -1, 1, 1});
+  SceneData s = load(dir, "mirror.gltf", q);
+  ASSERT_NE(s.motion, nullptr);
+  for (float t : {0.0f, 0.25f, 1.0f}) {
+    SceneData p = pose(s, t);
+    for (size_t k = 0; k + 2 < p.indices.size(); k += 3) {
+      const Vec3 p0 = p.positions[p.indices[k]], p1 = p.positions[p.indices[k + 1]],
+                 p2 = p.positions[p.indices[k + 2]];
+      const Vec3 ng = cross(p1 - p0, p2 - p0);
+      EXPECT_GT(dot(ng, p.normals[p.indices[k]]), 0.0f) << "t = " << t << ", triangle " << k / 3;
+    }
+  }
+  // Scaled to 0 at t = 0.5: every vertex collapses onto the plane x = 0,
+  // finite, with zero normals (the geometric normal stands in).
+  SceneData flat = pose(s, 0.5f);
+  for (size_t v = 0; v < flat.positions.size(); ++v) {
+    EXPECT_NEAR(flat.positions[v].x, 0.0f, 1e-6f);
+    EXPECT_TRUE(is_finite(flat.normals[v]));
+  }
+}
+
+TEST(SceneMotion, ALightFollowsItsNode) {
+  // The lamp hangs 0.5 below the rig, which moves (0, 5, 0) -> (0, 9, 0)
+  // over the first second; the quad stays.
+  TempDir dir("motion_light");
+  GltfQuad q = gltf_fixture::gltf_quad();
+  q.doc["nodes"].push_back(
+      Json::parse(R"({"name": "rig", "translation": [0, 1, 0], "children": [2]})"));
+  q.doc["nodes"].push_back(Json::parse(R"({"name": "lamp", "translation": [0, -0.5, 0],
+      "extensions": {"KHR_lights_punctual": {"light": 0}}})"));
+  q.doc["scenes"][0]["nodes"] = {0, 1};
+  q.doc["extensions"]["KHR_lights_punctual"]["lights"] =
+      Json::parse(R"([{"type": "point", "intensity": 683}])");
+  q.doc["extensionsUsed"] = {"KHR_lights_punctual"};
+  add_channel(&q, 1, "translation", {0, 1}, {0, 5, 0, 0, 9, 0});
+  SceneData s = load(dir, "light.gltf", q);
+  ASSERT_EQ(s.lights.size(), 1u);
+  ASSERT_NE(s.motion, nullptr);
+  EXPECT_TRUE(s.motion->parts.empty());                         // the quad does not move
+  expect_near3(s.lights[0].position, Vec3(0, 0.5f, 0), 1e-6f);  // the nodes' own transforms
+  expect_near3(pose(s, 0.0f).lights[0].position, Vec3(0, 4.5f, 0), 1e-6f);
+  expect_near3(pose(s, 0.25f).lights[0].position, Vec3(0, 5.5f, 0), 1e-6f);
+  expect_near3(pose(s, 1.0f).lights[0].position, Vec3(0, 8.5f, 0), 1e-6f);
+  expect_near3(pose(s, 1.0f).lights[0].intensity, Vec3(1.0f), 1e-6f);
+  // The light's irradiance on the quad below it falls as it rises: 1 / d^2.
+  auto lit = [&](float t) {
+    auto scene = std::make_shared<Scene>(pose(s, t), nullptr);
+    LightSample ls;
+    EXPECT_TRUE(scene->sample_light(Vec3(0.5f, 0, 0.5f), 0.5f, Vec2(0.5f, 0.5f), &ls));
+    return ls.radiance.x;
+  };
+  const auto d2 = [](float y) { return 0.25f + y * y + 0.25f; };
+  EXPECT_NEAR(lit(0.0f) / lit(1.0f), d2(8.5f) / d2(4.5f), 1e-4f);
+}
+
+// A camera 6 above the quad's centre looking down; the rig lifts the quad
+// from y = 0 to y = 4 over the first second.
+struct MovingQuadJob {
+  TempDir dir{"motion_render"};
+  JobSpec spec;
+  std::shared_ptr<const Scene> scene;
+  MovingQuadJob() {
+    GltfQuad q = gltf_fixture::gltf_quad();
+    q.doc["nodes"].push_back(Json::parse(R"({"name": "rig", "children": [0]})"));
+    q.doc["scenes"][0]["nodes"] = {1};
+    add_channel(&q, 1, "translation", {0, 1}, {0, 0, 0, 0, 4, 0});
+    gltf_fixture::write_gltf(dir.path / "moving.gltf", q);
+    spec = testing::make_spec(8, 8, Vec3(0.5f, 6, 0.5f), Vec3(0.5f, 0, 0.5f), 5.0f, 1.0f, 0.05f);
+    spec.camera_keys[0].focus = FocusMode::kAuto;
+    spec.scene = dir.path / "moving.gltf";
+    spec.fps = 24;
+    spec.frame_end = 24;
+    spec.versions = 1;
+    spec.reference_spp = 2;
+    spec.albedo_ref_spp = 1;
+    spec.environment = EnvironmentSpec{};
+    spec.environment->color = Vec3(1.0f);
+    scene = load_scene(spec);
+  }
+};
+
+TEST(SceneMotion, EachFrameSeesTheQuadWhereItIsThen) {
+  MovingQuadJob job;
+  for (int frame : {0, 6, 12, 24}) {
+    const float y = 4.0f * std::min(1.0f, float(frame) / 24.0f);
+    RenderOptions options;
+    options.threads = 1;
+    const FrameBuffers fb = render_frame(*job.scene, job.spec, frame, std::nullopt, options);
+    // The depth of the centre pixels (pinhole rays) is the camera's height
+    // over the quad at the frame's time, and autofocus follows it, so the
+    // quad is in focus (CoC 0) in every frame.
+    for (size_t i : {size_t(3 * 8 + 3), size_t(4 * 8 + 4)}) {
+      EXPECT_NEAR(fb.depth[i], 6.0f - y, 1e-4f) << "frame " << frame;
+      EXPECT_NEAR(fb.coc[i], 0.0f, 1e-3f) << "frame " << frame;
+    }
+    EXPECT_NEAR(fb.camera.focal_distance, 6.0f - y, 1e-4f) << "frame " << frame;
+  }
+}
+
+TEST(SceneMotion, AFrameIsTheSameWhicheverFramesCameBefore) {
+  // Poses are cached per time: frame 12 rendered first, after frames 0 and
+  // 24, and from a freshly loaded scene, byte for byte the same.
+  MovingQuadJob job;
+  RenderOptions options;
+  options.threads = 2;
+  const FrameBuffers first = render_frame(*job.scene, job.spec, 12, std::nullopt, options);
+  render_frame(*job.scene, job.spec, 0, std::nullopt, options);
+  render_frame(*job.scene, job.spec, 24, std::nullopt, options);
+  const FrameBuffers again = render_frame(*job.scene, job.spec, 12, std::nullopt, options);
+  const FrameBuffers fresh = render_frame(job.spec, 12, std::nullopt, options);
+  EXPECT_TRUE(testing::same_bytes(first, again));
+  EXPECT_TRUE(testing::same_bytes(first, fresh));
+  // Frames 0 and 12 see the quad at different depths (it moved).
+  const FrameBuffers zero = render_frame(*job.scene, job.spec, 0, std::nullopt, options);
+  EXPECT_NE(first.depth, zero.depth);
+}
+
+}  // namespace
+}  // namespace dofarm::render

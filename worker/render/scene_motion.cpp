@@ -1,0 +1,162 @@
+#include "worker/render/scene_motion.h"
+
+#include <algorithm>
+#include <cmath>
+#include <utility>
+
+#include "common/error.h"
+
+namespace dofarm::render {
+
+Affine Affine::trs(Vec3 translation, Quat r, Vec3 scale) {
+  // The rotation's matrix (columns: the rotated axes), then scaled per column.
+  const Vec3 cols[3] = {r.rotate(Vec3(1, 0, 0)) * scale.x, r.rotate(Vec3(0, 1, 0)) * scale.y,
+                        r.rotate(Vec3(0, 0, 1)) * scale.z};
+  Affine a;
+  for (int c = 0; c < 3; ++c) {
+    a.l[0][c] = cols[c].x;
+    a.l[1][c] = cols[c].y;
+    a.l[2][c] = cols[c].z;
+  }
+  a.t = translation;
+  return a;
+}
+
+Affine Affine::operator*(const Affine& o) const {
+  Affine a;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c)
+      a.l[r][c] = l[r][0] * o.l[0][c] + l[r][1] * o.l[1][c] + l[r][2] * o.l[2][c];
+  a.t = point(o.t);
+  return a;
+}
+
+float Affine::determinant() const {
+  return l[0][0] * (l[1][1] * l[2][2] - l[1][2] * l[2][1]) -
+         l[0][1] * (l[1][0] * l[2][2] - l[1][2] * l[2][0]) +
+         l[0][2] * (l[1][0] * l[2][1] - l[1][1] * l[2][0]);
+}
+
+Vec3 Affine::normal(Vec3 n) const {
+  // Cofactor matrix C (C = det * L^-T where L is invertible), applied to n.
+  const float c[3][3] = {
+      {l[1][1] * l[2][2] - l[1][2] * l[2][1], l[1][2] * l[2][0] - l[1][0] * l[2][2],
+       l[1][0] * l[2][1] - l[1][1] * l[2][0]},
+      {l[0][2] * l[2][1] - l[0][1] * l[2][2], l[0][0] * l[2][2] - l[0][2] * l[2][0],
+       l[0][1] * l[2][0] - l[0][0] * l[2][1]},
+      {l[0][1] * l[1][2] - l[0][2] * l[1][1], l[0][2] * l[1][0] - l[0][0] * l[1][2],
+       l[0][0] * l[1][1] - l[0][1] * l[1][0]}};
+  const float s = determinant() < 0 ? -1.0f : 1.0f;
+  return Vec3(c[0][0] * n.x + c[0][1] * n.y + c[0][2] * n.z,
+              c[1][0] * n.x + c[1][1] * n.y + c[1][2] * n.z,
+              c[2][0] * n.x + c[2][1] * n.y + c[2][2] * n.z) *
+         s;
+}
+
+namespace {
+
+Vec3 blend(Vec3 a, Vec3 b, float w) { return lerp(a, b, w); }
+Quat blend(Quat a, Quat b, float w) { return slerp(a, b, w); }
+
+// The track's value at `time` (glTF 2.0, 3.11: clamped outside the keys).
+template <typename T>
+T sample(const Track<T>& track, float time) {
+  const auto& ts = track.times;
+  if (time <= ts.front()) return track.values.front();
+  if (time >= ts.back()) return track.values.back();
+  const size_t i =
+      size_t(std::upper_bound(ts.begin(), ts.end(), time) - ts.begin());  // ts[i-1] <= time < ts[i]
+  if (track.step) return track.values[i - 1];
+  const float span = ts[i] - ts[i - 1];
+  const float w = span > 0 ? (time - ts[i - 1]) / span : 1.0f;
+  return blend(track.values[i - 1], track.values[i], w);
+}
+
+}  // namespace
+
+Affine MotionNode::local(float time) const {
+  if (!animated()) return fixed;
+  return Affine::trs(translation_keys.empty() ? translation : sample(translation_keys, time),
+                     rotation_keys.empty() ? rotation : sample(rotation_keys, time),
+                     scale_keys.empty() ? scale : sample(scale_keys, time));
+}
+
+Affine SceneMotion::world(uint32_t node, float time) const {
+  DOFARM_CHECK_OP(size_t(node), <, nodes.size());
+  Affine w = nodes[node].local(time);
+  for (int p = nodes[node].parent; p >= 0; p = nodes[size_t(p)].parent)
+    w = nodes[size_t(p)].local(time) * w;
+  return w;
+}
+
+SceneData pose(const SceneData& rest, float time) {
+  DOFARM_CHECK(rest.motion != nullptr);
+  const SceneMotion& motion = *rest.motion;
+  SceneData out;
+  out.source = rest.source;
+  out.positions = rest.positions;
+  out.normals = rest.normals;
+  out.uvs = rest.uvs;
+  out.uvs1 = rest.uvs1;
+  out.indices = rest.indices;
+  out.tri_material = rest.tri_material;
+  out.materials = rest.materials;
+  out.camera_track = rest.camera_track;
+  out.lights = rest.lights;
+  out.motion = rest.motion;
+
+  // A node's world transform, once per node.
+  std::vector<Affine> world(motion.nodes.size());
+  for (size_t i = 0; i < motion.nodes.size(); ++i) {
+    const MotionNode& n = motion.nodes[i];
+    world[i] = n.parent >= 0 ? world[size_t(n.parent)] * n.local(time) : n.local(time);
+  }
+
+  bool recompute_tangents = false;
+  std::vector<bool> moving(rest.tangents.empty() ? 0 : rest.positions.size(), false);
+  for (const MovingPart& part : motion.parts) {
+    const Affine& w = world[part.node];
+    for (uint32_t k = 0; k < part.vertex_count; ++k) {
+      const size_t v = size_t(part.first_vertex) + k, local = size_t(part.local_first) + k;
+      out.positions[v] = w.point(motion.positions[local]);
+      out.normals[v] = normalize(w.normal(motion.normals[local]), Vec3(0.0f));
+      if (!moving.empty()) moving[v] = true;
+    }
+    if ((w.determinant() < 0) != part.mirrored)
+      for (uint32_t k = 0; k + 2 < part.index_count; k += 3)
+        std::swap(out.indices[size_t(part.first_index) + k + 1],
+                  out.indices[size_t(part.first_index) + k + 2]);
+    recompute_tangents = recompute_tangents || !rest.tangents.empty();
+  }
+
+  if (!rest.tangents.empty()) {
+    if (recompute_tangents) compute_tangents(&out);
+    if (out.tangents.size() != rest.tangents.size()) out.tangents = rest.tangents;
+    // The vertices that do not move keep theirs (the file's or computed);
+    // those the file gives a TANGENT for move with the surface.
+    for (size_t v = 0; v < rest.tangents.size(); ++v)
+      if (!moving[v]) out.tangents[v] = rest.tangents[v];
+    if (!motion.tangents.empty())
+      for (const MovingPart& part : motion.parts) {
+        const Affine& w = world[part.node];
+        for (uint32_t k = 0; k < part.vertex_count; ++k) {
+          const size_t v = size_t(part.first_vertex) + k, local = size_t(part.local_first) + k;
+          const Vec3 t_local = motion.tangents[local];
+          if (!(length(t_local) > 0.0f)) continue;
+          const Vec3 t = normalize(w.linear(t_local), Vec3(0.0f));
+          const Vec3 b = w.linear(motion.bitangents[local]);
+          out.tangents[v] = {t, dot(cross(out.normals[v], t), b) < 0.0f ? -1.0f : 1.0f};
+        }
+      }
+  }
+
+  for (const MovingLight& ml : motion.lights) {
+    const Affine& w = world[ml.node];
+    PunctualLight& light = out.lights[ml.light];
+    light.position = w.point(ml.position);
+    light.direction = normalize(w.linear(ml.direction), Vec3(0, 0, -1));
+  }
+  return out;
+}
+
+}  // namespace dofarm::render
