@@ -45,12 +45,17 @@ import zlib
 VARIANTS = {"specular": ["file", "ignored"], "clearcoat": ["file", "ignored", "quarter"], "normal_map": ["file", "flipped", "nomap"],
             "normal_map_tangents": ["file", "flipped", "nomap"], "alpha_mask": ["file", "opaque"],
             "alpha_blend": ["file", "opaque"], "transmission": ["file", "opaque", "ior1"],
-            "uv_map": ["file", "set0"], "specular_texture": ["file", "untextured"], "clearcoat_normal": ["file", "flipped", "nomap"]}
+            "uv_map": ["file", "set0"], "specular_texture": ["file", "untextured"], "clearcoat_normal": ["file", "flipped", "nomap"],
+            "animation": ["file", "static"]}
 WHAT = {"file": "the exported file", "ignored": "KHR_materials_specular ignored",
         "flipped": "control: the map's green inverted", "nomap": "control: no normal map",
         "opaque": "control: alphaMode ignored (opaque)", "ior1": "control: IOR 1 (no bending)",
         "set0": "control: the texture reads TEXCOORD_0",
-        "untextured": "control: the specular textures removed (factors only)"}
+        "untextured": "control: the specular textures removed (factors only)",
+        "static": "control: the node animation removed (the pose exported, frame 0)"}
+# The frame feature_scene.py renders the animation at (its ANIMATION_FRAME),
+# at Blender's 24 fps.
+ANIMATION_FRAME = 9
 
 
 def read_png(path):
@@ -126,6 +131,8 @@ def variants(feature, d, size):
             for m in mats:
                 for key in ("specularTexture", "specularColorTexture"):
                     m.get("extensions", {}).get("KHR_materials_specular", {}).pop(key, None)
+        elif name == "static":
+            v.pop("animations", None)
         elif name == "set0":
             for m in mats:
                 for info in [m.get("pbrMetallicRoughness", {}).get("baseColorTexture", {})]:
@@ -145,11 +152,13 @@ def variants(feature, d, size):
             image["uri"] = "flipped_green.png"
         json.dump(v, open("%s/%s.gltf" % (d, name), "w"))
         world = '[environment]\ncolor = [0.3, 0.3, 0.3]\n' if feature == "transmission" else ""
+        frame = ANIMATION_FRAME if feature == "animation" else 0
         open("%s/%s.toml" % (d, name), "w").write(
             'scene = "%s.gltf"\nseed = 3\n[image]\nwidth = %d\nheight = %d\n'
-            '[frames]\nstart = 0\nend = 0\n[camera]\nfrom_scene = true\n'
-            '[[camera.key]]\nframe = 0\naperture = 0.0\nfocal_distance = 5.0\n'
-            '[buffers]\nversions = 1\nalbedo_ref_spp = 1\n%s' % (name, size, size, world))
+            '[frames]\nstart = %d\nend = %d\nfps = 24\n[camera]\nfrom_scene = true\n'
+            '[[camera.key]]\nframe = %d\naperture = 0.0\nfocal_distance = 5.0\n'
+            '[buffers]\nversions = 1\nalbedo_ref_spp = 1\n%s'
+            % (name, size, size, frame, frame, frame, world))
         print(name)
 
 

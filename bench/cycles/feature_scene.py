@@ -36,6 +36,13 @@
 #               and a grey world (0.3), so the sphere shows the floor
 #               refracted (KHR_materials_transmission + KHR_materials_ior);
 #               96 x 96
+#   animation   a red 0.8 m cube keyed at frames 1 and 25 (Blender's default
+#               Bezier keys) moving from (-1.2, -0.6) to (1.2, 0.6) while
+#               turning 90 degrees about z, on a 4 m floor, and a 300 W
+#               point lamp keyed from (-1.5, 1.5, 1.5) to (1.5, -1.5, 1.5),
+#               a weak sun; rendered at frame 9 (the exporter samples every
+#               frame and writes each at frame / fps seconds, the time of
+#               dofarm's frame 9 at the same fps); 96 x 96
 #
 #   blender -b -noaudio --factory-startup -P feature_scene.py -- FEATURE OUT_DIR SPP [SPECULAR TINT | ROUGHNESS [DISTRIBUTION]]
 #   (DISTRIBUTION: the glass's Principled distribution, GGX (Blender's
@@ -133,6 +140,11 @@ def light(scene, kind, energy, location=(0.0, 0.0, 0.0), rotation=(0.0, 0.0, 0.0
     obj.location = location
     obj.rotation_euler = rotation
     scene.collection.objects.link(obj)
+    return obj
+
+
+# The frame the animation feature renders (feature_compare.py ANIMATION_FRAME).
+ANIMATION_FRAME = 9
 
 
 def main():
@@ -236,6 +248,26 @@ def main():
         bpy.ops.object.shade_smooth()
         bpy.context.active_object.data.materials.append(glass)
         light(scene, "SUN", 3.0, rotation=sun_rotation)
+    elif feature == "animation":
+        size = 96
+        floor, _ = principled("floor", (0.8, 0.8, 0.8), 1.0, specular=0.0)
+        plane(4.0, 0.0, floor)
+        red, _ = principled("box", (0.8, 0.1, 0.1), 1.0, specular=0.0)
+        bpy.ops.mesh.primitive_cube_add(size=0.8, location=(-1.2, -0.6, 0.4))
+        box = bpy.context.active_object
+        box.data.materials.append(red)
+        lamp = light(scene, "POINT", 300.0, location=(-1.5, 1.5, 1.5))
+        for frame, sign in ((1, -1.0), (25, 1.0)):
+            box.location = (1.2 * sign, 0.6 * sign, 0.4)
+            box.rotation_euler = (0.0, 0.0, math.radians(45.0 + 45.0 * sign))
+            lamp.location = (1.5 * sign, -1.5 * sign, 1.5)
+            box.keyframe_insert("location", frame=frame)
+            box.keyframe_insert("rotation_euler", frame=frame)
+            lamp.keyframe_insert("location", frame=frame)
+        light(scene, "SUN", 0.5, rotation=sun_rotation)
+        scene.frame_start, scene.frame_end = 1, 25
+        scene.render.fps = 24
+        scene.frame_set(ANIMATION_FRAME)
     else:
         raise SystemExit("feature_scene.py: unknown feature " + feature)
 

@@ -14,6 +14,7 @@
 #include <fstream>
 #include <map>
 #include <optional>
+#include <limits>
 #include <set>
 #include <tuple>
 
@@ -562,84 +563,40 @@ void Loader::mesh(const aiMesh* m, const aiMatrix4x4& world, const char* node_na
 
 // --- camera animation --------------------------------------------------------
 
-// Linear interpolation of assimp key arrays at `time` (ticks), clamped at the
-// ends, as glTF's LINEAR sampler does.
-template <typename Key, typename Blend>
-auto sample_keys(const Key* keys, unsigned count, double time, Blend blend) {
-  if (time <= keys[0].mTime || count == 1) return keys[0].mValue;
-  for (unsigned i = 1; i < count; ++i) {
-    if (time <= keys[i].mTime) {
-      double span = keys[i].mTime - keys[i - 1].mTime;
-      float t = span > 0 ? static_cast<float>((time - keys[i - 1].mTime) / span) : 1.0f;
-      return blend(keys[i - 1].mValue, keys[i].mValue, t);
-    }
-  }
-  return keys[count - 1].mValue;
-}
-
-aiMatrix4x4 local_transform(const aiNode* node, const aiNodeAnim* channel, double ticks) {
-  if (!channel) return node->mTransformation;
-  aiVector3D scaling(1, 1, 1), position(0, 0, 0);
-  aiQuaternion rotation;
-  node->mTransformation.Decompose(scaling, rotation, position);
-  auto lerp3 = [](const aiVector3D& a, const aiVector3D& b, float t) { return a + (b - a) * t; };
-  if (channel->mNumPositionKeys > 0) {
-    position = sample_keys(channel->mPositionKeys, channel->mNumPositionKeys, ticks, lerp3);
-  }
-  if (channel->mNumRotationKeys > 0) {
-    rotation = sample_keys(channel->mRotationKeys, channel->mNumRotationKeys, ticks,
-                           [](const aiQuaternion& a, const aiQuaternion& b, float t) {
-                             aiQuaternion q;
-                             aiQuaternion::Interpolate(q, a, b, t);
-                             return q.Normalize();
-                           });
-  }
-  if (channel->mNumScalingKeys > 0) {
-    scaling = sample_keys(channel->mScalingKeys, channel->mNumScalingKeys, ticks, lerp3);
-  }
-  return aiMatrix4x4(scaling, rotation, position);
-}
-
 void Loader::camera_track() {
   if (scene_->mNumCameras == 0) return;
   // The first camera is the scene's camera; others are ignored.
   const aiCamera* cam = scene_->mCameras[0];
   const aiNode* cam_node = scene_->mRootNode->FindNode(cam->mName);
   if (!cam_node) return;
-  std::vector<const aiNode*> chain;  // root ... camera node
-  for (const aiNode* n = cam_node; n; n = n->mParent) chain.insert(chain.begin(), n);
-
-  // The first animation that moves the camera or one of its parents.
-  const aiAnimation* anim = nullptr;
-  std::vector<const aiNodeAnim*> channels(chain.size(), nullptr);
-  for (unsigned a = 0; a < scene_->mNumAnimations && !anim; ++a) {
-    const aiAnimation* candidate = scene_->mAnimations[a];
-    for (unsigned c = 0; c < candidate->mNumChannels; ++c) {
-      const aiNodeAnim* ch = candidate->mChannels[c];
-      for (size_t k = 0; k < chain.size(); ++k) {
-        if (ch->mNodeName == chain[k]->mName) {
-          channels[k] = ch;
-          anim = candidate;
-        }
-      }
+  // The camera node's world transform at the union of the key times on
+  // its chain (root ... camera node), each node's keys as for meshes
+  // (SceneMotion); camera_for_frame() interpolates between these keys. A
+  // STEP track's value jumps at its keys: the instant before each key is a
+  // key of the track as well, so the camera holds still until the jump.
+  const uint32_t cam_index = motion_node(cam_node);
+  std::set<float> times;
+  auto add_times = [&times](const auto& track) {
+    for (size_t i = 0; i < track.times.size(); ++i) {
+      times.insert(track.times[i]);
+      if (track.step && i > 0)
+        times.insert(std::nextafter(track.times[i], -std::numeric_limits<float>::infinity()));
     }
+  };
+  for (int n = int(cam_index); n >= 0; n = motion_->nodes[size_t(n)].parent) {
+    const MotionNode& node = motion_->nodes[size_t(n)];
+    add_times(node.translation_keys);
+    add_times(node.rotation_keys);
+    add_times(node.scale_keys);
   }
-  const double ticks_per_second = anim && anim->mTicksPerSecond > 0 ? anim->mTicksPerSecond : 1.0;
-  std::set<double> ticks;  // union of all key times on the chain
-  for (const aiNodeAnim* ch : channels) {
-    if (!ch) continue;
-    for (unsigned i = 0; i < ch->mNumPositionKeys; ++i) ticks.insert(ch->mPositionKeys[i].mTime);
-    for (unsigned i = 0; i < ch->mNumRotationKeys; ++i) ticks.insert(ch->mRotationKeys[i].mTime);
-    for (unsigned i = 0; i < ch->mNumScalingKeys; ++i) ticks.insert(ch->mScalingKeys[i].mTime);
-  }
-  if (ticks.empty()) ticks.insert(0.0);  // a static camera: one key
+  if (times.empty()) times.insert(0.0f);  // a static camera: one key
 
   // A glTF camera sits at its node's origin looking down -z with +y up
   // (glTF 2.0, 3.10.1). assimp 5.2.5 also copies the node's translation into
   // aiCamera::mPosition, which would apply it twice, so for glTF the camera's
   // own frame is taken from the spec rather than from aiCamera.
   const bool gltf = is_gltf(path_);
-  const aiVector3D cam_position = gltf ? aiVector3D(0, 0, 0) : cam->mPosition;
+  const Vec3 cam_position = gltf ? Vec3(0.0f) : to_vec3(cam->mPosition);
   const Vec3 back = gltf ? Vec3(0, 0, 1) : -normalize(to_vec3(cam->mLookAt), Vec3(0, 0, -1));
   const Vec3 up_hint = gltf ? Vec3(0, 1, 0) : normalize(to_vec3(cam->mUp), Vec3(0, 1, 0));
   // assimp's glTF2 importer stores mHorizontalFOV = yfov * aspect (checked
@@ -651,19 +608,15 @@ void Loader::camera_track() {
                           : 2.0f * std::atan(std::tan(cam->mHorizontalFOV * 0.5f) / aspect);
   const Vec3 right = normalize(cross(up_hint, back), Vec3(1, 0, 0));
   const Vec3 up = cross(back, right);
-  for (double t : ticks) {
-    aiMatrix4x4 world;
-    for (size_t k = 0; k < chain.size(); ++k)
-      world = world * local_transform(chain[k], channels[k], t);
-    aiMatrix3x3 rot(world);
-    auto apply = [&](Vec3 v) { return to_vec3(rot * aiVector3D(v.x, v.y, v.z)); };
+  for (float t : times) {
+    const Affine world = motion_->world(cam_index, t);
     // Orthonormalise: scale in the hierarchy must not leak into the rotation.
-    Vec3 w_back = normalize(apply(back));
-    Vec3 w_right = normalize(cross(apply(up), w_back));
+    Vec3 w_back = normalize(world.linear(back));
+    Vec3 w_right = normalize(cross(world.linear(up), w_back));
     Vec3 w_up = cross(w_back, w_right);
     CameraTrackKey key;
-    key.time = static_cast<float>(t / ticks_per_second);
-    key.position = to_vec3(world * cam_position);
+    key.time = t;
+    key.position = world.point(cam_position);
     key.rotation = quat_from_axes(w_right, w_up, w_back);
     key.yfov_deg = yfov * 180.0f / kPi;
     key.aspect = cam->mAspect > 0 ? cam->mAspect : 0.0f;
