@@ -12,9 +12,9 @@
 #include <cmath>
 #include <cstring>
 #include <fstream>
+#include <limits>
 #include <map>
 #include <optional>
-#include <limits>
 #include <set>
 #include <tuple>
 
