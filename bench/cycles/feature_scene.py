@@ -43,6 +43,12 @@
 #               a weak sun; rendered at frame 9 (the exporter samples every
 #               frame and writes each at frame / fps seconds, the time of
 #               dofarm's frame 9 at the same fps); 96 x 96
+#   skinning    a green bar (radius 0.25 m, 2.4 m long, along x, 0.5 m over
+#               the floor) deformed by a two-bone armature (automatic
+#               weights), the second bone keyed from straight at frame 1
+#               to bent 90 degrees about z at frame 25, the point lamp
+#               and sun of the animation scene held still; rendered at
+#               frame 13 (glTF skin, joints animated); 96 x 96
 #
 #   blender -b -noaudio --factory-startup -P feature_scene.py -- FEATURE OUT_DIR SPP [SPECULAR TINT | ROUGHNESS [DISTRIBUTION]]
 #   (DISTRIBUTION: the glass's Principled distribution, GGX (Blender's
@@ -54,6 +60,7 @@ import struct
 import sys
 
 import bpy
+import mathutils
 
 
 def image(name, size, texel, path, colour_space):
@@ -143,8 +150,9 @@ def light(scene, kind, energy, location=(0.0, 0.0, 0.0), rotation=(0.0, 0.0, 0.0
     return obj
 
 
-# The frame the animation feature renders (feature_compare.py ANIMATION_FRAME).
-ANIMATION_FRAME = 9
+# The frame the animation and skinning features render (feature_compare.py
+# ANIMATION_FRAME).
+ANIMATION_FRAME = {"animation": 9, "skinning": 13}
 
 
 def main():
@@ -265,11 +273,49 @@ def main():
             box.keyframe_insert("rotation_euler", frame=frame)
             lamp.keyframe_insert("location", frame=frame)
         light(scene, "SUN", 0.5, rotation=sun_rotation)
-        scene.frame_start, scene.frame_end = 1, 25
-        scene.render.fps = 24
-        scene.frame_set(ANIMATION_FRAME)
+    elif feature == "skinning":
+        size = 96
+        floor, _ = principled("floor", (0.8, 0.8, 0.8), 1.0, specular=0.0)
+        plane(4.0, 0.0, floor)
+        green, _ = principled("bar", (0.1, 0.7, 0.2), 1.0, specular=0.0)
+        bpy.ops.mesh.primitive_cylinder_add(radius=0.25, depth=2.4, location=(0.0, 0.0, 0.5),
+                                            rotation=(0.0, math.radians(90.0), 0.0), vertices=24)
+        bar = bpy.context.active_object
+        bar.data.materials.append(green)
+        bpy.ops.object.mode_set(mode="EDIT")
+        bpy.ops.mesh.select_all(action="SELECT")
+        bpy.ops.mesh.subdivide(number_cuts=15)
+        bpy.ops.object.mode_set(mode="OBJECT")
+        bpy.ops.object.armature_add(enter_editmode=True, location=(0.0, 0.0, 0.0))
+        rig = bpy.context.active_object
+        bones = rig.data.edit_bones
+        first = bones[0]
+        first.head, first.tail = (-1.2, 0.0, 0.5), (0.0, 0.0, 0.5)
+        second = bones.new("second")
+        second.head, second.tail = (0.0, 0.0, 0.5), (1.2, 0.0, 0.5)
+        second.parent = first
+        second.use_connect = True
+        bpy.ops.object.mode_set(mode="OBJECT")
+        bpy.ops.object.select_all(action="DESELECT")
+        bar.select_set(True)
+        rig.select_set(True)
+        bpy.context.view_layer.objects.active = rig
+        bpy.ops.object.parent_set(type="ARMATURE_AUTO")
+        pose = rig.pose.bones["second"]
+        pose.rotation_mode = "QUATERNION"
+        # World z in the bone's own frame, so the bend shows from above.
+        axis = rig.data.bones["second"].matrix_local.to_3x3().inverted() @ mathutils.Vector((0, 0, 1))
+        for frame, angle in ((1, 0.0), (25, 90.0)):
+            pose.rotation_quaternion = mathutils.Quaternion(axis, math.radians(angle))
+            pose.keyframe_insert("rotation_quaternion", frame=frame)
+        light(scene, "POINT", 300.0, location=(-1.5, 1.5, 1.5))
+        light(scene, "SUN", 0.5, rotation=sun_rotation)
     else:
         raise SystemExit("feature_scene.py: unknown feature " + feature)
+    if feature in ANIMATION_FRAME:
+        scene.frame_start, scene.frame_end = 1, 25
+        scene.render.fps = 24
+        scene.frame_set(ANIMATION_FRAME[feature])
 
     cam = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
     cam.location = (0.0, 0.0, 5.0)  # looks down its -z

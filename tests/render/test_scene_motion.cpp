@@ -233,6 +233,117 @@ TEST(SceneMotion, ALightFollowsItsNode) {
   EXPECT_NEAR(lit(0.0f) / lit(1.0f), d2(8.5f) / d2(4.5f), 1e-4f);
 }
 
+// Appends `bytes` as an accessor of `count` elements of `type` and
+// `component` (a glTF componentType); returns its index.
+size_t add_accessor(GltfQuad* q, const std::string& bytes, size_t count, const char* type,
+                    int component) {
+  while (q->bin.size() % 4) q->bin += '\0';
+  const size_t at = q->bin.size();
+  q->bin += bytes;
+  q->doc["bufferViews"].push_back(
+      {{"buffer", 0}, {"byteOffset", at}, {"byteLength", bytes.size()}});
+  q->doc["accessors"].push_back({{"bufferView", q->doc["bufferViews"].size() - 1},
+                                 {"componentType", component},
+                                 {"count", count},
+                                 {"type", type}});
+  return q->doc["accessors"].size() - 1;
+}
+
+TEST(SceneMotion, ASkinFollowsItsJoints) {
+  // The quad skinned to two joints: "hip" at the origin and its child
+  // "knee" at (1, 0, 0), which turns 90 degrees about x over the first
+  // second. Vertices 0 and 1 follow the hip, 3 the knee, 2 both (weights
+  // 0.3 and 0.3, which the loader makes 0.5 each). The quad's own node
+  // stands at (5, 5, 5), which a skinned mesh ignores (glTF 3.7.3).
+  TempDir dir("motion_skin");
+  GltfQuad q = gltf_fixture::gltf_quad();
+  q.doc["nodes"][0]["translation"] = {5, 5, 5};
+  q.doc["nodes"][0]["skin"] = 0;
+  q.doc["nodes"].push_back(Json::parse(R"({"name": "hip", "children": [2]})"));
+  q.doc["nodes"].push_back(Json::parse(R"({"name": "knee", "translation": [1, 0, 0]})"));
+  q.doc["scenes"][0]["nodes"] = {0, 1};
+  const uint16_t joints[16] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 1, 0, 0, 1, 0, 0, 0};
+  q.doc["meshes"][0]["primitives"][0]["attributes"]["JOINTS_0"] = add_accessor(
+      &q, std::string(reinterpret_cast<const char*>(joints), sizeof joints), 4, "VEC4", 5123);
+  q.doc["meshes"][0]["primitives"][0]["attributes"]["WEIGHTS_0"] = add_accessor(
+      &q, floats_bytes({1, 0, 0, 0, 1, 0, 0, 0, 0.3f, 0.3f, 0, 0, 1, 0, 0, 0}), 4, "VEC4", 5126);
+  // Inverse bind matrices (column-major): the hip's identity, the knee's
+  // translation by (-1, 0, 0).
+  const size_t ibm =
+      add_accessor(&q, floats_bytes({1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0,  0, 0, 1,  //
+                                     1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, -1, 0, 0, 1}),
+                   2, "MAT4", 5126);
+  q.doc["skins"] = {{{"joints", {1, 2}}, {"inverseBindMatrices", ibm}}};
+  const float h = std::sqrt(0.5f);
+  add_channel(&q, 2, "rotation", {0, 1}, {0, 0, 0, 1, h, 0, 0, h});
+  SceneData s = load(dir, "skin.gltf", q);
+  ASSERT_NE(s.motion, nullptr);
+  ASSERT_EQ(s.motion->skins.size(), 1u);
+  // The vertices as the loader leaves them may be in any order (assimp
+  // joins and reorders); find each by its position in the bind pose.
+  SceneData bind = pose(s, 0.0f);
+  SceneData bent = pose(s, 1.0f);
+  ASSERT_EQ(bind.positions.size(), 4u);
+  int found = 0;
+  for (size_t v = 0; v < 4; ++v) {
+    const Vec3 p = bind.positions[v];
+    Vec3 expected = p;  // the hip's vertices stay
+    if (length(p - Vec3(1, 0, 1)) < 1e-5f) {
+      // Half the hip's (1, 0, 1) and half the knee's: (0, 0, 1) from the
+      // knee turned to (0, -1, 0), back at (1, -1, 0).
+      expected = Vec3(1, -0.5f, 0.5f);
+      ++found;
+    } else if (length(p - Vec3(1, 0, 0)) < 1e-5f) {
+      expected = Vec3(1, 0, 0);  // on the knee's axis
+      ++found;
+    } else {
+      EXPECT_NEAR(p.x, 0.0f, 1e-5f) << "vertex " << v;  // not moved by (5, 5, 5)
+      EXPECT_NEAR(p.y, 0.0f, 1e-5f) << "vertex " << v;
+    }
+    expect_near3(bent.positions[v], expected, 1e-5f);
+  }
+  EXPECT_EQ(found, 2);
+  // Halfway (45 degrees): the knee-only vertex 3 is on the axis; vertex 2
+  // is the mean of (1, 0, 1) and (1, -sin 45, cos 45).
+  SceneData half = pose(s, 0.5f);
+  for (size_t v = 0; v < 4; ++v)
+    if (length(bind.positions[v] - Vec3(1, 0, 1)) < 1e-5f)
+      expect_near3(half.positions[v], Vec3(1, -0.5f * h, 0.5f * (1 + h)), 1e-5f);
+}
+
+TEST(SceneMotion, TheCameraHoldsStillOnAStepTrack) {
+  // The camera's node jumps from (0, 5, 0) to (0, 9, 0) at t = 1 (STEP): the
+  // frames before the key (fps 24: frame 23 is 0.958 s) see the first
+  // position, not a glide towards the second.
+  TempDir dir("motion_camera");
+  GltfQuad q = gltf_fixture::gltf_quad();
+  q.doc["cameras"] = Json::parse(R"([{"type": "perspective",
+                                      "perspective": {"yfov": 0.5, "znear": 0.1}}])");
+  q.doc["nodes"].push_back(Json::parse(R"({"name": "cam", "camera": 0, "translation": [0, 5, 0],
+      "rotation": [-0.7071068, 0, 0, 0.7071068]})"));
+  q.doc["scenes"][0]["nodes"] = {0, 1};
+  add_channel(&q, 1, "translation", {0, 1}, {0, 5, 0, 0, 9, 0}, "STEP");
+  SceneData s = load(dir, "camera.gltf", q);
+  EXPECT_EQ(s.motion, nullptr);  // only the camera moves
+  JobSpec spec = testing::make_spec(8, 8, Vec3(0.0f), Vec3(0, 0, -1));
+  spec.camera_from_scene = true;
+  spec.fps = 24;
+  spec.frame_end = 30;
+  for (int frame : {0, 12, 23}) {
+    const CameraState c = camera_for_frame(spec, s, frame);
+    EXPECT_NEAR(c.position[1], 5.0f, 1e-5f) << "frame " << frame;
+  }
+  for (int frame : {24, 30}) {
+    const CameraState c = camera_for_frame(spec, s, frame);
+    EXPECT_NEAR(c.position[1], 9.0f, 1e-5f) << "frame " << frame;
+  }
+  // LINEAR: frame 12 is halfway.
+  GltfQuad linear = q;
+  linear.doc["animations"][0]["samplers"][0]["interpolation"] = "LINEAR";
+  EXPECT_NEAR(camera_for_frame(spec, load(dir, "linear.gltf", linear), 12).position[1], 7.0f,
+              1e-5f);
+}
+
 // A camera 6 above the quad's centre looking down; the rig lifts the quad
 // from y = 0 to y = 4 over the first second.
 struct MovingQuadJob {

@@ -22,6 +22,7 @@
 #include "common/error.h"
 #include "common/exr_io.h"
 #include "worker/render/gltf_info.h"
+#include "worker/render/scene_loader.h"
 #include "worker/render/scene_motion.h"
 
 namespace dofarm::render {
@@ -85,11 +86,7 @@ uint32_t SceneData::add_mesh(const std::vector<Vec3>& p, const std::vector<Vec3>
 // ---------------------------------------------------------------------------
 // Loading
 
-namespace {
-
-[[noreturn]] void fail(const std::filesystem::path& path, const std::string& why) {
-  throw SpecError(FileLoc{path.string()}, "scene", why);
-}
+namespace detail {
 
 bool is_gltf(const std::filesystem::path& path) {
   std::string ext = path.extension().string();
@@ -98,245 +95,149 @@ bool is_gltf(const std::filesystem::path& path) {
   return ext == ".gltf" || ext == ".glb";
 }
 
-Vec3 to_vec3(const aiVector3D& v) { return {v.x, v.y, v.z}; }
-Vec3 to_vec3(const aiColor4D& c) { return {c.r, c.g, c.b}; }
-
-class Loader {
- public:
-  Loader(const std::filesystem::path& path, const aiScene* scene, const GltfInfo& gltf,
-         SceneData* out)
-      : path_(path), scene_(scene), gltf_(gltf), out_(out) {}
-
-  void materials() {
-    for (unsigned i = 0; i < scene_->mNumMaterials; ++i) {
-      const aiMaterial* am = scene_->mMaterials[i];
-      Material m;
-      m.name = am->GetName().C_Str();
-      aiColor4D color;
-      if (am->Get(AI_MATKEY_BASE_COLOR, color) == AI_SUCCESS ||
-          am->Get(AI_MATKEY_COLOR_DIFFUSE, color) == AI_SUCCESS) {
-        m.base_color = to_vec3(color);
-      }
-      float value = 0;
-      m.metallic = am->Get(AI_MATKEY_METALLIC_FACTOR, value) == AI_SUCCESS ? value : 0.0f;
-      if (am->Get(AI_MATKEY_ROUGHNESS_FACTOR, value) == AI_SUCCESS) {
-        m.roughness = value;
-      } else if (am->Get(AI_MATKEY_SHININESS, value) == AI_SUCCESS && value >= 0) {
-        // Phong exponent -> Beckmann/GGX roughness via alpha = sqrt(2 / (Ns + 2))
-        // (Walter et al. 2007, eq. 33), then roughness = sqrt(alpha) since
-        // glTF's alpha is roughness^2.
-        m.roughness = std::sqrt(std::sqrt(2.0f / (value + 2.0f)));
-      }
-      if (am->Get(AI_MATKEY_COLOR_EMISSIVE, color) == AI_SUCCESS) {
-        float strength = 1.0f;
-        if (am->Get(AI_MATKEY_EMISSIVE_INTENSITY, value) == AI_SUCCESS) {
-          strength = value;  // a newer assimp imports the extension itself
-        } else if (const GltfMaterialInfo* g = gltf_material(i, m.name)) {
-          strength = g->emissive_strength;
-        }
-        m.emission = to_vec3(color) * strength;
-      }
-      // What the loader reads of the glTF beyond assimp; null for other formats.
-      const GltfMaterialInfo* g = gltf_material(i, m.name);
-      if (g && g->ior_present) {
-        // glTF: KHR_materials_ior as written. IOR 1 is a valid value (an
-        // interface that reflects nothing: F0 = 0, the base layer alone,
-        // docs/renderer.md); the schema's minimum is 1.
-        if (std::isfinite(g->ior) && g->ior >= 1.0 && g->ior <= 1e4) {
-          m.ior = float(g->ior);
-        } else {
-          spdlog::warn("{}: material \"{}\": KHR_materials_ior ior {} is outside [1, 1e4]; "
-                       "using the default 1.5",
-                       path_.string(), m.name, g->ior);
-        }
-      } else if (!g && am->Get(AI_MATKEY_REFRACTI, value) == AI_SUCCESS && value > 1.0f &&
-                 std::isfinite(value)) {
-        // Other formats (OBJ's Ni, FBX): their exporters write 1 (or 0) for
-        // "not set", so only a value above 1 counts there.
-        m.ior = value;
-      }
-      if (g) apply_material_extensions(path_, *g, i, &m);
-      if (g && (g->mask || g->blend)) {
-        m.alpha_mask = true;
-        m.alpha_blend = g->blend;
-        m.alpha_cutoff = g->mask && std::isfinite(g->alpha_cutoff) ? g->alpha_cutoff : 0.5f;
-        m.base_alpha = std::isfinite(g->base_alpha) ? g->base_alpha : 1.0f;
-      }
-      m.base_color_tex = texture(am, {aiTextureType_BASE_COLOR, aiTextureType_DIFFUSE}, true,
-                                 /*with_alpha=*/m.alpha_mask);
-      // glTF metallicRoughnessTexture: assimp 5.2 files it under UNKNOWN
-      // (AI_MATKEY_GLTF_PBRMETALLICROUGHNESS_METALLICROUGHNESS_TEXTURE).
-      m.metal_rough_tex = texture(am, {aiTextureType_UNKNOWN}, false);
-      m.emission_tex = texture(am, {aiTextureType_EMISSIVE}, true);
-      if (g) {
-        // glTF normalTexture (assimp files it under NORMALS): linear values.
-        // Other formats' bump and normal maps are not read.
-        m.normal_tex = texture(am, {aiTextureType_NORMALS}, false);
-        // The extensions' textures, linear (glTF: R transmission, R clearcoat,
-        // G clearcoat roughness), only where the file names them.
-        if (g->transmission_tex.present)
-          m.transmission_tex = texture(am, {aiTextureType_TRANSMISSION}, false);
-        if (g->clearcoat_tex.present)
-          m.clearcoat_tex = texture(am, {aiTextureType_CLEARCOAT}, false, false, 0);
-        if (g->clearcoat_rough_tex.present)
-          m.clearcoat_rough_tex = texture(am, {aiTextureType_CLEARCOAT}, false, false, 1);
-        // clearcoatNormalTexture (assimp: CLEARCOAT, 2), linear like normalTexture.
-        // KHR_materials_specular's, which assimp 5.2 does not read: A
-        // multiplies specularFactor, RGB (sRGB) specularColorFactor.
-        const std::string which = "material " + std::to_string(i) + " (\"" + m.name + "\")";
-        m.specular_tex =
-            gltf_texture(g->specular_tex, false, /*with_alpha=*/true, which, "specularTexture");
-        m.specular_color_tex =
-            gltf_texture(g->specular_color_tex, true, false, which, "specularColorTexture");
-        if (g->clearcoat_normal_tex.present) {
-          m.clearcoat_normal_tex = texture(am, {aiTextureType_CLEARCOAT}, false, false, 2);
-          m.clearcoat_normal_scale =
-              std::isfinite(g->clearcoat_normal_scale) ? g->clearcoat_normal_scale : 1.0f;
-        }
-        // KHR_materials_sheen: colour (sRGB) in slot 0, roughness in the
-        // alpha of slot 1 (often the same image).
-        if (g->sheen_color_tex.present)
-          m.sheen_color_tex = texture(am, {aiTextureType_SHEEN}, true, false, 0);
-        if (g->sheen_rough_tex.present)
-          m.sheen_rough_tex = texture(am, {aiTextureType_SHEEN}, true, /*with_alpha=*/true, 1);
-        m.normal_scale = std::isfinite(g->normal_scale) ? g->normal_scale : 1.0f;
-        // Each slot's transform and texture coordinate set (0 or 1; a
-        // higher set is named in a warning and TEXCOORD_0 read instead).
-        const std::tuple<const char*, const GltfTextureInfo*, UvTransform*> slots[] = {
-            {"baseColorTexture", &g->base_color, &m.base_color_uv},
-            {"metallicRoughnessTexture", &g->metal_rough, &m.metal_rough_uv},
-            {"emissiveTexture", &g->emission, &m.emission_uv},
-            {"normalTexture", &g->normal, &m.normal_uv},
-            {"transmissionTexture", &g->transmission_tex, &m.transmission_uv},
-            {"clearcoatTexture", &g->clearcoat_tex, &m.clearcoat_uv},
-            {"clearcoatRoughnessTexture", &g->clearcoat_rough_tex, &m.clearcoat_rough_uv},
-            {"sheenColorTexture", &g->sheen_color_tex, &m.sheen_color_uv},
-            {"sheenRoughnessTexture", &g->sheen_rough_tex, &m.sheen_rough_uv},
-            {"clearcoatNormalTexture", &g->clearcoat_normal_tex, &m.clearcoat_normal_uv},
-            {"specularTexture", &g->specular_tex, &m.specular_uv},
-            {"specularColorTexture", &g->specular_color_tex, &m.specular_color_uv}};
-        for (const auto& [slot, tex, uv] : slots) {
-          *uv = tex->transform;
-          if (tex->tex_coord == 1) {
-            uv->set = 1;
-          } else if (tex->tex_coord != 0) {
-            spdlog::warn(
-                "{}: material {} (\"{}\"): {} reads TEXCOORD_{}; dofarm reads TEXCOORD_0 "
-                "and TEXCOORD_1 only and uses TEXCOORD_0",
-                path_.string(), i, m.name, slot, tex->tex_coord);
-          }
-        }
-      }
-      check_material(m, i);
-      out_->materials.push_back(std::move(m));
+void Loader::materials() {
+  for (unsigned i = 0; i < scene_->mNumMaterials; ++i) {
+    const aiMaterial* am = scene_->mMaterials[i];
+    Material m;
+    m.name = am->GetName().C_Str();
+    aiColor4D color;
+    if (am->Get(AI_MATKEY_BASE_COLOR, color) == AI_SUCCESS ||
+        am->Get(AI_MATKEY_COLOR_DIFFUSE, color) == AI_SUCCESS) {
+      m.base_color = to_vec3(color);
     }
-  }
-
-  // Flattens the hierarchy below `node` into world space at the nodes' own
-  // transforms; the meshes of nodes that the animation moves (or whose
-  // parents it moves) are also kept in their nodes' space
-  // (SceneData::motion).
-  void node(const aiNode* node, const aiMatrix4x4& parent) {
-    const aiMatrix4x4 world = parent * node->mTransformation;
-    const int moving = node->mNumMeshes > 0 && moves(node) ? int(motion_node(node)) : -1;
-    for (unsigned k = 0; k < node->mNumMeshes; ++k) {
-      mesh(scene_->mMeshes[node->mMeshes[k]], world, node->mName.C_Str(), moving);
+    float value = 0;
+    m.metallic = am->Get(AI_MATKEY_METALLIC_FACTOR, value) == AI_SUCCESS ? value : 0.0f;
+    if (am->Get(AI_MATKEY_ROUGHNESS_FACTOR, value) == AI_SUCCESS) {
+      m.roughness = value;
+    } else if (am->Get(AI_MATKEY_SHININESS, value) == AI_SUCCESS && value >= 0) {
+      // Phong exponent -> Beckmann/GGX roughness via alpha = sqrt(2 / (Ns + 2))
+      // (Walter et al. 2007, eq. 33), then roughness = sqrt(alpha) since
+      // glTF's alpha is roughness^2.
+      m.roughness = std::sqrt(std::sqrt(2.0f / (value + 2.0f)));
     }
-    for (unsigned c = 0; c < node->mNumChildren; ++c) this->node(node->mChildren[c], world);
-  }
-
-  void camera_track();
-  void lights();
-  // The node animation of every node: the channel of the first animation
-  // that has one for it (each of Blender's actions is an animation of its
-  // own; together they are the timeline). Call before node() and lights().
-  void animation_channels();
-  // Hands the motion of the moving meshes and lights to the SceneData
-  // (none when nothing but the camera moves); warns about animation that
-  // is not followed.
-  void finish_motion();
-  // The file's TANGENTs, per vertex (a zero t where it gives none): they
-  // replace the computed ones (glTF 3.7.2.1: MikkTSpace is only the
-  // fallback when the file has none).
-  const std::vector<SceneData::Tangent>& given_tangents() const { return given_tangents_; }
-
- private:
-  // `with_alpha`: also the image's alpha channel (Texture::alpha). `slot`:
-  // the index within the type (assimp files clearcoatRoughnessTexture as
-  // CLEARCOAT, 1).
-  int texture(const aiMaterial* am, std::initializer_list<aiTextureType> types, bool srgb,
-              bool with_alpha = false, unsigned slot = 0);
-  // A texture assimp 5.2 does not hand out, from the file's JSON
-  // (GltfTextureRef); -1 where the info names none.
-  // A reference to a texture the file does not have is named in a warning
-  // (`which` material, `key`).
-  int gltf_texture(const GltfTextureInfo& info, bool srgb, bool with_alpha,
-                   const std::string& which, const char* key);
-  // The texture `name` (a file beside the scene, assimp's "*k" for an
-  // embedded image, or, with `held_image` >= 0, that image of the file read
-  // by read_gltf_image()) read through `sampler`, loaded once per (name,
-  // srgb, sampler); with its alpha channel when `with_alpha`.
-  int load_texture(const std::string& name, const TextureSampler& sampler, bool srgb,
-                   bool with_alpha, int held_image = -1);
-  static RgbImage decode_embedded(const aiTexture* t, const std::string& name, bool srgb);
-  // `motion_node` >= 0: the node moves; its vertices are also kept in its space.
-  void mesh(const aiMesh* m, const aiMatrix4x4& world, const char* node_name, int motion_node);
-  // Whether the animation moves `n` or one of its parents.
-  bool moves(const aiNode* n) const {
-    for (; n; n = n->mParent)
-      if (channels_.count(n->mName.C_Str())) return true;
-    return false;
-  }
-  // `n`'s index in motion_->nodes, adding it and its parents on first use.
-  uint32_t motion_node(const aiNode* n);
-  // The channel whose keys animate `path` ("translation", "rotation",
-  // "scale") of node `name`, or null: in a glTF file the first animation
-  // whose JSON targets that path (assimp fills a channel's other paths with
-  // the node's static value, so a later animation's real keys would be
-  // hidden); else (other formats, unnamed nodes) the first animation with a
-  // channel for the node. Sets its ticks per second, and `step` for a STEP
-  // sampler; a CUBICSPLINE one is named in a warning.
-  const aiNodeAnim* path_channel(const std::string& name, const char* path,
-                                 double* ticks_per_second, bool* step) const;
-  void check_material(const Material& m, unsigned index) const {
-    const std::string which = "material " + std::to_string(index) + " (\"" + m.name + "\")";
-    bool ok = is_finite(m.base_color) && is_finite(m.emission) && std::isfinite(m.metallic) &&
-              std::isfinite(m.roughness);
-    if (!ok) fail(path_, which + " has a non-finite value");
-    // An emission texture multiplies the factor: its brightest texel counts
-    // (an 8-bit one is at most 1; an HDR one loaded for an OBJ may be more).
-    float peak = max_component(m.emission);
-    if (m.emission_tex >= 0 && peak > 0) {
-      float texel = 0;
-      for (float v : out_->textures[m.emission_tex].rgb) texel = std::max(texel, v);
-      peak *= texel;
+    if (am->Get(AI_MATKEY_COLOR_EMISSIVE, color) == AI_SUCCESS) {
+      float strength = 1.0f;
+      if (am->Get(AI_MATKEY_EMISSIVE_INTENSITY, value) == AI_SUCCESS) {
+        strength = value;  // a newer assimp imports the extension itself
+      } else if (const GltfMaterialInfo* g = gltf_material(i, m.name)) {
+        strength = g->emissive_strength;
+      }
+      m.emission = to_vec3(color) * strength;
     }
-    if (!(peak <= kMaxRadiance))
-      fail(path_, which + " emits radiance " + fmt::format("{:g}", peak) +
-                      ", above the bound kMaxRadiance = 1e12");
+    // What the loader reads of the glTF beyond assimp; null for other formats.
+    const GltfMaterialInfo* g = gltf_material(i, m.name);
+    if (g && g->ior_present) {
+      // glTF: KHR_materials_ior as written. IOR 1 is a valid value (an
+      // interface that reflects nothing: F0 = 0, the base layer alone,
+      // docs/renderer.md); the schema's minimum is 1.
+      if (std::isfinite(g->ior) && g->ior >= 1.0 && g->ior <= 1e4) {
+        m.ior = float(g->ior);
+      } else {
+        spdlog::warn(
+            "{}: material \"{}\": KHR_materials_ior ior {} is outside [1, 1e4]; "
+            "using the default 1.5",
+            path_.string(), m.name, g->ior);
+      }
+    } else if (!g && am->Get(AI_MATKEY_REFRACTI, value) == AI_SUCCESS && value > 1.0f &&
+               std::isfinite(value)) {
+      // Other formats (OBJ's Ni, FBX): their exporters write 1 (or 0) for
+      // "not set", so only a value above 1 counts there.
+      m.ior = value;
+    }
+    if (g) apply_material_extensions(path_, *g, i, &m);
+    if (g && (g->mask || g->blend)) {
+      m.alpha_mask = true;
+      m.alpha_blend = g->blend;
+      m.alpha_cutoff = g->mask && std::isfinite(g->alpha_cutoff) ? g->alpha_cutoff : 0.5f;
+      m.base_alpha = std::isfinite(g->base_alpha) ? g->base_alpha : 1.0f;
+    }
+    m.base_color_tex = texture(am, {aiTextureType_BASE_COLOR, aiTextureType_DIFFUSE}, true,
+                               /*with_alpha=*/m.alpha_mask);
+    // glTF metallicRoughnessTexture: assimp 5.2 files it under UNKNOWN
+    // (AI_MATKEY_GLTF_PBRMETALLICROUGHNESS_METALLICROUGHNESS_TEXTURE).
+    m.metal_rough_tex = texture(am, {aiTextureType_UNKNOWN}, false);
+    m.emission_tex = texture(am, {aiTextureType_EMISSIVE}, true);
+    if (g) {
+      // glTF normalTexture (assimp files it under NORMALS): linear values.
+      // Other formats' bump and normal maps are not read.
+      m.normal_tex = texture(am, {aiTextureType_NORMALS}, false);
+      // The extensions' textures, linear (glTF: R transmission, R clearcoat,
+      // G clearcoat roughness), only where the file names them.
+      if (g->transmission_tex.present)
+        m.transmission_tex = texture(am, {aiTextureType_TRANSMISSION}, false);
+      if (g->clearcoat_tex.present)
+        m.clearcoat_tex = texture(am, {aiTextureType_CLEARCOAT}, false, false, 0);
+      if (g->clearcoat_rough_tex.present)
+        m.clearcoat_rough_tex = texture(am, {aiTextureType_CLEARCOAT}, false, false, 1);
+      // clearcoatNormalTexture (assimp: CLEARCOAT, 2), linear like normalTexture.
+      // KHR_materials_specular's, which assimp 5.2 does not read: A
+      // multiplies specularFactor, RGB (sRGB) specularColorFactor.
+      const std::string which = "material " + std::to_string(i) + " (\"" + m.name + "\")";
+      m.specular_tex =
+          gltf_texture(g->specular_tex, false, /*with_alpha=*/true, which, "specularTexture");
+      m.specular_color_tex =
+          gltf_texture(g->specular_color_tex, true, false, which, "specularColorTexture");
+      if (g->clearcoat_normal_tex.present) {
+        m.clearcoat_normal_tex = texture(am, {aiTextureType_CLEARCOAT}, false, false, 2);
+        m.clearcoat_normal_scale =
+            std::isfinite(g->clearcoat_normal_scale) ? g->clearcoat_normal_scale : 1.0f;
+      }
+      // KHR_materials_sheen: colour (sRGB) in slot 0, roughness in the
+      // alpha of slot 1 (often the same image).
+      if (g->sheen_color_tex.present)
+        m.sheen_color_tex = texture(am, {aiTextureType_SHEEN}, true, false, 0);
+      if (g->sheen_rough_tex.present)
+        m.sheen_rough_tex = texture(am, {aiTextureType_SHEEN}, true, /*with_alpha=*/true, 1);
+      m.normal_scale = std::isfinite(g->normal_scale) ? g->normal_scale : 1.0f;
+      // Each slot's transform and texture coordinate set (0 or 1; a
+      // higher set is named in a warning and TEXCOORD_0 read instead).
+      const std::tuple<const char*, const GltfTextureInfo*, UvTransform*> slots[] = {
+          {"baseColorTexture", &g->base_color, &m.base_color_uv},
+          {"metallicRoughnessTexture", &g->metal_rough, &m.metal_rough_uv},
+          {"emissiveTexture", &g->emission, &m.emission_uv},
+          {"normalTexture", &g->normal, &m.normal_uv},
+          {"transmissionTexture", &g->transmission_tex, &m.transmission_uv},
+          {"clearcoatTexture", &g->clearcoat_tex, &m.clearcoat_uv},
+          {"clearcoatRoughnessTexture", &g->clearcoat_rough_tex, &m.clearcoat_rough_uv},
+          {"sheenColorTexture", &g->sheen_color_tex, &m.sheen_color_uv},
+          {"sheenRoughnessTexture", &g->sheen_rough_tex, &m.sheen_rough_uv},
+          {"clearcoatNormalTexture", &g->clearcoat_normal_tex, &m.clearcoat_normal_uv},
+          {"specularTexture", &g->specular_tex, &m.specular_uv},
+          {"specularColorTexture", &g->specular_color_tex, &m.specular_color_uv}};
+      for (const auto& [slot, tex, uv] : slots) {
+        *uv = tex->transform;
+        if (tex->tex_coord == 1) {
+          uv->set = 1;
+        } else if (tex->tex_coord != 0) {
+          spdlog::warn(
+              "{}: material {} (\"{}\"): {} reads TEXCOORD_{}; dofarm reads TEXCOORD_0 "
+              "and TEXCOORD_1 only and uses TEXCOORD_0",
+              path_.string(), i, m.name, slot, tex->tex_coord);
+        }
+      }
+    }
+    check_material(m, i);
+    out_->materials.push_back(std::move(m));
   }
-  const GltfMaterialInfo* gltf_material(unsigned i, const std::string& name) const {
-    if (i < gltf_.materials.size() && gltf_.materials[i].name == name) return &gltf_.materials[i];
-    return nullptr;
-  }
+}
 
-  const std::filesystem::path& path_;
-  const aiScene* scene_;
-  const GltfInfo& gltf_;
-  SceneData* out_;
-  // Shared textures load once per (image, colour space, sampler).
-  std::map<std::tuple<std::string, bool, TextureSampler>, int> texture_index_;
-  std::set<int> alpha_loaded_;  // textures whose alpha channel was asked for
-  // Per vertex, where the file gives tangents (a zero t elsewhere).
-  std::vector<SceneData::Tangent> given_tangents_;
-  struct Channel {
-    const aiNodeAnim* keys;
-    double ticks_per_second;
-  };
-  std::map<std::string, Channel> channels_;  // by node name
-  std::shared_ptr<SceneMotion> motion_ = std::make_shared<SceneMotion>();
-  std::map<const aiNode*, uint32_t> motion_index_;
-};
+void Loader::check_material(const Material& m, unsigned index) const {
+  const std::string which = "material " + std::to_string(index) + " (\"" + m.name + "\")";
+  bool ok = is_finite(m.base_color) && is_finite(m.emission) && std::isfinite(m.metallic) &&
+            std::isfinite(m.roughness);
+  if (!ok) fail(path_, which + " has a non-finite value");
+  // An emission texture multiplies the factor: its brightest texel counts
+  // (an 8-bit one is at most 1; an HDR one loaded for an OBJ may be more).
+  float peak = max_component(m.emission);
+  if (m.emission_tex >= 0 && peak > 0) {
+    float texel = 0;
+    for (float v : out_->textures[m.emission_tex].rgb) texel = std::max(texel, v);
+    peak *= texel;
+  }
+  if (!(peak <= kMaxRadiance))
+    fail(path_, which + " emits radiance " + fmt::format("{:g}", peak) +
+                    ", above the bound kMaxRadiance = 1e12");
+}
 
 int Loader::texture(const aiMaterial* am, std::initializer_list<aiTextureType> types, bool srgb,
                     bool with_alpha, unsigned slot) {
@@ -558,290 +459,52 @@ void Loader::mesh(const aiMesh* m, const aiMatrix4x4& world, const char* node_na
       mo.bitangents.push_back(to_vec3(m->mBitangents[v]));
     }
   }
+  if (m->HasBones()) part.skin = skin(m, node_name);
   mo.parts.push_back(part);
 }
 
-// --- camera animation --------------------------------------------------------
-
-void Loader::camera_track() {
-  if (scene_->mNumCameras == 0) return;
-  // The first camera is the scene's camera; others are ignored.
-  const aiCamera* cam = scene_->mCameras[0];
-  const aiNode* cam_node = scene_->mRootNode->FindNode(cam->mName);
-  if (!cam_node) return;
-  // The camera node's world transform at the union of the key times on
-  // its chain (root ... camera node), each node's keys as for meshes
-  // (SceneMotion); camera_for_frame() interpolates between these keys. A
-  // STEP track's value jumps at its keys: the instant before each key is a
-  // key of the track as well, so the camera holds still until the jump.
-  const uint32_t cam_index = motion_node(cam_node);
-  std::set<float> times;
-  auto add_times = [&times](const auto& track) {
-    for (size_t i = 0; i < track.times.size(); ++i) {
-      times.insert(track.times[i]);
-      if (track.step && i > 0)
-        times.insert(std::nextafter(track.times[i], -std::numeric_limits<float>::infinity()));
+int Loader::skin(const aiMesh* m, const char* node_name) {
+  const std::string which =
+      "mesh \"" + std::string(m->mName.C_Str()) + "\" of node \"" + node_name + "\"";
+  Skin skin;
+  std::vector<std::vector<Skin::Influence>> per_vertex(m->mNumVertices);
+  for (unsigned b = 0; b < m->mNumBones; ++b) {
+    const aiBone* bone = m->mBones[b];
+    const aiNode* joint = scene_->mRootNode->FindNode(bone->mName);
+    if (!joint)
+      fail(path_, which + ": joint \"" + std::string(bone->mName.C_Str()) + "\" is no node");
+    skin.joints.push_back(motion_node(joint));
+    // assimp's bone offset is glTF's inverse bind matrix.
+    skin.inverse_bind.push_back(to_affine(bone->mOffsetMatrix));
+    for (unsigned w = 0; w < bone->mNumWeights; ++w) {
+      const aiVertexWeight& vw = bone->mWeights[w];
+      if (vw.mVertexId < m->mNumVertices && std::isfinite(vw.mWeight) && vw.mWeight > 0.0f)
+        per_vertex[vw.mVertexId].push_back({b, vw.mWeight});
     }
-  };
-  for (int n = int(cam_index); n >= 0; n = motion_->nodes[size_t(n)].parent) {
-    const MotionNode& node = motion_->nodes[size_t(n)];
-    add_times(node.translation_keys);
-    add_times(node.rotation_keys);
-    add_times(node.scale_keys);
   }
-  if (times.empty()) times.insert(0.0f);  // a static camera: one key
-
-  // A glTF camera sits at its node's origin looking down -z with +y up
-  // (glTF 2.0, 3.10.1). assimp 5.2.5 also copies the node's translation into
-  // aiCamera::mPosition, which would apply it twice, so for glTF the camera's
-  // own frame is taken from the spec rather than from aiCamera.
-  const bool gltf = is_gltf(path_);
-  const Vec3 cam_position = gltf ? Vec3(0.0f) : to_vec3(cam->mPosition);
-  const Vec3 back = gltf ? Vec3(0, 0, 1) : -normalize(to_vec3(cam->mLookAt), Vec3(0, 0, -1));
-  const Vec3 up_hint = gltf ? Vec3(0, 1, 0) : normalize(to_vec3(cam->mUp), Vec3(0, 1, 0));
-  // assimp's glTF2 importer stores mHorizontalFOV = yfov * aspect (checked
-  // against a file with yfov 0.8, aspect 2: it reports 1.6), so dividing
-  // recovers glTF's yfov exactly. Other importers store the full horizontal
-  // angle, which converts through the tangents.
-  const float aspect = cam->mAspect > 0 ? cam->mAspect : 1.0f;
-  const float yfov = gltf ? cam->mHorizontalFOV / aspect
-                          : 2.0f * std::atan(std::tan(cam->mHorizontalFOV * 0.5f) / aspect);
-  const Vec3 right = normalize(cross(up_hint, back), Vec3(1, 0, 0));
-  const Vec3 up = cross(back, right);
-  for (float t : times) {
-    const Affine world = motion_->world(cam_index, t);
-    // Orthonormalise: scale in the hierarchy must not leak into the rotation.
-    Vec3 w_back = normalize(world.linear(back));
-    Vec3 w_right = normalize(cross(world.linear(up), w_back));
-    Vec3 w_up = cross(w_back, w_right);
-    CameraTrackKey key;
-    key.time = t;
-    key.position = world.point(cam_position);
-    key.rotation = quat_from_axes(w_right, w_up, w_back);
-    key.yfov_deg = yfov * 180.0f / kPi;
-    key.aspect = cam->mAspect > 0 ? cam->mAspect : 0.0f;
-    if (!is_finite(key.position) || !std::isfinite(key.yfov_deg)) {
-      fail(path_, "camera \"" + std::string(cam->mName.C_Str()) + "\" has a non-finite transform");
+  // Weights summing to 1 (glTF 3.7.3.3 asks the file for it; exporters
+  // round), so a vertex neither grows nor shrinks towards the origin.
+  skin.first.push_back(0);
+  for (const auto& influences : per_vertex) {
+    float sum = 0.0f;
+    for (const Skin::Influence& i : influences) sum += i.weight;
+    for (Skin::Influence i : influences) {
+      i.weight /= sum;
+      skin.influences.push_back(i);
     }
-    out_->camera_track.push_back(key);
+    skin.first.push_back(uint32_t(skin.influences.size()));
   }
+  motion_->skins.push_back(std::move(skin));
+  return int(motion_->skins.size() - 1);
 }
 
-// --- node animation (meshes and lights) ---------------------------------------
-
-void Loader::animation_channels() {
-  for (unsigned a = 0; a < scene_->mNumAnimations; ++a) {
-    const aiAnimation* anim = scene_->mAnimations[a];
-    const double tps = anim->mTicksPerSecond > 0 ? anim->mTicksPerSecond : 1.0;
-    for (unsigned c = 0; c < anim->mNumChannels; ++c)
-      channels_.emplace(anim->mChannels[c]->mNodeName.C_Str(), Channel{anim->mChannels[c], tps});
-  }
-}
+}  // namespace detail
 
 namespace {
 
-Affine to_affine(const aiMatrix4x4& m) {
-  Affine a;
-  for (int r = 0; r < 3; ++r)
-    for (int c = 0; c < 3; ++c) a.l[r][c] = m[r][c];
-  a.t = Vec3(m.a4, m.b4, m.c4);
-  return a;
-}
-
-// assimp's keys (ticks) as a track in seconds. assimp 5.2 gives every key
-// of a glTF sampler as a value (of a CUBICSPLINE sampler: the spline's
-// points, without their tangents).
-template <typename Key, typename T, typename Convert>
-void read_keys(const Key* keys, unsigned count, double ticks_per_second, Track<T>* track,
-               Convert convert) {
-  for (unsigned i = 0; i < count; ++i) {
-    track->times.push_back(float(keys[i].mTime / ticks_per_second));
-    track->values.push_back(convert(keys[i].mValue));
-  }
-}
-
-}  // namespace
-
-uint32_t Loader::motion_node(const aiNode* n) {
-  if (auto it = motion_index_.find(n); it != motion_index_.end()) return it->second;
-  MotionNode node;
-  node.parent = n->mParent ? int(motion_node(n->mParent)) : -1;
-  node.fixed = to_affine(n->mTransformation);
-  const std::string name = n->mName.C_Str();
-  if (auto it = channels_.find(name); it != channels_.end()) {
-    // glTF: an animated node has translation, rotation and scale, not a
-    // matrix (3.11), so the decomposition is exact.
-    aiVector3D s, t;
-    aiQuaternion r;
-    n->mTransformation.Decompose(s, r, t);
-    node.translation = to_vec3(t);
-    node.scale = to_vec3(s);
-    node.rotation = Quat{r.w, r.x, r.y, r.z};
-    auto vec = [](const aiVector3D& v) { return to_vec3(v); };
-    double tps = 1;
-    bool step = false;
-    if (const aiNodeAnim* ch = path_channel(name, "translation", &tps, &step)) {
-      read_keys(ch->mPositionKeys, ch->mNumPositionKeys, tps, &node.translation_keys, vec);
-      node.translation_keys.step = step;
-    }
-    if (const aiNodeAnim* ch = path_channel(name, "scale", &tps, &step)) {
-      read_keys(ch->mScalingKeys, ch->mNumScalingKeys, tps, &node.scale_keys, vec);
-      node.scale_keys.step = step;
-    }
-    if (const aiNodeAnim* ch = path_channel(name, "rotation", &tps, &step)) {
-      read_keys(ch->mRotationKeys, ch->mNumRotationKeys, tps, &node.rotation_keys,
-                [](const aiQuaternion& q) {
-                  return Quat{q.w, q.x, q.y, q.z};
-                });
-      node.rotation_keys.step = step;
-    }
-    // Keys as glTF requires them (3.11): finite values at increasing times;
-    // rotations are made unit.
-    const std::string bad = "the animation of node \"" + name + "\" has ";
-    auto check_times = [&](const std::vector<float>& times) {
-      for (size_t i = 0; i < times.size(); ++i)
-        if (!std::isfinite(times[i]) || (i > 0 && !(times[i] > times[i - 1])))
-          fail(path_, bad + "key times that are not finite and increasing");
-    };
-    for (const Track<Vec3>* track : {&node.translation_keys, &node.scale_keys}) {
-      check_times(track->times);
-      for (Vec3 v : track->values)
-        if (!is_finite(v)) fail(path_, bad + "a non-finite key");
-    }
-    check_times(node.rotation_keys.times);
-    for (Quat& q : node.rotation_keys.values) {
-      const float len = std::sqrt(q.w * q.w + q.x * q.x + q.y * q.y + q.z * q.z);
-      if (!std::isfinite(len) || !(len > 0))
-        fail(path_, bad + "a rotation key that is not a rotation");
-      q = Quat{q.w / len, q.x / len, q.y / len, q.z / len};
-    }
-  }
-  motion_->nodes.push_back(std::move(node));
-  const auto index = uint32_t(motion_->nodes.size() - 1);
-  motion_index_.emplace(n, index);
-  return index;
-}
-
-const aiNodeAnim* Loader::path_channel(const std::string& name, const char* path,
-                                       double* ticks_per_second, bool* step) const {
-  *step = false;
-  bool named = false;
-  for (const GltfInfo::AnimatedPath& ap : gltf_.animated_paths) {
-    if (ap.node != name) continue;
-    named = true;
-    if (ap.path != path || ap.animation >= scene_->mNumAnimations) continue;
-    const aiAnimation* anim = scene_->mAnimations[ap.animation];
-    for (unsigned c = 0; c < anim->mNumChannels; ++c) {
-      if (anim->mChannels[c]->mNodeName.C_Str() != name) continue;
-      *ticks_per_second = anim->mTicksPerSecond > 0 ? anim->mTicksPerSecond : 1.0;
-      *step = ap.interpolation == "STEP";
-      if (ap.interpolation == "CUBICSPLINE")
-        spdlog::warn(
-            "{}: the {} of node \"{}\" is animated by a CUBICSPLINE sampler; dofarm "
-            "interpolates linearly between its keys (the spline's tangents are not read)",
-            path_.string(), path, name);
-      return anim->mChannels[c];
-    }
-  }
-  if (named) return nullptr;  // the file's animations do not move this path
-  const auto it = channels_.find(name);
-  if (it == channels_.end()) return nullptr;
-  *ticks_per_second = it->second.ticks_per_second;
-  return it->second.keys;
-}
-
-// Node animation moves meshes and lights frame by frame (SceneMotion);
-// what it cannot move is named in a warning: morph target weights, and
-// skinned meshes (bones), which stay in their bind pose.
-void Loader::finish_motion() {
-  if (!motion_->parts.empty() || !motion_->lights.empty()) {
-    if (!motion_->tangents.empty()) {
-      motion_->tangents.resize(motion_->positions.size());
-      motion_->bitangents.resize(motion_->positions.size());
-    }
-    out_->motion = motion_;
-  }
-  unsigned morph = 0, skinned = 0;
-  for (unsigned a = 0; a < scene_->mNumAnimations; ++a)
-    morph +=
-        scene_->mAnimations[a]->mNumMorphMeshChannels + scene_->mAnimations[a]->mNumMeshChannels;
-  for (unsigned m = 0; m < scene_->mNumMeshes; ++m) skinned += scene_->mMeshes[m]->mNumBones > 0;
-  if (morph > 0)
-    spdlog::warn("{}: {} morph-target animation channel(s) ignored: meshes keep their base shape",
-                 path_.string(), morph);
-  if (skinned > 0)
-    spdlog::warn("{}: {} skinned mesh(es) rendered in their bind pose: skinning is not applied",
-                 path_.string(), skinned);
-}
-
-// --- lights --------------------------------------------------------------------
-
-void Loader::lights() {
-  if (scene_->mNumLights == 0) return;
-  if (!is_gltf(path_)) {
-    // Other formats' light units are the exporter's guess; only glTF's are defined.
-    spdlog::warn("{}: {} light(s) ignored: dofarm reads lights from glTF files only",
-                 path_.string(), scene_->mNumLights);
-    return;
-  }
-  for (unsigned i = 0; i < scene_->mNumLights; ++i) {
-    const aiLight* al = scene_->mLights[i];
-    const std::string name = al->mName.C_Str();
-    // assimp names a glTF light after the node that holds it.
-    const aiNode* node = scene_->mRootNode->FindNode(al->mName);
-    if (!node) {
-      spdlog::warn("{}: light \"{}\" is on no node; ignored", path_.string(), name);
-      continue;
-    }
-    aiMatrix4x4 world;  // at the nodes' own transforms; pose() moves an animated one
-    for (const aiNode* n = node; n; n = n->mParent) world = n->mTransformation * world;
-    PunctualLight light;
-    light.name = name;
-    light.position = to_vec3(world * al->mPosition);
-    // glTF: spot and directional lights shine down their node's -z (assimp's
-    // mDirection); the direction ignores the node's scale.
-    light.direction = normalize(to_vec3(aiMatrix3x3(world) * al->mDirection), Vec3(0, 0, -1));
-    // assimp hands out colour x intensity, in candela (point, spot) or lux
-    // (directional); see kLumensPerWatt for the conversion.
-    light.intensity =
-        Vec3(al->mColorDiffuse.r, al->mColorDiffuse.g, al->mColorDiffuse.b) / kLumensPerWatt;
-    switch (al->mType) {
-      case aiLightSource_POINT:
-        light.type = PunctualLight::Type::kPoint;
-        break;
-      case aiLightSource_SPOT:
-        light.type = PunctualLight::Type::kSpot;
-        light.cos_inner = std::cos(al->mAngleInnerCone);
-        light.cos_outer = std::cos(al->mAngleOuterCone);
-        break;
-      case aiLightSource_DIRECTIONAL:
-        light.type = PunctualLight::Type::kDirectional;
-        break;
-      default:
-        spdlog::warn("{}: light \"{}\" of assimp type {} ignored", path_.string(), name,
-                     int(al->mType));
-        continue;
-    }
-    const std::string which = "light " + std::to_string(i) + " (\"" + name + "\")";
-    if (!is_finite(light.position) || !is_finite(light.intensity) ||
-        !std::isfinite(light.cos_inner) || !std::isfinite(light.cos_outer))
-      fail(path_, which + " has a non-finite value");
-    if (light.intensity.x < 0 || light.intensity.y < 0 || light.intensity.z < 0)
-      fail(path_, which + " has a negative intensity");
-    if (max_component(light.intensity) > kMaxRadiance)
-      fail(path_, which + " has intensity " + fmt::format("{:g}", max_component(light.intensity)) +
-                      " (after dividing by 683 lm/W), above the bound kMaxRadiance = 1e12");
-    if (moves(node)) {
-      MovingLight moving;
-      moving.light = uint32_t(out_->lights.size());
-      moving.node = motion_node(node);
-      moving.position = to_vec3(al->mPosition);
-      moving.direction = to_vec3(al->mDirection);
-      motion_->lights.push_back(moving);
-    }
-    out_->lights.push_back(std::move(light));
-  }
-}
+using detail::fail;
+using detail::is_gltf;
+using detail::Loader;
 
 // assimp's file access, with every file it opens noted (InputFileLog): the
 // glTF's buffers, an OBJ's material library, whatever the format pulls in.

@@ -202,8 +202,8 @@ struct SceneData {
 // KHR_texture_transform are read from the file's JSON (assimp 5.2 drops the
 // first and converts the second into its own convention); lights come
 // through assimp's aiLight. Node animation moves the camera
-// (camera_track), and meshes and lights (motion); morph targets and
-// skinning are named in a warning and not applied.
+// (camera_track), and meshes, skinned meshes and lights (motion); morph
+// targets are named in a warning and not applied.
 SceneData load_scene_data(const std::filesystem::path& path);
 
 // Fills data->tangents from positions, normals and uvs (uvs1 for triangles

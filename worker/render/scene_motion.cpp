@@ -114,14 +114,42 @@ SceneData pose(const SceneData& rest, float time) {
 
   bool recompute_tangents = false;
   std::vector<bool> moving(rest.tangents.empty() ? 0 : rest.positions.size(), false);
+  // The transform of vertex k of a part: its node's, or its joints' blend.
+  std::vector<Affine> joint_matrix;
+  auto vertex_transform = [&](const MovingPart& part, uint32_t k) -> Affine {
+    if (part.skin < 0) return world[part.node];
+    const Skin& skin = motion.skins[size_t(part.skin)];
+    if (skin.first[k] == skin.first[k + 1]) return world[part.node];  // no joint holds it
+    Affine blend;
+    for (auto& row : blend.l) row[0] = row[1] = row[2] = 0.0f;
+    for (uint32_t i = skin.first[k]; i < skin.first[k + 1]; ++i) {
+      const Affine& m = joint_matrix[skin.influences[i].joint];
+      const float w = skin.influences[i].weight;
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c) blend.l[r][c] += w * m.l[r][c];
+      blend.t += m.t * w;
+    }
+    return blend;
+  };
+  // glTF's joint matrices of a skinned part: world(joint) * inverse bind.
+  auto joints_of = [&](const MovingPart& part) {
+    if (part.skin < 0) return;
+    const Skin& skin = motion.skins[size_t(part.skin)];
+    joint_matrix.resize(skin.joints.size());
+    for (size_t j = 0; j < skin.joints.size(); ++j)
+      joint_matrix[j] = world[skin.joints[j]] * skin.inverse_bind[j];
+  };
   for (const MovingPart& part : motion.parts) {
-    const Affine& w = world[part.node];
+    joints_of(part);
     for (uint32_t k = 0; k < part.vertex_count; ++k) {
       const size_t v = size_t(part.first_vertex) + k, local = size_t(part.local_first) + k;
+      const Affine w = vertex_transform(part, k);
       out.positions[v] = w.point(motion.positions[local]);
       out.normals[v] = normalize(w.normal(motion.normals[local]), Vec3(0.0f));
       if (!moving.empty()) moving[v] = true;
     }
+    // A skin's winding follows its joints' (blended) transform at its first vertex.
+    const Affine w = part.vertex_count > 0 ? vertex_transform(part, 0) : world[part.node];
     if ((w.determinant() < 0) != part.mirrored)
       for (uint32_t k = 0; k + 2 < part.index_count; k += 3)
         std::swap(out.indices[size_t(part.first_index) + k + 1],
@@ -138,11 +166,12 @@ SceneData pose(const SceneData& rest, float time) {
       if (!moving[v]) out.tangents[v] = rest.tangents[v];
     if (!motion.tangents.empty())
       for (const MovingPart& part : motion.parts) {
-        const Affine& w = world[part.node];
+        joints_of(part);
         for (uint32_t k = 0; k < part.vertex_count; ++k) {
           const size_t v = size_t(part.first_vertex) + k, local = size_t(part.local_first) + k;
           const Vec3 t_local = motion.tangents[local];
           if (!(length(t_local) > 0.0f)) continue;
+          const Affine w = vertex_transform(part, k);
           const Vec3 t = normalize(w.linear(t_local), Vec3(0.0f));
           const Vec3 b = w.linear(motion.bitangents[local]);
           out.tangents[v] = {t, dot(cross(out.normals[v], t), b) < 0.0f ? -1.0f : 1.0f};

@@ -76,6 +76,23 @@ struct MovingPart {
   uint32_t first_vertex = 0, vertex_count = 0, first_index = 0, index_count = 0;
   uint32_t local_first = 0;
   bool mirrored = false;
+  int skin = -1;  // index into SceneMotion::skins: the joints place the vertices, not `node`
+};
+
+// A skinned mesh's joints (glTF 2.0, 3.7.3): vertex v of the part lands at
+// sum_k w_k (world(joint_k) * inverse_bind_k) v, linear blend skinning; its
+// node's own transform does not count. Influences per vertex of the part:
+// [first[v], first[v + 1]) in `influences` (joint index into `joints`,
+// weight), the weights made to sum to 1 at load.
+struct Skin {
+  std::vector<uint32_t> joints;  // SceneMotion::nodes indices
+  std::vector<Affine> inverse_bind;
+  std::vector<uint32_t> first;  // vertex_count + 1
+  struct Influence {
+    uint32_t joint = 0;
+    float weight = 0;
+  };
+  std::vector<Influence> influences;
 };
 
 // A KHR_lights_punctual light on a moving node: its position and direction
@@ -89,6 +106,7 @@ struct MovingLight {
 struct SceneMotion {
   std::vector<MotionNode> nodes;
   std::vector<MovingPart> parts;
+  std::vector<Skin> skins;
   std::vector<MovingLight> lights;
   // The moving parts' vertices in their nodes' space: positions, normals
   // (zero = none), and where the file gives TANGENT its tangent and

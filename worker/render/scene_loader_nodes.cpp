@@ -1,0 +1,297 @@
+// The node hierarchy of a scene file: meshes placed by their nodes, the
+// camera track, node animation (SceneMotion) and KHR_lights_punctual lights.
+#include <assimp/anim.h>
+#include <spdlog/spdlog.h>
+
+#include <cmath>
+#include <limits>
+#include <set>
+
+#include "worker/render/scene_loader.h"
+
+namespace dofarm::render::detail {
+
+void Loader::node(const aiNode* node, const aiMatrix4x4& parent) {
+  const aiMatrix4x4 world = parent * node->mTransformation;
+  // A skinned mesh moves with its joints, whatever its node does.
+  bool skinned = false;
+  for (unsigned k = 0; k < node->mNumMeshes; ++k)
+    skinned = skinned || scene_->mMeshes[node->mMeshes[k]]->HasBones();
+  const int moving = node->mNumMeshes > 0 && (moves(node) || skinned) ? int(motion_node(node)) : -1;
+  for (unsigned k = 0; k < node->mNumMeshes; ++k) {
+    mesh(scene_->mMeshes[node->mMeshes[k]], world, node->mName.C_Str(), moving);
+  }
+  for (unsigned c = 0; c < node->mNumChildren; ++c) this->node(node->mChildren[c], world);
+}
+
+// --- camera animation --------------------------------------------------------
+
+void Loader::camera_track() {
+  if (scene_->mNumCameras == 0) return;
+  // The first camera is the scene's camera; others are ignored.
+  const aiCamera* cam = scene_->mCameras[0];
+  const aiNode* cam_node = scene_->mRootNode->FindNode(cam->mName);
+  if (!cam_node) return;
+  // The camera node's world transform at the union of the key times on
+  // its chain (root ... camera node), each node's keys as for meshes
+  // (SceneMotion); camera_for_frame() interpolates between these keys. A
+  // STEP track's value jumps at its keys: the instant before each key is a
+  // key of the track as well, so the camera holds still until the jump.
+  const uint32_t cam_index = motion_node(cam_node);
+  std::set<float> times;
+  auto add_times = [&times](const auto& track) {
+    for (size_t i = 0; i < track.times.size(); ++i) {
+      times.insert(track.times[i]);
+      if (track.step && i > 0)
+        times.insert(std::nextafter(track.times[i], -std::numeric_limits<float>::infinity()));
+    }
+  };
+  for (int n = int(cam_index); n >= 0; n = motion_->nodes[size_t(n)].parent) {
+    const MotionNode& node = motion_->nodes[size_t(n)];
+    add_times(node.translation_keys);
+    add_times(node.rotation_keys);
+    add_times(node.scale_keys);
+  }
+  if (times.empty()) times.insert(0.0f);  // a static camera: one key
+
+  // A glTF camera sits at its node's origin looking down -z with +y up
+  // (glTF 2.0, 3.10.1). assimp 5.2.5 also copies the node's translation into
+  // aiCamera::mPosition, which would apply it twice, so for glTF the camera's
+  // own frame is taken from the spec rather than from aiCamera.
+  const bool gltf = is_gltf(path_);
+  const Vec3 cam_position = gltf ? Vec3(0.0f) : to_vec3(cam->mPosition);
+  const Vec3 back = gltf ? Vec3(0, 0, 1) : -normalize(to_vec3(cam->mLookAt), Vec3(0, 0, -1));
+  const Vec3 up_hint = gltf ? Vec3(0, 1, 0) : normalize(to_vec3(cam->mUp), Vec3(0, 1, 0));
+  // assimp's glTF2 importer stores mHorizontalFOV = yfov * aspect (checked
+  // against a file with yfov 0.8, aspect 2: it reports 1.6), so dividing
+  // recovers glTF's yfov exactly. Other importers store the full horizontal
+  // angle, which converts through the tangents.
+  const float aspect = cam->mAspect > 0 ? cam->mAspect : 1.0f;
+  const float yfov = gltf ? cam->mHorizontalFOV / aspect
+                          : 2.0f * std::atan(std::tan(cam->mHorizontalFOV * 0.5f) / aspect);
+  const Vec3 right = normalize(cross(up_hint, back), Vec3(1, 0, 0));
+  const Vec3 up = cross(back, right);
+  for (float t : times) {
+    const Affine world = motion_->world(cam_index, t);
+    // Orthonormalise: scale in the hierarchy must not leak into the rotation.
+    Vec3 w_back = normalize(world.linear(back));
+    Vec3 w_right = normalize(cross(world.linear(up), w_back));
+    Vec3 w_up = cross(w_back, w_right);
+    CameraTrackKey key;
+    key.time = t;
+    key.position = world.point(cam_position);
+    key.rotation = quat_from_axes(w_right, w_up, w_back);
+    key.yfov_deg = yfov * 180.0f / kPi;
+    key.aspect = cam->mAspect > 0 ? cam->mAspect : 0.0f;
+    if (!is_finite(key.position) || !std::isfinite(key.yfov_deg)) {
+      fail(path_, "camera \"" + std::string(cam->mName.C_Str()) + "\" has a non-finite transform");
+    }
+    out_->camera_track.push_back(key);
+  }
+}
+
+// --- node animation (meshes and lights) ---------------------------------------
+
+void Loader::animation_channels() {
+  for (unsigned a = 0; a < scene_->mNumAnimations; ++a) {
+    const aiAnimation* anim = scene_->mAnimations[a];
+    const double tps = anim->mTicksPerSecond > 0 ? anim->mTicksPerSecond : 1.0;
+    for (unsigned c = 0; c < anim->mNumChannels; ++c)
+      channels_.emplace(anim->mChannels[c]->mNodeName.C_Str(), Channel{anim->mChannels[c], tps});
+  }
+}
+
+namespace {
+
+// assimp's keys (ticks) as a track in seconds. assimp 5.2 gives every key
+// of a glTF sampler as a value (of a CUBICSPLINE sampler: the spline's
+// points, without their tangents).
+template <typename Key, typename T, typename Convert>
+void read_keys(const Key* keys, unsigned count, double ticks_per_second, Track<T>* track,
+               Convert convert) {
+  for (unsigned i = 0; i < count; ++i) {
+    track->times.push_back(float(keys[i].mTime / ticks_per_second));
+    track->values.push_back(convert(keys[i].mValue));
+  }
+}
+
+}  // namespace
+
+uint32_t Loader::motion_node(const aiNode* n) {
+  if (auto it = motion_index_.find(n); it != motion_index_.end()) return it->second;
+  MotionNode node;
+  node.parent = n->mParent ? int(motion_node(n->mParent)) : -1;
+  node.fixed = to_affine(n->mTransformation);
+  const std::string name = n->mName.C_Str();
+  if (auto it = channels_.find(name); it != channels_.end()) {
+    // glTF: an animated node has translation, rotation and scale, not a
+    // matrix (3.11), so the decomposition is exact.
+    aiVector3D s, t;
+    aiQuaternion r;
+    n->mTransformation.Decompose(s, r, t);
+    node.translation = to_vec3(t);
+    node.scale = to_vec3(s);
+    node.rotation = Quat{r.w, r.x, r.y, r.z};
+    auto vec = [](const aiVector3D& v) { return to_vec3(v); };
+    double tps = 1;
+    bool step = false;
+    if (const aiNodeAnim* ch = path_channel(name, "translation", &tps, &step)) {
+      read_keys(ch->mPositionKeys, ch->mNumPositionKeys, tps, &node.translation_keys, vec);
+      node.translation_keys.step = step;
+    }
+    if (const aiNodeAnim* ch = path_channel(name, "scale", &tps, &step)) {
+      read_keys(ch->mScalingKeys, ch->mNumScalingKeys, tps, &node.scale_keys, vec);
+      node.scale_keys.step = step;
+    }
+    if (const aiNodeAnim* ch = path_channel(name, "rotation", &tps, &step)) {
+      read_keys(ch->mRotationKeys, ch->mNumRotationKeys, tps, &node.rotation_keys,
+                [](const aiQuaternion& q) {
+                  return Quat{q.w, q.x, q.y, q.z};
+                });
+      node.rotation_keys.step = step;
+    }
+    // Keys as glTF requires them (3.11): finite values at increasing times;
+    // rotations are made unit.
+    const std::string bad = "the animation of node \"" + name + "\" has ";
+    auto check_times = [&](const std::vector<float>& times) {
+      for (size_t i = 0; i < times.size(); ++i)
+        if (!std::isfinite(times[i]) || (i > 0 && !(times[i] > times[i - 1])))
+          fail(path_, bad + "key times that are not finite and increasing");
+    };
+    for (const Track<Vec3>* track : {&node.translation_keys, &node.scale_keys}) {
+      check_times(track->times);
+      for (Vec3 v : track->values)
+        if (!is_finite(v)) fail(path_, bad + "a non-finite key");
+    }
+    check_times(node.rotation_keys.times);
+    for (Quat& q : node.rotation_keys.values) {
+      const float len = std::sqrt(q.w * q.w + q.x * q.x + q.y * q.y + q.z * q.z);
+      if (!std::isfinite(len) || !(len > 0))
+        fail(path_, bad + "a rotation key that is not a rotation");
+      q = Quat{q.w / len, q.x / len, q.y / len, q.z / len};
+    }
+  }
+  motion_->nodes.push_back(std::move(node));
+  const auto index = uint32_t(motion_->nodes.size() - 1);
+  motion_index_.emplace(n, index);
+  return index;
+}
+
+const aiNodeAnim* Loader::path_channel(const std::string& name, const char* path,
+                                       double* ticks_per_second, bool* step) const {
+  *step = false;
+  bool named = false;
+  for (const GltfInfo::AnimatedPath& ap : gltf_.animated_paths) {
+    if (ap.node != name) continue;
+    named = true;
+    if (ap.path != path || ap.animation >= scene_->mNumAnimations) continue;
+    const aiAnimation* anim = scene_->mAnimations[ap.animation];
+    for (unsigned c = 0; c < anim->mNumChannels; ++c) {
+      if (anim->mChannels[c]->mNodeName.C_Str() != name) continue;
+      *ticks_per_second = anim->mTicksPerSecond > 0 ? anim->mTicksPerSecond : 1.0;
+      *step = ap.interpolation == "STEP";
+      if (ap.interpolation == "CUBICSPLINE")
+        spdlog::warn(
+            "{}: the {} of node \"{}\" is animated by a CUBICSPLINE sampler; dofarm "
+            "interpolates linearly between its keys (the spline's tangents are not read)",
+            path_.string(), path, name);
+      return anim->mChannels[c];
+    }
+  }
+  if (named) return nullptr;  // the file's animations do not move this path
+  const auto it = channels_.find(name);
+  if (it == channels_.end()) return nullptr;
+  *ticks_per_second = it->second.ticks_per_second;
+  return it->second.keys;
+}
+
+// Node animation moves meshes, skins and lights frame by frame
+// (SceneMotion); what it cannot move is named in a warning: morph target
+// weights.
+void Loader::finish_motion() {
+  if (!motion_->parts.empty() || !motion_->lights.empty()) {
+    if (!motion_->tangents.empty()) {
+      motion_->tangents.resize(motion_->positions.size());
+      motion_->bitangents.resize(motion_->positions.size());
+    }
+    out_->motion = motion_;
+  }
+  unsigned morph = 0;
+  for (unsigned a = 0; a < scene_->mNumAnimations; ++a)
+    morph +=
+        scene_->mAnimations[a]->mNumMorphMeshChannels + scene_->mAnimations[a]->mNumMeshChannels;
+  if (morph > 0)
+    spdlog::warn("{}: {} morph-target animation channel(s) ignored: meshes keep their base shape",
+                 path_.string(), morph);
+}
+
+// --- lights --------------------------------------------------------------------
+
+void Loader::lights() {
+  if (scene_->mNumLights == 0) return;
+  if (!is_gltf(path_)) {
+    // Other formats' light units are the exporter's guess; only glTF's are defined.
+    spdlog::warn("{}: {} light(s) ignored: dofarm reads lights from glTF files only",
+                 path_.string(), scene_->mNumLights);
+    return;
+  }
+  for (unsigned i = 0; i < scene_->mNumLights; ++i) {
+    const aiLight* al = scene_->mLights[i];
+    const std::string name = al->mName.C_Str();
+    // assimp names a glTF light after the node that holds it.
+    const aiNode* node = scene_->mRootNode->FindNode(al->mName);
+    if (!node) {
+      spdlog::warn("{}: light \"{}\" is on no node; ignored", path_.string(), name);
+      continue;
+    }
+    aiMatrix4x4 world;  // at the nodes' own transforms; pose() moves an animated one
+    for (const aiNode* n = node; n; n = n->mParent) world = n->mTransformation * world;
+    PunctualLight light;
+    light.name = name;
+    light.position = to_vec3(world * al->mPosition);
+    // glTF: spot and directional lights shine down their node's -z (assimp's
+    // mDirection); the direction ignores the node's scale.
+    light.direction = normalize(to_vec3(aiMatrix3x3(world) * al->mDirection), Vec3(0, 0, -1));
+    // assimp hands out colour x intensity, in candela (point, spot) or lux
+    // (directional); see kLumensPerWatt for the conversion.
+    light.intensity =
+        Vec3(al->mColorDiffuse.r, al->mColorDiffuse.g, al->mColorDiffuse.b) / kLumensPerWatt;
+    switch (al->mType) {
+      case aiLightSource_POINT:
+        light.type = PunctualLight::Type::kPoint;
+        break;
+      case aiLightSource_SPOT:
+        light.type = PunctualLight::Type::kSpot;
+        light.cos_inner = std::cos(al->mAngleInnerCone);
+        light.cos_outer = std::cos(al->mAngleOuterCone);
+        break;
+      case aiLightSource_DIRECTIONAL:
+        light.type = PunctualLight::Type::kDirectional;
+        break;
+      default:
+        spdlog::warn("{}: light \"{}\" of assimp type {} ignored", path_.string(), name,
+                     int(al->mType));
+        continue;
+    }
+    const std::string which = "light " + std::to_string(i) + " (\"" + name + "\")";
+    if (!is_finite(light.position) || !is_finite(light.intensity) ||
+        !std::isfinite(light.cos_inner) || !std::isfinite(light.cos_outer))
+      fail(path_, which + " has a non-finite value");
+    if (light.intensity.x < 0 || light.intensity.y < 0 || light.intensity.z < 0)
+      fail(path_, which + " has a negative intensity");
+    if (max_component(light.intensity) > kMaxRadiance)
+      fail(path_, which + " has intensity " + fmt::format("{:g}", max_component(light.intensity)) +
+                      " (after dividing by 683 lm/W), above the bound kMaxRadiance = 1e12");
+    if (moves(node)) {
+      MovingLight moving;
+      moving.light = uint32_t(out_->lights.size());
+      moving.node = motion_node(node);
+      moving.position = to_vec3(al->mPosition);
+      moving.direction = to_vec3(al->mDirection);
+      motion_->lights.push_back(moving);
+    }
+    out_->lights.push_back(std::move(light));
+  }
+}
+
+}  // namespace dofarm::render::detail
