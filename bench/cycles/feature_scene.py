@@ -136,6 +136,12 @@ def plane(size, z, mat):
     return obj
 
 
+def grey_floor():
+    """A 4 m Lambert-like floor of base colour 0.8 (roughness 1, Specular 0)."""
+    floor, _ = principled("floor", (0.8, 0.8, 0.8), 1.0, specular=0.0)
+    plane(4.0, 0.0, floor)
+
+
 def light(scene, kind, energy, location=(0.0, 0.0, 0.0), rotation=(0.0, 0.0, 0.0)):
     data = bpy.data.lights.new(kind.lower(), type=kind)
     data.energy = energy
@@ -258,8 +264,7 @@ def main():
         light(scene, "SUN", 3.0, rotation=sun_rotation)
     elif feature == "animation":
         size = 96
-        floor, _ = principled("floor", (0.8, 0.8, 0.8), 1.0, specular=0.0)
-        plane(4.0, 0.0, floor)
+        grey_floor()
         red, _ = principled("box", (0.8, 0.1, 0.1), 1.0, specular=0.0)
         bpy.ops.mesh.primitive_cube_add(size=0.8, location=(-1.2, -0.6, 0.4))
         box = bpy.context.active_object
@@ -275,8 +280,7 @@ def main():
         light(scene, "SUN", 0.5, rotation=sun_rotation)
     elif feature == "skinning":
         size = 96
-        floor, _ = principled("floor", (0.8, 0.8, 0.8), 1.0, specular=0.0)
-        plane(4.0, 0.0, floor)
+        grey_floor()
         green, _ = principled("bar", (0.1, 0.7, 0.2), 1.0, specular=0.0)
         bpy.ops.mesh.primitive_cylinder_add(radius=0.25, depth=2.4, location=(0.0, 0.0, 0.5),
                                             rotation=(0.0, math.radians(90.0), 0.0), vertices=24)
