@@ -106,7 +106,9 @@ void add_channel(GltfQuad* q, int node, const char* path, const std::vector<floa
   q->doc["accessors"].push_back({{"bufferView", out_view},
                                  {"componentType", 5126},
                                  {"count", times.size()},
-                                 {"type", width == 4 ? "VEC4" : "VEC3"}});
+                                 {"type", width == 4   ? "VEC4"
+                                          : width == 3 ? "VEC3"
+                                                       : "SCALAR"}});
   const size_t acc = q->doc["accessors"].size();
   Json anim;
   anim["channels"] = {{{"sampler", 0}, {"target", {{"node", node}, {"path", path}}}}};
@@ -309,6 +311,33 @@ TEST(SceneMotion, ASkinFollowsItsJoints) {
   for (size_t v = 0; v < 4; ++v)
     if (length(bind.positions[v] - Vec3(1, 0, 1)) < 1e-5f)
       expect_near3(half.positions[v], Vec3(1, -0.5f * h, 0.5f * (1 + h)), 1e-5f);
+}
+
+TEST(SceneMotion, MorphTargetsTakeTheirWeights) {
+  // One morph target lifts vertex 2, (1, 0, 1), by (0, 1, 0); the mesh's
+  // default weight is 0.25 (Blender: a shape key's value).
+  TempDir dir("motion_morph");
+  GltfQuad q = gltf_fixture::gltf_quad();
+  const size_t lift =
+      add_accessor(&q, floats_bytes({0, 0, 0, 0, 0, 0, 0, 1, 0, 0, 0, 0}), 4, "VEC3", 5126);
+  q.doc["accessors"][lift]["min"] = {0, 0, 0};
+  q.doc["accessors"][lift]["max"] = {0, 1, 0};
+  q.doc["meshes"][0]["primitives"][0]["targets"] = {{{"POSITION", lift}}};
+  q.doc["meshes"][0]["weights"] = {0.25};
+  SceneData still = load(dir, "still.gltf", q);
+  EXPECT_EQ(still.motion, nullptr);  // static weights are applied at load
+  expect_near3(still.positions[2], Vec3(1, 0.25f, 1), 1e-6f);
+  expect_near3(still.positions[0], Vec3(0, 0, 0), 1e-6f);
+  // Animated weights 0 -> 1 over the first second (Blender: a keyed shape key).
+  add_channel(&q, 0, "weights", {0, 1}, {0, 1});
+  SceneData moving = load(dir, "moving.gltf", q);
+  ASSERT_NE(moving.motion, nullptr);
+  ASSERT_EQ(moving.motion->morphs.size(), 1u);
+  expect_near3(moving.positions[2], Vec3(1, 0.25f, 1), 1e-6f);  // as loaded: the default weight
+  expect_near3(pose(moving, 0.0f).positions[2], Vec3(1, 0, 1), 1e-6f);
+  expect_near3(pose(moving, 0.5f).positions[2], Vec3(1, 0.5f, 1), 1e-6f);
+  expect_near3(pose(moving, 2.0f).positions[2], Vec3(1, 1, 1), 1e-6f);
+  expect_near3(pose(moving, 0.5f).positions[1], Vec3(0, 0, 1), 1e-6f);  // no offset there
 }
 
 TEST(SceneMotion, TheCameraHoldsStillOnAStepTrack) {

@@ -388,16 +388,38 @@ void Loader::mesh(const aiMesh* m, const aiMatrix4x4& world, const char* node_na
         "{}: mesh \"{}\" of node \"{}\" has no TEXCOORD_1, which its material \"{}\" reads; "
         "TEXCOORD_0 used",
         path_.string(), m->mName.C_Str(), node_name, out_->materials[material].name);
+  // Morph targets (glTF 3.7.2.2; assimp 5.2: aiAnimMesh, each target's
+  // vertices as base + offset, mWeight the mesh's default weight): the
+  // vertices below are the mesh at its default weights; where an animation
+  // drives the weights, pose() morphs them per frame (SceneMotion::morphs).
+  double morph_tps = 1.0;
+  const aiMeshMorphAnim* morph_keys =
+      m->mNumAnimMeshes > 0 ? morph_channel(node_name, &morph_tps) : nullptr;
+  auto target_ok = [m](unsigned k, bool normals) {
+    const aiAnimMesh* a = m->mAnimMeshes[k];
+    return a->mNumVertices == m->mNumVertices &&
+           (normals ? a->mNormals != nullptr && m->HasNormals() : a->mVertices != nullptr);
+  };
+  auto morphed = [&](unsigned v, bool normals) {
+    const aiVector3D* base_of = normals ? m->mNormals : m->mVertices;
+    aiVector3D x = base_of[v];
+    for (unsigned k = 0; k < m->mNumAnimMeshes; ++k) {
+      if (!target_ok(k, normals)) continue;
+      const aiAnimMesh* a = m->mAnimMeshes[k];
+      x += ((normals ? a->mNormals : a->mVertices)[v] - base_of[v]) * a->mWeight;
+    }
+    return x;
+  };
   for (unsigned v = 0; v < m->mNumVertices; ++v) {
-    Vec3 p = to_vec3(world * m->mVertices[v]);
+    Vec3 p = to_vec3(world * morphed(v, false));
     if (!is_finite(p)) {
       fail(path_, "mesh \"" + std::string(m->mName.C_Str()) + "\" of node \"" + node_name +
                       "\": vertex " + std::to_string(v) + " is not finite");
     }
     out_->positions.push_back(p);
     // aiProcess_GenSmoothNormals fills in normals where the file has none.
-    const Vec3 n = normalize(m->HasNormals() ? to_vec3(normal_matrix * m->mNormals[v]) : Vec3(0.0f),
-                             Vec3(0.0f));
+    const Vec3 n = normalize(
+        m->HasNormals() ? to_vec3(normal_matrix * morphed(v, true)) : Vec3(0.0f), Vec3(0.0f));
     out_->normals.push_back(n);
     // A glTF TANGENT (assimp 5.2: mTangents, and mBitangents = cross(n, t) w
     // with the file's w): the tangent moves with the surface (the world
@@ -450,16 +472,54 @@ void Loader::mesh(const aiMesh* m, const aiMatrix4x4& world, const char* node_na
     mo.tangents.resize(mo.positions.size());
     mo.bitangents.resize(mo.positions.size());
   }
+  // Animated morph weights: the base and each target's offsets; else the
+  // mesh at its default weights.
   for (unsigned v = 0; v < m->mNumVertices; ++v) {
-    mo.positions.push_back(to_vec3(m->mVertices[v]));
-    mo.normals.push_back(m->HasNormals() ? normalize(to_vec3(m->mNormals[v]), Vec3(0.0f))
-                                         : Vec3(0.0f));
+    mo.positions.push_back(to_vec3(morph_keys ? m->mVertices[v] : morphed(v, false)));
+    mo.normals.push_back(
+        m->HasNormals()
+            ? normalize(to_vec3(morph_keys ? m->mNormals[v] : morphed(v, true)), Vec3(0.0f))
+            : Vec3(0.0f));
     if (tangents) {
       mo.tangents.push_back(to_vec3(m->mTangents[v]));
       mo.bitangents.push_back(to_vec3(m->mBitangents[v]));
     }
   }
   if (m->HasBones()) part.skin = skin(m, node_name);
+  if (morph_keys) {
+    Morph morph;
+    for (unsigned k = 0; k < m->mNumAnimMeshes; ++k) {
+      const aiAnimMesh* a = m->mAnimMeshes[k];
+      std::vector<Vec3> dp, dn;
+      for (unsigned v = 0; target_ok(k, false) && v < m->mNumVertices; ++v)
+        dp.push_back(to_vec3(a->mVertices[v] - m->mVertices[v]));
+      if (dp.empty()) dp.assign(m->mNumVertices, Vec3(0.0f));
+      for (unsigned v = 0; target_ok(k, true) && v < m->mNumVertices; ++v)
+        dn.push_back(to_vec3(a->mNormals[v] - m->mNormals[v]));
+      morph.positions.push_back(std::move(dp));
+      morph.normals.push_back(std::move(dn));
+    }
+    for (unsigned i = 0; i < morph_keys->mNumKeys; ++i) {
+      const aiMeshMorphKey& key = morph_keys->mKeys[i];
+      std::vector<float> w(m->mNumAnimMeshes, 0.0f);
+      for (unsigned j = 0; j < key.mNumValuesAndWeights; ++j)
+        if (key.mValues[j] < w.size()) w[key.mValues[j]] = float(key.mWeights[j]);
+      for (float x : w)
+        if (!std::isfinite(x))
+          fail(path_,
+               "the morph weights of node \"" + std::string(node_name) + "\" are not finite");
+      const float t = float(key.mTime / morph_tps);
+      if (!std::isfinite(t) || (i > 0 && !(t > morph.weights.times.back())))
+        fail(path_, "the morph weights of node \"" + std::string(node_name) +
+                        "\" have key times that are not finite and increasing");
+      morph.weights.times.push_back(t);
+      morph.weights.values.push_back(std::move(w));
+    }
+    if (!morph.weights.empty()) {
+      motion_->morphs.push_back(std::move(morph));
+      part.morph = int(motion_->morphs.size() - 1);
+    }
+  }
   mo.parts.push_back(part);
 }
 

@@ -99,6 +99,10 @@ class Loader {
   // The skin of `m` (its bones: joints, inverse bind matrices, weights) as
   // a SceneMotion::skins entry; returns its index.
   int skin(const aiMesh* m, const char* node_name);
+  // The morph-weight animation of node `node_name` (the first animation
+  // with one; assimp names it after the node), with its ticks per second;
+  // null where none.
+  const aiMeshMorphAnim* morph_channel(const char* node_name, double* ticks_per_second) const;
   // Whether the animation moves `n` or one of its parents.
   bool moves(const aiNode* n) const {
     for (; n; n = n->mParent)

@@ -4,6 +4,7 @@
 #include <spdlog/spdlog.h>
 
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <set>
 
@@ -13,11 +14,16 @@ namespace dofarm::render::detail {
 
 void Loader::node(const aiNode* node, const aiMatrix4x4& parent) {
   const aiMatrix4x4 world = parent * node->mTransformation;
-  // A skinned mesh moves with its joints, whatever its node does.
-  bool skinned = false;
-  for (unsigned k = 0; k < node->mNumMeshes; ++k)
-    skinned = skinned || scene_->mMeshes[node->mMeshes[k]]->HasBones();
-  const int moving = node->mNumMeshes > 0 && (moves(node) || skinned) ? int(motion_node(node)) : -1;
+  // A skinned mesh moves with its joints, whatever its node does, and a
+  // mesh whose morph weights an animation drives changes shape.
+  bool deforms = false;
+  double tps;
+  for (unsigned k = 0; k < node->mNumMeshes; ++k) {
+    const aiMesh* m = scene_->mMeshes[node->mMeshes[k]];
+    deforms = deforms || m->HasBones() ||
+              (m->mNumAnimMeshes > 0 && morph_channel(node->mName.C_Str(), &tps));
+  }
+  const int moving = node->mNumMeshes > 0 && (moves(node) || deforms) ? int(motion_node(node)) : -1;
   for (unsigned k = 0; k < node->mNumMeshes; ++k) {
     mesh(scene_->mMeshes[node->mMeshes[k]], world, node->mName.C_Str(), moving);
   }
@@ -205,9 +211,22 @@ const aiNodeAnim* Loader::path_channel(const std::string& name, const char* path
   return it->second.keys;
 }
 
-// Node animation moves meshes, skins and lights frame by frame
-// (SceneMotion); what it cannot move is named in a warning: morph target
-// weights.
+const aiMeshMorphAnim* Loader::morph_channel(const char* node_name,
+                                             double* ticks_per_second) const {
+  for (unsigned a = 0; a < scene_->mNumAnimations; ++a) {
+    const aiAnimation* anim = scene_->mAnimations[a];
+    for (unsigned c = 0; c < anim->mNumMorphMeshChannels; ++c)
+      if (std::strcmp(anim->mMorphMeshChannels[c]->mName.C_Str(), node_name) == 0 &&
+          anim->mMorphMeshChannels[c]->mNumKeys > 0) {
+        *ticks_per_second = anim->mTicksPerSecond > 0 ? anim->mTicksPerSecond : 1.0;
+        return anim->mMorphMeshChannels[c];
+      }
+  }
+  return nullptr;
+}
+
+// Node animation moves meshes, skins, morph targets and lights frame by
+// frame (SceneMotion).
 void Loader::finish_motion() {
   if (!motion_->parts.empty() || !motion_->lights.empty()) {
     if (!motion_->tangents.empty()) {
@@ -216,13 +235,14 @@ void Loader::finish_motion() {
     }
     out_->motion = motion_;
   }
-  unsigned morph = 0;
+  // Vertex animation by whole meshes (assimp's aiMeshAnim, from formats
+  // such as MD2; glTF has none) is not followed.
+  unsigned replaced = 0;
   for (unsigned a = 0; a < scene_->mNumAnimations; ++a)
-    morph +=
-        scene_->mAnimations[a]->mNumMorphMeshChannels + scene_->mAnimations[a]->mNumMeshChannels;
-  if (morph > 0)
-    spdlog::warn("{}: {} morph-target animation channel(s) ignored: meshes keep their base shape",
-                 path_.string(), morph);
+    replaced += scene_->mAnimations[a]->mNumMeshChannels;
+  if (replaced > 0)
+    spdlog::warn("{}: {} mesh-replacement animation channel(s) ignored: meshes keep their shape",
+                 path_.string(), replaced);
 }
 
 // --- lights --------------------------------------------------------------------

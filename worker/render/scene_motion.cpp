@@ -57,6 +57,11 @@ namespace {
 
 Vec3 blend(Vec3 a, Vec3 b, float w) { return lerp(a, b, w); }
 Quat blend(Quat a, Quat b, float w) { return slerp(a, b, w); }
+std::vector<float> blend(const std::vector<float>& a, const std::vector<float>& b, float w) {
+  std::vector<float> out(a.size());
+  for (size_t k = 0; k < a.size() && k < b.size(); ++k) out[k] = a[k] * (1.0f - w) + b[k] * w;
+  return out;
+}
 
 // The track's value at `time` (glTF 2.0, 3.11: clamped outside the keys).
 template <typename T>
@@ -141,11 +146,21 @@ SceneData pose(const SceneData& rest, float time) {
   };
   for (const MovingPart& part : motion.parts) {
     joints_of(part);
+    std::vector<float> weights;
+    if (part.morph >= 0) weights = sample(motion.morphs[size_t(part.morph)].weights, time);
     for (uint32_t k = 0; k < part.vertex_count; ++k) {
       const size_t v = size_t(part.first_vertex) + k, local = size_t(part.local_first) + k;
+      Vec3 p = motion.positions[local], n = motion.normals[local];
+      if (part.morph >= 0) {
+        const Morph& morph = motion.morphs[size_t(part.morph)];
+        for (size_t t = 0; t < morph.positions.size() && t < weights.size(); ++t) {
+          p += morph.positions[t][k] * weights[t];
+          if (!morph.normals[t].empty()) n += morph.normals[t][k] * weights[t];
+        }
+      }
       const Affine w = vertex_transform(part, k);
-      out.positions[v] = w.point(motion.positions[local]);
-      out.normals[v] = normalize(w.normal(motion.normals[local]), Vec3(0.0f));
+      out.positions[v] = w.point(p);
+      out.normals[v] = normalize(w.normal(n), Vec3(0.0f));
       if (!moving.empty()) moving[v] = true;
     }
     // A skin's winding follows its joints' (blended) transform at its first vertex.

@@ -77,6 +77,18 @@ struct MovingPart {
   uint32_t local_first = 0;
   bool mirrored = false;
   int skin = -1;  // index into SceneMotion::skins: the joints place the vertices, not `node`
+  int morph = -1;  // index into SceneMotion::morphs: animated morph targets (before the skin)
+};
+
+// Morph targets whose weights are animated (glTF 2.0, 3.7.2.2, 3.11;
+// Blender's shape keys): vertex v of the part, in its node's space, is
+// base_v + sum_k w_k(t) delta_k,v, and its normal likewise (then made
+// unit). Targets with static weights are applied at load.
+struct Morph {
+  // Per target, per vertex of the part: the position and normal offsets
+  // (normal offsets empty where the target has none).
+  std::vector<std::vector<Vec3>> positions, normals;
+  Track<std::vector<float>> weights;  // one weight per target per key
 };
 
 // A skinned mesh's joints (glTF 2.0, 3.7.3): vertex v of the part lands at
@@ -107,6 +119,7 @@ struct SceneMotion {
   std::vector<MotionNode> nodes;
   std::vector<MovingPart> parts;
   std::vector<Skin> skins;
+  std::vector<Morph> morphs;
   std::vector<MovingLight> lights;
   // The moving parts' vertices in their nodes' space: positions, normals
   // (zero = none), and where the file gives TANGENT its tangent and
