@@ -46,7 +46,8 @@ VARIANTS = {"specular": ["file", "ignored"], "clearcoat": ["file", "ignored", "q
             "normal_map_tangents": ["file", "flipped", "nomap"], "alpha_mask": ["file", "opaque"],
             "alpha_blend": ["file", "opaque"], "transmission": ["file", "opaque", "ior1"],
             "uv_map": ["file", "set0"], "specular_texture": ["file", "untextured"], "clearcoat_normal": ["file", "flipped", "nomap"],
-            "animation": ["file", "static"], "skinning": ["file", "static"]}
+            "animation": ["file", "static"], "skinning": ["file", "static"],
+            "shape_keys": ["file", "static"]}
 WHAT = {"file": "the exported file", "ignored": "KHR_materials_specular ignored",
         "flipped": "control: the map's green inverted", "nomap": "control: no normal map",
         "opaque": "control: alphaMode ignored (opaque)", "ior1": "control: IOR 1 (no bending)",
@@ -55,7 +56,7 @@ WHAT = {"file": "the exported file", "ignored": "KHR_materials_specular ignored"
         "static": "control: the node animation removed (the pose exported, frame 0)"}
 # The frames feature_scene.py renders the animated scenes at (its
 # ANIMATION_FRAME), at Blender's 24 fps.
-ANIMATION_FRAME = {"animation": 9, "skinning": 13}
+ANIMATION_FRAME = {"animation": 9, "skinning": 13, "shape_keys": 13}
 
 
 def read_png(path):

@@ -49,6 +49,11 @@
 #               to bent 90 degrees about z at frame 25, the point lamp
 #               and sun of the animation scene held still; rendered at
 #               frame 13 (glTF skin, joints animated); 96 x 96
+#   shape_keys  a blue ball (radius 0.6 m, 0.8 m over the floor) with a
+#               shape key that stretches it to twice its width along x,
+#               keyed from 0 at frame 1 to 1 at frame 25 (glTF morph
+#               target with animated weights), the lamps of the skinning
+#               scene; rendered at frame 13; 96 x 96
 #
 #   blender -b -noaudio --factory-startup -P feature_scene.py -- FEATURE OUT_DIR SPP [SPECULAR TINT | ROUGHNESS [DISTRIBUTION]]
 #   (DISTRIBUTION: the glass's Principled distribution, GGX (Blender's
@@ -158,7 +163,7 @@ def light(scene, kind, energy, location=(0.0, 0.0, 0.0), rotation=(0.0, 0.0, 0.0
 
 # The frame the animation and skinning features render (feature_compare.py
 # ANIMATION_FRAME).
-ANIMATION_FRAME = {"animation": 9, "skinning": 13}
+ANIMATION_FRAME = {"animation": 9, "skinning": 13, "shape_keys": 13}
 
 
 def main():
@@ -312,6 +317,24 @@ def main():
         for frame, angle in ((1, 0.0), (25, 90.0)):
             pose.rotation_quaternion = mathutils.Quaternion(axis, math.radians(angle))
             pose.keyframe_insert("rotation_quaternion", frame=frame)
+        light(scene, "POINT", 300.0, location=(-1.5, 1.5, 1.5))
+        light(scene, "SUN", 0.5, rotation=sun_rotation)
+    elif feature == "shape_keys":
+        size = 96
+        grey_floor()
+        blue, _ = principled("ball", (0.1, 0.2, 0.8), 1.0, specular=0.0)
+        bpy.ops.mesh.primitive_uv_sphere_add(radius=0.6, location=(0.0, 0.0, 0.8), segments=48,
+                                             ring_count=24)
+        bpy.ops.object.shade_smooth()
+        ball = bpy.context.active_object
+        ball.data.materials.append(blue)
+        ball.shape_key_add(name="Basis")
+        stretch = ball.shape_key_add(name="stretch")
+        for point in stretch.data:
+            point.co.x *= 2.0
+        for frame, value in ((1, 0.0), (25, 1.0)):
+            stretch.value = value
+            stretch.keyframe_insert("value", frame=frame)
         light(scene, "POINT", 300.0, location=(-1.5, 1.5, 1.5))
         light(scene, "SUN", 0.5, rotation=sun_rotation)
     else:

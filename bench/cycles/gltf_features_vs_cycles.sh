@@ -46,7 +46,7 @@ for pair in "0 0" "0.5 0" "1 0" "0.5 1"; do
   set -- $pair
   scene specular "$out/specular-s$1-t$2" 64 "$1" "$2"
 done
-for feature in specular_texture normal_map normal_map_tangents alpha_mask alpha_blend uv_map animation skinning \
+for feature in specular_texture normal_map normal_map_tangents alpha_mask alpha_blend uv_map animation skinning shape_keys \
   clearcoat_normal; do
   echo
   echo "$feature ($spp spp):"
