@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <tuple>
 
 #include "tests/render/gltf_fixture.h"
 #include "tests/render/render_fixtures.h"
@@ -338,6 +339,27 @@ TEST(SceneMotion, MorphTargetsTakeTheirWeights) {
   expect_near3(pose(moving, 0.5f).positions[2], Vec3(1, 0.5f, 1), 1e-6f);
   expect_near3(pose(moving, 2.0f).positions[2], Vec3(1, 1, 1), 1e-6f);
   expect_near3(pose(moving, 0.5f).positions[1], Vec3(0, 0, 1), 1e-6f);  // no offset there
+}
+
+TEST(SceneMotion, BadKeysAreLoadErrorsNamingTheNode) {
+  TempDir dir("motion_bad");
+  // Key times that go back, and a rotation key of length 0.
+  GltfQuad back = quad_on_rig();
+  add_channel(&back, 1, "translation", {1, 0.5f}, {0, 0, 0, 0, 1, 0});
+  GltfQuad zero = quad_on_rig();
+  add_channel(&zero, 1, "rotation", {0, 1}, {0, 0, 0, 1, 0, 0, 0, 0});
+  for (auto [name, q, why] : {std::tuple{"back.gltf", back, "not finite and increasing"},
+                              std::tuple{"zero.gltf", zero, "not a rotation"}}) {
+    try {
+      load(dir, name, q);
+      ADD_FAILURE() << name << ": loaded";
+    } catch (const SpecError& e) {
+      const std::string what = e.what();
+      EXPECT_NE(what.find(name), std::string::npos) << what;
+      EXPECT_NE(what.find("node \"rig\""), std::string::npos) << what;
+      EXPECT_NE(what.find(why), std::string::npos) << what;
+    }
+  }
 }
 
 TEST(SceneMotion, TheCameraHoldsStillOnAStepTrack) {
