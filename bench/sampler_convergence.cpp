@@ -103,7 +103,7 @@ std::shared_ptr<const Scene> sky_lit(const JobSpec& spec) {
   dofarm::render::SceneData data = dofarm::render::load_scene_data(spec.scene);
   for (auto& m : data.materials) {
     m.emission = Vec3(0);
-    m.emission_tex = -1;
+    m.emission_tex.index = -1;
   }
   return std::make_shared<Scene>(std::move(data),
                                  std::make_unique<dofarm::render::Environment>(Vec3(1.0f)));

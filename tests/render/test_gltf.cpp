@@ -44,7 +44,7 @@ TEST(GltfEmbeddedTextures, GlbAndDataUriLoadLikeTheImageBesideTheScene) {
     SceneData s = load_scene_data(dir.path / name);
     ASSERT_EQ(s.textures.size(), 1u);
     ASSERT_EQ(s.triangle_count(), 2u);
-    EXPECT_EQ(s.materials[s.tri_material[0]].base_color_tex, 0);
+    EXPECT_EQ(s.materials[s.tri_material[0]].base_color_tex.index, 0);
     expect_same_texture(s.textures[0], t);
     EXPECT_EQ(s.triangle_count(), 2u);
   }
@@ -67,14 +67,14 @@ TEST(GltfSamplers, FilterAndWrapAreRead) {
   write_gltf(dir.path / "samplers.gltf", q);
   SceneData s = load_scene_data(dir.path / "samplers.gltf");
   const Material& m = s.materials[s.tri_material[0]];
-  ASSERT_GE(m.base_color_tex, 0);
-  ASSERT_GE(m.emission_tex, 0);
-  ASSERT_NE(m.base_color_tex, m.emission_tex);
-  const TextureSampler& a = s.textures[size_t(m.base_color_tex)].sampler;
+  ASSERT_GE(m.base_color_tex.index, 0);
+  ASSERT_GE(m.emission_tex.index, 0);
+  ASSERT_NE(m.base_color_tex.index, m.emission_tex.index);
+  const TextureSampler& a = s.textures[size_t(m.base_color_tex.index)].sampler;
   EXPECT_TRUE(a.nearest);
   EXPECT_EQ(a.wrap_u, TextureWrap::kClamp);
   EXPECT_EQ(a.wrap_v, TextureWrap::kMirror);
-  const TextureSampler& b = s.textures[size_t(m.emission_tex)].sampler;
+  const TextureSampler& b = s.textures[size_t(m.emission_tex.index)].sampler;
   EXPECT_FALSE(b.nearest);
   EXPECT_EQ(b.wrap_u, TextureWrap::kRepeat);
   EXPECT_EQ(b.wrap_v, TextureWrap::kRepeat);
@@ -122,10 +122,10 @@ TEST(GltfTextureTransform, BlenderExportedTransformReproducesBlendersMapping) {
   SceneData s = load_scene_data(dir.path / "transform.gltf");
   ASSERT_EQ(s.triangle_count(), 2u);
   const Material& m = s.materials[s.tri_material[0]];
-  ASSERT_EQ(m.base_color_tex, 0);
-  const UvTransform& t = m.base_color_uv;
+  ASSERT_EQ(m.base_color_tex.index, 0);
+  const UvTransform& t = m.base_color_tex.uv;
   EXPECT_FALSE(t.is_identity());
-  EXPECT_TRUE(m.metal_rough_uv.is_identity());
+  EXPECT_TRUE(m.metal_rough_tex.uv.is_identity());
   for (Vec2 uv : {Vec2(0, 0), Vec2(1, 0), Vec2(0, 1), Vec2(0.3f, 0.7f), Vec2(-2, 5)}) {
     Vec2 want = blender_mapping(uv, Vec2(0.25f, 0.5f), 0.3f, Vec2(2, 3));
     Vec2 got = t.apply(uv);
@@ -285,7 +285,7 @@ TEST(GltfBlenderExport, LampsEmbeddedTextureAndMappingAsBlenderMeantThem) {
   SceneData s = load_scene_data(dir / "lamps_and_texture.glb");
   ASSERT_EQ(s.triangle_count(), 2u);
   const Material& m = s.materials[s.tri_material[0]];
-  ASSERT_EQ(m.base_color_tex, 0);
+  ASSERT_EQ(m.base_color_tex.index, 0);
   // The PNG inside the .glb decodes exactly like the file it was made from.
   RgbImage beside = load_rgb_image(dir / "tex.png", /*srgb=*/true);
   EXPECT_EQ(s.textures[0].width, beside.width);
@@ -293,8 +293,8 @@ TEST(GltfBlenderExport, LampsEmbeddedTextureAndMappingAsBlenderMeantThem) {
   EXPECT_EQ(s.textures[0].rgb, beside.rgb);
   for (Vec2 uv : {Vec2(0, 0), Vec2(1, 1), Vec2(0.2f, 0.9f)}) {
     Vec2 want = blender_mapping(uv, Vec2(0.25f, 0.5f), 0.3f, Vec2(2, 3));
-    EXPECT_NEAR(m.base_color_uv.apply(uv).x, want.x, 1e-5f);
-    EXPECT_NEAR(m.base_color_uv.apply(uv).y, want.y, 1e-5f);
+    EXPECT_NEAR(m.base_color_tex.uv.apply(uv).x, want.x, 1e-5f);
+    EXPECT_NEAR(m.base_color_tex.uv.apply(uv).y, want.y, 1e-5f);
   }
   ASSERT_EQ(s.lights.size(), 3u);
   const float four_pi = 4.0f * float(M_PI);

@@ -28,7 +28,7 @@ TEST(GltfExtensions, NormalMapsAndBlendLoadWithoutWarnings) {
   const Material& m = s.materials[s.tri_material[0]];
   EXPECT_TRUE(m.alpha_mask);
   EXPECT_TRUE(m.alpha_blend);
-  EXPECT_GE(m.normal_tex, 0);
+  EXPECT_GE(m.normal_tex.index, 0);
   EXPECT_EQ(s.tangents.size(), s.positions.size());
 }
 
@@ -51,8 +51,8 @@ TEST(GltfAlphaMask, MaskReadsCutoffFactorAndTheTexturesAlpha) {
   EXPECT_TRUE(m.alpha_mask);
   EXPECT_FLOAT_EQ(m.alpha_cutoff, 0.25f);
   EXPECT_FLOAT_EQ(m.base_alpha, 0.8f);
-  ASSERT_GE(m.base_color_tex, 0);
-  const Texture& t = s.textures[size_t(m.base_color_tex)];
+  ASSERT_GE(m.base_color_tex.index, 0);
+  const Texture& t = s.textures[size_t(m.base_color_tex.index)];
   ASSERT_EQ(t.alpha.size(), 2u);
   EXPECT_EQ(t.alpha[0], 0.0f);
   EXPECT_EQ(t.alpha[1], 1.0f);
@@ -62,7 +62,8 @@ TEST(GltfAlphaMask, MaskReadsCutoffFactorAndTheTexturesAlpha) {
   write_gltf(dir.path / "opaque.gltf", q);
   SceneData o = load_scene_data(dir.path / "opaque.gltf");
   EXPECT_FALSE(o.materials[o.tri_material[0]].alpha_mask);
-  EXPECT_TRUE(o.textures[size_t(o.materials[o.tri_material[0]].base_color_tex)].alpha.empty());
+  EXPECT_TRUE(
+      o.textures[size_t(o.materials[o.tri_material[0]].base_color_tex.index)].alpha.empty());
 }
 
 // A cut-out point is not there for any ray: closest-hit queries go on to
@@ -83,7 +84,7 @@ TEST(GltfAlphaMask, CutOutPointsLetEveryRayThrough) {
   auto quad = [](float y) { return std::vector<Vec3>{{0, y, 0}, {0, y, 1}, {1, y, 1}, {1, y, 0}}; };
   Material floor, leaf;
   leaf.alpha_mask = true;
-  leaf.base_color_tex = 0;
+  leaf.base_color_tex.index = 0;
   d.add_mesh(quad(0.0f), {}, uv, idx, floor);
   d.add_mesh(quad(1.0f), {}, uv, idx, leaf);
   auto first_hit_y = [](const Scene& scene, float x) {
@@ -255,7 +256,7 @@ TEST(GltfNormalMaps, WithoutTexcoordsTheMapIsWarnedAndIgnored) {
   ASSERT_EQ(lines.size(), 1u);
   EXPECT_NE(lines[0].find("normal maps ignored"), std::string::npos) << lines[0];
   EXPECT_NE(lines[0].find("\"bumpy\""), std::string::npos) << lines[0];
-  EXPECT_EQ(d.materials[d.tri_material[0]].normal_tex, -1);
+  EXPECT_EQ(d.materials[d.tri_material[0]].normal_tex.index, -1);
   EXPECT_TRUE(d.tangents.empty());
 }
 
@@ -433,11 +434,11 @@ TEST(GltfMaterials, SpecularTexturesScaleTheirFactors) {
     SceneData d = load_scene_data(dir.path / file);
     EXPECT_TRUE(log.lines().empty()) << log.lines()[0];
     const Material& m = d.materials[d.tri_material[0]];
-    ASSERT_GE(m.specular_tex, 0);
-    ASSERT_GE(m.specular_color_tex, 0);
-    EXPECT_NE(m.specular_tex, m.base_color_tex);
-    EXPECT_TRUE(d.textures[size_t(m.specular_color_tex)].sampler.nearest);
-    EXPECT_EQ(d.textures[size_t(m.specular_color_tex)].sampler.wrap_u, TextureWrap::kClamp);
+    ASSERT_GE(m.specular_tex.index, 0);
+    ASSERT_GE(m.specular_color_tex.index, 0);
+    EXPECT_NE(m.specular_tex.index, m.base_color_tex.index);
+    EXPECT_TRUE(d.textures[size_t(m.specular_color_tex.index)].sampler.nearest);
+    EXPECT_EQ(d.textures[size_t(m.specular_color_tex.index)].sampler.wrap_u, TextureWrap::kClamp);
     const auto [left, right] = quad_hits(d);         // u = 0.25 and 0.75
     EXPECT_NEAR(left.specular, 0.8f * 0.2f, 1e-6f);  // alpha 51 / 255, linear
     EXPECT_NEAR(right.specular, 0.8f, 1e-6f);
@@ -521,9 +522,9 @@ TEST(GltfMaterials, TransmissionAndClearcoatTexturesScaleTheirFactors) {
   EXPECT_FLOAT_EQ(m.transmission, 0.75f);
   EXPECT_FLOAT_EQ(m.clearcoat, 0.5f);
   EXPECT_FLOAT_EQ(m.clearcoat_roughness, 0.6f);
-  ASSERT_GE(m.transmission_tex, 0);
-  ASSERT_GE(m.clearcoat_tex, 0);
-  ASSERT_GE(m.clearcoat_rough_tex, 0);
+  ASSERT_GE(m.transmission_tex.index, 0);
+  ASSERT_GE(m.clearcoat_tex.index, 0);
+  ASSERT_GE(m.clearcoat_rough_tex.index, 0);
   EXPECT_TRUE(m.has_textures());
   const auto [left, right] = quad_hits(d);
   EXPECT_NEAR(left.transmission, 0.0f, 1e-6f);
@@ -561,7 +562,7 @@ TEST(GltfNormalMaps, TheCoatHasItsOwnNormalMap) {
     SceneData d = load_scene_data(dir.path / file);
     EXPECT_TRUE(log.lines().empty()) << log.lines()[0];
     const Material& m = d.materials[d.tri_material[0]];
-    EXPECT_EQ(m.clearcoat_normal_tex >= 0, coat_map) << name;
+    EXPECT_EQ(m.clearcoat_normal_tex.present(), coat_map) << name;
     if (coat_map) {
       EXPECT_FLOAT_EQ(m.clearcoat_normal_scale, 0.5f);
     }
@@ -642,8 +643,8 @@ TEST(GltfMaterials, SheenFactorsAndTexturesAreRead) {
   LogCapture log;
   SceneData d = load_scene_data(dir.path / "cloth.gltf");
   const Material& m = d.materials[d.tri_material[0]];
-  ASSERT_GE(m.sheen_color_tex, 0);
-  ASSERT_GE(m.sheen_rough_tex, 0);
+  ASSERT_GE(m.sheen_color_tex.index, 0);
+  ASSERT_GE(m.sheen_rough_tex.index, 0);
   EXPECT_TRUE(m.has_textures());
   const auto [left, right] = quad_hits(d);
   const float half = srgb_to_linear(128.0f / 255.0f);
@@ -696,13 +697,13 @@ TEST(GltfMaterials, TexturesReadTheSetTheyName) {
     EXPECT_TRUE(log.lines().empty()) << log.lines()[0];
     ASSERT_EQ(d.uvs1.size(), d.positions.size());
     const Material& m = d.materials[d.tri_material[0]];
-    EXPECT_EQ(m.base_color_uv.set, 1);
-    EXPECT_EQ(m.metal_rough_uv.set, 1);
-    EXPECT_EQ(m.emission_uv.set, 0);
+    EXPECT_EQ(m.base_color_tex.uv.set, 1);
+    EXPECT_EQ(m.metal_rough_tex.uv.set, 1);
+    EXPECT_EQ(m.emission_tex.uv.set, 0);
     // TANGENT from set 1: u1 = 1 - x, so +u1 is -x (set 0's +u is +x).
     ASSERT_EQ(d.tangents.size(), d.positions.size());
     for (const SceneData::Tangent& t : d.tangents) expect_near3(t.t, Vec3(-1, 0, 0), 1e-5f);
-    d.materials[0].normal_tex = -1;           // the hits below read the colours alone
+    d.materials[0].normal_tex.index = -1;     // the hits below read the colours alone
     const auto [left, right] = quad_hits(d);  // x = 0.25 and 0.75
     expect_near3(left.base_color, Vec3(0.0f, 0.0f, 1.0f), 1e-5f);  // texel 1 through set 1
     expect_near3(right.base_color, Vec3(1.0f, half, 0.0f), 1e-5f);
@@ -750,7 +751,7 @@ TEST(GltfMaterials, TexturesReadingAnotherUvSetAreNamed) {
   write_gltf(dir.path / "second_set.gltf", q);
   LogCapture log;
   SceneData d = load_scene_data(dir.path / "second_set.gltf");
-  EXPECT_GE(d.materials[d.tri_material[0]].sheen_color_tex, 0);
+  EXPECT_GE(d.materials[d.tri_material[0]].sheen_color_tex.index, 0);
   expect_warnings(log.lines(), {{"\"second_set\"", "baseColorTexture reads TEXCOORD_3"},
                                 {"\"second_set\"", "sheenColorTexture reads TEXCOORD_2"}});
 }

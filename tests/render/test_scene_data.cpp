@@ -169,8 +169,8 @@ SceneData* CourtyardScene::scene_ = nullptr;
 TEST_F(CourtyardScene, TexturesLoadOnceWithTheirSizes) {
   ASSERT_EQ(scene_->textures.size(), 2u);  // the two plastics share one map
   const Material& ground = scene_->materials[material_named(*scene_, "ground_tiles")];
-  ASSERT_GE(ground.base_color_tex, 0);
-  const Texture& checker = scene_->textures[ground.base_color_tex];
+  ASSERT_GE(ground.base_color_tex.index, 0);
+  const Texture& checker = scene_->textures[ground.base_color_tex.index];
   EXPECT_EQ(checker.width, 64);
   EXPECT_EQ(checker.height, 64);
   // Top-left tile is (200, 190, 170) in sRGB, decoded to linear.
@@ -180,17 +180,17 @@ TEST_F(CourtyardScene, TexturesLoadOnceWithTheirSizes) {
                1e-5f);
   const Material& red = scene_->materials[material_named(*scene_, "red_plastic")];
   const Material& blue = scene_->materials[material_named(*scene_, "blue_plastic")];
-  ASSERT_GE(red.metal_rough_tex, 0);
-  EXPECT_EQ(red.metal_rough_tex, blue.metal_rough_tex);
-  const Texture& mr = scene_->textures[red.metal_rough_tex];
+  ASSERT_GE(red.metal_rough_tex.index, 0);
+  EXPECT_EQ(red.metal_rough_tex.index, blue.metal_rough_tex.index);
+  const Texture& mr = scene_->textures[red.metal_rough_tex.index];
   EXPECT_EQ(mr.width, 32);
   EXPECT_EQ(mr.height, 16);
   // Linear data (not sRGB): G = roughness 0.25 at x = 0, B = metallic 0.
   Vec3 texel = mr.lookup({0.5f / 32, 0.5f / 16});
   EXPECT_NEAR(texel.y, 64 / 255.0f, 1e-6f);
   EXPECT_EQ(texel.z, 0.0f);
-  EXPECT_EQ(red.base_color_tex, -1);
-  EXPECT_EQ(ground.metal_rough_tex, -1);
+  EXPECT_EQ(red.base_color_tex.index, -1);
+  EXPECT_EQ(ground.metal_rough_tex.index, -1);
 }
 
 TEST_F(CourtyardScene, MaterialsAsDesigned) {

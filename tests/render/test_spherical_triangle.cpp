@@ -240,13 +240,13 @@ TEST(SphericalTriangle, TexturedLightGivesTheRadianceOfTheSampledPoint) {
     t.rgb = {0.2f, 0.2f, 0.2f, 1, 1, 1, 3, 3, 3, 0.5f, 0.5f, 0.5f};
     d.textures.push_back(t);
     Material m = testing::emitter(Vec3(1));
-    m.emission_tex = 0;
+    m.emission_tex.index = 0;
     add_quad(d, Vec3(-0.5f, 0.02f, -0.5f), Vec3(0.5f, 0.02f, -0.5f), Vec3(0.5f, 0.02f, 0.5f),
              Vec3(-0.5f, 0.02f, 0.5f), m);
     if (set == 1) {
       d.uvs1 = d.uvs;
       for (Vec2& uv : d.uvs1) uv.x = 1.0f - uv.x;
-      d.materials.back().emission_uv.set = 1;
+      d.materials.back().emission_tex.uv.set = 1;
     }
     auto scene = make_scene(std::move(d));
     const int n = 200000;

@@ -76,10 +76,10 @@ bool Scene::cut_out(uint32_t prim, float b1, float b2, const float (&ray)[6]) co
   const Material& m = data_.materials[data_.tri_material[prim]];
   if (!m.alpha_mask) return false;
   float alpha = m.base_alpha;
-  if (m.base_color_tex >= 0) {
+  if (m.base_color_tex.present()) {
     const uint32_t* idx = &data_.indices[size_t(prim) * 3];
-    const Vec2 uv = texcoord(idx, 1.0f - b1 - b2, b1, b2, m.base_color_uv.set);
-    alpha *= textures()[m.base_color_tex].alpha_lookup(m.base_color_uv.apply(uv));
+    const Vec2 uv = texcoord(idx, 1.0f - b1 - b2, b1, b2, m.base_color_tex.uv.set);
+    alpha *= textures()[m.base_color_tex.index].alpha_lookup(m.base_color_tex.uv.apply(uv));
   }
   if (!m.alpha_blend) return alpha < m.alpha_cutoff;
   uint64_t key = 0;
@@ -159,7 +159,7 @@ void Scene::build() {
     float area = triangle_area(t);
     if (!(area > 0) || !std::isfinite(area)) continue;  // degenerate: cannot be sampled
     Vec3 e = m.emission;
-    if (m.emission_tex >= 0) e = e * tex_mean[m.emission_tex];
+    if (m.emission_tex.present()) e = e * tex_mean[m.emission_tex.index];
     float p = luminance(e) * area * kPi;
     if (!(p > 0)) continue;
     light_index_of_prim_[t] = int(light_tris_.size());
@@ -333,8 +333,8 @@ Vec3 Scene::mapped_normal(int tex, float scale, Vec2 st, uint32_t prim, const ui
 
 Vec3 Scene::material_emission(const Material& m, Vec2 uv) const {
   if (!m.is_emissive()) return Vec3(0);
-  if (m.emission_tex >= 0)
-    return m.emission * textures()[m.emission_tex].lookup(m.emission_uv.apply(uv));
+  if (m.emission_tex.present())
+    return m.emission * textures()[m.emission_tex.index].lookup(m.emission_tex.uv.apply(uv));
   return m.emission;
 }
 
@@ -373,21 +373,22 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
   const Material* mapped =
       data_.tangents.empty() ? nullptr : &data_.materials[data_.tri_material[prim]];
   const Vec3 ns =
-      mapped && mapped->normal_tex >= 0
-          ? mapped_normal(mapped->normal_tex, mapped->normal_scale, hit->uv_of(mapped->normal_uv),
-                          prim, idx, b0, b1, b2, ng, ray.d)
+      mapped && mapped->normal_tex.present()
+          ? mapped_normal(mapped->normal_tex.index, mapped->normal_scale,
+                          hit->uv_of(mapped->normal_tex.uv), prim, idx, b0, b1, b2, ng, ray.d)
           : smooth_normal(idx, b0, b1, b2, ng, ray.d);
   // KHR_materials_clearcoat: the coat has its own normal map, or none even
   // where the base has one (the extension: no normal mapping is applied to
   // the coat unless clearcoatNormalTexture is given).
   hit->coat_ns = Vec3(0.0f);
   if (mapped && mapped->clearcoat > 0 &&
-      (mapped->normal_tex >= 0 || mapped->clearcoat_normal_tex >= 0)) [[unlikely]] {
-    hit->coat_ns = mapped->clearcoat_normal_tex >= 0
-                       ? mapped_normal(mapped->clearcoat_normal_tex, mapped->clearcoat_normal_scale,
-                                       hit->uv_of(mapped->clearcoat_normal_uv), prim, idx, b0, b1,
-                                       b2, ng, ray.d)
-                       : smooth_normal(idx, b0, b1, b2, ng, ray.d);
+      (mapped->normal_tex.present() || mapped->clearcoat_normal_tex.present())) [[unlikely]] {
+    hit->coat_ns =
+        mapped->clearcoat_normal_tex.present()
+            ? mapped_normal(mapped->clearcoat_normal_tex.index, mapped->clearcoat_normal_scale,
+                            hit->uv_of(mapped->clearcoat_normal_tex.uv), prim, idx, b0, b1, b2, ng,
+                            ray.d)
+            : smooth_normal(idx, b0, b1, b2, ng, ray.d);
   }
   hit->ns = ns;
   const Material& m = data_.materials[data_.tri_material[prim]];
@@ -404,30 +405,27 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
   hit->sheen_color = m.sheen_color;
   hit->sheen_roughness = m.sheen_roughness;
   // Only textured materials pay for lookups.
-  auto texel = [&](int tex, const UvTransform& uv) {
-    return textures()[tex].lookup(hit->uv_of(uv));
+  auto texel = [&](const TextureSlot& slot) {
+    return textures()[slot.index].lookup(hit->uv_of(slot.uv));
   };
-  if (m.base_color_tex >= 0)
-    hit->base_color = hit->base_color * texel(m.base_color_tex, m.base_color_uv);
-  if (m.metal_rough_tex >= 0) {
-    const Vec3 mr = texel(m.metal_rough_tex, m.metal_rough_uv);
+  if (m.base_color_tex.present()) hit->base_color = hit->base_color * texel(m.base_color_tex);
+  if (m.metal_rough_tex.present()) {
+    const Vec3 mr = texel(m.metal_rough_tex);
     hit->roughness *= mr.y;
     hit->metallic *= mr.z;
   }
-  if (m.transmission_tex >= 0) hit->transmission *= texel(m.transmission_tex, m.transmission_uv).x;
-  if (m.clearcoat_tex >= 0) hit->clearcoat *= texel(m.clearcoat_tex, m.clearcoat_uv).x;
-  if (m.clearcoat_rough_tex >= 0)
-    hit->clearcoat_roughness *= texel(m.clearcoat_rough_tex, m.clearcoat_rough_uv).y;
-  if (m.specular_tex >= 0)
-    hit->specular *= textures()[m.specular_tex].alpha_lookup(hit->uv_of(m.specular_uv));
-  if (m.specular_color_tex >= 0)
-    hit->specular_color = hit->specular_color * texel(m.specular_color_tex, m.specular_color_uv);
-  if (m.sheen_color_tex >= 0)
-    hit->sheen_color = hit->sheen_color * texel(m.sheen_color_tex, m.sheen_color_uv);
-  if (m.sheen_rough_tex >= 0)
+  if (m.transmission_tex.present()) hit->transmission *= texel(m.transmission_tex).x;
+  if (m.clearcoat_tex.present()) hit->clearcoat *= texel(m.clearcoat_tex).x;
+  if (m.clearcoat_rough_tex.present()) hit->clearcoat_roughness *= texel(m.clearcoat_rough_tex).y;
+  if (m.specular_tex.present())
+    hit->specular *= textures()[m.specular_tex.index].alpha_lookup(hit->uv_of(m.specular_tex.uv));
+  if (m.specular_color_tex.present())
+    hit->specular_color = hit->specular_color * texel(m.specular_color_tex);
+  if (m.sheen_color_tex.present()) hit->sheen_color = hit->sheen_color * texel(m.sheen_color_tex);
+  if (m.sheen_rough_tex.present())
     hit->sheen_roughness *=
-        textures()[m.sheen_rough_tex].alpha_lookup(hit->uv_of(m.sheen_rough_uv));
-  hit->emission = material_emission(m, m.emission_uv.set == 1 ? hit->uv1 : hit->uv);
+        textures()[m.sheen_rough_tex.index].alpha_lookup(hit->uv_of(m.sheen_rough_tex.uv));
+  hit->emission = material_emission(m, m.emission_tex.uv.set == 1 ? hit->uv1 : hit->uv);
   return true;
 }
 
@@ -492,7 +490,8 @@ bool Scene::sample_light(Vec3 from, const LightChoice& choice, LightSample* out)
     if (!(dist > 0) || !std::isfinite(dist)) return false;
     const Material& m = data_.materials[data_.tri_material[t]];
     Vec2 uv;
-    if (m.emission_tex >= 0) uv = texcoord_at(idx, from + wi * float(dist), m.emission_uv.set);
+    if (m.emission_tex.present())
+      uv = texcoord_at(idx, from + wi * float(dist), m.emission_tex.uv.set);
     out->wi = wi;
     out->distance = float(dist);
     out->radiance = material_emission(m, uv);
@@ -511,7 +510,7 @@ bool Scene::sample_light(Vec3 from, const LightChoice& choice, LightSample* out)
   float cos_l = std::fabs(dot(n, wi));
   if (!(cos_l > 1e-7f)) return false;
   const Material& m = data_.materials[data_.tri_material[t]];
-  const Vec2 uv = texcoord(idx, b0, b1, b2, m.emission_uv.set);
+  const Vec2 uv = texcoord(idx, b0, b1, b2, m.emission_tex.uv.set);
   out->wi = wi;
   out->distance = dist;
   out->radiance = material_emission(m, uv);

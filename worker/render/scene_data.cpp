@@ -151,59 +151,59 @@ void Loader::materials() {
       m.alpha_cutoff = g->mask && std::isfinite(g->alpha_cutoff) ? g->alpha_cutoff : 0.5f;
       m.base_alpha = std::isfinite(g->base_alpha) ? g->base_alpha : 1.0f;
     }
-    m.base_color_tex = texture(am, {aiTextureType_BASE_COLOR, aiTextureType_DIFFUSE}, true,
-                               /*with_alpha=*/m.alpha_mask);
+    m.base_color_tex.index = texture(am, {aiTextureType_BASE_COLOR, aiTextureType_DIFFUSE}, true,
+                                     /*with_alpha=*/m.alpha_mask);
     // glTF metallicRoughnessTexture: assimp 5.2 files it under UNKNOWN
     // (AI_MATKEY_GLTF_PBRMETALLICROUGHNESS_METALLICROUGHNESS_TEXTURE).
-    m.metal_rough_tex = texture(am, {aiTextureType_UNKNOWN}, false);
-    m.emission_tex = texture(am, {aiTextureType_EMISSIVE}, true);
+    m.metal_rough_tex.index = texture(am, {aiTextureType_UNKNOWN}, false);
+    m.emission_tex.index = texture(am, {aiTextureType_EMISSIVE}, true);
     if (g) {
       // glTF normalTexture (assimp files it under NORMALS): linear values.
       // Other formats' bump and normal maps are not read.
-      m.normal_tex = texture(am, {aiTextureType_NORMALS}, false);
+      m.normal_tex.index = texture(am, {aiTextureType_NORMALS}, false);
       // The extensions' textures, linear (glTF: R transmission, R clearcoat,
       // G clearcoat roughness), only where the file names them.
       if (g->transmission_tex.present)
-        m.transmission_tex = texture(am, {aiTextureType_TRANSMISSION}, false);
+        m.transmission_tex.index = texture(am, {aiTextureType_TRANSMISSION}, false);
       if (g->clearcoat_tex.present)
-        m.clearcoat_tex = texture(am, {aiTextureType_CLEARCOAT}, false, false, 0);
+        m.clearcoat_tex.index = texture(am, {aiTextureType_CLEARCOAT}, false, false, 0);
       if (g->clearcoat_rough_tex.present)
-        m.clearcoat_rough_tex = texture(am, {aiTextureType_CLEARCOAT}, false, false, 1);
+        m.clearcoat_rough_tex.index = texture(am, {aiTextureType_CLEARCOAT}, false, false, 1);
       // clearcoatNormalTexture (assimp: CLEARCOAT, 2), linear like normalTexture.
       // KHR_materials_specular's, which assimp 5.2 does not read: A
       // multiplies specularFactor, RGB (sRGB) specularColorFactor.
       const std::string which = "material " + std::to_string(i) + " (\"" + m.name + "\")";
-      m.specular_tex =
+      m.specular_tex.index =
           gltf_texture(g->specular_tex, false, /*with_alpha=*/true, which, "specularTexture");
-      m.specular_color_tex =
+      m.specular_color_tex.index =
           gltf_texture(g->specular_color_tex, true, false, which, "specularColorTexture");
       if (g->clearcoat_normal_tex.present) {
-        m.clearcoat_normal_tex = texture(am, {aiTextureType_CLEARCOAT}, false, false, 2);
+        m.clearcoat_normal_tex.index = texture(am, {aiTextureType_CLEARCOAT}, false, false, 2);
         m.clearcoat_normal_scale =
             std::isfinite(g->clearcoat_normal_scale) ? g->clearcoat_normal_scale : 1.0f;
       }
       // KHR_materials_sheen: colour (sRGB) in slot 0, roughness in the
       // alpha of slot 1 (often the same image).
       if (g->sheen_color_tex.present)
-        m.sheen_color_tex = texture(am, {aiTextureType_SHEEN}, true, false, 0);
+        m.sheen_color_tex.index = texture(am, {aiTextureType_SHEEN}, true, false, 0);
       if (g->sheen_rough_tex.present)
-        m.sheen_rough_tex = texture(am, {aiTextureType_SHEEN}, true, /*with_alpha=*/true, 1);
+        m.sheen_rough_tex.index = texture(am, {aiTextureType_SHEEN}, true, /*with_alpha=*/true, 1);
       m.normal_scale = std::isfinite(g->normal_scale) ? g->normal_scale : 1.0f;
       // Each slot's transform and texture coordinate set (0 or 1; a
       // higher set is named in a warning and TEXCOORD_0 read instead).
       const std::tuple<const char*, const GltfTextureInfo*, UvTransform*> slots[] = {
-          {"baseColorTexture", &g->base_color, &m.base_color_uv},
-          {"metallicRoughnessTexture", &g->metal_rough, &m.metal_rough_uv},
-          {"emissiveTexture", &g->emission, &m.emission_uv},
-          {"normalTexture", &g->normal, &m.normal_uv},
-          {"transmissionTexture", &g->transmission_tex, &m.transmission_uv},
-          {"clearcoatTexture", &g->clearcoat_tex, &m.clearcoat_uv},
-          {"clearcoatRoughnessTexture", &g->clearcoat_rough_tex, &m.clearcoat_rough_uv},
-          {"sheenColorTexture", &g->sheen_color_tex, &m.sheen_color_uv},
-          {"sheenRoughnessTexture", &g->sheen_rough_tex, &m.sheen_rough_uv},
-          {"clearcoatNormalTexture", &g->clearcoat_normal_tex, &m.clearcoat_normal_uv},
-          {"specularTexture", &g->specular_tex, &m.specular_uv},
-          {"specularColorTexture", &g->specular_color_tex, &m.specular_color_uv}};
+          {"baseColorTexture", &g->base_color, &m.base_color_tex.uv},
+          {"metallicRoughnessTexture", &g->metal_rough, &m.metal_rough_tex.uv},
+          {"emissiveTexture", &g->emission, &m.emission_tex.uv},
+          {"normalTexture", &g->normal, &m.normal_tex.uv},
+          {"transmissionTexture", &g->transmission_tex, &m.transmission_tex.uv},
+          {"clearcoatTexture", &g->clearcoat_tex, &m.clearcoat_tex.uv},
+          {"clearcoatRoughnessTexture", &g->clearcoat_rough_tex, &m.clearcoat_rough_tex.uv},
+          {"sheenColorTexture", &g->sheen_color_tex, &m.sheen_color_tex.uv},
+          {"sheenRoughnessTexture", &g->sheen_rough_tex, &m.sheen_rough_tex.uv},
+          {"clearcoatNormalTexture", &g->clearcoat_normal_tex, &m.clearcoat_normal_tex.uv},
+          {"specularTexture", &g->specular_tex, &m.specular_tex.uv},
+          {"specularColorTexture", &g->specular_color_tex, &m.specular_color_tex.uv}};
       for (const auto& [slot, tex, uv] : slots) {
         *uv = tex->transform;
         if (tex->tex_coord == 1) {
@@ -229,9 +229,9 @@ void Loader::check_material(const Material& m, unsigned index) const {
   // An emission texture multiplies the factor: its brightest texel counts
   // (an 8-bit one is at most 1; an HDR one loaded for an OBJ may be more).
   float peak = max_component(m.emission);
-  if (m.emission_tex >= 0 && peak > 0) {
+  if (m.emission_tex.present() && peak > 0) {
     float texel = 0;
-    for (float v : out_->textures[m.emission_tex].rgb) texel = std::max(texel, v);
+    for (float v : out_->textures[m.emission_tex.index].rgb) texel = std::max(texel, v);
     peak *= texel;
   }
   if (!(peak <= kMaxRadiance))
@@ -628,8 +628,8 @@ SceneData load_scene_data(const std::filesystem::path& path) {
   for (Material& m : out.materials) {
     if (!m.has_normal_map() || !(m.normal_map_set() == 1 ? out.uvs1 : out.uvs).empty()) continue;
     no_uv += (no_uv.empty() ? "\"" : ", \"") + m.name + "\"";
-    m.normal_tex = -1;
-    m.clearcoat_normal_tex = -1;
+    m.normal_tex.index = -1;
+    m.clearcoat_normal_tex.index = -1;
   }
   if (!no_uv.empty())
     spdlog::warn(

@@ -4,6 +4,7 @@
 // shape helpers (tests, analytic scenes).
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <filesystem>
 #include <memory>
@@ -58,24 +59,26 @@ struct Material {
   // KHR_materials_sheen: the sheen's colour (black = none) and roughness (bsdf.h).
   Vec3 sheen_color{0.0f};
   float sheen_roughness = 0.0f;
-  int base_color_tex = -1;   // index into SceneData::textures; multiplies base_color
-  int metal_rough_tex = -1;  // glTF: G = roughness, B = metallic; multiplies the factors
-  int emission_tex = -1;     // multiplies emission
+  // The texture slots, each a texture and how it reads texture coordinates
+  // (TextureSlot):
+  TextureSlot base_color_tex;   // multiplies base_color
+  TextureSlot metal_rough_tex;  // glTF: G = roughness, B = metallic; multiplies the factors
+  TextureSlot emission_tex;     // multiplies emission
   // KHR_materials_transmission's and KHR_materials_clearcoat's textures
   // (linear): R multiplies transmission, R clearcoat, G clearcoat_roughness.
-  int transmission_tex = -1, clearcoat_tex = -1, clearcoat_rough_tex = -1;
+  TextureSlot transmission_tex, clearcoat_tex, clearcoat_rough_tex;
   // KHR_materials_sheen's: RGB (sRGB) multiplies sheen_color, A sheen_roughness.
-  int sheen_color_tex = -1, sheen_rough_tex = -1;
+  TextureSlot sheen_color_tex, sheen_rough_tex;
   // KHR_materials_specular's: A multiplies specular, RGB (sRGB) specular_color.
-  int specular_tex = -1, specular_color_tex = -1;
+  TextureSlot specular_tex, specular_color_tex;
   // glTF normalTexture (tangent space, linear RGB; SceneData::tangents) and
   // its scale, which multiplies the map's x and y (glTF 3.9.3).
-  int normal_tex = -1;
+  TextureSlot normal_tex;
   float normal_scale = 1.0f;
   // KHR_materials_clearcoat's clearcoatNormalTexture and its scale: the
   // coat's own normal map (without it the coat is not normal-mapped, even
   // where the base is).
-  int clearcoat_normal_tex = -1;
+  TextureSlot clearcoat_normal_tex;
   float clearcoat_normal_scale = 1.0f;
   // glTF alphaMode MASK: a surface point whose alpha (baseColorFactor's
   // alpha times the base colour texture's) is below alpha_cutoff is not
@@ -86,34 +89,31 @@ struct Material {
   bool alpha_blend = false;
   float alpha_cutoff = 0.5f;
   float base_alpha = 1.0f;
-  // Each texture's KHR_texture_transform (identity when the file has none).
-  UvTransform base_color_uv, metal_rough_uv, emission_uv, normal_uv, transmission_uv, clearcoat_uv,
-      clearcoat_rough_uv, sheen_color_uv, sheen_rough_uv, clearcoat_normal_uv, specular_uv,
-      specular_color_uv;
+  // Every slot, for what holds for all of them.
+  std::array<const TextureSlot*, 12> slots() const {
+    return {&base_color_tex,   &metal_rough_tex,      &emission_tex,        &normal_tex,
+            &transmission_tex, &clearcoat_tex,        &clearcoat_rough_tex, &sheen_color_tex,
+            &sheen_rough_tex,  &clearcoat_normal_tex, &specular_tex,        &specular_color_tex};
+  }
   bool is_emissive() const { return emission.x > 0 || emission.y > 0 || emission.z > 0; }
   // Whether some texture slot reads TEXCOORD_1.
   bool reads_uv1() const {
-    for (const UvTransform* t :
-         {&base_color_uv, &metal_rough_uv, &emission_uv, &normal_uv, &transmission_uv,
-          &clearcoat_uv, &clearcoat_rough_uv, &sheen_color_uv, &sheen_rough_uv,
-          &clearcoat_normal_uv, &specular_uv, &specular_color_uv})
-      if (t->set == 1) return true;
+    for (const TextureSlot* t : slots())
+      if (t->present() && t->uv.set == 1) return true;
     return false;
   }
-  bool has_normal_map() const { return normal_tex >= 0 || clearcoat_normal_tex >= 0; }
+  bool has_normal_map() const { return normal_tex.present() || clearcoat_normal_tex.present(); }
   // The set the material's normal maps read (the base's, else the coat's).
   uint8_t normal_map_set() const {
-    return normal_tex >= 0 ? normal_uv.set : clearcoat_normal_uv.set;
+    return normal_tex.present() ? normal_tex.uv.set : clearcoat_normal_tex.uv.set;
   }
   bool has_textures() const {
-    return base_color_tex >= 0 || metal_rough_tex >= 0 || emission_tex >= 0 || normal_tex >= 0 ||
-           transmission_tex >= 0 || clearcoat_tex >= 0 || clearcoat_rough_tex >= 0 ||
-           sheen_color_tex >= 0 || sheen_rough_tex >= 0 || clearcoat_normal_tex >= 0 ||
-           specular_tex >= 0 || specular_color_tex >= 0;
+    for (const TextureSlot* t : slots())
+      if (t->present()) return true;
+    return false;
   }
 };
 
-// Camera animation stored in the scene file (glTF node animation + camera).
 struct CameraTrackKey {
   float time = 0;  // seconds
   Vec3 position;

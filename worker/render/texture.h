@@ -57,4 +57,13 @@ struct UvTransform {
   }
 };
 
+// A material's texture slot: which texture (an index into
+// SceneData::textures, -1 for none) and how the slot reads texture
+// coordinates.
+struct TextureSlot {
+  int index = -1;
+  UvTransform uv;
+  bool present() const { return index >= 0; }
+};
+
 }  // namespace dofarm::render
