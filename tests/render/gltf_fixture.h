@@ -1,6 +1,8 @@
 // What the glTF loader tests share: a scratch folder, a log capture, and a
 // one-quad glTF document to edit and write as .gltf (buffer in a data: URI)
-// or .glb, with small encoders (base64, PNG through stb_image_write).
+// or .glb, with small encoders (base64, PNG through stb_image_write), and
+// checks of what loading it gives (warnings, hits on the quad, a material
+// extension as read).
 #pragma once
 
 #include <gtest/gtest.h>
@@ -13,6 +15,8 @@
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "common/error.h"
 #include "common/exr_io.h"
@@ -207,6 +211,52 @@ inline void expect_same_texture(const Texture& a, const Texture& b) {
   EXPECT_EQ(a.width, b.width);
   EXPECT_EQ(a.height, b.height);
   EXPECT_EQ(a.rgb, b.rgb);  // bit for bit
+}
+
+// The log holds exactly one line per entry of `expected`, in order, each
+// holding every fragment of its entry.
+inline void expect_warnings(const std::vector<std::string>& lines,
+                            const std::vector<std::vector<std::string>>& expected) {
+  ASSERT_EQ(lines.size(), expected.size());
+  for (size_t i = 0; i < lines.size(); ++i)
+    for (const std::string& fragment : expected[i])
+      EXPECT_NE(lines[i].find(fragment), std::string::npos) << lines[i];
+}
+
+// What Scene::intersect gives where rays straight down meet the quad at
+// u = 0.25 and u = 0.75 (the left and right texel of a 2 x 1 image).
+inline std::pair<SurfaceHit, SurfaceHit> quad_hits(const SceneData& d) {
+  Scene scene(d, std::make_unique<Environment>(Vec3(1.0f)));
+  auto at = [&](float x) {
+    SurfaceHit hit;
+    EXPECT_TRUE(scene.intersect(Ray{Vec3(x, 1.0f, 0.5f), Vec3(0, -1, 0)}, &hit));
+    return hit;
+  };
+  return {at(0.25f), at(0.75f)};
+}
+
+// A material extension that is read is never named in the "ignores" warning.
+inline void expect_extension_read(const std::vector<std::string>& lines) {
+  for (const std::string& l : lines)
+    EXPECT_EQ(l.find("ignores the glTF extensions"), std::string::npos) << l;
+}
+
+// The quad's material, named `name`, with the material extension `ext_name`
+// holding `ext` (none for null), as load_scene_data() reads it.
+inline Material material_with_extension(const std::filesystem::path& dir, const char* name,
+                                        const char* ext_name, const Json& ext) {
+  GltfQuad q = gltf_quad();
+  q.doc["materials"][0]["name"] = name;
+  if (!ext.is_null()) {
+    q.doc["materials"][0]["extensions"] = {{ext_name, ext}};
+    q.doc["extensionsUsed"] = {ext_name};
+  }
+  write_gltf(dir / (std::string(name) + ".gltf"), q);
+  SceneData s = load_scene_data(dir / (std::string(name) + ".gltf"));
+  EXPECT_EQ(s.triangle_count(), 2u);
+  const Material m = s.materials[s.tri_material[0]];
+  EXPECT_EQ(m.name, name);
+  return m;
 }
 
 }  // namespace dofarm::render::gltf_fixture
