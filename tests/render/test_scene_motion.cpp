@@ -457,5 +457,30 @@ TEST(SceneMotion, AFrameIsTheSameWhicheverFramesCameBefore) {
   EXPECT_NE(first.depth, zero.depth);
 }
 
+TEST(SceneMotion, TilesOfInterleavedFramesPasteIntoTheWholeFrames) {
+  // A worker may get the tiles of three frames in turn; with two poses kept,
+  // every tile then poses its frame again. Each frame pasted from its four
+  // tiles equals the frame rendered whole, byte for byte.
+  MovingQuadJob job;
+  RenderOptions options;
+  options.threads = 2;
+  const std::vector<int> frames = {0, 12, 24};
+  std::vector<FrameBuffers> pasted(frames.size());
+  for (FrameBuffers& f : pasted) {
+    f.allocate(job.spec.width, job.spec.height, job.spec.versions);
+    f.rect = Rect{0, 0, job.spec.width, job.spec.height};
+  }
+  for (const Rect& r : {Rect{0, 0, 4, 4}, Rect{4, 0, 4, 4}, Rect{0, 4, 4, 4}, Rect{4, 4, 4, 4}})
+    for (size_t i = 0; i < frames.size(); ++i) {
+      const FrameBuffers tile = render_frame(*job.scene, job.spec, frames[i], r, options);
+      pasted[i].paste(tile);
+      pasted[i].camera = tile.camera;
+    }
+  for (size_t i = 0; i < frames.size(); ++i) {
+    const FrameBuffers whole = render_frame(*job.scene, job.spec, frames[i], std::nullopt, options);
+    EXPECT_TRUE(testing::same_bytes(pasted[i], whole)) << "frame " << frames[i];
+  }
+}
+
 }  // namespace
 }  // namespace dofarm::render
