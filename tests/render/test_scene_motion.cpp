@@ -86,7 +86,9 @@ TEST(MotionNode, TracksInterpolateClampAndStep) {
 // targeting node `node`'s `path`, as its own animation.
 void add_channel(GltfQuad* q, int node, const char* path, const std::vector<float>& times,
                  const std::vector<float>& values, const char* interpolation = "LINEAR") {
-  const int width = int(values.size() / times.size());
+  // CUBICSPLINE: in-tangent, value, out-tangent per key (glTF Appendix C).
+  const size_t per_key = std::string(interpolation) == "CUBICSPLINE" ? 3 : 1;
+  const int width = int(values.size() / (per_key * times.size()));
   auto view = [&](const std::vector<float>& v) {
     while (q->bin.size() % 4) q->bin += '\0';
     const size_t at = q->bin.size();
@@ -106,7 +108,7 @@ void add_channel(GltfQuad* q, int node, const char* path, const std::vector<floa
                                  {"max", {hi}}});
   q->doc["accessors"].push_back({{"bufferView", out_view},
                                  {"componentType", 5126},
-                                 {"count", times.size()},
+                                 {"count", per_key * times.size()},
                                  {"type", width == 4   ? "VEC4"
                                           : width == 3 ? "VEC3"
                                                        : "SCALAR"}});
@@ -312,6 +314,28 @@ TEST(SceneMotion, ASkinFollowsItsJoints) {
   for (size_t v = 0; v < 4; ++v)
     if (length(bind.positions[v] - Vec3(1, 0, 1)) < 1e-5f)
       expect_near3(half.positions[v], Vec3(1, -0.5f * h, 0.5f * (1 + h)), 1e-5f);
+}
+
+TEST(SceneMotion, CubicSplinesFollowTheirTangents) {
+  // Translation from (0, 0, 0) to (1, 0, 0) over 2 s, leaving upwards at
+  // 3 per second and arriving from above at -3 per second: halfway (t = 1,
+  // s = 0.5) the Hermite basis weighs the values 1/2 each and the tangents
+  // +-1/8 times the span, 2 s: (0.5, 0.75 + 0.75, 0). Linear would be (0.5, 0, 0).
+  TempDir dir("motion_cubic");
+  GltfQuad q = quad_on_rig();
+  add_channel(&q, 1, "translation", {0, 2},
+              {0, 0, 0, 0, 0, 0, 0, 3, 0,  //
+               0, -3, 0, 1, 0, 0, 0, 0, 0},
+              "CUBICSPLINE");
+  LogCapture log;
+  SceneData s = load(dir, "cubic.gltf", q);
+  for (const std::string& line : log.lines()) ADD_FAILURE() << "unexpected warning: " << line;
+  ASSERT_NE(s.motion, nullptr);
+  expect_near3(pose(s, 0.0f).positions[0], Vec3(0, 0, 0), 1e-6f);
+  expect_near3(pose(s, 1.0f).positions[0], Vec3(0.5f, 1.5f, 0), 1e-5f);
+  expect_near3(pose(s, 2.0f).positions[0], Vec3(1, 0, 0), 1e-6f);
+  // A quarter of the way: h00 = 27/32, h10 = 9/64, h01 = 5/32, h11 = -3/64.
+  expect_near3(pose(s, 0.5f).positions[0], Vec3(5.0f / 32, 2 * (27.0f / 64 + 9.0f / 64), 0), 1e-5f);
 }
 
 TEST(SceneMotion, MorphTargetsTakeTheirWeights) {

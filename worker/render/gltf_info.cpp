@@ -9,6 +9,7 @@
 #include <cstring>
 #include <fstream>
 #include <iterator>
+#include <map>
 #include <nlohmann/json.hpp>
 #include <set>
 
@@ -174,38 +175,34 @@ std::string data_uri_bytes(const std::string& uri, const std::string& what) {
   return out;
 }
 
-}  // namespace
+// doc[array][index] as an object; RuntimeError (`what`) where the file has none.
+const nlohmann::json& element(const nlohmann::json& doc, const char* array,
+                              const nlohmann::json& index, const std::string& what) {
+  if (!index.is_number_integer() || !doc.contains(array) || !doc[array].is_array() ||
+      index.get<int64_t>() < 0 || size_t(index.get<int64_t>()) >= doc[array].size() ||
+      !doc[array][size_t(index.get<int64_t>())].is_object())
+    throw RuntimeError(what + ": " + array + " " + index.dump() + " is not in the file");
+  return doc[array][size_t(index.get<int64_t>())];
+}
 
-std::string read_gltf_image(const std::filesystem::path& path, int image) {
-  const std::string what = path.string() + ": image " + std::to_string(image);
-  std::string json_text, bin;
-  if (!split_gltf(read_bytes(path), &json_text, &bin))
-    throw RuntimeError(what + ": the .glb's JSON chunk is cut short");
-  const auto doc = nlohmann::json::parse(json_text, nullptr, /*allow_exceptions=*/false);
-  auto element = [&](const char* array, const nlohmann::json& index) -> const nlohmann::json& {
-    if (!index.is_number_integer() || !doc.contains(array) || !doc[array].is_array() ||
-        index.get<int64_t>() < 0 || size_t(index.get<int64_t>()) >= doc[array].size() ||
-        !doc[array][size_t(index.get<int64_t>())].is_object())
-      throw RuntimeError(what + ": " + array + " " + index.dump() + " is not in the file");
-    return doc[array][size_t(index.get<int64_t>())];
-  };
-  const auto& img = element("images", image);
-  if (img.contains("uri") && img["uri"].is_string())
-    return data_uri_bytes(img["uri"].get<std::string>(), what);
-  if (!img.contains("bufferView")) throw RuntimeError(what + ": neither a uri nor a bufferView");
-  const auto& view = element("bufferViews", img["bufferView"]);
+// The bytes of buffer view `index` of the glTF file `path` (`bin`: a .glb's
+// binary chunk): from that chunk, a data: URI or a file beside the scene.
+std::string buffer_view_bytes(const std::filesystem::path& path, const nlohmann::json& doc,
+                              const std::string& bin, const nlohmann::json& index,
+                              const std::string& what) {
+  const auto& view = element(doc, "bufferViews", index, what);
   const auto& buffer =
-      element("buffers", view.contains("buffer") ? view["buffer"] : nlohmann::json());
-  std::string data;
+      element(doc, "buffers", view.contains("buffer") ? view["buffer"] : nlohmann::json(), what);
+  std::string owned;
+  const std::string* data = &bin;  // the .glb's binary chunk
   if (!buffer.contains("uri")) {
-    data = std::move(bin);  // the .glb's binary chunk
   } else if (!buffer["uri"].is_string()) {
     throw RuntimeError(what + ": its buffer's uri is not a string");
   } else if (const std::string uri = buffer["uri"].get<std::string>();
              uri.compare(0, 5, "data:") == 0) {
-    data = data_uri_bytes(uri, what);
+    data = &(owned = data_uri_bytes(uri, what));
   } else {
-    data = read_bytes(path.parent_path() / uri);
+    data = &(owned = read_bytes(path.parent_path() / uri));
   }
   auto size_of = [&](const char* key, bool required) -> uint64_t {
     if (!view.contains(key) && !required) return 0;
@@ -214,15 +211,60 @@ std::string read_gltf_image(const std::filesystem::path& path, int image) {
     return view[key].get<uint64_t>();
   };
   const uint64_t offset = size_of("byteOffset", false), length = size_of("byteLength", true);
-  if (offset > data.size() || length > data.size() - offset)
+  if (offset > data->size() || length > data->size() - offset)
     throw RuntimeError(what + ": its buffer view lies outside its buffer");
-  return data.substr(size_t(offset), size_t(length));
+  return data->substr(size_t(offset), size_t(length));
+}
+
+// The floats of accessor `index` (componentType FLOAT; the view's
+// byteStride where it has one), element by element.
+std::vector<float> accessor_floats(const std::filesystem::path& path, const nlohmann::json& doc,
+                                   const std::string& bin, const nlohmann::json& index,
+                                   const std::string& what) {
+  const auto& acc = element(doc, "accessors", index, what);
+  static const std::map<std::string, size_t> kWidths = {
+      {"SCALAR", 1}, {"VEC2", 2}, {"VEC3", 3}, {"VEC4", 4}};
+  const auto type = kWidths.find(acc.value("type", std::string()));
+  if (acc.value("componentType", 0) != 5126 || type == kWidths.end() ||
+      !acc.contains("bufferView") || !acc.value("count", nlohmann::json()).is_number_unsigned())
+    throw RuntimeError(what + ": accessor " + index.dump() +
+                       " is not a FLOAT SCALAR or VECn in a buffer view");
+  const size_t width = type->second, count = acc["count"].get<size_t>();
+  const std::string bytes = buffer_view_bytes(path, doc, bin, acc["bufferView"], what);
+  const auto& view = doc["bufferViews"][acc["bufferView"].get<size_t>()];
+  const size_t offset = acc.value("byteOffset", size_t(0));
+  const size_t stride = view.value("byteStride", width * 4);
+  if (count > 0 && (stride < width * 4 || offset + (count - 1) * stride + width * 4 > bytes.size()))
+    throw RuntimeError(what + ": accessor " + index.dump() + " reaches beyond its buffer view");
+  std::vector<float> out(count * width);
+  for (size_t i = 0; i < count; ++i)
+    std::memcpy(&out[i * width], bytes.data() + offset + i * stride, width * 4);
+  return out;
+}
+
+}  // namespace
+
+std::string read_gltf_image(const std::filesystem::path& path, int image) {
+  const std::string what = path.string() + ": image " + std::to_string(image);
+  std::string json_text, bin;
+  if (!split_gltf(read_bytes(path), &json_text, &bin))
+    throw RuntimeError(what + ": the .glb's JSON chunk is cut short");
+  const auto doc = nlohmann::json::parse(json_text, nullptr, /*allow_exceptions=*/false);
+  const auto& img = element(doc, "images", image, what);
+  if (img.contains("uri") && img["uri"].is_string())
+    return data_uri_bytes(img["uri"].get<std::string>(), what);
+  if (!img.contains("bufferView")) throw RuntimeError(what + ": neither a uri nor a bufferView");
+  return buffer_view_bytes(path, doc, bin, img["bufferView"], what);
 }
 
 namespace {
 
 // The animation channels that move named nodes (glTF 2.0, 3.11).
-std::vector<GltfInfo::AnimatedPath> animated_paths(const nlohmann::json& doc) {
+// A CUBICSPLINE sampler's output is read here (assimp 5.2 keeps only its
+// values): in-tangent, value and out-tangent of each key (glTF Appendix C).
+std::vector<GltfInfo::AnimatedPath> animated_paths(const std::filesystem::path& path,
+                                                   const nlohmann::json& doc,
+                                                   const std::string& bin) {
   std::vector<GltfInfo::AnimatedPath> out;
   if (!doc.contains("animations") || !doc["animations"].is_array() || !doc.contains("nodes") ||
       !doc["nodes"].is_array())
@@ -251,7 +293,17 @@ std::vector<GltfInfo::AnimatedPath> animated_paths(const nlohmann::json& doc) {
       if (!node.is_object() || !node.contains("name") || !node["name"].is_string() ||
           !target.contains("path") || !target["path"].is_string())
         continue;
-      out.push_back({a, node["name"].get<std::string>(), target["path"].get<std::string>(), mode});
+      GltfInfo::AnimatedPath ap{
+          a, node["name"].get<std::string>(), target["path"].get<std::string>(), mode, {}};
+      if (mode == "CUBICSPLINE" && sampler.contains("output")) {
+        try {
+          ap.cubic = accessor_floats(path, doc, bin, sampler["output"],
+                                     path.string() + ": animation " + std::to_string(a));
+        } catch (const RuntimeError& e) {
+          spdlog::warn("{}; its keys are interpolated linearly", e.what());
+        }
+      }
+      out.push_back(std::move(ap));
     }
   }
   return out;
@@ -274,7 +326,7 @@ GltfInfo read_gltf_info(const std::filesystem::path& path) {
           if (prim.is_object() && prim.contains("attributes") && prim["attributes"].is_object())
             out.vertex_colors |= prim["attributes"].contains("COLOR_0");
   out.textures = texture_refs(doc);
-  out.animated_paths = animated_paths(doc);
+  out.animated_paths = animated_paths(path, doc, bin);
   if (!doc.contains("materials") || !doc["materials"].is_array()) return out;
   for (const auto& m : doc["materials"]) {
     GltfMaterialInfo info;

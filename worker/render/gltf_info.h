@@ -90,6 +90,10 @@ struct GltfInfo {
   struct AnimatedPath {
     size_t animation = 0;
     std::string node, path, interpolation;
+    // CUBICSPLINE: the sampler's output, per key its in-tangent, value and
+    // out-tangent (3 x 3 or 3 x 4 floats); empty otherwise, or where it
+    // cannot be read (named in a warning).
+    std::vector<float> cubic;
   };
   std::vector<AnimatedPath> animated_paths;
 };

@@ -116,10 +116,12 @@ class Loader {
   // whose JSON targets that path (assimp fills a channel's other paths with
   // the node's static value, so a later animation's real keys would be
   // hidden); else (other formats, unnamed nodes) the first animation with a
-  // channel for the node. Sets its ticks per second, and `step` for a STEP
-  // sampler; a CUBICSPLINE one is named in a warning.
+  // channel for the node. Sets its ticks per second, `step` for a STEP
+  // sampler, and `cubic` to a CUBICSPLINE sampler's output as the JSON
+  // gives it (GltfInfo::AnimatedPath::cubic), else null.
   const aiNodeAnim* path_channel(const std::string& name, const char* path,
-                                 double* ticks_per_second, bool* step) const;
+                                 double* ticks_per_second, bool* step,
+                                 const std::vector<float>** cubic) const;
   // Refuses a material with a non-finite value or an emission above
   // kMaxRadiance (its brightest emission texel counted).
   void check_material(const Material& m, unsigned index) const;

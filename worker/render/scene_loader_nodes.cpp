@@ -50,6 +50,10 @@ void Loader::camera_track() {
       times.insert(track.times[i]);
       if (track.step && i > 0)
         times.insert(std::nextafter(track.times[i], -std::numeric_limits<float>::infinity()));
+      // A spline between two keys: 15 more points on it.
+      if (!track.in_tangents.empty() && i > 0)
+        for (int k = 1; k < 16; ++k)
+          times.insert(track.times[i - 1] + (track.times[i] - track.times[i - 1]) * float(k) / 16);
     }
   };
   for (int n = int(cam_index); n >= 0; n = motion_->nodes[size_t(n)].parent) {
@@ -141,20 +145,43 @@ uint32_t Loader::motion_node(const aiNode* n) {
     auto vec = [](const aiVector3D& v) { return to_vec3(v); };
     double tps = 1;
     bool step = false;
-    if (const aiNodeAnim* ch = path_channel(name, "translation", &tps, &step)) {
+    const std::vector<float>* cubic = nullptr;
+    // A CUBICSPLINE sampler's tangents from the file's JSON: per key `width`
+    // floats of in-tangent, value, out-tangent (glTF quaternions x, y, z, w).
+    auto tangents = [&](auto* track, size_t width, auto make) {
+      const size_t keys = track->times.size();
+      if (!cubic) return;
+      if (cubic->size() != 3 * width * keys) {
+        spdlog::warn(
+            "{}: the CUBICSPLINE {} of node \"{}\" has {} floats for {} keys; its keys "
+            "are interpolated linearly",
+            path_.string(), width == 4 ? "rotation" : "translation or scale", name, cubic->size(),
+            keys);
+        return;
+      }
+      for (size_t k = 0; k < keys; ++k) {
+        track->in_tangents.push_back(make(&(*cubic)[3 * width * k]));
+        track->out_tangents.push_back(make(&(*cubic)[3 * width * k + 2 * width]));
+      }
+    };
+    auto vec3_at = [](const float* f) { return Vec3(f[0], f[1], f[2]); };
+    if (const aiNodeAnim* ch = path_channel(name, "translation", &tps, &step, &cubic)) {
       read_keys(ch->mPositionKeys, ch->mNumPositionKeys, tps, &node.translation_keys, vec);
       node.translation_keys.step = step;
+      tangents(&node.translation_keys, 3, vec3_at);
     }
-    if (const aiNodeAnim* ch = path_channel(name, "scale", &tps, &step)) {
+    if (const aiNodeAnim* ch = path_channel(name, "scale", &tps, &step, &cubic)) {
       read_keys(ch->mScalingKeys, ch->mNumScalingKeys, tps, &node.scale_keys, vec);
       node.scale_keys.step = step;
+      tangents(&node.scale_keys, 3, vec3_at);
     }
-    if (const aiNodeAnim* ch = path_channel(name, "rotation", &tps, &step)) {
+    if (const aiNodeAnim* ch = path_channel(name, "rotation", &tps, &step, &cubic)) {
       read_keys(ch->mRotationKeys, ch->mNumRotationKeys, tps, &node.rotation_keys,
                 [](const aiQuaternion& q) {
                   return Quat{q.w, q.x, q.y, q.z};
                 });
       node.rotation_keys.step = step;
+      tangents(&node.rotation_keys, 4, [](const float* f) { return Quat{f[3], f[0], f[1], f[2]}; });
     }
     // Keys as glTF requires them (3.11): finite values at increasing times;
     // rotations are made unit.
@@ -184,8 +211,10 @@ uint32_t Loader::motion_node(const aiNode* n) {
 }
 
 const aiNodeAnim* Loader::path_channel(const std::string& name, const char* path,
-                                       double* ticks_per_second, bool* step) const {
+                                       double* ticks_per_second, bool* step,
+                                       const std::vector<float>** cubic) const {
   *step = false;
+  *cubic = nullptr;
   bool named = false;
   for (const GltfInfo::AnimatedPath& ap : gltf_.animated_paths) {
     if (ap.node != name) continue;
@@ -196,11 +225,7 @@ const aiNodeAnim* Loader::path_channel(const std::string& name, const char* path
       if (anim->mChannels[c]->mNodeName.C_Str() != name) continue;
       *ticks_per_second = anim->mTicksPerSecond > 0 ? anim->mTicksPerSecond : 1.0;
       *step = ap.interpolation == "STEP";
-      if (ap.interpolation == "CUBICSPLINE")
-        spdlog::warn(
-            "{}: the {} of node \"{}\" is animated by a CUBICSPLINE sampler; dofarm "
-            "interpolates linearly between its keys (the spline's tangents are not read)",
-            path_.string(), path, name);
+      if (ap.interpolation == "CUBICSPLINE") *cubic = &ap.cubic;
       return anim->mChannels[c];
     }
   }

@@ -37,14 +37,17 @@ struct Affine {
 };
 
 // Keyframes of one property of a node, in seconds, as glTF's samplers give
-// them: linear (vectors) or spherical linear (quaternions) between keys, or
-// constant until the next key (STEP); clamped before the first and after
-// the last key.
+// them: linear (vectors) or spherical linear (quaternions) between keys,
+// constant until the next key (STEP), or a cubic Hermite spline through the
+// keys with their tangents (CUBICSPLINE, glTF 2.0 Appendix C; quaternions
+// made unit after it); clamped before the first and after the last key.
 template <typename T>
 struct Track {
   std::vector<float> times;  // ascending
   std::vector<T> values;
   bool step = false;
+  // CUBICSPLINE: each key's in- and out-tangent (per second); empty otherwise.
+  std::vector<T> in_tangents, out_tangents;
   bool empty() const { return times.empty(); }
 };
 
