@@ -421,11 +421,12 @@ TEST(SceneMotion, TheCameraHoldsStillOnAStepTrack) {
 
 // A camera 6 above the quad's centre looking down; the rig lifts the quad
 // from y = 0 to y = 4 over the first second.
+// Each test names its own folder: ctest runs tests as parallel processes.
 struct MovingQuadJob {
-  TempDir dir{"motion_render"};
+  TempDir dir;
   JobSpec spec;
   std::shared_ptr<const Scene> scene;
-  MovingQuadJob() {
+  explicit MovingQuadJob(const std::string& name) : dir(name) {
     GltfQuad q = gltf_fixture::gltf_quad();
     q.doc["nodes"].push_back(Json::parse(R"({"name": "rig", "children": [0]})"));
     q.doc["scenes"][0]["nodes"] = {1};
@@ -446,7 +447,7 @@ struct MovingQuadJob {
 };
 
 TEST(SceneMotion, EachFrameSeesTheQuadWhereItIsThen) {
-  MovingQuadJob job;
+  MovingQuadJob job("motion_render_each");
   for (int frame : {0, 6, 12, 24}) {
     const float y = 4.0f * std::min(1.0f, float(frame) / 24.0f);
     RenderOptions options;
@@ -466,7 +467,7 @@ TEST(SceneMotion, EachFrameSeesTheQuadWhereItIsThen) {
 TEST(SceneMotion, AFrameIsTheSameWhicheverFramesCameBefore) {
   // Poses are cached per time: frame 12 rendered first, after frames 0 and
   // 24, and from a freshly loaded scene, byte for byte the same.
-  MovingQuadJob job;
+  MovingQuadJob job("motion_render_order");
   RenderOptions options;
   options.threads = 2;
   const FrameBuffers first = render_frame(*job.scene, job.spec, 12, std::nullopt, options);
@@ -485,7 +486,7 @@ TEST(SceneMotion, TilesOfInterleavedFramesPasteIntoTheWholeFrames) {
   // A worker may get the tiles of three frames in turn; with two poses kept,
   // every tile then poses its frame again. Each frame pasted from its four
   // tiles equals the frame rendered whole, byte for byte.
-  MovingQuadJob job;
+  MovingQuadJob job("motion_render_tiles");
   RenderOptions options;
   options.threads = 2;
   const std::vector<int> frames = {0, 12, 24};
