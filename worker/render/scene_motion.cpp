@@ -116,18 +116,10 @@ Affine SceneMotion::world(uint32_t node, float time) const {
 SceneData pose(const SceneData& rest, float time) {
   DOFARM_CHECK(rest.motion != nullptr);
   const SceneMotion& motion = *rest.motion;
-  SceneData out;
-  out.source = rest.source;
-  out.positions = rest.positions;
-  out.normals = rest.normals;
-  out.uvs = rest.uvs;
-  out.uvs1 = rest.uvs1;
-  out.indices = rest.indices;
-  out.tri_material = rest.tri_material;
-  out.materials = rest.materials;
-  out.camera_track = rest.camera_track;
-  out.lights = rest.lights;
-  out.motion = rest.motion;
+  // Everything as rest has it but the texels, which Scene keeps once for
+  // all poses (a Scene's own data holds none, so nothing is copied there).
+  SceneData out = rest;
+  out.textures = {};
 
   // A node's world transform, once per node.
   std::vector<Affine> world(motion.nodes.size());
@@ -136,10 +128,12 @@ SceneData pose(const SceneData& rest, float time) {
     world[i] = n.parent >= 0 ? world[size_t(n.parent)] * n.local(time) : n.local(time);
   }
 
-  bool recompute_tangents = false;
   std::vector<bool> moving(rest.tangents.empty() ? 0 : rest.positions.size(), false);
-  // The transform of vertex k of a part: its node's, or its joints' blend.
+  // The file's TANGENTs of moving vertices, moved with the surface; set
+  // after compute_tangents(), which would overwrite them.
+  std::vector<std::pair<size_t, SceneData::Tangent>> given_tangents;
   std::vector<Affine> joint_matrix;
+  // The transform of vertex k of a part: its node's, or its joints' blend.
   auto vertex_transform = [&](const MovingPart& part, uint32_t k) -> Affine {
     if (part.skin < 0) return world[part.node];
     const Skin& skin = motion.skins[size_t(part.skin)];
@@ -155,16 +149,14 @@ SceneData pose(const SceneData& rest, float time) {
     }
     return blend;
   };
-  // glTF's joint matrices of a skinned part: world(joint) * inverse bind.
-  auto joints_of = [&](const MovingPart& part) {
-    if (part.skin < 0) return;
-    const Skin& skin = motion.skins[size_t(part.skin)];
-    joint_matrix.resize(skin.joints.size());
-    for (size_t j = 0; j < skin.joints.size(); ++j)
-      joint_matrix[j] = world[skin.joints[j]] * skin.inverse_bind[j];
-  };
   for (const MovingPart& part : motion.parts) {
-    joints_of(part);
+    if (part.skin >= 0) {
+      // glTF's joint matrices: world(joint) * inverse bind.
+      const Skin& skin = motion.skins[size_t(part.skin)];
+      joint_matrix.resize(skin.joints.size());
+      for (size_t j = 0; j < skin.joints.size(); ++j)
+        joint_matrix[j] = world[skin.joints[j]] * skin.inverse_bind[j];
+    }
     std::vector<float> weights;
     if (part.morph >= 0) weights = sample(motion.morphs[size_t(part.morph)].weights, time);
     for (uint32_t k = 0; k < part.vertex_count; ++k) {
@@ -181,6 +173,12 @@ SceneData pose(const SceneData& rest, float time) {
       out.positions[v] = w.point(p);
       out.normals[v] = normalize(w.normal(n), Vec3(0.0f));
       if (!moving.empty()) moving[v] = true;
+      if (!moving.empty() && !motion.tangents.empty() && length(motion.tangents[local]) > 0.0f) {
+        const Vec3 t = normalize(w.linear(motion.tangents[local]), Vec3(0.0f));
+        const Vec3 b = w.linear(motion.bitangents[local]);
+        given_tangents.push_back(
+            {v, {t, dot(cross(out.normals[v], t), b) < 0.0f ? -1.0f : 1.0f}});
+      }
     }
     // A skin's winding follows its joints' (blended) transform at its first vertex.
     const Affine w = part.vertex_count > 0 ? vertex_transform(part, 0) : world[part.node];
@@ -188,29 +186,16 @@ SceneData pose(const SceneData& rest, float time) {
       for (uint32_t k = 0; k + 2 < part.index_count; k += 3)
         std::swap(out.indices[size_t(part.first_index) + k + 1],
                   out.indices[size_t(part.first_index) + k + 2]);
-    recompute_tangents = recompute_tangents || !rest.tangents.empty();
   }
 
-  if (!rest.tangents.empty()) {
-    if (recompute_tangents) compute_tangents(&out);
+  if (!rest.tangents.empty() && !motion.parts.empty()) {
+    compute_tangents(&out);
     if (out.tangents.size() != rest.tangents.size()) out.tangents = rest.tangents;
     // The vertices that do not move keep theirs (the file's or computed);
     // those the file gives a TANGENT for move with the surface.
     for (size_t v = 0; v < rest.tangents.size(); ++v)
       if (!moving[v]) out.tangents[v] = rest.tangents[v];
-    if (!motion.tangents.empty())
-      for (const MovingPart& part : motion.parts) {
-        joints_of(part);
-        for (uint32_t k = 0; k < part.vertex_count; ++k) {
-          const size_t v = size_t(part.first_vertex) + k, local = size_t(part.local_first) + k;
-          const Vec3 t_local = motion.tangents[local];
-          if (!(length(t_local) > 0.0f)) continue;
-          const Affine w = vertex_transform(part, k);
-          const Vec3 t = normalize(w.linear(t_local), Vec3(0.0f));
-          const Vec3 b = w.linear(motion.bitangents[local]);
-          out.tangents[v] = {t, dot(cross(out.normals[v], t), b) < 0.0f ? -1.0f : 1.0f};
-        }
-      }
+    for (const auto& [v, tangent] : given_tangents) out.tangents[v] = tangent;
   }
 
   for (const MovingLight& ml : motion.lights) {

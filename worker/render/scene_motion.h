@@ -137,7 +137,7 @@ struct SceneMotion {
 // the surface, or computed again as compute_tangents() does), the winding
 // where a transform mirrors, and the punctual lights. Everything else is
 // rest's, except the textures, which are left out: Scene keeps them once
-// for all poses.
+// for all poses (and its own data holds none, so posing copies no texels).
 SceneData pose(const SceneData& rest, float time);
 
 }  // namespace dofarm::render
