@@ -1,6 +1,7 @@
 // Meshes and lights moved by the scene file's node animation
 // (worker/render/scene_motion.h): the transforms against hand-computed
-// values, glTF samplers (LINEAR, STEP) through the loader, and frames
+// values, glTF samplers (LINEAR, STEP, CUBICSPLINE) of transforms and
+// morph weights through the loader, the file's tangents, and frames
 // rendered where the moving quad is at each frame's time.
 #include <gtest/gtest.h>
 
@@ -363,6 +364,90 @@ TEST(SceneMotion, MorphTargetsTakeTheirWeights) {
   expect_near3(pose(moving, 0.5f).positions[2], Vec3(1, 0.5f, 1), 1e-6f);
   expect_near3(pose(moving, 2.0f).positions[2], Vec3(1, 1, 1), 1e-6f);
   expect_near3(pose(moving, 0.5f).positions[1], Vec3(0, 0, 1), 1e-6f);  // no offset there
+}
+
+TEST(SceneMotion, MorphWeightsFollowStepAndCubicSamplers) {
+  // The target of MorphTargetsTakeTheirWeights, its weight driven 0 -> 1.
+  TempDir dir("motion_morph_samplers");
+  GltfQuad q = gltf_fixture::gltf_quad();
+  const size_t lift =
+      add_accessor(&q, floats_bytes({0, 0, 0, 0, 0, 0, 0, 1, 0, 0, 0, 0}), 4, "VEC3", 5126);
+  q.doc["accessors"][lift]["min"] = {0, 0, 0};
+  q.doc["accessors"][lift]["max"] = {0, 1, 0};
+  q.doc["meshes"][0]["primitives"][0]["targets"] = {{{"POSITION", lift}}};
+  q.doc["meshes"][0]["weights"] = {0.0};
+  // STEP: the weight stays 0 until the key at 1 s.
+  GltfQuad step = q;
+  add_channel(&step, 0, "weights", {0, 1}, {0, 1}, "STEP");
+  SceneData held = load(dir, "step.gltf", step);
+  ASSERT_NE(held.motion, nullptr);
+  expect_near3(pose(held, 0.5f).positions[2], Vec3(1, 0, 1), 1e-6f);
+  expect_near3(pose(held, 0.999f).positions[2], Vec3(1, 0, 1), 1e-6f);
+  expect_near3(pose(held, 1.0f).positions[2], Vec3(1, 1, 1), 1e-6f);
+  // CUBICSPLINE over 2 s, leaving at +3 per second and arriving at -3 per
+  // second: halfway the Hermite basis gives 0.5 + 2 (3 / 8) + 2 (3 / 8) =
+  // 2 (linear would be 0.5); a quarter of the way 5/32 + 2 (9/64) 3 +
+  // 2 (-3/64)(-3) = 41/32.
+  GltfQuad cubic = q;
+  add_channel(&cubic, 0, "weights", {0, 2}, {0, 0, 3, -3, 1, 0}, "CUBICSPLINE");
+  LogCapture log;
+  SceneData spline = load(dir, "cubic.gltf", cubic);
+  for (const std::string& line : log.lines()) ADD_FAILURE() << "unexpected warning: " << line;
+  ASSERT_NE(spline.motion, nullptr);
+  expect_near3(pose(spline, 0.0f).positions[2], Vec3(1, 0, 1), 1e-6f);
+  expect_near3(pose(spline, 1.0f).positions[2], Vec3(1, 2, 1), 1e-5f);
+  expect_near3(pose(spline, 0.5f).positions[2], Vec3(1, 41.0f / 32, 1), 1e-5f);
+  expect_near3(pose(spline, 2.0f).positions[2], Vec3(1, 1, 1), 1e-6f);
+}
+
+// The file's TANGENT moves with a moving mesh (rotated, and its sign w
+// turned where the transform comes to mirror), where computing the
+// tangent again from the texture coordinates would give another one.
+TEST(SceneMotion, TheFilesTangentsMoveWithTheMesh) {
+  TempDir dir("motion_tangent");
+  auto with_normal_map = [&](GltfQuad q) {
+    gltf_fixture::add_attribute(&q, "TANGENT", {0, 0, 1, 1});
+    gltf_fixture::add_attribute(&q, "NORMAL", {0, 1, 0});
+    const unsigned char px[] = {128, 128, 255};
+    gltf_fixture::write_bytes(dir.path / "n.png", gltf_fixture::encode_png(px, 1, 1, 3));
+    q.doc["images"] = Json::array({{{"uri", "n.png"}}});
+    q.doc["textures"] = Json::parse(R"([{"source": 0}])");
+    q.doc["materials"][0]["normalTexture"] = {{"index", 0}};
+    return q;
+  };
+  // A quarter turn about y over 2 s: +z turns to +x (u grows along +x, so
+  // a computed tangent would turn from +x to -z).
+  GltfQuad turning = with_normal_map(quad_on_rig());
+  add_channel(&turning, 1, "rotation", {0, 2},
+              {0, 0, 0, 1, 0, std::sqrt(0.5f), 0, std::sqrt(0.5f)});
+  SceneData s = load(dir, "turning.gltf", turning);
+  ASSERT_NE(s.motion, nullptr);
+  ASSERT_EQ(s.tangents.size(), s.positions.size());
+  for (const SceneData::Tangent& t : s.tangents) {
+    expect_near3(t.t, Vec3(0, 0, 1), 1e-6f);
+    EXPECT_EQ(t.w, 1.0f);
+  }
+  const float h = std::sqrt(0.5f);
+  for (const auto& [time, expected] : {std::pair{1.0f, Vec3(h, 0, h)}, {2.0f, Vec3(1, 0, 0)}}) {
+    SceneData p = pose(s, time);
+    ASSERT_EQ(p.tangents.size(), p.positions.size());
+    for (const SceneData::Tangent& t : p.tangents) {
+      expect_near3(t.t, expected, 1e-5f);
+      EXPECT_EQ(t.w, 1.0f) << "t = " << time;
+    }
+  }
+  // Scale x 1 -> -1 over 1 s: the tangent stays +z, the bitangent
+  // (cross(n, t) w = +x in the mesh) is mirrored to -x while cross(n, t)
+  // stays +x, so w turns to -1.
+  GltfQuad mirroring = with_normal_map(quad_on_rig());
+  add_channel(&mirroring, 1, "scale", {0, 1}, {1, 1, 1, -1, 1, 1});
+  SceneData m = load(dir, "mirroring.gltf", mirroring);
+  ASSERT_NE(m.motion, nullptr);
+  for (const SceneData::Tangent& t : pose(m, 1.0f).tangents) {
+    expect_near3(t.t, Vec3(0, 0, 1), 1e-6f);
+    EXPECT_EQ(t.w, -1.0f);
+  }
+  for (const SceneData::Tangent& t : pose(m, 0.25f).tangents) EXPECT_EQ(t.w, 1.0f);
 }
 
 TEST(SceneMotion, BadKeysAreLoadErrorsNamingTheNode) {

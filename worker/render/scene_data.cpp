@@ -393,8 +393,9 @@ void Loader::mesh(const aiMesh* m, const aiMatrix4x4& world, const char* node_na
   // vertices below are the mesh at its default weights; where an animation
   // drives the weights, pose() morphs them per frame (SceneMotion::morphs).
   double morph_tps = 1.0;
+  unsigned morph_animation = 0;
   const aiMeshMorphAnim* morph_keys =
-      m->mNumAnimMeshes > 0 ? morph_channel(node_name, &morph_tps) : nullptr;
+      m->mNumAnimMeshes > 0 ? morph_channel(node_name, &morph_tps, &morph_animation) : nullptr;
   auto target_ok = [m](unsigned k, bool normals) {
     const aiAnimMesh* a = m->mAnimMeshes[k];
     return a->mNumVertices == m->mNumVertices &&
@@ -514,6 +515,35 @@ void Loader::mesh(const aiMesh* m, const aiMatrix4x4& world, const char* node_na
                         "\" have key times that are not finite and increasing");
       morph.weights.times.push_back(t);
       morph.weights.values.push_back(std::move(w));
+    }
+    // The sampler's interpolation, which assimp 5.2 does not keep: STEP
+    // holds each key until the next; CUBICSPLINE follows the Hermite spline
+    // of glTF Appendix C through the keys and their tangents, read from the
+    // file (per key the in-tangents of all targets, their values, their
+    // out-tangents).
+    if (const GltfInfo::AnimatedPath* ap = weights_path(node_name, morph_animation)) {
+      morph.weights.step = ap->interpolation == "STEP";
+      const size_t targets = m->mNumAnimMeshes, keys = morph.weights.times.size();
+      if (!ap->cubic.empty() && ap->cubic.size() != 3 * targets * keys) {
+        spdlog::warn(
+            "{}: the CUBICSPLINE weights of node \"{}\" have {} floats for {} keys of {} "
+            "targets; they are interpolated linearly",
+            path_.string(), node_name, ap->cubic.size(), keys, targets);
+      } else if (!ap->cubic.empty()) {
+        auto slice = [&](size_t k, size_t part) {
+          const float* f = &ap->cubic[(3 * k + part) * targets];
+          for (size_t j = 0; j < targets; ++j)
+            if (!std::isfinite(f[j]))
+              fail(path_, "the CUBICSPLINE weights of node \"" + std::string(node_name) +
+                              "\" are not finite");
+          return std::vector<float>(f, f + targets);
+        };
+        for (size_t k = 0; k < keys; ++k) {
+          morph.weights.in_tangents.push_back(slice(k, 0));
+          morph.weights.values[k] = slice(k, 1);
+          morph.weights.out_tangents.push_back(slice(k, 2));
+        }
+      }
     }
     if (!morph.weights.empty()) {
       motion_->morphs.push_back(std::move(morph));

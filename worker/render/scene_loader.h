@@ -100,9 +100,13 @@ class Loader {
   // a SceneMotion::skins entry; returns its index.
   int skin(const aiMesh* m, const char* node_name);
   // The morph-weight animation of node `node_name` (the first animation
-  // with one; assimp names it after the node), with its ticks per second;
-  // null where none.
-  const aiMeshMorphAnim* morph_channel(const char* node_name, double* ticks_per_second) const;
+  // with one; assimp names it after the node), with its ticks per second
+  // and the index of its animation; null where none.
+  const aiMeshMorphAnim* morph_channel(const char* node_name, double* ticks_per_second,
+                                       unsigned* animation) const;
+  // The glTF sampler behind that animation's `weights` channel of the node
+  // (its interpolation and, for CUBICSPLINE, its output), or null.
+  const GltfInfo::AnimatedPath* weights_path(const char* node_name, unsigned animation) const;
   // Whether the animation moves `n` or one of its parents.
   bool moves(const aiNode* n) const {
     for (; n; n = n->mParent)

@@ -18,10 +18,11 @@ void Loader::node(const aiNode* node, const aiMatrix4x4& parent) {
   // mesh whose morph weights an animation drives changes shape.
   bool deforms = false;
   double tps;
+  unsigned animation;
   for (unsigned k = 0; k < node->mNumMeshes; ++k) {
     const aiMesh* m = scene_->mMeshes[node->mMeshes[k]];
     deforms = deforms || m->HasBones() ||
-              (m->mNumAnimMeshes > 0 && morph_channel(node->mName.C_Str(), &tps));
+              (m->mNumAnimMeshes > 0 && morph_channel(node->mName.C_Str(), &tps, &animation));
   }
   const int moving = node->mNumMeshes > 0 && (moves(node) || deforms) ? int(motion_node(node)) : -1;
   for (unsigned k = 0; k < node->mNumMeshes; ++k) {
@@ -236,17 +237,25 @@ const aiNodeAnim* Loader::path_channel(const std::string& name, const char* path
   return it->second.keys;
 }
 
-const aiMeshMorphAnim* Loader::morph_channel(const char* node_name,
-                                             double* ticks_per_second) const {
+const aiMeshMorphAnim* Loader::morph_channel(const char* node_name, double* ticks_per_second,
+                                             unsigned* animation) const {
   for (unsigned a = 0; a < scene_->mNumAnimations; ++a) {
     const aiAnimation* anim = scene_->mAnimations[a];
     for (unsigned c = 0; c < anim->mNumMorphMeshChannels; ++c)
       if (std::strcmp(anim->mMorphMeshChannels[c]->mName.C_Str(), node_name) == 0 &&
           anim->mMorphMeshChannels[c]->mNumKeys > 0) {
         *ticks_per_second = anim->mTicksPerSecond > 0 ? anim->mTicksPerSecond : 1.0;
+        *animation = a;
         return anim->mMorphMeshChannels[c];
       }
   }
+  return nullptr;
+}
+
+const GltfInfo::AnimatedPath* Loader::weights_path(const char* node_name,
+                                                   unsigned animation) const {
+  for (const GltfInfo::AnimatedPath& ap : gltf_.animated_paths)
+    if (ap.animation == animation && ap.path == "weights" && ap.node == node_name) return &ap;
   return nullptr;
 }
 

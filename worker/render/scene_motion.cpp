@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <type_traits>
 #include <utility>
 
 #include "common/error.h"
@@ -67,6 +66,14 @@ Quat hermite(Quat p0, Quat m0, Quat p1, Quat m1, float h00, float h10, float h01
   const float n = std::sqrt(q.w * q.w + q.x * q.x + q.y * q.y + q.z * q.z);
   return n > 0 ? Quat{q.w / n, q.x / n, q.y / n, q.z / n} : p0;
 }
+std::vector<float> hermite(const std::vector<float>& p0, const std::vector<float>& m0,
+                           const std::vector<float>& p1, const std::vector<float>& m1, float h00,
+                           float h10, float h01, float h11) {
+  std::vector<float> out(p0.size());
+  for (size_t k = 0; k < p0.size() && k < m0.size() && k < p1.size() && k < m1.size(); ++k)
+    out[k] = p0[k] * h00 + m0[k] * h10 + p1[k] * h01 + m1[k] * h11;
+  return out;
+}
 std::vector<float> blend(const std::vector<float>& a, const std::vector<float>& b, float w) {
   std::vector<float> out(a.size());
   for (size_t k = 0; k < a.size() && k < b.size(); ++k) out[k] = a[k] * (1.0f - w) + b[k] * w;
@@ -84,14 +91,12 @@ T sample(const Track<T>& track, float time) {
   if (track.step) return track.values[i - 1];
   const float span = ts[i] - ts[i - 1];
   const float w = span > 0 ? (time - ts[i - 1]) / span : 1.0f;
-  if constexpr (!std::is_same_v<T, std::vector<float>>) {
-    if (!track.in_tangents.empty()) {
-      // glTF 2.0, Appendix C: the Hermite basis, tangents scaled by the span.
-      const float w2 = w * w, w3 = w2 * w;
-      return hermite(track.values[i - 1], track.out_tangents[i - 1], track.values[i],
-                     track.in_tangents[i], 2 * w3 - 3 * w2 + 1, span * (w3 - 2 * w2 + w),
-                     -2 * w3 + 3 * w2, span * (w3 - w2));
-    }
+  if (!track.in_tangents.empty()) {
+    // glTF 2.0, Appendix C: the Hermite basis, tangents scaled by the span.
+    const float w2 = w * w, w3 = w2 * w;
+    return hermite(track.values[i - 1], track.out_tangents[i - 1], track.values[i],
+                   track.in_tangents[i], 2 * w3 - 3 * w2 + 1, span * (w3 - 2 * w2 + w),
+                   -2 * w3 + 3 * w2, span * (w3 - w2));
   }
   return blend(track.values[i - 1], track.values[i], w);
 }
