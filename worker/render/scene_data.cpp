@@ -411,8 +411,16 @@ void Loader::mesh(const aiMesh* m, const aiMatrix4x4& world, const char* node_na
     }
     return x;
   };
+  // The mesh at its default weights, in its own space (pose() needs it too
+  // for a moving node whose weights no animation drives).
+  std::vector<aiVector3D> rest_positions(m->mNumVertices), rest_normals;
+  for (unsigned v = 0; v < m->mNumVertices; ++v) rest_positions[v] = morphed(v, false);
+  if (m->HasNormals()) {
+    rest_normals.resize(m->mNumVertices);
+    for (unsigned v = 0; v < m->mNumVertices; ++v) rest_normals[v] = morphed(v, true);
+  }
   for (unsigned v = 0; v < m->mNumVertices; ++v) {
-    Vec3 p = to_vec3(world * morphed(v, false));
+    Vec3 p = to_vec3(world * rest_positions[v]);
     if (!is_finite(p)) {
       fail(path_, "mesh \"" + std::string(m->mName.C_Str()) + "\" of node \"" + node_name +
                       "\": vertex " + std::to_string(v) + " is not finite");
@@ -420,7 +428,7 @@ void Loader::mesh(const aiMesh* m, const aiMatrix4x4& world, const char* node_na
     out_->positions.push_back(p);
     // aiProcess_GenSmoothNormals fills in normals where the file has none.
     const Vec3 n = normalize(
-        m->HasNormals() ? to_vec3(normal_matrix * morphed(v, true)) : Vec3(0.0f), Vec3(0.0f));
+        m->HasNormals() ? to_vec3(normal_matrix * rest_normals[v]) : Vec3(0.0f), Vec3(0.0f));
     out_->normals.push_back(n);
     // A glTF TANGENT (assimp 5.2: mTangents, and mBitangents = cross(n, t) w
     // with the file's w): the tangent moves with the surface (the world
@@ -476,10 +484,10 @@ void Loader::mesh(const aiMesh* m, const aiMatrix4x4& world, const char* node_na
   // Animated morph weights: the base and each target's offsets; else the
   // mesh at its default weights.
   for (unsigned v = 0; v < m->mNumVertices; ++v) {
-    mo.positions.push_back(to_vec3(morph_keys ? m->mVertices[v] : morphed(v, false)));
+    mo.positions.push_back(to_vec3(morph_keys ? m->mVertices[v] : rest_positions[v]));
     mo.normals.push_back(
         m->HasNormals()
-            ? normalize(to_vec3(morph_keys ? m->mNormals[v] : morphed(v, true)), Vec3(0.0f))
+            ? normalize(to_vec3(morph_keys ? m->mNormals[v] : rest_normals[v]), Vec3(0.0f))
             : Vec3(0.0f));
     if (tangents) {
       mo.tangents.push_back(to_vec3(m->mTangents[v]));
