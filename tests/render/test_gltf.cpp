@@ -390,6 +390,42 @@ TEST(LoadSceneData, EmptyOrCameraOnlyGltfSaysWhy) {
   EXPECT_NE(what.find("No scene"), std::string::npos) << what;
 }
 
+// An orthographic camera (Blender's Orthographic type) is not rendered with
+// a field of view of 0: a job that takes the scene's camera is refused,
+// naming the camera and why; a job with its own poses still loads the scene.
+TEST(LoadSceneData, AnOrthographicCameraIsRefusedWhereTheJobTakesIt) {
+  TempDir dir("ortho");
+  GltfQuad q = gltf_quad();
+  q.doc["nodes"].push_back(Json::parse(R"({"name": "Plan", "camera": 0,
+      "translation": [0, 5, 0], "rotation": [-0.7071068, 0, 0, 0.7071068]})"));
+  q.doc["scenes"][0]["nodes"].push_back(q.doc["nodes"].size() - 1);
+  q.doc["cameras"] = Json::parse(R"([{"name": "Plan", "type": "orthographic",
+      "orthographic": {"xmag": 2.0, "ymag": 1.0, "znear": 0.1, "zfar": 100}}])");
+  write_gltf(dir.path / "ortho.gltf", q);
+  SceneData s = load_scene_data(dir.path / "ortho.gltf");
+  EXPECT_TRUE(s.camera_track.empty());
+  EXPECT_NE(s.camera_refused.find("orthographic"), std::string::npos) << s.camera_refused;
+  EXPECT_NE(s.camera_refused.find("\"Plan\""), std::string::npos) << s.camera_refused;
+  JobSpec spec;
+  spec.width = spec.height = 8;
+  spec.camera_from_scene = true;
+  spec.key_locations["camera.from_scene"] = FileLoc{"job.toml", 3, 1};
+  try {
+    camera_for_frame(spec, s, 0);
+    FAIL() << "rendered an orthographic camera";
+  } catch (const SpecError& e) {
+    EXPECT_EQ(e.key(), "camera.from_scene");
+    EXPECT_NE(std::string(e.what()).find("orthographic"), std::string::npos) << e.what();
+  }
+  // The same node with a perspective camera is the scene's camera.
+  q.doc["cameras"] = Json::parse(R"([{"name": "Plan", "type": "perspective",
+      "perspective": {"yfov": 0.7, "znear": 0.1}}])");
+  write_gltf(dir.path / "persp.gltf", q);
+  SceneData p = load_scene_data(dir.path / "persp.gltf");
+  EXPECT_EQ(p.camera_track.size(), 1u);
+  EXPECT_TRUE(p.camera_refused.empty());
+}
+
 TEST(LoadSceneData, EmissionAboveTheBoundOrInfiniteIsAnErrorNamingTheMaterial) {
   TempDir dir("emission");
   GltfQuad q = gltf_quad();

@@ -247,10 +247,13 @@ CameraState camera_for_frame(const JobSpec& spec, const SceneData& scene, int fr
   if (spec.camera_from_scene) {
     const auto& track = scene.camera_track;
     if (track.empty()) {
-      throw SpecError(spec.where("camera.from_scene"), "camera.from_scene",
-                      "the scene \"" + scene.source.string() +
-                          "\" has no camera; add one to the scene or give [[camera.key]] poses "
-                          "with camera.from_scene = false");
+      throw SpecError(
+          spec.where("camera.from_scene"), "camera.from_scene",
+          "the scene \"" + scene.source.string() + "\" has no camera" +
+              (scene.camera_refused.empty() ? std::string()
+                                            : " that dofarm can render: " + scene.camera_refused) +
+              "; add one to the scene or give [[camera.key]] poses "
+              "with camera.from_scene = false");
     }
     size_t j0, j1;
     float v;

@@ -173,6 +173,9 @@ struct SceneData {
   std::vector<Material> materials;
   std::vector<Texture> textures;
   std::vector<CameraTrackKey> camera_track;  // empty = no camera in the file
+  // Why the file's camera cannot be used, where it has one that dofarm
+  // does not render (an orthographic camera); camera_track is then empty.
+  std::string camera_refused;
   std::vector<PunctualLight> lights;         // glTF KHR_lights_punctual
   // Meshes and lights that the file's node animation moves; null when
   // nothing but the camera moves. The arrays above then hold the nodes'

@@ -39,6 +39,23 @@ void Loader::camera_track() {
   const aiCamera* cam = scene_->mCameras[0];
   const aiNode* cam_node = scene_->mRootNode->FindNode(cam->mName);
   if (!cam_node) return;
+  // An orthographic camera (glTF camera.orthographic, Blender's Orthographic
+  // type): assimp 5.2 gives it no field of view and its xmag as
+  // mOrthographicWidth. dofarm's cameras are perspective thin lenses, and
+  // rendering it with a field of view of 0 would show one point of the
+  // scene in every pixel; a job that asks for it is refused
+  // (camera_for_frame(), complete_spec_from_scene()).
+  if (!(cam->mHorizontalFOV > 0) || !std::isfinite(cam->mHorizontalFOV)) {
+    const std::string name = cam->mName.C_Str();
+    out_->camera_refused =
+        cam->mOrthographicWidth > 0
+            ? fmt::format(
+                  "its camera \"{}\" is orthographic (half width {:g}); dofarm renders "
+                  "perspective cameras only",
+                  name, cam->mOrthographicWidth)
+            : fmt::format("its camera \"{}\" has no field of view", name);
+    return;
+  }
   // The camera node's world transform at the union of the key times on
   // its chain (root ... camera node), each node's keys as for meshes
   // (SceneMotion); camera_for_frame() interpolates between these keys. A
