@@ -339,17 +339,22 @@ TEST(SceneMotion, CubicSplinesFollowTheirTangents) {
   expect_near3(pose(s, 0.5f).positions[0], Vec3(5.0f / 32, 2 * (27.0f / 64 + 9.0f / 64), 0), 1e-5f);
 }
 
-TEST(SceneMotion, MorphTargetsTakeTheirWeights) {
-  // One morph target lifts vertex 2, (1, 0, 1), by (0, 1, 0); the mesh's
-  // default weight is 0.25 (Blender: a shape key's value).
-  TempDir dir("motion_morph");
+// The quad with one morph target that lifts vertex 2, (1, 0, 1), by
+// (0, 1, 0), at the default weight `weight` (Blender: a shape key's value).
+GltfQuad quad_with_lift(float weight) {
   GltfQuad q = gltf_fixture::gltf_quad();
   const size_t lift =
       add_accessor(&q, floats_bytes({0, 0, 0, 0, 0, 0, 0, 1, 0, 0, 0, 0}), 4, "VEC3", 5126);
   q.doc["accessors"][lift]["min"] = {0, 0, 0};
   q.doc["accessors"][lift]["max"] = {0, 1, 0};
   q.doc["meshes"][0]["primitives"][0]["targets"] = {{{"POSITION", lift}}};
-  q.doc["meshes"][0]["weights"] = {0.25};
+  q.doc["meshes"][0]["weights"] = {weight};
+  return q;
+}
+
+TEST(SceneMotion, MorphTargetsTakeTheirWeights) {
+  TempDir dir("motion_morph");
+  GltfQuad q = quad_with_lift(0.25f);
   SceneData still = load(dir, "still.gltf", q);
   EXPECT_EQ(still.motion, nullptr);  // static weights are applied at load
   expect_near3(still.positions[2], Vec3(1, 0.25f, 1), 1e-6f);
@@ -367,15 +372,9 @@ TEST(SceneMotion, MorphTargetsTakeTheirWeights) {
 }
 
 TEST(SceneMotion, MorphWeightsFollowStepAndCubicSamplers) {
-  // The target of MorphTargetsTakeTheirWeights, its weight driven 0 -> 1.
+  // The lift, its weight driven 0 -> 1.
   TempDir dir("motion_morph_samplers");
-  GltfQuad q = gltf_fixture::gltf_quad();
-  const size_t lift =
-      add_accessor(&q, floats_bytes({0, 0, 0, 0, 0, 0, 0, 1, 0, 0, 0, 0}), 4, "VEC3", 5126);
-  q.doc["accessors"][lift]["min"] = {0, 0, 0};
-  q.doc["accessors"][lift]["max"] = {0, 1, 0};
-  q.doc["meshes"][0]["primitives"][0]["targets"] = {{{"POSITION", lift}}};
-  q.doc["meshes"][0]["weights"] = {0.0};
+  const GltfQuad q = quad_with_lift(0.0f);
   // STEP: the weight stays 0 until the key at 1 s.
   GltfQuad step = q;
   add_channel(&step, 0, "weights", {0, 1}, {0, 1}, "STEP");
