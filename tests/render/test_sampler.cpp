@@ -217,6 +217,42 @@ TEST(Sampler, SameBytesWhateverOtherPixelsWereSampledFirst) {
   }
 }
 
+// Slot k of sample i is the formula of the header (Burley 2020, sec. 4),
+// computed here from the public building blocks: the index shuffled by the
+// slot's first seed, then each Sobol' coordinate Owen-scrambled by its own.
+// The sampler keeps the seeds of its first slots from one sample to the
+// next; the numbers must not depend on that, for slots inside and beyond
+// what it keeps, nor on which samples and slots were drawn before.
+TEST(Sampler, SobolSlotsAreTheHeadersFormulaWhateverWasDrawnBefore) {
+  PixelSampler live(SamplerKind::kSobol, kSeed, 4, 7, 9, Stream::kReference);
+  const uint64_t ps = live.pixel_seed();
+  auto expected = [ps](uint32_t index, uint32_t slot) {
+    const uint64_t h = mix64(ps + kGoldenGamma * (2 * uint64_t(slot) + 1));
+    const uint32_t seed_y = uint32_t(mix64(ps + kGoldenGamma * (2 * uint64_t(slot) + 2)));
+    const uint32_t shuffled = nested_uniform_scramble(index, uint32_t(h));
+    return Vec2(u32_to_unit_float(nested_uniform_scramble(sobol_dim0(shuffled), uint32_t(h >> 32))),
+                u32_to_unit_float(nested_uniform_scramble(sobol_dim1(shuffled), seed_y)));
+  };
+  for (uint32_t index : {0u, 5u, 1000u, 5u}) {
+    live.start_sample(index);
+    for (uint32_t slot = 0; slot < 40; ++slot) {
+      const Vec2 got = live.get2d(), want = expected(index, slot);
+      ASSERT_EQ(got.x, want.x) << "sample " << index << ", slot " << slot;
+      ASSERT_EQ(got.y, want.y) << "sample " << index << ", slot " << slot;
+    }
+  }
+  // A fresh sampler that skips straight to a late slot.
+  PixelSampler fresh(SamplerKind::kSobol, kSeed, 4, 7, 9, Stream::kReference);
+  fresh.start_sample(1000);
+  fresh.skip(35);
+  EXPECT_EQ(fresh.get1d(), expected(1000, 35).x);
+  fresh.start_sample(1000);
+  fresh.skip(20);
+  const Vec2 late = fresh.get2d();
+  EXPECT_EQ(late.x, expected(1000, 20).x);
+  EXPECT_EQ(late.y, expected(1000, 20).y);
+}
+
 TEST(Sampler, StartSampleRestartsTheDimensionCounter) {
   for (SamplerKind kind : kKinds) {
     PixelSampler s(kind, kSeed, 0, 1, 2, Stream::kTest);

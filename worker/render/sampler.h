@@ -18,8 +18,10 @@
 // with each other ("padding"). get1d() is the first coordinate of a slot.
 // kIndependent: hashed uniform random numbers (splitmix64), for comparison.
 //
-// Hot path: no state beyond a few words, no tables, no allocation, no loops;
-// the helpers are constexpr so they are usable and testable at compile time.
+// Hot path: no allocation; the only table is the per-pixel cache of the
+// first 32 slots' scramble seeds (they do not depend on the sample), filled
+// on first use. The helpers are constexpr so they are usable and testable
+// at compile time.
 #pragma once
 
 #include <bit>
@@ -183,6 +185,23 @@ class PixelSampler {
   uint64_t slot_hash(uint32_t slot, uint32_t which) const {
     return mix64(pixel_seed_ + kGoldenGamma * (2 * uint64_t(slot) + which + 1));
   }
+  // A slot's seeds: slot_hash(slot, 0) (index shuffle, first coordinate)
+  // and the low word of slot_hash(slot, 1) (second coordinate). They depend
+  // on the pixel and the slot only, not on the sample, so the first
+  // kCachedSlots slots' are computed once per PixelSampler, on first use,
+  // and every further sample of the pixel reads them (the same numbers,
+  // without their two hashes per slot).
+  struct SlotSeeds {  // no initialisers: the cache is written before it is read
+    uint64_t first;
+    uint32_t second;
+  };
+  SlotSeeds slot_seeds(uint32_t slot) {
+    if (slot < cached_) return cache_[slot];
+    if (slot >= kCachedSlots) return {slot_hash(slot, 0), uint32_t(slot_hash(slot, 1))};
+    for (; cached_ <= slot; ++cached_)
+      cache_[cached_] = {slot_hash(cached_, 0), uint32_t(slot_hash(cached_, 1))};
+    return cache_[slot];
+  }
   // i' = nested_uniform_scramble(index, seed), from the bit-reversed index
   // that start_sample() keeps, so a slot pays for one reversal, not two.
   static uint32_t shuffled_index(uint32_t reversed_index, uint32_t seed) {
@@ -191,7 +210,7 @@ class PixelSampler {
   // kSobol: Sobol' dimensions 0 and 1 of slot `slot`, Owen-scrambled, at
   // the slot's shuffled index, which is also returned in *shuffled (get4d()
   // continues with dimensions 2 and 3 at the same index).
-  Vec2 sobol_pair(uint32_t slot, uint32_t* shuffled) const;
+  Vec2 sobol_pair(uint32_t slot, uint32_t* shuffled);
 
   SamplerKind kind_;
   uint64_t pixel_seed_;  // hash of (seed, frame, pixel, stream)
@@ -201,6 +220,11 @@ class PixelSampler {
   // (pixel_seed_, index_) that seeds a splitmix64 stream over slots.
   uint32_t reversed_index_ = 0;
   uint64_t sample_seed_ = 0;
+  // kSobol: slot_seeds() of slots [0, cached_); a path uses about five
+  // slots per bounce after the camera's four.
+  static constexpr uint32_t kCachedSlots = 32;
+  uint32_t cached_ = 0;
+  SlotSeeds cache_[kCachedSlots];
 };
 
 // ---------------------------------------------------------------------------
@@ -222,7 +246,7 @@ inline float PixelSampler::get1d() {
     const uint64_t h = mix64(sample_seed_ + kGoldenGamma * (uint64_t(slot) + 1));
     return u32_to_unit_float(uint32_t(h >> 32));
   }
-  const uint64_t h = slot_hash(slot, 0);
+  const uint64_t h = slot_seeds(slot).first;
   // Owen scramble of vdC(i') = reverse(i'): reverse(LK(i', seed)).
   const uint32_t s = shuffled_index(reversed_index_, uint32_t(h));
   return u32_to_unit_float(reverse_bits32(laine_karras_permutation(s, uint32_t(h >> 32))));
@@ -238,9 +262,10 @@ inline Vec2 PixelSampler::get2d() {
   return sobol_pair(slot, &unused);
 }
 
-inline Vec2 PixelSampler::sobol_pair(uint32_t slot, uint32_t* shuffled) const {
-  const uint64_t h = slot_hash(slot, 0);
-  const uint32_t seed_y = uint32_t(slot_hash(slot, 1));
+inline Vec2 PixelSampler::sobol_pair(uint32_t slot, uint32_t* shuffled) {
+  const SlotSeeds seeds = slot_seeds(slot);
+  const uint64_t h = seeds.first;
+  const uint32_t seed_y = seeds.second;
   const uint32_t s = shuffled_index(reversed_index_, uint32_t(h));
   const uint32_t x = reverse_bits32(laine_karras_permutation(s, uint32_t(h >> 32)));
   const uint32_t y = reverse_bits32(laine_karras_permutation(sobol_dim1_reversed(s), seed_y));
@@ -260,7 +285,7 @@ inline void PixelSampler::get4d(Vec2* first, Vec2* second) {
   *first = sobol_pair(slot, &s);
   // Dimensions 2 and 3 at the same index, scrambled with the seeds of the
   // second slot (which get4d() consumes).
-  const uint64_t h2 = slot_hash(slot + 1, 0);
+  const uint64_t h2 = slot_seeds(slot + 1).first;
   const uint32_t z =
       reverse_bits32(laine_karras_permutation(sobol_apply(kSobolDim2Reversed, s), uint32_t(h2)));
   const uint32_t w = reverse_bits32(
