@@ -26,6 +26,10 @@
 #               dofarm rendered it before reading the extension), ior1
 #               (control: IOR 1, so nothing bends); these jobs add the
 #               world's grey (0.3) as a constant environment
+#   animation, skinning, shape_keys  file, static (the animations removed)
+#   animation_spline, shape_keys_spline  file, linear (control: each
+#               CUBICSPLINE sampler made LINEAR over its key values, as
+#               dofarm interpolated them before reading the tangents), static
 #   clearcoat   file, ignored (KHR_materials_clearcoat removed), quarter
 #               (clearcoatFactor x 0.25: Blender 3.4's Principled v1 weighs
 #               its clearcoat lobe by a quarter, as Disney's 2012 model does)
@@ -47,16 +51,19 @@ VARIANTS = {"specular": ["file", "ignored"], "clearcoat": ["file", "ignored", "q
             "alpha_blend": ["file", "opaque"], "transmission": ["file", "opaque", "ior1"],
             "uv_map": ["file", "set0"], "specular_texture": ["file", "untextured"], "clearcoat_normal": ["file", "flipped", "nomap"],
             "animation": ["file", "static"], "skinning": ["file", "static"],
-            "shape_keys": ["file", "static"]}
+            "shape_keys": ["file", "static"], "animation_spline": ["file", "linear", "static"],
+            "shape_keys_spline": ["file", "linear", "static"]}
 WHAT = {"file": "the exported file", "ignored": "KHR_materials_specular ignored",
         "flipped": "control: the map's green inverted", "nomap": "control: no normal map",
         "opaque": "control: alphaMode ignored (opaque)", "ior1": "control: IOR 1 (no bending)",
         "set0": "control: the texture reads TEXCOORD_0",
         "untextured": "control: the specular textures removed (factors only)",
-        "static": "control: the node animation removed (the pose exported, frame 0)"}
+        "static": "control: the node animation removed (the pose exported, frame 0)",
+        "linear": "control: the same keys interpolated linearly (tangents dropped)"}
 # The frames feature_scene.py renders the animated scenes at (its
 # ANIMATION_FRAME), at Blender's 24 fps.
-ANIMATION_FRAME = {"animation": 9, "skinning": 13, "shape_keys": 13}
+ANIMATION_FRAME = {"animation": 9, "skinning": 13, "shape_keys": 13, "animation_spline": 5,
+                   "shape_keys_spline": 5}
 
 
 def read_png(path):
@@ -100,6 +107,41 @@ def write_png(path, w, h, ch, rows):
                 chunk(b"IEND", b""))
 
 
+def linear_samplers(v, d):
+    """Every CUBICSPLINE sampler of glTF document v (its buffer in DIR) made
+    LINEAR over the same key values: each key's in-tangent, value and
+    out-tangent become the value alone, in a copy of the buffer (linear.bin)."""
+    buf = v["buffers"][0]
+    data = open(d + "/" + buf["uri"], "rb").read()
+    extra = bytearray()
+    for anim in v.get("animations", []):
+        for smp in anim["samplers"]:
+            if smp.get("interpolation") != "CUBICSPLINE":
+                continue
+            acc = v["accessors"][smp["output"]]
+            view = v["bufferViews"][acc["bufferView"]]
+            width = {"SCALAR": 1, "VEC3": 3, "VEC4": 4}[acc["type"]]
+            keys = v["accessors"][smp["input"]]["count"]
+            n = acc["count"] * width
+            floats = struct.unpack_from("<%df" % n, data,
+                                        view.get("byteOffset", 0) + acc.get("byteOffset", 0))
+            per = n // (3 * keys)  # floats per value (a target count for weights)
+            values = []
+            for k in range(keys):
+                values += floats[(3 * k + 1) * per:(3 * k + 2) * per]
+            offset = len(data) + len(extra)
+            extra += struct.pack("<%df" % len(values), *values)
+            v["bufferViews"].append({"buffer": 0, "byteOffset": offset, "byteLength": 4 * len(values)})
+            new = {"bufferView": len(v["bufferViews"]) - 1, "componentType": 5126,
+                   "count": len(values) // width, "type": acc["type"]}
+            v["accessors"].append(new)
+            smp["output"] = len(v["accessors"]) - 1
+            smp["interpolation"] = "LINEAR"
+    open(d + "/linear.bin", "wb").write(data + bytes(extra))
+    buf["uri"] = "linear.bin"
+    buf["byteLength"] = len(data) + len(extra)
+
+
 def variants(feature, d, size):
     g = json.load(open(d + "/scene.gltf"))
     for name in VARIANTS[feature]:
@@ -134,6 +176,8 @@ def variants(feature, d, size):
                     m.get("extensions", {}).get("KHR_materials_specular", {}).pop(key, None)
         elif name == "static":
             v.pop("animations", None)
+        elif name == "linear":
+            linear_samplers(v, d)
         elif name == "set0":
             for m in mats:
                 for info in [m.get("pbrMetallicRoughness", {}).get("baseColorTexture", {})]:

@@ -49,6 +49,10 @@
 #               to bent 90 degrees about z at frame 25, the point lamp
 #               and sun of the animation scene held still; rendered at
 #               frame 13 (glTF skin, joints animated); 96 x 96
+#   animation_spline, shape_keys_spline  the animation and shape_keys
+#               scenes exported with their Bezier keys (export_force_sampling
+#               off: CUBICSPLINE samplers with the keys' tangents), rendered
+#               at frame 5
 #   shape_keys  a blue ball (radius 0.6 m, 0.8 m over the floor) with a
 #               shape key that stretches it to twice its width along x,
 #               keyed from 0 at frame 1 to 1 at frame 25 (glTF morph
@@ -162,8 +166,13 @@ def light(scene, kind, energy, location=(0.0, 0.0, 0.0), rotation=(0.0, 0.0, 0.0
 
 
 # The frame the animation and skinning features render (feature_compare.py
-# ANIMATION_FRAME).
-ANIMATION_FRAME = {"animation": 9, "skinning": 13, "shape_keys": 13}
+# ANIMATION_FRAME). The _spline features are the animation and shape_keys
+# scenes exported with their keys (Blender's Bezier keyframes: glTF
+# CUBICSPLINE samplers) instead of a sample per frame, rendered at frame 5,
+# a sixth of the way, where the spline and a straight line between the keys
+# are far apart.
+ANIMATION_FRAME = {"animation": 9, "skinning": 13, "shape_keys": 13, "animation_spline": 5,
+                   "shape_keys_spline": 5}
 
 
 def main():
@@ -172,6 +181,8 @@ def main():
         raise SystemExit(
             "usage: feature_scene.py -- FEATURE OUT_DIR SPP [SPECULAR TINT | ROUGHNESS [DISTRIBUTION]]")
     feature, out, spp = argv[0], argv[1], int(argv[2])
+    spline = feature.endswith("_spline")
+    scene_kind = feature[:-len("_spline")] if spline else feature
     os.makedirs(out, exist_ok=True)
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
@@ -267,7 +278,7 @@ def main():
         bpy.ops.object.shade_smooth()
         bpy.context.active_object.data.materials.append(glass)
         light(scene, "SUN", 3.0, rotation=sun_rotation)
-    elif feature == "animation":
+    elif scene_kind == "animation":
         size = 96
         grey_floor()
         red, _ = principled("box", (0.8, 0.1, 0.1), 1.0, specular=0.0)
@@ -319,7 +330,7 @@ def main():
             pose.keyframe_insert("rotation_quaternion", frame=frame)
         light(scene, "POINT", 300.0, location=(-1.5, 1.5, 1.5))
         light(scene, "SUN", 0.5, rotation=sun_rotation)
-    elif feature == "shape_keys":
+    elif scene_kind == "shape_keys":
         size = 96
         grey_floor()
         blue, _ = principled("ball", (0.1, 0.2, 0.8), 1.0, specular=0.0)
@@ -370,7 +381,8 @@ def main():
     bpy.ops.export_scene.gltf(filepath=os.path.join(out, "scene.gltf"),
                               export_format="GLTF_SEPARATE", export_lights=True,
                               export_cameras=True,
-                              export_tangents=feature == "normal_map_tangents")
+                              export_tangents=feature == "normal_map_tangents",
+                              export_force_sampling=not spline)
     exr = os.path.join(out, "cycles.exr")
     scene.render.image_settings.file_format = "OPEN_EXR"
     scene.render.image_settings.color_depth = "32"

@@ -8,7 +8,9 @@
 # (KHR_materials_clearcoat) and a glass sphere (Transmission:
 # KHR_materials_transmission), smooth and rough, and a texture read through
 # a second UV map (texCoord 1) and a coat with its own normal map
-# (clearcoatNormalTexture).
+# (clearcoatNormalTexture); and animation: a moving cube and lamp, an
+# armature, a shape key, and the cube and the shape key exported with
+# their Bezier keys (CUBICSPLINE samplers).
 # bench/cycles/feature_scene.py builds, exports and renders each scene with
 # Cycles; dofarm renders the exported file and control variants
 # (bench/cycles/feature_compare.py says which and what is measured), and
@@ -47,7 +49,7 @@ for pair in "0 0" "0.5 0" "1 0" "0.5 1"; do
   scene specular "$out/specular-s$1-t$2" 64 "$1" "$2"
 done
 for feature in specular_texture normal_map normal_map_tangents alpha_mask alpha_blend uv_map animation skinning shape_keys \
-  clearcoat_normal; do
+  animation_spline shape_keys_spline clearcoat_normal; do
   echo
   echo "$feature ($spp spp):"
   python3 "$here/feature_compare.py" header "$feature"
