@@ -26,8 +26,8 @@
 #               dofarm rendered it before reading the extension), ior1
 #               (control: IOR 1, so nothing bends); these jobs add the
 #               world's grey (0.3) as a constant environment
-#   animation, skinning, shape_keys  file, static (the animations removed)
-#   animation_spline, shape_keys_spline  file, linear (control: each
+#   animation, skinning, shape_keys, camera  file, static (the animations removed)
+#   animation_spline, shape_keys_spline, camera_spline  file, linear (control: each
 #               CUBICSPLINE sampler made LINEAR over its key values, as
 #               dofarm interpolated them before reading the tangents), static
 #   clearcoat   file, ignored (KHR_materials_clearcoat removed), quarter
@@ -52,7 +52,8 @@ VARIANTS = {"specular": ["file", "ignored"], "clearcoat": ["file", "ignored", "q
             "uv_map": ["file", "set0"], "specular_texture": ["file", "untextured"], "clearcoat_normal": ["file", "flipped", "nomap"],
             "animation": ["file", "static"], "skinning": ["file", "static"],
             "shape_keys": ["file", "static"], "animation_spline": ["file", "linear", "static"],
-            "shape_keys_spline": ["file", "linear", "static"]}
+            "shape_keys_spline": ["file", "linear", "static"],
+            "camera": ["file", "static"], "camera_spline": ["file", "linear", "static"]}
 WHAT = {"file": "the exported file", "ignored": "KHR_materials_specular ignored",
         "flipped": "control: the map's green inverted", "nomap": "control: no normal map",
         "opaque": "control: alphaMode ignored (opaque)", "ior1": "control: IOR 1 (no bending)",
@@ -63,7 +64,7 @@ WHAT = {"file": "the exported file", "ignored": "KHR_materials_specular ignored"
 # The frames feature_scene.py renders the animated scenes at (its
 # ANIMATION_FRAME), at Blender's 24 fps.
 ANIMATION_FRAME = {"animation": 9, "skinning": 13, "shape_keys": 13, "animation_spline": 5,
-                   "shape_keys_spline": 5}
+                   "shape_keys_spline": 5, "camera": 5, "camera_spline": 5}
 
 
 def read_png(path):

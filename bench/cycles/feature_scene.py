@@ -53,6 +53,12 @@
 #               scenes exported with their Bezier keys (export_force_sampling
 #               off: CUBICSPLINE samplers with the keys' tangents), rendered
 #               at frame 5
+#   camera      the animation scene's floor, lamps and cube, still, seen by
+#               the camera of camera_spline, exported with a sample per frame
+#   camera_spline  the animation scene's floor, lamps and cube, still,
+#               seen by a camera keyed (Bezier) from (-1.5, -1, 5) rolled
+#               -30 degrees to (1.5, 1, 5) rolled 30 degrees, exported with
+#               its keys (CUBICSPLINE), rendered at frame 5
 #   shape_keys  a blue ball (radius 0.6 m, 0.8 m over the floor) with a
 #               shape key that stretches it to twice its width along x,
 #               keyed from 0 at frame 1 to 1 at frame 25 (glTF morph
@@ -172,7 +178,7 @@ def light(scene, kind, energy, location=(0.0, 0.0, 0.0), rotation=(0.0, 0.0, 0.0
 # a sixth of the way, where the spline and a straight line between the keys
 # are far apart.
 ANIMATION_FRAME = {"animation": 9, "skinning": 13, "shape_keys": 13, "animation_spline": 5,
-                   "shape_keys_spline": 5}
+                   "shape_keys_spline": 5, "camera": 5, "camera_spline": 5}
 
 
 def main():
@@ -330,6 +336,14 @@ def main():
             pose.keyframe_insert("rotation_quaternion", frame=frame)
         light(scene, "POINT", 300.0, location=(-1.5, 1.5, 1.5))
         light(scene, "SUN", 0.5, rotation=sun_rotation)
+    elif scene_kind == "camera":
+        size = 96
+        grey_floor()
+        red, _ = principled("box", (0.8, 0.1, 0.1), 1.0, specular=0.0)
+        bpy.ops.mesh.primitive_cube_add(size=0.8, location=(0.0, 0.0, 0.4))
+        bpy.context.active_object.data.materials.append(red)
+        light(scene, "POINT", 300.0, location=(-1.5, 1.5, 1.5))
+        light(scene, "SUN", 0.5, rotation=sun_rotation)
     elif scene_kind == "shape_keys":
         size = 96
         grey_floor()
@@ -358,6 +372,13 @@ def main():
     cam = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
     cam.location = (0.0, 0.0, 5.0)  # looks down its -z
     scene.collection.objects.link(cam)
+    if scene_kind == "camera":
+        # Across the cube from (-1.5, -1, 5) to (1.5, 1, 5), rolling 60 degrees.
+        for frame, sign in ((1, -1.0), (25, 1.0)):
+            cam.location = (1.5 * sign, 1.0 * sign, 5.0)
+            cam.rotation_euler = (0.0, 0.0, math.radians(30.0 * sign))
+            cam.keyframe_insert("location", frame=frame)
+            cam.keyframe_insert("rotation_euler", frame=frame)
     scene.camera = cam
     scene.world = bpy.data.worlds.new("world")
     scene.world.use_nodes = False

@@ -503,6 +503,50 @@ TEST(SceneMotion, TheCameraHoldsStillOnAStepTrack) {
               1e-5f);
 }
 
+// The scene camera is posed at each frame's time by its node's samplers,
+// not interpolated between key poses: on a CUBICSPLINE between keys, and
+// under a parent that turns (LINEAR keys), where a straight line between
+// the key positions would cut the arc the camera flies.
+TEST(SceneMotion, TheCameraIsPosedExactlyAtEachFramesTime) {
+  TempDir dir("motion_camera_exact");
+  GltfQuad q = gltf_fixture::gltf_quad();
+  q.doc["cameras"] = Json::parse(R"([{"type": "perspective",
+                                      "perspective": {"yfov": 0.5, "znear": 0.1}}])");
+  q.doc["nodes"].push_back(
+      Json::parse(R"({"name": "cam", "camera": 0, "translation": [0, 0, 2]})"));
+  q.doc["nodes"].push_back(Json::parse(R"({"name": "boom", "children": [1]})"));
+  q.doc["scenes"][0]["nodes"] = {0, 2};
+  JobSpec spec = testing::make_spec(8, 8, Vec3(0.0f), Vec3(0, 0, -1));
+  spec.camera_from_scene = true;
+  spec.fps = 10;
+  spec.frame_end = 20;
+  // The boom turns a quarter about y over 1 s: at 0.5 s (frame 5) the
+  // camera is 45 degrees round its arc of radius 2.
+  GltfQuad turning = q;
+  add_channel(&turning, 2, "rotation", {0, 1},
+              {0, 0, 0, 1, 0, std::sqrt(0.5f), 0, std::sqrt(0.5f)});
+  const CameraState arc = camera_for_frame(spec, load(dir, "turning.gltf", turning), 5);
+  const float r = 2 * std::sqrt(0.5f);
+  EXPECT_NEAR(arc.position[0], r, 1e-5f);
+  EXPECT_NEAR(arc.position[1], 0.0f, 1e-6f);
+  EXPECT_NEAR(arc.position[2], r, 1e-5f);
+  // The camera's own CUBICSPLINE from (0, 0, 2) to (1, 0, 2) over 2 s,
+  // leaving upwards at 3 per second and arriving from above (the spline of
+  // CubicSplinesFollowTheirTangents): at 0.3 s (frame 3), w = 0.15, the
+  // Hermite basis gives x = h01 and y = 2 (3 h10 - 3 h11).
+  GltfQuad spline = q;
+  add_channel(&spline, 1, "translation", {0, 2},
+              {0, 0, 0, 0, 0, 2, 0, 3, 0,  //
+               0, -3, 0, 1, 0, 2, 0, 0, 0},
+              "CUBICSPLINE");
+  const CameraState c = camera_for_frame(spec, load(dir, "spline.gltf", spline), 3);
+  const float w = 0.15f, h10 = w * w * w - 2 * w * w + w, h01 = -2 * w * w * w + 3 * w * w,
+              h11 = w * w * w - w * w;
+  EXPECT_NEAR(c.position[0], h01, 1e-6f);
+  EXPECT_NEAR(c.position[1], 2 * (3 * h10 - 3 * h11), 1e-5f);
+  EXPECT_NEAR(c.position[2], 2.0f, 1e-6f);
+}
+
 // A camera 6 above the quad's centre looking down; the rig lifts the quad
 // from y = 0 to y = 4 over the first second.
 // Each test names its own folder: ctest runs tests as parallel processes.

@@ -8,6 +8,7 @@
 
 #include "common/error.h"
 #include "common/thin_lens.h"
+#include "worker/render/scene_motion.h"
 #include "worker/render/trig.h"
 
 namespace dofarm::render {
@@ -255,14 +256,28 @@ CameraState camera_for_frame(const JobSpec& spec, const SceneData& scene, int fr
               "; add one to the scene or give [[camera.key]] poses "
               "with camera.from_scene = false");
     }
-    size_t j0, j1;
-    float v;
-    bracket(
-        track, s.time, [](const CameraTrackKey& k) { return k.time; }, &j0, &j1, &v);
-    store(&s, lerp(track[j0].position, track[j1].position, v),
-          slerp(track[j0].rotation, track[j1].rotation, v));
-    s.fov_deg = fitted_vertical_fov(track[j0].yfov_deg * (1 - v) + track[j1].yfov_deg * v,
-                                    track[j0].aspect, spec.width, spec.height);
+    if (scene.scene_camera) {
+      // The camera's node posed at the frame's time by the file's samplers
+      // (splines and moving parents included), not interpolated between keys.
+      const CameraTrackKey key = scene.scene_camera->at(s.time);
+      if (!is_finite(key.position)) {
+        throw SpecError(spec.where("camera.from_scene"), "camera.from_scene",
+                        fmt::format("the scene camera \"{}\" has a non-finite position at "
+                                    "frame {}",
+                                    scene.scene_camera->name, frame));
+      }
+      store(&s, key.position, key.rotation);
+      s.fov_deg = fitted_vertical_fov(key.yfov_deg, key.aspect, spec.width, spec.height);
+    } else {
+      size_t j0, j1;
+      float v;
+      bracket(
+          track, s.time, [](const CameraTrackKey& k) { return k.time; }, &j0, &j1, &v);
+      store(&s, lerp(track[j0].position, track[j1].position, v),
+            slerp(track[j0].rotation, track[j1].rotation, v));
+      s.fov_deg = fitted_vertical_fov(track[j0].yfov_deg * (1 - v) + track[j1].yfov_deg * v,
+                                      track[j0].aspect, spec.width, spec.height);
+    }
   } else if (!keys.empty()) {
     store(&s, lerp(keys[i0].position, keys[i1].position, w),
           slerp(key_rotation(keys[i0]), key_rotation(keys[i1]), w));

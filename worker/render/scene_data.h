@@ -145,6 +145,7 @@ struct PunctualLight {
 float spot_falloff(float cos_angle, float cos_inner, float cos_outer);
 
 struct SceneMotion;  // worker/render/scene_motion.h
+struct SceneCamera;  // worker/render/scene_motion.h
 
 struct SceneData {
   std::filesystem::path source;  // file it came from (empty if built in code)
@@ -172,7 +173,13 @@ struct SceneData {
   std::vector<uint32_t> tri_material;  // one per triangle
   std::vector<Material> materials;
   std::vector<Texture> textures;
-  std::vector<CameraTrackKey> camera_track;  // empty = no camera in the file
+  // The file's camera at its keys' times (the union over its node and the
+  // node's parents); empty = no camera in the file. camera_for_frame()
+  // takes each frame's pose from scene_camera, exactly at the frame's time,
+  // where the loader sets it (always, with a track); the track serves
+  // SceneData built in code.
+  std::vector<CameraTrackKey> camera_track;
+  std::shared_ptr<const SceneCamera> scene_camera;
   // Why the file's camera cannot be used, where it has one that dofarm
   // does not render (an orthographic camera); camera_track is then empty.
   std::string camera_refused;

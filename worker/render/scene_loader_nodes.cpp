@@ -56,23 +56,14 @@ void Loader::camera_track() {
             : fmt::format("its camera \"{}\" has no field of view", name);
     return;
   }
-  // The camera node's world transform at the union of the key times on
-  // its chain (root ... camera node), each node's keys as for meshes
-  // (SceneMotion); camera_for_frame() interpolates between these keys. A
-  // STEP track's value jumps at its keys: the instant before each key is a
-  // key of the track as well, so the camera holds still until the jump.
+  // The camera on its node, posed by the node hierarchy's samplers at any
+  // time (SceneCamera; camera_for_frame() asks it at each frame's time),
+  // and as a track of its poses at the key times on its chain (root ...
+  // camera node), each node's keys as for meshes (SceneMotion).
   const uint32_t cam_index = motion_node(cam_node);
   std::set<float> times;
   auto add_times = [&times](const auto& track) {
-    for (size_t i = 0; i < track.times.size(); ++i) {
-      times.insert(track.times[i]);
-      if (track.step && i > 0)
-        times.insert(std::nextafter(track.times[i], -std::numeric_limits<float>::infinity()));
-      // A spline between two keys: 15 more points on it.
-      if (!track.in_tangents.empty() && i > 0)
-        for (int k = 1; k < 16; ++k)
-          times.insert(track.times[i - 1] + (track.times[i] - track.times[i - 1]) * float(k) / 16);
-    }
+    for (float t : track.times) times.insert(t);
   };
   for (int n = int(cam_index); n >= 0; n = motion_->nodes[size_t(n)].parent) {
     const MotionNode& node = motion_->nodes[size_t(n)];
@@ -86,10 +77,14 @@ void Loader::camera_track() {
   // (glTF 2.0, 3.10.1). assimp 5.2.5 also copies the node's translation into
   // aiCamera::mPosition, which would apply it twice, so for glTF the camera's
   // own frame is taken from the spec rather than from aiCamera.
+  auto camera = std::make_shared<SceneCamera>();
+  camera->motion = motion_;
+  camera->node = cam_index;
+  camera->name = cam->mName.C_Str();
   const bool gltf = is_gltf(path_);
-  const Vec3 cam_position = gltf ? Vec3(0.0f) : to_vec3(cam->mPosition);
-  const Vec3 back = gltf ? Vec3(0, 0, 1) : -normalize(to_vec3(cam->mLookAt), Vec3(0, 0, -1));
-  const Vec3 up_hint = gltf ? Vec3(0, 1, 0) : normalize(to_vec3(cam->mUp), Vec3(0, 1, 0));
+  camera->position = gltf ? Vec3(0.0f) : to_vec3(cam->mPosition);
+  camera->back = gltf ? Vec3(0, 0, 1) : -normalize(to_vec3(cam->mLookAt), Vec3(0, 0, -1));
+  camera->up = gltf ? Vec3(0, 1, 0) : normalize(to_vec3(cam->mUp), Vec3(0, 1, 0));
   // assimp's glTF2 importer stores mHorizontalFOV = yfov * aspect (checked
   // against a file with yfov 0.8, aspect 2: it reports 1.6), so dividing
   // recovers glTF's yfov exactly. Other importers store the full horizontal
@@ -97,25 +92,16 @@ void Loader::camera_track() {
   const float aspect = cam->mAspect > 0 ? cam->mAspect : 1.0f;
   const float yfov = gltf ? cam->mHorizontalFOV / aspect
                           : 2.0f * std::atan(std::tan(cam->mHorizontalFOV * 0.5f) / aspect);
-  const Vec3 right = normalize(cross(up_hint, back), Vec3(1, 0, 0));
-  const Vec3 up = cross(back, right);
+  camera->yfov_deg = yfov * 180.0f / kPi;
+  camera->aspect = cam->mAspect > 0 ? cam->mAspect : 0.0f;
   for (float t : times) {
-    const Affine world = motion_->world(cam_index, t);
-    // Orthonormalise: scale in the hierarchy must not leak into the rotation.
-    Vec3 w_back = normalize(world.linear(back));
-    Vec3 w_right = normalize(cross(world.linear(up), w_back));
-    Vec3 w_up = cross(w_back, w_right);
-    CameraTrackKey key;
-    key.time = t;
-    key.position = world.point(cam_position);
-    key.rotation = quat_from_axes(w_right, w_up, w_back);
-    key.yfov_deg = yfov * 180.0f / kPi;
-    key.aspect = cam->mAspect > 0 ? cam->mAspect : 0.0f;
+    const CameraTrackKey key = camera->at(t);
     if (!is_finite(key.position) || !std::isfinite(key.yfov_deg)) {
-      fail(path_, "camera \"" + std::string(cam->mName.C_Str()) + "\" has a non-finite transform");
+      fail(path_, "camera \"" + camera->name + "\" has a non-finite transform");
     }
     out_->camera_track.push_back(key);
   }
+  out_->scene_camera = std::move(camera);
 }
 
 // --- node animation (meshes and lights) ---------------------------------------

@@ -118,6 +118,21 @@ Affine SceneMotion::world(uint32_t node, float time) const {
   return w;
 }
 
+CameraTrackKey SceneCamera::at(float time) const {
+  const Affine world = motion->world(node, time);
+  const Vec3 right = normalize(cross(up, back), Vec3(1, 0, 0));
+  const Vec3 w_back = normalize(world.linear(back));
+  const Vec3 w_right = normalize(cross(world.linear(cross(back, right)), w_back));
+  const Vec3 w_up = cross(w_back, w_right);
+  CameraTrackKey key;
+  key.time = time;
+  key.position = world.point(position);
+  key.rotation = quat_from_axes(w_right, w_up, w_back);
+  key.yfov_deg = yfov_deg;
+  key.aspect = aspect;
+  return key;
+}
+
 SceneData pose(const SceneData& rest, float time) {
   DOFARM_CHECK(rest.motion != nullptr);
   const SceneMotion& motion = *rest.motion;

@@ -8,6 +8,7 @@
 
 #include <cstdint>
 #include <memory>
+#include <string>
 #include <vector>
 
 #include "common/math.h"
@@ -130,6 +131,24 @@ struct SceneMotion {
   std::vector<Vec3> positions, normals, tangents, bitangents;
   // The node's transform to world space at `time` seconds.
   Affine world(uint32_t node, float time) const;
+};
+
+// The scene file's camera on its node (glTF 2.0, 3.10.1: at the node's
+// origin looking down its -z, +y up): at() gives its pose at any time from
+// the node hierarchy's own samplers, exactly, so a frame between two keys
+// sees the camera where a spline or a moving parent puts it then.
+struct SceneCamera {
+  std::shared_ptr<const SceneMotion> motion;  // holds the camera's node and its parents
+  uint32_t node = 0;
+  // The camera's own frame in its node's space (glTF: the origin, +z back,
+  // +y up; other formats: assimp's position, look-at and up).
+  Vec3 position{0.0f}, back{0, 0, 1}, up{0, 1, 0};
+  float yfov_deg = 40;
+  float aspect = 0;  // CameraTrackKey::aspect
+  std::string name;
+  // Position and rotation at `time` seconds, the node's world transform
+  // orthonormalised (scale in the hierarchy does not leak into the rotation).
+  CameraTrackKey at(float time) const;
 };
 
 // `rest` with its moving parts and lights placed at `time` seconds (rest
