@@ -203,7 +203,8 @@ int main(int argc, char** argv) {
     const std::shared_ptr<const dofarm::render::Scene> scene =
         dofarm::bench::load_bench_scene(spec, lambert, area_lights);
     const dofarm::render::Camera camera(dofarm::render::frame_camera(*scene, spec, frame),
-                                        spec.width, spec.height);
+                                        spec.width, spec.height,
+                                        dofarm::render::camera_clip(spec, scene->data()));
 
     Totals totals;
     std::mutex mu;

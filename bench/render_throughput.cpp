@@ -249,7 +249,7 @@ void run_scene(const char* name, const char* job, int frame, const Args& args) {
     keep_best(&replay, trace_all(own, threads, 1, [&](const TracedRay& r) {
                 if (r.shadow) return scene->occluded(r.o, r.d, r.t_max);
                 SurfaceHit hit;
-                return scene->intersect(Ray{r.o, r.d}, &hit);
+                return scene->intersect(Ray{r.o, r.d, r.t_min, r.t_max}, &hit);
               }));
     keep_best(&bare, trace_all(own, threads, 1, [&](const TracedRay& r) {
                 RTCIntersectContext ctx;
@@ -261,8 +261,8 @@ void run_scene(const char* name, const char* job, int frame, const Args& args) {
                   return ray.tfar < 0;
                 }
                 RTCRayHit rh;
-                rh.ray = {r.o.x, r.o.y, r.o.z, 0.0f, r.d.x, r.d.y, r.d.z, 0.0f,
-                          std::numeric_limits<float>::infinity(), 0xffffffffu, 0, 0};
+                rh.ray = {r.o.x, r.o.y, r.o.z,   r.t_min,     r.d.x, r.d.y,
+                          r.d.z, 0.0f,  r.t_max, 0xffffffffu, 0,     0};
                 rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
                 rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
                 rtcIntersect1(rtc, &ctx, &rh);

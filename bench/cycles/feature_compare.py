@@ -30,6 +30,7 @@
 #   animation_spline, shape_keys_spline, camera_spline  file, linear (control: each
 #               CUBICSPLINE sampler made LINEAR over its key values, as
 #               dofarm interpolated them before reading the tangents), static
+#   clipping    file, unclipped (control: znear 0.01 and no zfar)
 #   clearcoat   file, ignored (KHR_materials_clearcoat removed), quarter
 #               (clearcoatFactor x 0.25: Blender 3.4's Principled v1 weighs
 #               its clearcoat lobe by a quarter, as Disney's 2012 model does)
@@ -53,14 +54,15 @@ VARIANTS = {"specular": ["file", "ignored"], "clearcoat": ["file", "ignored", "q
             "animation": ["file", "static"], "skinning": ["file", "static"],
             "shape_keys": ["file", "static"], "animation_spline": ["file", "linear", "static"],
             "shape_keys_spline": ["file", "linear", "static"],
-            "camera": ["file", "static"], "camera_spline": ["file", "linear", "static"]}
+            "camera": ["file", "static"], "clipping": ["file", "unclipped"], "camera_spline": ["file", "linear", "static"]}
 WHAT = {"file": "the exported file", "ignored": "KHR_materials_specular ignored",
         "flipped": "control: the map's green inverted", "nomap": "control: no normal map",
         "opaque": "control: alphaMode ignored (opaque)", "ior1": "control: IOR 1 (no bending)",
         "set0": "control: the texture reads TEXCOORD_0",
         "untextured": "control: the specular textures removed (factors only)",
         "static": "control: the node animation removed (the pose exported, frame 0)",
-        "linear": "control: the same keys interpolated linearly (tangents dropped)"}
+        "linear": "control: the same keys interpolated linearly (tangents dropped)",
+        "unclipped": "control: the camera's znear 0.01 and no zfar (no clipping)"}
 # The frames feature_scene.py renders the animated scenes at (its
 # ANIMATION_FRAME), at Blender's 24 fps.
 ANIMATION_FRAME = {"animation": 9, "skinning": 13, "shape_keys": 13, "animation_spline": 5,
@@ -179,6 +181,10 @@ def variants(feature, d, size):
             v.pop("animations", None)
         elif name == "linear":
             linear_samplers(v, d)
+        elif name == "unclipped":
+            for cam in v.get("cameras", []):
+                cam["perspective"]["znear"] = 0.01
+                cam["perspective"].pop("zfar", None)
         elif name == "set0":
             for m in mats:
                 for info in [m.get("pbrMetallicRoughness", {}).get("baseColorTexture", {})]:

@@ -53,6 +53,11 @@
 #               scenes exported with their Bezier keys (export_force_sampling
 #               off: CUBICSPLINE samplers with the keys' tangents), rendered
 #               at frame 5
+#   clipping    a 0.8 m red cube on the grey floor under an 8 m black plane
+#               2.5 m up, the camera's Clip Start 3 m and Clip End 4.7 m (glTF
+#               znear, zfar), a 100 W point lamp 1.2 m over the cube: camera
+#               rays see only the cube's top, while the plane still shades
+#               it from the sun; 96 x 96
 #   camera      the animation scene's floor, lamps and cube, still, seen by
 #               the camera of camera_spline, exported with a sample per frame
 #   camera_spline  the animation scene's floor, lamps and cube, still,
@@ -336,6 +341,20 @@ def main():
             pose.keyframe_insert("rotation_quaternion", frame=frame)
         light(scene, "POINT", 300.0, location=(-1.5, 1.5, 1.5))
         light(scene, "SUN", 0.5, rotation=sun_rotation)
+    elif feature == "clipping":
+        size = 96
+        grey_floor()
+        red, _ = principled("box", (0.8, 0.1, 0.1), 1.0, specular=0.0)
+        bpy.ops.mesh.primitive_cube_add(size=0.8, location=(0.3, 0.2, 0.4))
+        bpy.context.active_object.data.materials.append(red)
+        # Black, and the lamp straight over the cube: light meeting the
+        # cube's top at grazing angles is where Blender 3.4's Principled
+        # (Disney) diffuse is furthest from Lambert (+13% with the animation
+        # scene's lamp), which would swamp what this scene compares.
+        black, _ = principled("wall", (0.0, 0.0, 0.0), 1.0, specular=0.0)
+        plane(8.0, 2.5, black)
+        light(scene, "POINT", 100.0, location=(0.3, 0.2, 2.0))
+        light(scene, "SUN", 0.5, rotation=sun_rotation)
     elif scene_kind == "camera":
         size = 96
         grey_floor()
@@ -372,6 +391,11 @@ def main():
     cam = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
     cam.location = (0.0, 0.0, 5.0)  # looks down its -z
     scene.collection.objects.link(cam)
+    if feature == "clipping":
+        # The wall 2.5 m below the camera lies before Clip Start, the floor
+        # 5 m below beyond Clip End; the cube's top, 4.2 m below, between.
+        cam.data.clip_start = 3.0
+        cam.data.clip_end = 4.7
     if scene_kind == "camera":
         # Across the cube from (-1.5, -1, 5) to (1.5, 1, 5), rolling 60 degrees.
         for frame, sign in ((1, -1.0), (25, 1.0)):

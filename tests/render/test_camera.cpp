@@ -283,6 +283,41 @@ TEST(SceneCamera, FromSceneWithoutACameraIsAnErrorAtTheKey) {
   }
 }
 
+// Clipping planes (CameraClip): a camera ray's [t_min, t_max] spans view
+// depths near to far exactly, through the pinhole and through any lens
+// point, where the pinhole's plane distance along a tilted ray differs
+// from the lens ray's.
+TEST(CameraClipping, CameraRaysSpanTheViewDepthsBetweenThePlanes) {
+  CameraState s;
+  s.position[0] = 1;
+  s.position[1] = 2;
+  s.position[2] = 3;
+  const Quat q = quat_look_at(Vec3(1, 2, 3), Vec3(4, 0, -2), Vec3(0, 1, 0));
+  s.rotation[0] = q.w;
+  s.rotation[1] = q.x;
+  s.rotation[2] = q.y;
+  s.rotation[3] = q.z;
+  s.fov_deg = 60;
+  s.focal_distance = 3;
+  s.aperture = 0.4f;
+  const Camera clipped(s, 64, 48, CameraClip{2.0f, 7.0f});
+  const Camera open(s, 64, 48);
+  for (Vec2 film : {Vec2(0.5f, 0.5f), Vec2(32, 24), Vec2(63.5f, 47.5f), Vec2(3, 40)}) {
+    for (Vec2 lens : {Vec2(0.5f, 0.5f), Vec2(0.05f, 0.9f), Vec2(0.99f, 0.01f)}) {
+      for (const Ray& r : {clipped.generate_ray(film, lens), clipped.pinhole_ray(film)}) {
+        EXPECT_NEAR(clipped.view_depth(r.o + r.d * r.t_min), 2.0f, 1e-4f);
+        EXPECT_NEAR(clipped.view_depth(r.o + r.d * r.t_max), 7.0f, 1e-4f);
+      }
+      // The same rays otherwise, and unclipped without planes.
+      const Ray a = clipped.generate_ray(film, lens), b = open.generate_ray(film, lens);
+      EXPECT_EQ(a.o.x, b.o.x);
+      EXPECT_EQ(a.d.y, b.d.y);
+      EXPECT_EQ(b.t_min, 0.0f);
+      EXPECT_TRUE(std::isinf(b.t_max));
+    }
+  }
+}
+
 // ---------------------------------------------------------------------------
 // Lens keys
 

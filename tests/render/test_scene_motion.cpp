@@ -547,6 +547,52 @@ TEST(SceneMotion, TheCameraIsPosedExactlyAtEachFramesTime) {
   EXPECT_NEAR(c.position[2], 2.0f, 1e-6f);
 }
 
+// The scene camera's clipping planes (glTF znear, zfar; Blender's Clip
+// Start and End) clip camera rays as Cycles does: two quads 2 and 3 below
+// a camera that looks down; znear 2.5 sees through the upper one, zfar
+// 1.5 sees neither. A zfar the file leaves out is infinite (assimp 5.2
+// would make it 100), and a job with its own camera keys is not clipped.
+TEST(SceneMotion, TheSceneCamerasClippingPlanesClipCameraRays) {
+  TempDir dir("camera_clip");
+  GltfQuad q = gltf_fixture::gltf_quad();
+  q.doc["nodes"][0]["translation"] = {-0.5, 0, -0.5};
+  q.doc["nodes"].push_back(Json::parse(R"({"mesh": 0, "translation": [-0.5, 1, -0.5]})"));
+  q.doc["nodes"].push_back(Json::parse(R"({"name": "cam", "camera": 0, "translation": [0, 3, 0],
+      "rotation": [-0.7071068, 0, 0, 0.7071068]})"));
+  q.doc["scenes"][0]["nodes"] = {0, 1, 2};
+  auto centre_depth = [&](const char* name, const char* perspective, bool from_scene) {
+    GltfQuad c = q;
+    c.doc["cameras"] =
+        Json::array({{{"type", "perspective"}, {"perspective", Json::parse(perspective)}}});
+    gltf_fixture::write_gltf(dir.path / name, c);
+    JobSpec spec = testing::make_spec(4, 4, Vec3(0, 3, 0), Vec3(0, 0, 0));
+    if (from_scene) {
+      spec.camera_from_scene = true;
+      spec.camera_keys.clear();
+    }
+    spec.scene = dir.path / name;
+    spec.versions = 1;
+    spec.reference_spp = 1;
+    spec.albedo_ref_spp = 1;
+    spec.environment = EnvironmentSpec{};
+    spec.environment->color = Vec3(1.0f);
+    const auto scene = load_scene(spec);
+    RenderOptions options;
+    options.threads = 1;
+    const FrameBuffers fb = render_frame(*scene, spec, 0, std::nullopt, options);
+    return std::pair{fb.depth[size_t(1 * 4 + 1)], scene->data().scene_camera->zfar};
+  };
+  EXPECT_NEAR(centre_depth("open.gltf", R"({"yfov": 0.3, "znear": 0.1})", true).first, 2.0f, 1e-4f);
+  EXPECT_TRUE(std::isinf(centre_depth("open.gltf", R"({"yfov": 0.3, "znear": 0.1})", true).second));
+  EXPECT_NEAR(centre_depth("near.gltf", R"({"yfov": 0.3, "znear": 2.5})", true).first, 3.0f, 1e-4f);
+  // Nothing between the planes: the environment (depth 0, as any escape).
+  EXPECT_EQ(centre_depth("far.gltf", R"({"yfov": 0.3, "znear": 0.1, "zfar": 1.5})", true).first,
+            0.0f);
+  // The job's own camera: no clipping.
+  EXPECT_NEAR(centre_depth("near.gltf", R"({"yfov": 0.3, "znear": 2.5})", false).first, 2.0f,
+              1e-4f);
+}
+
 // A camera 6 above the quad's centre looking down; the rig lifts the quad
 // from y = 0 to y = 4 over the first second.
 // Each test names its own folder: ctest runs tests as parallel processes.

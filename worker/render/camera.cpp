@@ -18,8 +18,8 @@ Quat to_quat(const float r[4]) { return {r[0], r[1], r[2], r[3]}; }
 Quat conjugate(Quat q) { return {q.w, -q.x, -q.y, -q.z}; }
 }  // namespace
 
-Camera::Camera(const CameraState& s, int width, int height)
-    : state_(s), width_(width), height_(height) {
+Camera::Camera(const CameraState& s, int width, int height, CameraClip clip)
+    : state_(s), clip_(clip), width_(width), height_(height) {
   rotation_ = to_quat(s.rotation);
   inverse_rotation_ = conjugate(rotation_);
   position_ = Vec3(s.position[0], s.position[1], s.position[2]);
@@ -33,8 +33,20 @@ Vec3 Camera::film_direction(Vec2 film) const {
   return {sx, sy, -1.0f};
 }
 
+Ray Camera::clipped(Ray ray, float cos_axis) const {
+  if (clip_.near > 0 || std::isfinite(clip_.far)) {
+    // View depth grows along the ray by cos_axis per unit of t.
+    ray.t_min = clip_.near > 0 ? clip_.near / cos_axis : 0.0f;
+    ray.t_max = clip_.far / cos_axis;
+    if (!(ray.t_min >= 0) || !std::isfinite(ray.t_min)) ray.t_min = 0;
+    if (!(ray.t_max >= ray.t_min)) ray.t_max = std::numeric_limits<float>::infinity();
+  }
+  return ray;
+}
+
 Ray Camera::pinhole_ray(Vec2 film) const {
-  return {position_, normalize(rotation_.rotate(film_direction(film)))};
+  const Vec3 fd = film_direction(film);
+  return clipped({position_, normalize(rotation_.rotate(fd))}, 1.0f / length(fd));
 }
 
 Ray Camera::generate_ray(Vec2 film, Vec2 lens) const {
@@ -55,7 +67,8 @@ Ray Camera::generate_ray(Vec2 film, Vec2 lens) const {
     dir = len > 0 ? Vec3(float(v[0] / len), float(v[1] / len), float(v[2] / len)) : fd;
   }
   // A rotation keeps lengths: one normalisation, after it, is enough.
-  return {position_ + rotation_.rotate(origin), normalize(rotation_.rotate(dir))};
+  return clipped({position_ + rotation_.rotate(origin), normalize(rotation_.rotate(dir))},
+                 -dir.z / length(dir));
 }
 
 float Camera::coc_pixels(float z) const {
@@ -234,6 +247,11 @@ float focus_distance(const JobSpec& spec, const CameraKey& key, const CameraStat
 }
 
 }  // namespace
+
+CameraClip camera_clip(const JobSpec& spec, const SceneData& scene) {
+  if (!spec.camera_from_scene || !scene.scene_camera) return {};
+  return {scene.scene_camera->znear, scene.scene_camera->zfar};
+}
 
 CameraState camera_for_frame(const JobSpec& spec, const SceneData& scene, int frame,
                              const Autofocus& autofocus) {

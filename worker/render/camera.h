@@ -7,6 +7,7 @@
 #pragma once
 
 #include <functional>
+#include <limits>
 #include <optional>
 #include <string>
 
@@ -19,16 +20,32 @@ namespace dofarm::render {
 
 struct Ray {
   Vec3 o, d;  // d unit length
+  // The stretch of the ray a closest-hit query searches, [t_min, t_max]
+  // along d from o: everything but camera rays under a scene camera's
+  // clipping planes (CameraClip) searches all of [0, inf).
+  float t_min = 0.0f;
+  float t_max = std::numeric_limits<float>::infinity();
+};
+
+// The scene camera's clipping planes (glTF camera.perspective znear and
+// zfar; Blender's Clip Start and End): camera rays see only what lies
+// between the planes at these view depths, as Cycles' camera rays do;
+// light and shadow rays are not clipped. {0, inf}: no clipping.
+struct CameraClip {
+  float near = 0.0f;
+  float far = std::numeric_limits<float>::infinity();
 };
 
 class Camera {
  public:
-  Camera(const CameraState& state, int width, int height);
+  Camera(const CameraState& state, int width, int height, CameraClip clip = {});
 
   const CameraState& state() const { return state_; }
   bool has_lens() const { return state_.aperture > 0; }
   // A ray through raster point `film`, leaving the lens at `lens` (a point of
-  // [0,1)^2 mapped to the disk); `lens` is ignored for a pinhole.
+  // [0,1)^2 mapped to the disk); `lens` is ignored for a pinhole. Its
+  // [t_min, t_max] spans the view depths between the clipping planes
+  // (the planes z = -near and z = -far of camera space, the lens at z = 0).
   Ray generate_ray(Vec2 film, Vec2 lens) const;
   // The pinhole ray through `film`, whatever the aperture (aux buffers).
   Ray pinhole_ray(Vec2 film) const;
@@ -40,7 +57,11 @@ class Camera {
 
  private:
   Vec3 film_direction(Vec2 film) const;  // camera space, z = -1
+  // ray with its t range set from the clipping planes, for a direction
+  // whose camera-space z component is -cos_axis (cos_axis > 0).
+  Ray clipped(Ray ray, float cos_axis) const;
   CameraState state_;
+  CameraClip clip_;
   Quat rotation_, inverse_rotation_;
   Vec3 position_;
   int width_, height_;
@@ -92,6 +113,10 @@ using Autofocus = std::function<std::optional<float>(const CameraState&)>;
 // given when a key uses focus = "auto".
 CameraState camera_for_frame(const JobSpec& spec, const SceneData& scene, int frame,
                              const Autofocus& autofocus = {});
+
+// The clipping planes of a job's camera: the scene camera's (SceneCamera's
+// znear and zfar) with camera.from_scene, else none.
+CameraClip camera_clip(const JobSpec& spec, const SceneData& scene);
 
 // The time of `frame` in seconds, frame / fps: where the scene file's
 // animation (camera track, moving meshes and lights) is sampled.

@@ -327,6 +327,25 @@ GltfInfo read_gltf_info(const std::filesystem::path& path) {
             out.vertex_colors |= prim["attributes"].contains("COLOR_0");
   out.textures = texture_refs(doc);
   out.animated_paths = animated_paths(path, doc, bin);
+  if (doc.contains("nodes") && doc["nodes"].is_array() && doc.contains("cameras") &&
+      doc["cameras"].is_array()) {
+    const auto& cameras = doc["cameras"];
+    for (const auto& node : doc["nodes"]) {
+      if (!node.is_object() || !node.contains("camera") || !node["camera"].is_number_unsigned())
+        continue;
+      const size_t c = node["camera"].get<size_t>();
+      if (c >= cameras.size() || !cameras[c].is_object() || !cameras[c].contains("perspective") ||
+          !cameras[c]["perspective"].is_object())
+        continue;
+      const auto& p = cameras[c]["perspective"];
+      GltfInfo::CameraNode cn;
+      cn.node =
+          node.contains("name") && node["name"].is_string() ? node["name"].get<std::string>() : "";
+      if (p.contains("znear") && p["znear"].is_number()) cn.znear = p["znear"].get<double>();
+      if (p.contains("zfar") && p["zfar"].is_number()) cn.zfar = p["zfar"].get<double>();
+      out.camera_nodes.push_back(cn);
+    }
+  }
   if (!doc.contains("materials") || !doc["materials"].is_array()) return out;
   for (const auto& m : doc["materials"]) {
     GltfMaterialInfo info;

@@ -5,6 +5,7 @@
 
 #include <cmath>
 #include <filesystem>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -96,6 +97,14 @@ struct GltfInfo {
     std::vector<float> cubic;
   };
   std::vector<AnimatedPath> animated_paths;
+  // Every node that holds a perspective camera: its name ("" when it has
+  // none) and the camera's clipping planes (znear, zfar; zfar infinite
+  // when the file gives none, as glTF 3.10.2 defines).
+  struct CameraNode {
+    std::string node;
+    double znear = 0.0, zfar = std::numeric_limits<double>::infinity();
+  };
+  std::vector<CameraNode> camera_nodes;
 };
 
 // The JSON of a .gltf, or of a .glb's JSON chunk; empty where the file is

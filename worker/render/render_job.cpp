@@ -206,7 +206,7 @@ class PixelRenderer {
 
 CameraState frame_camera(const Scene& scene, const JobSpec& spec, int frame) {
   auto autofocus = [&](const CameraState& pose) -> std::optional<float> {
-    const Camera pinhole(pose, spec.width, spec.height);
+    const Camera pinhole(pose, spec.width, spec.height, camera_clip(spec, scene.data()));
     SurfaceHit hit;
     const Vec2 centre(0.5f * float(spec.width), 0.5f * float(spec.height));
     // The scene as it is at the frame's time (moving meshes).
@@ -247,7 +247,7 @@ FrameBuffers render_frame(const Scene& loaded, const JobSpec& spec, int frame,
   out.allocate(rect.w, rect.h, spec.versions);
   out.rect = rect;
   out.camera = frame_camera(scene, spec, frame);
-  const Camera camera(out.camera, spec.width, spec.height);
+  const Camera camera(out.camera, spec.width, spec.height, camera_clip(spec, scene.data()));
   const PixelRenderer pixels(scene, spec, camera, frame, options.reference_only);
 
   // Blocks of block_size^2 pixels handed out to a pool of threads; each pixel

@@ -26,7 +26,7 @@ void embree_error(void* user, RTCError code, const char* str) {
 thread_local RayCount t_rays;
 
 // An Embree ray from o along d over [0, t_max], visible to every geometry.
-RTCRay embree_ray(Vec3 o, Vec3 d, float t_max) {
+RTCRay embree_ray(Vec3 o, Vec3 d, float t_max, float t_min = 0.0f) {
   RTCRay r;
   r.org_x = o.x;
   r.org_y = o.y;
@@ -34,7 +34,7 @@ RTCRay embree_ray(Vec3 o, Vec3 d, float t_max) {
   r.dir_x = d.x;
   r.dir_y = d.y;
   r.dir_z = d.z;
-  r.tnear = 0.0f;
+  r.tnear = t_min;
   r.tfar = t_max;
   r.mask = 0xffffffffu;
   r.flags = 0;
@@ -343,11 +343,11 @@ RayCount thread_ray_count() { return t_rays; }
 bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
   ++t_rays.closest;
   if (ray_sink_) [[unlikely]]
-    ray_sink_->record({ray.o, ray.d, std::numeric_limits<float>::infinity(), false});
+    ray_sink_->record({ray.o, ray.d, ray.t_max, false, ray.t_min});
   RTCIntersectContext ctx;
   rtcInitIntersectContext(&ctx);
   RTCRayHit rh;
-  rh.ray = embree_ray(ray.o, ray.d, std::numeric_limits<float>::infinity());
+  rh.ray = embree_ray(ray.o, ray.d, ray.t_max, ray.t_min);
   rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
   rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
   rtcIntersect1(rtc_scene_, &ctx, &rh);

@@ -44,11 +44,13 @@ struct SurfaceHit {
 };
 
 // One ray as the renderer asked Scene for it: a closest-hit query over
-// [0, inf) or a shadow query over [0, t_max].
+// [t_min, t_max] (a camera ray between clipping planes; else [0, inf)) or
+// a shadow query over [0, t_max].
 struct TracedRay {
   Vec3 o, d;
   float t_max = 0;
   bool shadow = false;
+  float t_min = 0;
 };
 
 // Receives every ray Scene traces while it is set (benchmarks replay a

@@ -94,6 +94,29 @@ void Loader::camera_track() {
                           : 2.0f * std::atan(std::tan(cam->mHorizontalFOV * 0.5f) / aspect);
   camera->yfov_deg = yfov * 180.0f / kPi;
   camera->aspect = cam->mAspect > 0 ? cam->mAspect : 0.0f;
+  // Its clipping planes, from the file's JSON (assimp 5.2 puts 100 in
+  // place of a zfar the file leaves out, which glTF reads as infinite): the
+  // camera node of the same name, or the file's only camera node.
+  const GltfInfo::CameraNode* clip = nullptr;
+  for (const GltfInfo::CameraNode& c : gltf_.camera_nodes)
+    if (c.node == camera->name) clip = &c;
+  if (!clip && gltf_.camera_nodes.size() == 1) clip = &gltf_.camera_nodes.front();
+  if (clip) {
+    if (std::isfinite(clip->znear) && clip->znear > 0 && clip->znear < 1e30) {
+      camera->znear = float(clip->znear);
+    } else {
+      spdlog::warn(
+          "{}: camera \"{}\" has znear {:g}, which glTF requires to be positive; not "
+          "clipped near",
+          path_.string(), camera->name, clip->znear);
+    }
+    if (clip->zfar > camera->znear && clip->zfar < 1e30) {
+      camera->zfar = float(clip->zfar);
+    } else if (!std::isinf(clip->zfar)) {
+      spdlog::warn("{}: camera \"{}\" has zfar {:g}, not beyond its znear {:g}; not clipped far",
+                   path_.string(), camera->name, clip->zfar, camera->znear);
+    }
+  }
   for (float t : times) {
     const CameraTrackKey key = camera->at(t);
     if (!is_finite(key.position) || !std::isfinite(key.yfov_deg)) {

@@ -7,6 +7,7 @@
 #pragma once
 
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <string>
 #include <vector>
@@ -145,6 +146,9 @@ struct SceneCamera {
   Vec3 position{0.0f}, back{0, 0, 1}, up{0, 1, 0};
   float yfov_deg = 40;
   float aspect = 0;  // CameraTrackKey::aspect
+  // Clipping planes (glTF znear, zfar; camera.h CameraClip): 0 and
+  // infinity where the file gives none.
+  float znear = 0.0f, zfar = std::numeric_limits<float>::infinity();
   std::string name;
   // Position and rotation at `time` seconds, the node's world transform
   // orthonormalised (scale in the hierarchy does not leak into the rotation).
