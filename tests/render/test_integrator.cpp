@@ -481,6 +481,7 @@ TEST(Integrator, SceneWithoutLightIsRefused) {
     EXPECT_NE(std::string(e.what()).find("no light"), std::string::npos);
     // A glTF without lamps: the hint for files exported from Blender.
     EXPECT_NE(std::string(e.what()).find("Punctual Lights"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("Area lamps"), std::string::npos) << e.what();
   }
 }
 

@@ -210,8 +210,9 @@ void Scene::build() {
                         (gltf && data_.lights.empty()
                              ? " (the file has no KHR_lights_punctual lights: Blender's glTF "
                                "exporter writes its lamps only with Include > Punctual Lights "
-                               "ticked, and never its World; the job's [environment] can light "
-                               "the scene)"
+                               "ticked, never its Area lamps (glTF has none: an emissive mesh "
+                               "lights as one does) and never its World; the job's "
+                               "[environment] can light the scene)"
                              : ""));
   }
   light_select_ = Distribution1D(power);
