@@ -162,6 +162,15 @@ def grey_floor():
     plane(4.0, 0.0, floor)
 
 
+def red_cube(location):
+    """A 0.8 m cube of base colour (0.8, 0.1, 0.1) (roughness 1, Specular 0)."""
+    red, _ = principled("box", (0.8, 0.1, 0.1), 1.0, specular=0.0)
+    bpy.ops.mesh.primitive_cube_add(size=0.8, location=location)
+    box = bpy.context.active_object
+    box.data.materials.append(red)
+    return box
+
+
 def light(scene, kind, energy, location=(0.0, 0.0, 0.0), rotation=(0.0, 0.0, 0.0)):
     data = bpy.data.lights.new(kind.lower(), type=kind)
     data.energy = energy
@@ -292,10 +301,7 @@ def main():
     elif scene_kind == "animation":
         size = 96
         grey_floor()
-        red, _ = principled("box", (0.8, 0.1, 0.1), 1.0, specular=0.0)
-        bpy.ops.mesh.primitive_cube_add(size=0.8, location=(-1.2, -0.6, 0.4))
-        box = bpy.context.active_object
-        box.data.materials.append(red)
+        box = red_cube((-1.2, -0.6, 0.4))
         lamp = light(scene, "POINT", 300.0, location=(-1.5, 1.5, 1.5))
         for frame, sign in ((1, -1.0), (25, 1.0)):
             box.location = (1.2 * sign, 0.6 * sign, 0.4)
@@ -344,9 +350,7 @@ def main():
     elif feature == "clipping":
         size = 96
         grey_floor()
-        red, _ = principled("box", (0.8, 0.1, 0.1), 1.0, specular=0.0)
-        bpy.ops.mesh.primitive_cube_add(size=0.8, location=(0.3, 0.2, 0.4))
-        bpy.context.active_object.data.materials.append(red)
+        red_cube((0.3, 0.2, 0.4))
         # Black, and the lamp straight over the cube: light meeting the
         # cube's top at grazing angles is where Blender 3.4's Principled
         # (Disney) diffuse is furthest from Lambert (+13% with the animation
@@ -358,9 +362,7 @@ def main():
     elif scene_kind == "camera":
         size = 96
         grey_floor()
-        red, _ = principled("box", (0.8, 0.1, 0.1), 1.0, specular=0.0)
-        bpy.ops.mesh.primitive_cube_add(size=0.8, location=(0.0, 0.0, 0.4))
-        bpy.context.active_object.data.materials.append(red)
+        red_cube((0.0, 0.0, 0.4))
         light(scene, "POINT", 300.0, location=(-1.5, 1.5, 1.5))
         light(scene, "SUN", 0.5, rotation=sun_rotation)
     elif scene_kind == "shape_keys":
