@@ -159,13 +159,14 @@ void complete_spec_from_scene(JobSpec& spec, const render::Scene& scene) {
         !why.empty())
       spdlog::warn("{}: {}", spec.spec_path.string(), why);
   }
-  // Focus points and autofocus depend on each frame's camera: resolve every
-  // frame now (one ray at most per frame) so that a bad one fails here.
+  // Focus points and autofocus depend on each frame's camera, and a scene
+  // camera is posed by the file's samplers at each frame's time: resolve
+  // every frame now (one ray at most per frame) so that a bad one fails here.
   const bool per_frame_focus =
       std::any_of(spec.camera_keys.begin(), spec.camera_keys.end(), [](const CameraKey& k) {
         return k.focus == FocusMode::kPoint || k.focus == FocusMode::kAuto;
       });
-  if (per_frame_focus) {
+  if (per_frame_focus || spec.camera_from_scene) {
     for (int64_t f = spec.frame_start; f <= spec.frame_end; ++f)
       render::frame_camera(scene, spec, int(f));
   }

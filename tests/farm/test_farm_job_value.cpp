@@ -332,8 +332,30 @@ TEST(JobValue, ContentErrorsAreBadInputAndWriteNothing) {
                                    "\"\n[image]\nwidth = 16\nheight = 16\n[[camera.key]]\n"
                                    "position = [0.0, 1.0, 3.9]\nlook_at = [0.0, 1.0, 10.0]\n"
                                    "aperture = 0.05\nfocus = \"auto\"\n");
+  // camera.from_scene on a scene whose camera is orthographic (Blender's
+  // Orthographic type; it used to render with a field of view of 0).
+  write_text(dir / "ortho.gltf",
+             R"({"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0, 1]}],
+    "nodes": [{"mesh": 0}, {"name": "Plan", "camera": 0, "translation": [0.5, 5, 0.5],
+               "rotation": [-0.7071068, 0, 0, 0.7071068]}],
+    "cameras": [{"type": "orthographic",
+                 "orthographic": {"xmag": 1, "ymag": 1, "znear": 0.1, "zfar": 10}}],
+    "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+    "accessors": [{"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3",
+                   "min": [0, 0, 0], "max": [1, 0, 1]},
+                  {"bufferView": 1, "componentType": 5123, "count": 6, "type": "SCALAR"}],
+    "bufferViews": [{"buffer": 0, "byteLength": 48}, {"buffer": 0, "byteOffset": 48,
+                     "byteLength": 12}],
+    "buffers": [{"byteLength": 60, "uri": "data:application/octet-stream;base64,AAAAAAAAAAAAAAAAAAAAAAAAAAAAAIA/AACAPwAAAAAAAIA/AACAPwAAAAAAAAAAAAABAAIAAAACAAMA"}]})");
+  const fs::path ortho = dir / "ortho.toml";
+  write_text(ortho,
+             "scene = \"ortho.gltf\"\n[image]\nwidth = 16\nheight = 16\n\n[camera]\n"
+             "from_scene = true\n[environment]\ncolor = [1.0, 1.0, 1.0]\n");
   const std::vector<Case> cases = {
       {no_camera, no_camera.string() + ":5:14: \"camera.from_scene\": the scene"},
+      {ortho, ortho.string() + ":7:14: \"camera.from_scene\": the scene \"" +
+                  (dir / "ortho.gltf").string() +
+                  "\" has no camera that dofarm can render: its camera \"Plan\" is orthographic"},
       {nothing_to_focus, nothing_to_focus.string() + ":9:9: \"camera.key.0.focus\": autofocus"},
       {bad_spec, bad_spec.string() + ":1:1: \"scene\""},
       {empty_spec, empty_spec.string() + ":1:1: \"scene\""},

@@ -547,6 +547,38 @@ TEST(SceneMotion, TheCameraIsPosedExactlyAtEachFramesTime) {
   EXPECT_NEAR(c.position[2], 2.0f, 1e-6f);
 }
 
+// Keys that are finite can still make a spline overflow between them: the
+// camera of such a frame is an error naming the camera and the frame, not
+// a frame rendered from infinity (job_resolve checks every frame of a job
+// with camera.from_scene this way before it is submitted).
+TEST(SceneMotion, ACameraSplineThatOverflowsIsAnErrorAtItsFrame) {
+  TempDir dir("motion_camera_overflow");
+  GltfQuad q = gltf_fixture::gltf_quad();
+  q.doc["cameras"] = Json::parse(R"([{"type": "perspective",
+                                      "perspective": {"yfov": 0.5, "znear": 0.1}}])");
+  q.doc["nodes"].push_back(Json::parse(R"({"name": "cam", "camera": 0})"));
+  q.doc["scenes"][0]["nodes"] = {0, 1};
+  add_channel(&q, 1, "translation", {0, 2},
+              {0, 0, 0, 3e38f, 0, 0, 3e38f, 0, 0,  //
+               -3e38f, 0, 0, 3e38f, 0, 0, 0, 0, 0},
+              "CUBICSPLINE");
+  const SceneData s = load(dir, "overflow.gltf", q);  // every key is finite
+  JobSpec spec = testing::make_spec(8, 8, Vec3(0.0f), Vec3(0, 0, -1));
+  spec.camera_from_scene = true;
+  spec.camera_keys.clear();
+  spec.fps = 1;
+  spec.frame_end = 2;
+  EXPECT_NO_THROW(camera_for_frame(spec, s, 0));
+  try {
+    camera_for_frame(spec, s, 1);
+    FAIL() << "a camera at infinity was accepted";
+  } catch (const SpecError& e) {
+    EXPECT_EQ(e.key(), "camera.from_scene");
+    EXPECT_NE(std::string(e.what()).find("non-finite"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("frame 1"), std::string::npos) << e.what();
+  }
+}
+
 // The scene camera's clipping planes (glTF znear, zfar; Blender's Clip
 // Start and End) clip camera rays as Cycles does: two quads 2 and 3 below
 // a camera that looks down; znear 2.5 sees through the upper one, zfar
