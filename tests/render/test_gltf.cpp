@@ -426,6 +426,40 @@ TEST(LoadSceneData, AnOrthographicCameraIsRefusedWhereTheJobTakesIt) {
   EXPECT_TRUE(p.camera_refused.empty());
 }
 
+// The scene camera's clipping planes come from the file's JSON: znear and
+// zfar as given, no zfar = none (assimp alone would say 100), and planes
+// glTF does not allow (zfar not beyond znear) named in a warning and left
+// out.
+TEST(LoadSceneData, TheCamerasClippingPlanesAreTheFiles) {
+  TempDir dir("camera_clip_planes");
+  GltfQuad q = gltf_quad();
+  q.doc["nodes"].push_back(
+      Json::parse(R"({"name": "Cam", "camera": 0, "translation": [0, 5, 0]})"));
+  q.doc["scenes"][0]["nodes"].push_back(q.doc["nodes"].size() - 1);
+  auto planes = [&](const char* perspective, std::vector<std::string>* warnings) {
+    q.doc["cameras"] =
+        Json::array({{{"type", "perspective"}, {"perspective", Json::parse(perspective)}}});
+    write_gltf(dir.path / "cam.gltf", q);
+    LogCapture log;
+    SceneData s = load_scene_data(dir.path / "cam.gltf");
+    *warnings = log.lines();
+    return std::pair{s.scene_camera->znear, s.scene_camera->zfar};
+  };
+  std::vector<std::string> warnings;
+  EXPECT_EQ(planes(R"({"yfov": 0.7, "znear": 0.25, "zfar": 40})", &warnings),
+            std::pair(0.25f, 40.0f));
+  EXPECT_TRUE(warnings.empty());
+  const auto open = planes(R"({"yfov": 0.7, "znear": 0.25})", &warnings);
+  EXPECT_EQ(open.first, 0.25f);
+  EXPECT_TRUE(std::isinf(open.second));
+  EXPECT_TRUE(warnings.empty());
+  const auto bad = planes(R"({"yfov": 0.7, "znear": 0.25, "zfar": 0.1})", &warnings);
+  EXPECT_EQ(bad.first, 0.25f);
+  EXPECT_TRUE(std::isinf(bad.second));
+  ASSERT_EQ(warnings.size(), 1u);
+  EXPECT_NE(warnings[0].find("\"Cam\" has zfar 0.1"), std::string::npos) << warnings[0];
+}
+
 TEST(LoadSceneData, EmissionAboveTheBoundOrInfiniteIsAnErrorNamingTheMaterial) {
   TempDir dir("emission");
   GltfQuad q = gltf_quad();
