@@ -359,7 +359,9 @@ TEST(Shard, H5dumpShowsDimensionLabels) {
 void set_schema(const fs::path& p, const char* schema, bool drop_job_hash) {
   RawFile f(p, H5F_ACC_RDWR);
   ASSERT_GE(H5Adelete(f.id, "schema"), 0);
-  if (drop_job_hash) ASSERT_GE(H5Adelete(f.id, "job_hash"), 0);
+  if (drop_job_hash) {
+    ASSERT_GE(H5Adelete(f.id, "job_hash"), 0);
+  }
   hid_t t = H5Tcopy(H5T_C_S1);
   H5Tset_size(t, H5T_VARIABLE);
   hid_t s = H5Screate(H5S_SCALAR);

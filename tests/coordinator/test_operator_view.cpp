@@ -141,7 +141,9 @@ TEST_F(OperatorViewTest, TaskListFiltersByStateAndShowsWorkerAttemptsErrorAndRep
       EXPECT_TRUE(t.worker.empty()) << t.task_id;
       EXPECT_EQ(t.attempts, 0);
     }
-    if (t.kind == TaskKind::kPackShard) EXPECT_TRUE(t.reproduce.empty());
+    if (t.kind == TaskKind::kPackShard) {
+      EXPECT_TRUE(t.reproduce.empty());
+    }
   }
   q.state = TaskState::kLeased;
   StatusReport leased = sched_->status(q);

@@ -148,8 +148,9 @@ std::map<std::string, double> parse_metrics(const std::string& text) {
       continue;
     }
     EXPECT_TRUE(types.count(m[1])) << "line " << n << ": " << m[1] << " has no TYPE before it";
-    if (types[m[1]] == "counter")
+    if (types[m[1]] == "counter") {
       EXPECT_TRUE(m[1].str().size() > 6 && m[1].str().ends_with("_total")) << m[1];
+    }
     const std::string key = m[1].str() + m[2].str();
     EXPECT_FALSE(out.count(key)) << "line " << n << ": " << key << " twice";
     out[key] = std::stod(m[3]);

@@ -113,10 +113,11 @@ TEST(FarmOperator, FailingTileShowsItsErrorAndReproduceInTaskListAndEvents) {
     EXPECT_GE(e.at("time").get<double>(), last_time) << e;
     last_time = e.at("time");
     if (e.at("task") == tile_task) tile_kinds.push_back(e.at("kind"));
-    if (e.at("task") == tile_task && e.at("kind") != "lease")
+    if (e.at("task") == tile_task && e.at("kind") != "lease") {
       EXPECT_NE(e.at("text").get<std::string>().find(blocked.filename().string()),
                 std::string::npos)
           << e;
+    }
   }
   EXPECT_EQ(tile_kinds, (std::vector<std::string>{"lease", "retry", "lease", "failed"}))
       << events.dump(1);
