@@ -8,9 +8,10 @@
 # (KHR_materials_clearcoat) and a glass sphere (Transmission:
 # KHR_materials_transmission), smooth and rough, and a texture read through
 # a second UV map (texCoord 1) and a coat with its own normal map
-# (clearcoatNormalTexture); and animation: a moving cube and lamp, an
+# (clearcoatNormalTexture); animation: a moving cube and lamp, an
 # armature, a shape key, and the cube and the shape key exported with
-# their Bezier keys (CUBICSPLINE samplers).
+# their Bezier keys (CUBICSPLINE samplers); a moving camera, sampled per
+# frame and as a spline; and the camera's clipping planes (znear, zfar).
 # bench/cycles/feature_scene.py builds, exports and renders each scene with
 # Cycles; dofarm renders the exported file and control variants
 # (bench/cycles/feature_compare.py says which and what is measured), and
