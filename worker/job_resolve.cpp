@@ -131,12 +131,8 @@ void complete_spec_from_scene(JobSpec& spec, const render::Scene& scene) {
   const auto& track = scene.data().camera_track;
   if (spec.camera_from_scene) {
     if (track.empty()) {
-      const std::string& why = scene.data().camera_refused;
       throw SpecError(spec.where("camera.from_scene"), "camera.from_scene",
-                      "the scene \"" + spec.scene.string() + "\" has no camera" +
-                          (why.empty() ? std::string() : " that dofarm can render: " + why) +
-                          "; add one to it, or set camera.from_scene = false "
-                          "and give the pose in [[camera.key]]");
+                      render::no_scene_camera_message(scene.data(), spec.scene.string()));
     }
     const float aspect = track.front().aspect;
     const render::ImageSize size = render::image_size_for_aspect(

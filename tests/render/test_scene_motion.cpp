@@ -135,14 +135,20 @@ SceneData load(const TempDir& dir, const char* name, const GltfQuad& q) {
   return load_scene_data(dir.path / name);
 }
 
+// load(), and a failure for every warning the loader logs.
+SceneData load_without_warnings(const TempDir& dir, const char* name, const GltfQuad& q) {
+  LogCapture log;
+  SceneData s = load(dir, name, q);
+  for (const std::string& line : log.lines()) ADD_FAILURE() << "unexpected warning: " << line;
+  return s;
+}
+
 TEST(SceneMotion, AMeshFollowsItsAnimatedParent) {
   TempDir dir("motion_parent");
   GltfQuad q = quad_on_rig();
   add_channel(&q, 1, "translation", {0, 1}, {0, 5, 0, 0, 9, 0});
   add_channel(&q, 1, "rotation", {0, 2}, {0, 0, 0, 1, 0, std::sqrt(0.5f), 0, std::sqrt(0.5f)});
-  LogCapture log;
-  SceneData s = load(dir, "parent.gltf", q);
-  for (const std::string& line : log.lines()) ADD_FAILURE() << "unexpected warning: " << line;
+  SceneData s = load_without_warnings(dir, "parent.gltf", q);
   ASSERT_NE(s.motion, nullptr);
   ASSERT_EQ(s.motion->parts.size(), 1u);
   // As loaded: the nodes' own transforms; vertex 2 = (1, 0, 1) -> (2, 1, 1).
@@ -328,9 +334,7 @@ TEST(SceneMotion, CubicSplinesFollowTheirTangents) {
               {0, 0, 0, 0, 0, 0, 0, 3, 0,  //
                0, -3, 0, 1, 0, 0, 0, 0, 0},
               "CUBICSPLINE");
-  LogCapture log;
-  SceneData s = load(dir, "cubic.gltf", q);
-  for (const std::string& line : log.lines()) ADD_FAILURE() << "unexpected warning: " << line;
+  SceneData s = load_without_warnings(dir, "cubic.gltf", q);
   ASSERT_NE(s.motion, nullptr);
   expect_near3(pose(s, 0.0f).positions[0], Vec3(0, 0, 0), 1e-6f);
   expect_near3(pose(s, 1.0f).positions[0], Vec3(0.5f, 1.5f, 0), 1e-5f);
@@ -389,9 +393,7 @@ TEST(SceneMotion, MorphWeightsFollowStepAndCubicSamplers) {
   // 2 (-3/64)(-3) = 41/32.
   GltfQuad cubic = q;
   add_channel(&cubic, 0, "weights", {0, 2}, {0, 0, 3, -3, 1, 0}, "CUBICSPLINE");
-  LogCapture log;
-  SceneData spline = load(dir, "cubic.gltf", cubic);
-  for (const std::string& line : log.lines()) ADD_FAILURE() << "unexpected warning: " << line;
+  SceneData spline = load_without_warnings(dir, "cubic.gltf", cubic);
   ASSERT_NE(spline.motion, nullptr);
   expect_near3(pose(spline, 0.0f).positions[2], Vec3(1, 0, 1), 1e-6f);
   expect_near3(pose(spline, 1.0f).positions[2], Vec3(1, 2, 1), 1e-5f);

@@ -248,6 +248,14 @@ float focus_distance(const JobSpec& spec, const CameraKey& key, const CameraStat
 
 }  // namespace
 
+std::string no_scene_camera_message(const SceneData& scene, const std::string& scene_path) {
+  return "the scene \"" + scene_path + "\" has no camera" +
+         (scene.camera_refused.empty() ? std::string()
+                                       : " that dofarm can render: " + scene.camera_refused) +
+         "; add one to it, or set camera.from_scene = false and give the pose in "
+         "[[camera.key]]";
+}
+
 CameraClip camera_clip(const JobSpec& spec, const SceneData& scene) {
   if (!spec.camera_from_scene || !scene.scene_camera) return {};
   return {scene.scene_camera->znear, scene.scene_camera->zfar};
@@ -266,13 +274,8 @@ CameraState camera_for_frame(const JobSpec& spec, const SceneData& scene, int fr
   if (spec.camera_from_scene) {
     const auto& track = scene.camera_track;
     if (track.empty()) {
-      throw SpecError(
-          spec.where("camera.from_scene"), "camera.from_scene",
-          "the scene \"" + scene.source.string() + "\" has no camera" +
-              (scene.camera_refused.empty() ? std::string()
-                                            : " that dofarm can render: " + scene.camera_refused) +
-              "; add one to the scene or give [[camera.key]] poses "
-              "with camera.from_scene = false");
+      throw SpecError(spec.where("camera.from_scene"), "camera.from_scene",
+                      no_scene_camera_message(scene, scene.source.string()));
     }
     if (scene.scene_camera) {
       // The camera's node posed at the frame's time by the file's samplers

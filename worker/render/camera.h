@@ -114,6 +114,11 @@ using Autofocus = std::function<std::optional<float>(const CameraState&)>;
 CameraState camera_for_frame(const JobSpec& spec, const SceneData& scene, int frame,
                              const Autofocus& autofocus = {});
 
+// The error text for a job with camera.from_scene whose scene (the file at
+// `scene_path`) has no camera it can take: none at all, or one that
+// dofarm does not render (SceneData::camera_refused says why).
+std::string no_scene_camera_message(const SceneData& scene, const std::string& scene_path);
+
 // The clipping planes of a job's camera: the scene camera's (SceneCamera's
 // znear and zfar) with camera.from_scene, else none.
 CameraClip camera_clip(const JobSpec& spec, const SceneData& scene);
