@@ -1,10 +1,14 @@
 #!/usr/bin/env bash
 # dofarm against Blender Cycles at equal error on the Cornell box with depth of
 # field (bench/cycles/cornell_dof.toml: 256x256, f/1.0, focused on the back
-# wall). See bench/README.md, "cycles_vs_dofarm".
+# wall) or, with SCENE=courtyard, on the HDRI-lit textured courtyard
+# (bench/cycles/courtyard_dof.toml: frame 24 of jobs/courtyard.toml at
+# 320x180, Cycles through bench/cycles/render_courtyard.py). See
+# bench/README.md, "cycles_vs_dofarm".
 #
 # usage: bench/cycles_vs_dofarm.sh [BUILD_DIR] [OUT_DIR]
-#   env: SPP (16,32,64,128,256), REF_SPP (4096), THREADS (2), REPEATS (1),
+#   env: SCENE (cornell; courtyard takes MATERIALS=gltf only: it is textured),
+#        SPP (16,32,64,128,256), REF_SPP (4096), THREADS (2), REPEATS (1),
 #        MATERIALS=lambert (default: every material Lambert in both renderers,
 #        bench/cycles/lambert_scene.py, so both render one model and their
 #        references can be compared for bias) or gltf (the bundled scene as
@@ -28,7 +32,19 @@ spp=${SPP:-16,32,64,128,256}
 ref=${REF_SPP:-4096}
 threads=${THREADS:-2}
 repeats=${REPEATS:-1}
-materials=${MATERIALS:-lambert}
+scene=${SCENE:-cornell}
+if [[ "$scene" == courtyard ]]; then
+  materials=${MATERIALS:-gltf}
+  if [[ "$materials" != gltf ]]; then
+    echo "cycles_vs_dofarm.sh: SCENE=courtyard takes MATERIALS=gltf only (its materials are textured)" >&2
+    exit 2
+  fi
+elif [[ "$scene" == cornell ]]; then
+  materials=${MATERIALS:-lambert}
+else
+  echo "cycles_vs_dofarm.sh: SCENE must be cornell or courtyard, got '$scene'" >&2
+  exit 2
+fi
 mkdir -p "$out"
 case "$materials" in
   lambert)
@@ -39,8 +55,8 @@ case "$materials" in
     dofarm_flags=(--lambert)
     ;;
   gltf)
-    job=$root/bench/cycles/cornell_dof.toml
-    gltf=$root/jobs/scenes/cornell.gltf
+    job=$root/bench/cycles/${scene}_dof.toml
+    gltf=$root/jobs/scenes/$scene.gltf
     blender_flags=()
     dofarm_flags=()
     ;;
@@ -57,6 +73,14 @@ camera=(--position 0.15 1.02 3.75 --look-at 0 1 0 --fov 38 --focus 4.9 --apertur
 camera+=("${blender_flags[@]}")
 
 cycles() {  # cycles SEED PREFIX SPP_LIST
+  if [[ "$scene" == courtyard ]]; then
+    # The file's camera at frame 24 and the lens of courtyard_dof.toml
+    # (render_courtyard.py's defaults).
+    blender -b --factory-startup --python "$root/bench/cycles/render_courtyard.py" -- \
+      --gltf "$gltf" --hdri "$root/jobs/assets/hdri/courtyard.exr" --width 320 --height 180 \
+      --threads "$threads" --seed "$1" --out "$2" --spp "$3" | grep '^spp '
+    return
+  fi
   blender -b --factory-startup --python "$root/bench/cycles/render_cornell.py" -- \
     --gltf "$gltf" --threads "$threads" --seed "$1" --out "$2" \
     --spp "$3" "${camera[@]}" | grep '^spp '

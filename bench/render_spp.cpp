@@ -6,7 +6,7 @@
 //
 // Usage: render_spp --job FILE [--frame F] --spp 16,32,... [--seed S]
 //                   [--threads 2] [--out PREFIX] [--rr-start D] [--max-depth D]
-//                   [--lambert] [--area-lights]
+//                   [--lambert] [--area-lights] [--perf-ctl FIFO]
 // --lambert: every material of the scene becomes a pure Lambertian surface
 // with its base colour (metallic 0, IOR 1: no specular interface, bsdf.h),
 // emission kept. A glTF file cannot ask for that (dofarm reads IOR 1 as "not
@@ -14,6 +14,10 @@
 // needs it (bench/README.md, "cycles_vs_dofarm.sh").
 // --area-lights: every triangle light sampled by area, also close to it (the
 // estimator before solid-angle sampling, Scene::set_solid_angle_lights).
+// --perf-ctl FIFO: writes "enable" to perf's control FIFO before each timed
+// render and "disable" after it (`perf record --delay=-1
+// --control=fifo:FIFO`), so a profile holds the timed renders only
+// (bench/cycles/embree_share.sh).
 // Writes PREFIX<N>.pfm (default PREFIX: dofarm_spp) and prints one line per
 // render: "spp N cpu_s C wall_s W paths P rays R". Only the reference buffer
 // is rendered (RenderOptions::reference_only). Scene loading and the BVH
@@ -46,9 +50,11 @@ double cpu_seconds() {
 }
 
 void usage() {
-  std::fprintf(stderr,
-               "usage: render_spp --job FILE [--frame F] --spp 16,32,64 [--seed S] "
-               "[--threads 2] [--out PREFIX] [--rr-start D] [--max-depth D] [--lambert] [--area-lights]\n");
+  std::fprintf(
+      stderr,
+      "usage: render_spp --job FILE [--frame F] --spp 16,32,64 [--seed S] "
+      "[--threads 2] [--out PREFIX] [--rr-start D] [--max-depth D] [--lambert] [--area-lights] "
+      "[--perf-ctl FIFO]\n");
   std::exit(2);
 }
 
@@ -69,10 +75,22 @@ bool write_pfm(const std::string& path, const dofarm::FrameBuffers& fb) {
   return std::fclose(f) == 0;
 }
 
+// perf's control FIFO (perf record --control=fifo:PATH); nothing if empty.
+void perf_control(const std::string& fifo, const char* command) {
+  if (fifo.empty()) return;
+  FILE* f = std::fopen(fifo.c_str(), "w");
+  if (!f) {
+    std::fprintf(stderr, "render_spp: cannot open %s\n", fifo.c_str());
+    std::exit(1);
+  }
+  std::fprintf(f, "%s\n", command);
+  std::fclose(f);
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string job, out = "dofarm_spp";
+  std::string job, out = "dofarm_spp", perf_ctl;
   std::vector<int> spps;
   int frame = -1, threads = 2, rr_start = 0, max_depth = 0;
   long long seed = -1;
@@ -103,6 +121,8 @@ int main(int argc, char** argv) {
       lambert = true;
     } else if (!std::strcmp(argv[i], "--area-lights")) {
       area_lights = true;
+    } else if (!std::strcmp(argv[i], "--perf-ctl")) {
+      perf_ctl = value();
     } else {
       usage();
     }
@@ -136,12 +156,14 @@ int main(int argc, char** argv) {
       spec.reference_spp = n;
       dofarm::render::RenderStats stats;
       options.stats = &stats;
+      perf_control(perf_ctl, "enable");
       const double c0 = cpu_seconds();
       const auto w0 = std::chrono::steady_clock::now();
       dofarm::FrameBuffers fb =
           dofarm::render::render_frame(*scene, spec, frame, std::nullopt, options);
       const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - w0).count();
       const double cpu = cpu_seconds() - c0;
+      perf_control(perf_ctl, "disable");
       const std::string path = out + std::to_string(n) + ".pfm";
       if (!write_pfm(path, fb)) {
         std::fprintf(stderr, "render_spp: cannot write %s\n", path.c_str());

@@ -6,7 +6,7 @@
 #       --gltf jobs/scenes/cornell.gltf --out PREFIX --spp 16,32,64 [--seed 0] \
 #       [--threads 2] [--size 256] [--position 0.15 1.02 3.75] \
 #       [--look-at 0 1 0] [--fov 38] [--focus 4.9] [--aperture 0.0261379] \
-#       [--max-bounces 15] [--blender-clamp] [--lambert]
+#       [--max-bounces 15] [--blender-clamp] [--lambert] [--perf-ctl FIFO]
 #
 # Camera values are in glTF coordinates (+y up) and dofarm's units, as in
 # bench/cycles/cornell_dof.toml: --fov is the vertical field of view in
@@ -21,6 +21,9 @@
 # dofarm's max_depth counts surface interactions after the camera; its last
 # one only adds emission, so max_depth D traces the light paths of
 # Cycles' max_bounces D - 1 (direct light is bounce 0 in Cycles).
+#
+# --perf-ctl FIFO: "enable" / "disable" to perf's control FIFO around each
+# timed render, as in bench/cycles/render_courtyard.py.
 #
 # Writes PREFIX<N>.pfm (linear RGB, rows bottom-up) and prints one line per
 # render: "spp N cpu_s C wall_s W". The times are of bpy.ops.render.render(),
@@ -60,6 +63,7 @@ def parse_args():
     # colour the importer read, plus its emission: the model dofarm renders
     # for a glTF material with IOR 1 (bench/README.md, "matched materials").
     p.add_argument("--lambert", action="store_true")
+    p.add_argument("--perf-ctl", default="")
     return p.parse_args(argv)
 
 
@@ -203,12 +207,21 @@ def write_pfm(path, exr_path, size):
         f.write(struct.pack("<%df" % len(rgb), *rgb))
 
 
-def render(scene, spp, seed):
+def perf_control(path, command):
+    if path:
+        with open(path, "w") as f:
+            f.write(command + "\n")
+
+
+def render(scene, spp, seed, perf_ctl=""):
     scene.cycles.samples = spp
     scene.cycles.seed = seed
+    perf_control(perf_ctl, "enable")
     c0, w0 = time.process_time(), time.perf_counter()
     bpy.ops.render.render(write_still=False)
-    return time.process_time() - c0, time.perf_counter() - w0
+    cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+    perf_control(perf_ctl, "disable")
+    return cpu, wall
 
 
 def main():
@@ -216,7 +229,7 @@ def main():
     scene = setup(args)
     render(scene, 1, args.seed)  # warm-up: kernels, caches
     for spp in [int(s) for s in args.spp.split(",")]:
-        cpu, wall = render(scene, spp, args.seed)
+        cpu, wall = render(scene, spp, args.seed, args.perf_ctl)
         exr = os.path.abspath(args.out + "%d.exr" % spp)
         bpy.data.images["Render Result"].save_render(exr)
         write_pfm(args.out + "%d.pfm" % spp, exr, args.size)
