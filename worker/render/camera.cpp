@@ -33,9 +33,10 @@ Vec3 Camera::film_direction(Vec2 film) const {
   return {sx, sy, -1.0f};
 }
 
-Ray Camera::clipped(Ray ray, float cos_axis) const {
+Ray Camera::clipped(Ray ray, Vec3 view_dir) const {
   if (clip_.near > 0 || std::isfinite(clip_.far)) {
     // View depth grows along the ray by cos_axis per unit of t.
+    const float cos_axis = -view_dir.z / length(view_dir);
     ray.t_min = clip_.near > 0 ? clip_.near / cos_axis : 0.0f;
     ray.t_max = clip_.far / cos_axis;
     if (!(ray.t_min >= 0) || !std::isfinite(ray.t_min)) ray.t_min = 0;
@@ -46,7 +47,7 @@ Ray Camera::clipped(Ray ray, float cos_axis) const {
 
 Ray Camera::pinhole_ray(Vec2 film) const {
   const Vec3 fd = film_direction(film);
-  return clipped({position_, normalize(rotation_.rotate(fd))}, 1.0f / length(fd));
+  return clipped({position_, normalize(rotation_.rotate(fd))}, fd);
 }
 
 Ray Camera::generate_ray(Vec2 film, Vec2 lens) const {
@@ -67,8 +68,7 @@ Ray Camera::generate_ray(Vec2 film, Vec2 lens) const {
     dir = len > 0 ? Vec3(float(v[0] / len), float(v[1] / len), float(v[2] / len)) : fd;
   }
   // A rotation keeps lengths: one normalisation, after it, is enough.
-  return clipped({position_ + rotation_.rotate(origin), normalize(rotation_.rotate(dir))},
-                 -dir.z / length(dir));
+  return clipped({position_ + rotation_.rotate(origin), normalize(rotation_.rotate(dir))}, dir);
 }
 
 float Camera::coc_pixels(float z) const {

@@ -57,9 +57,10 @@ class Camera {
 
  private:
   Vec3 film_direction(Vec2 film) const;  // camera space, z = -1
-  // ray with its t range set from the clipping planes, for a direction
-  // whose camera-space z component is -cos_axis (cos_axis > 0).
-  Ray clipped(Ray ray, float cos_axis) const;
+  // ray with its t range set from the clipping planes; view_dir is its
+  // direction in camera space, any length (the cosine to the viewing axis
+  // is computed only where a plane clips).
+  Ray clipped(Ray ray, Vec3 view_dir) const;
   CameraState state_;
   CameraClip clip_;
   Quat rotation_, inverse_rotation_;

@@ -13,23 +13,37 @@
 
 namespace dofarm::render {
 
+// sin(r) and cos(r) for |r| <= pi/4: the Taylor series of sin r to r^9 and
+// of cos r to r^10 (remainders below r^11/11! < 2e-9 and r^12/12! < 2e-10).
+inline void sincos_quarter(float r, float* s, float* c) {
+  const float r2 = r * r;
+  *s = r * (1.0f + r2 * (-1.0f / 6.0f +
+                         r2 * (1.0f / 120.0f + r2 * (-1.0f / 5040.0f + r2 * (1.0f / 362880.0f)))));
+  *c = 1.0f + r2 * (-0.5f +
+                    r2 * (1.0f / 24.0f + r2 * (-1.0f / 720.0f + r2 * (1.0f / 40320.0f +
+                                                                      r2 * (-1.0f / 3628800.0f)))));
+}
+
+// The integer nearest to x, ties to even, as std::nearbyint in the default
+// rounding mode, for |x| < 2^22, without a call: adding 1.5 * 2^23 leaves no
+// bits below the units, and the float addition rounds to nearest even (the
+// compiler may not fold (x + C) - C without -ffast-math). std::nearbyint is
+// a call into libm on x86-64 without SSE 4.1.
+inline float round_to_integer(float x) {
+  constexpr float kShift = 12582912.0f;  // 1.5 * 2^23
+  return (x + kShift) - kShift;
+}
+
 // sin(a) and cos(a) for |a| up to a few turns. Cody and Waite 1980
 // ("Software Manual for the Elementary Functions", ch. 8): a = q pi/2 + r
 // with q the nearest integer, the reduction done in double so that r is
-// exact to float precision, |r| <= pi/4; then the Taylor series of sin r to
-// r^9 and of cos r to r^10 (remainders below r^11/11! < 2e-9 and
-// r^12/12! < 2e-10), and the quadrant q mod 4 picks and signs the pair.
+// exact to float precision, |r| <= pi/4; then sincos_quarter(r), and the
+// quadrant q mod 4 picks and signs the pair.
 inline void precise_sincos(float a, float* s, float* c) {
-  const float q = std::nearbyint(a * (2.0f / kPi));
+  const float q = round_to_integer(a * (2.0f / kPi));
   const float r = float(double(a) - double(q) * 1.5707963267948966);
-  const float r2 = r * r;
-  const float sr =
-      r * (1.0f + r2 * (-1.0f / 6.0f +
-                        r2 * (1.0f / 120.0f + r2 * (-1.0f / 5040.0f + r2 * (1.0f / 362880.0f)))));
-  const float cr =
-      1.0f + r2 * (-0.5f + r2 * (1.0f / 24.0f +
-                                 r2 * (-1.0f / 720.0f +
-                                       r2 * (1.0f / 40320.0f + r2 * (-1.0f / 3628800.0f)))));
+  float sr, cr;
+  sincos_quarter(r, &sr, &cr);
   switch (int(q) & 3) {
     case 0:
       *s = sr;
