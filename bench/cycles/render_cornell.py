@@ -33,12 +33,13 @@
 import argparse
 import math
 import os
-import struct
 import sys
-import time
 
 import bpy
 from mathutils import Vector
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import cycles_common  # noqa: E402
 
 
 def parse_args():
@@ -106,14 +107,7 @@ def make_lambert(material):
 
 
 def setup(args):
-    # Blender 3.4's glTF importer uses np.bool, which numpy >= 1.24 (Debian
-    # 12's python3-numpy, which the importer needs) no longer has.
-    import numpy
-    if not hasattr(numpy, "bool") or numpy.bool is not bool:
-        try:
-            numpy.bool = bool
-        except AttributeError:
-            pass
+    cycles_common.patch_numpy()
     bpy.ops.wm.read_factory_settings(use_empty=True)
     bpy.ops.import_scene.gltf(filepath=os.path.abspath(args.gltf))
     scene = bpy.context.scene
@@ -146,46 +140,8 @@ def setup(args):
     cam.rotation_quaternion = (target - pos).to_track_quat("-Z", "Y")
     scene.camera = cam
 
-    r = scene.render
-    r.engine = "CYCLES"
-    r.resolution_x = args.size
-    r.resolution_y = args.size
-    r.resolution_percentage = 100
-    r.threads_mode = "FIXED"
-    r.threads = args.threads
-    # Not persistent data: with it, Blender 3.4 re-renders nothing when only
-    # the sample count changes, and returns the previous image in a fraction
-    # of the time (found by comparing images). Without it each render syncs the
-    # scene again, which on this scene costs about 0.01 s of a 0.2 s sample.
-    r.use_persistent_data = False
-    r.film_transparent = False
-    r.image_settings.file_format = "OPEN_EXR"
-    r.image_settings.color_depth = "32"
-    r.image_settings.exr_codec = "NONE"
-    scene.view_settings.view_transform = "Standard"
-    scene.view_settings.look = "None"
-    scene.view_settings.exposure = 0.0
-    scene.view_settings.gamma = 1.0
-
-    c = scene.cycles
-    c.device = "CPU"
-    c.use_denoising = False
-    c.use_adaptive_sampling = False
-    c.use_auto_tile = False  # one tile: the whole 256x256 image
-    c.max_bounces = args.max_bounces
-    c.diffuse_bounces = args.max_bounces
-    c.glossy_bounces = args.max_bounces
-    c.transmission_bounces = args.max_bounces
-    c.volume_bounces = 0
-    c.transparent_max_bounces = args.max_bounces
-    c.sample_clamp_direct = 0.0
-    c.sample_clamp_indirect = 10.0 if args.blender_clamp else 0.0
-    c.blur_glossy = 1.0 if args.blender_clamp else 0.0
-    c.caustics_reflective = True
-    c.caustics_refractive = True
-    c.pixel_filter_type = "BOX"
-    c.filter_width = 1.0
-    c.film_exposure = 1.0
+    cycles_common.configure_cycles(scene, args.size, args.size, args.threads, args.max_bounces,
+                                   args.blender_clamp)
     # No world light: dofarm renders the Cornell box without an environment.
     if scene.world is None:
         scene.world = bpy.data.worlds.new("black")
@@ -194,47 +150,11 @@ def setup(args):
     return scene
 
 
-def write_pfm(path, exr_path, size):
-    img = bpy.data.images.load(exr_path)
-    px = list(img.pixels)  # RGBA floats, rows from the bottom up, as PFM
-    bpy.data.images.remove(img)
-    rgb = [0.0] * (size * size * 3)
-    rgb[0::3] = px[0::4]
-    rgb[1::3] = px[1::4]
-    rgb[2::3] = px[2::4]
-    with open(path, "wb") as f:
-        f.write(b"PF\n%d %d\n-1.0\n" % (size, size))
-        f.write(struct.pack("<%df" % len(rgb), *rgb))
-
-
-def perf_control(path, command):
-    if path:
-        with open(path, "w") as f:
-            f.write(command + "\n")
-
-
-def render(scene, spp, seed, perf_ctl=""):
-    scene.cycles.samples = spp
-    scene.cycles.seed = seed
-    perf_control(perf_ctl, "enable")
-    c0, w0 = time.process_time(), time.perf_counter()
-    bpy.ops.render.render(write_still=False)
-    cpu, wall = time.process_time() - c0, time.perf_counter() - w0
-    perf_control(perf_ctl, "disable")
-    return cpu, wall
-
-
 def main():
     args = parse_args()
     scene = setup(args)
-    render(scene, 1, args.seed)  # warm-up: kernels, caches
-    for spp in [int(s) for s in args.spp.split(",")]:
-        cpu, wall = render(scene, spp, args.seed, args.perf_ctl)
-        exr = os.path.abspath(args.out + "%d.exr" % spp)
-        bpy.data.images["Render Result"].save_render(exr)
-        write_pfm(args.out + "%d.pfm" % spp, exr, args.size)
-        os.remove(exr)
-        print("spp %d cpu_s %.3f wall_s %.3f" % (spp, cpu, wall), flush=True)
+    cycles_common.render_series(scene, [int(x) for x in args.spp.split(",")], args.seed,
+                                args.out, args.size, args.size, args.perf_ctl)
 
 
 main()

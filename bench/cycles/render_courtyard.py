@@ -32,11 +32,12 @@
 import argparse
 import math
 import os
-import struct
 import sys
-import time
 
 import bpy
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import cycles_common  # noqa: E402
 
 
 def parse_args():
@@ -59,13 +60,7 @@ def parse_args():
 
 
 def setup(args):
-    # Blender 3.4's glTF importer uses np.bool, which numpy >= 1.24 no longer has.
-    import numpy
-    if not hasattr(numpy, "bool") or numpy.bool is not bool:
-        try:
-            numpy.bool = bool
-        except AttributeError:
-            pass
+    cycles_common.patch_numpy()
     bpy.ops.wm.read_factory_settings(use_empty=True)
     bpy.ops.import_scene.gltf(filepath=os.path.abspath(args.gltf))
     scene = bpy.context.scene
@@ -105,85 +100,16 @@ def setup(args):
     world.cycles.sampling_method = "MANUAL"
     world.cycles.sample_map_resolution = 1024  # the map's own width
 
-    r = scene.render
-    r.engine = "CYCLES"
-    r.resolution_x = args.width
-    r.resolution_y = args.height
-    r.resolution_percentage = 100
-    r.threads_mode = "FIXED"
-    r.threads = args.threads
-    r.use_persistent_data = False
-    r.film_transparent = False
-    r.image_settings.file_format = "OPEN_EXR"
-    r.image_settings.color_depth = "32"
-    r.image_settings.exr_codec = "NONE"
-    scene.view_settings.view_transform = "Standard"
-    scene.view_settings.look = "None"
-
-    c = scene.cycles
-    c.device = "CPU"
-    c.use_denoising = False
-    c.use_adaptive_sampling = False
-    c.use_auto_tile = False
-    c.max_bounces = args.max_bounces
-    c.diffuse_bounces = args.max_bounces
-    c.glossy_bounces = args.max_bounces
-    c.transmission_bounces = args.max_bounces
-    c.volume_bounces = 0
-    c.transparent_max_bounces = args.max_bounces
-    c.sample_clamp_direct = 0.0
-    c.sample_clamp_indirect = 0.0
-    c.blur_glossy = 0.0
-    c.caustics_reflective = True
-    c.caustics_refractive = True
-    c.pixel_filter_type = "BOX"
-    c.filter_width = 1.0
+    cycles_common.configure_cycles(scene, args.width, args.height, args.threads,
+                                   args.max_bounces)
     return scene
-
-
-def write_pfm(path, exr_path, width, height):
-    img = bpy.data.images.load(exr_path)
-    px = list(img.pixels)  # RGBA floats, rows from the bottom up, as PFM
-    bpy.data.images.remove(img)
-    rgb = [0.0] * (width * height * 3)
-    rgb[0::3] = px[0::4]
-    rgb[1::3] = px[1::4]
-    rgb[2::3] = px[2::4]
-    with open(path, "wb") as f:
-        f.write(b"PF\n%d %d\n-1.0\n" % (width, height))
-        f.write(struct.pack("<%df" % len(rgb), *rgb))
-
-
-def perf_control(path, command):
-    if path:
-        with open(path, "w") as f:
-            f.write(command + "\n")
-
-
-def render(scene, spp, args, profile):
-    scene.cycles.samples = spp
-    scene.cycles.seed = args.seed
-    if profile:
-        perf_control(args.perf_ctl, "enable")
-    c0, w0 = time.process_time(), time.perf_counter()
-    bpy.ops.render.render(write_still=False)
-    cpu, wall = time.process_time() - c0, time.perf_counter() - w0
-    if profile:
-        perf_control(args.perf_ctl, "disable")
-    return cpu, wall
 
 
 def main():
     args = parse_args()
     scene = setup(args)
-    render(scene, 1, args, False)  # warm-up: kernels, caches, the map's tables
-    for spp in [int(s) for s in args.spp.split(",")]:
-        cpu, wall = render(scene, spp, args, True)
-        exr = os.path.abspath(args.out + "%d.exr" % spp)
-        bpy.data.images["Render Result"].save_render(exr)
-        write_pfm(args.out + "%d.pfm" % spp, exr, args.width, args.height)
-        os.remove(exr)
-        print("spp %d cpu_s %.3f wall_s %.3f" % (spp, cpu, wall), flush=True)
+    cycles_common.render_series(scene, [int(s) for s in args.spp.split(",")], args.seed,
+                                args.out, args.width, args.height, args.perf_ctl)
 
 
 main()
