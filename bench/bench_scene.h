@@ -19,7 +19,7 @@ namespace dofarm::bench {
 // sampling, for comparisons in one run.
 inline std::shared_ptr<const render::Scene> load_bench_scene(const JobSpec& spec, bool lambert,
                                                              bool area_lights = false) {
-  render::SceneData data = render::load_scene_data(spec.scene);
+  render::SceneData data = render::load_job_scene_data(spec);
   if (lambert)
     for (render::Material& m : data.materials) {
       m.metallic = 0.0f;

@@ -197,8 +197,7 @@ void run_scene(const char* name, const char* job, int frame, const Args& args) {
   // As load_scene(), but not const: the capture sets a RaySink on it.
   std::unique_ptr<dofarm::render::Environment> env;
   if (spec.environment) env = dofarm::render::Environment::from_spec(*spec.environment);
-  auto scene =
-      std::make_shared<Scene>(dofarm::render::load_scene_data(spec.scene), std::move(env));
+  auto scene = std::make_shared<Scene>(dofarm::render::load_job_scene_data(spec), std::move(env));
   scene->set_solid_angle_lights(!args.area_lights);
   const double load_s = seconds_since(t0);
   const int threads =

@@ -100,7 +100,7 @@ JobSpec bench_spec(const char* job, const Args& args) {
 
 // The Cornell geometry without emitters, under a constant white sky.
 std::shared_ptr<const Scene> sky_lit(const JobSpec& spec) {
-  dofarm::render::SceneData data = dofarm::render::load_scene_data(spec.scene);
+  dofarm::render::SceneData data = dofarm::render::load_job_scene_data(spec);
   for (auto& m : data.materials) {
     m.emission = Vec3(0);
     m.emission_tex.index = -1;

@@ -154,6 +154,13 @@ std::string canonical_spec_toml(const JobSpec& spec, const std::string& scene,
     line("intensity = " + number(e.intensity));
     line("rotation = " + number(e.rotation_deg));
   }
+  // Written only when set, so that the snapshots (and content hashes) of
+  // jobs without lamp sizes stay what they were.
+  if (spec.light_radius > 0 || spec.sun_angle_deg > 0) {
+    line("\n[lights]");
+    if (spec.light_radius > 0) line("radius = " + number(spec.light_radius));
+    if (spec.sun_angle_deg > 0) line("sun_angle = " + number(spec.sun_angle_deg));
+  }
   line("\n[buffers]");
   line("versions = " + std::to_string(spec.versions));
   if (spec.reference_error > 0) {

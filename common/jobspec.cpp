@@ -248,6 +248,14 @@ void read_environment(const Section& s, const fs::path& base, JobSpec& spec) {
   spec.environment = env;
 }
 
+void read_lights(const Section& s, JobSpec& spec) {
+  s.check_keys({"radius", "sun_angle"});
+  if (auto v = s.number("radius", Interval::closed(0, 1e6, "a radius in [0, 1e6] scene units")))
+    spec.light_radius = float(*v);
+  if (auto v = s.number("sun_angle", Interval::closed(0, 180, "an angle in [0, 180] degrees")))
+    spec.sun_angle_deg = float(*v);
+}
+
 void read_buffers(const Section& s, JobSpec& spec) {
   s.check_keys({"versions", "reference_spp", "reference_error", "reference_max_spp",
                 "reference_clamp", "albedo_ref_spp"});
@@ -306,8 +314,8 @@ JobSpec read_spec(const toml::table& root, const Origins& origins, const fs::pat
   spec.spec_path = spec_path;
   const fs::path base = spec_path.parent_path();
   Section top(origins, &root, "", FileLoc{origins.file()});
-  top.check_keys(
-      {"scene", "seed", "image", "frames", "camera", "environment", "buffers", "render", "farm"});
+  top.check_keys({"scene", "seed", "image", "frames", "camera", "environment", "lights", "buffers",
+                  "render", "farm"});
   auto scene = top.existing_file("scene", base);
   if (!scene) fail(FileLoc{origins.file()}, "scene", "required key is missing");
   spec.scene = *scene;
@@ -318,6 +326,7 @@ JobSpec read_spec(const toml::table& root, const Origins& origins, const fs::pat
   read_frames(top.table("frames"), spec);
   read_camera(top.table("camera"), spec);
   if (Section env = top.table("environment"); env.present()) read_environment(env, base, spec);
+  read_lights(top.table("lights"), spec);
   read_buffers(top.table("buffers"), spec);
   read_render(top.table("render"), spec);
   read_farm(top.table("farm"), spec);

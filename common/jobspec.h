@@ -76,6 +76,16 @@ struct JobSpec {
   // [environment]
   std::optional<EnvironmentSpec> environment;
 
+  // [lights]: what a glTF file cannot say about its KHR_lights_punctual
+  // lamps (Blender's exporter drops a lamp's Radius and a Sun's Angle).
+  // light_radius > 0: point and spot lamps are disks of this radius (scene
+  // units) facing the lit point, as Cycles 3.4 renders a lamp with a
+  // radius: soft shadows. sun_angle_deg > 0: directional lights are discs
+  // of this angular diameter (degrees). 0 (the default): points and
+  // parallel light, as the file says (docs/renderer.md, "Lamp size").
+  float light_radius = 0.0f;
+  float sun_angle_deg = 0.0f;
+
   // [buffers]
   int versions = 10;
   int reference_spp = 1024;        // used when reference_error is 0

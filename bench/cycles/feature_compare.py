@@ -31,6 +31,9 @@
 #               CUBICSPLINE sampler made LINEAR over its key values, as
 #               dofarm interpolated them before reading the tangents), static
 #   clipping    file, unclipped (control: znear 0.01 and no zfar)
+#   soft_lamps  sized (the job's [lights] radius = 0.25, sun_angle = 10:
+#               the lamps' sizes in Blender), file (control: the file alone,
+#               a point lamp and parallel sunlight)
 #   clearcoat   file, ignored (KHR_materials_clearcoat removed), quarter
 #               (clearcoatFactor x 0.25: Blender 3.4's Principled v1 weighs
 #               its clearcoat lobe by a quarter, as Disney's 2012 model does)
@@ -54,7 +57,8 @@ VARIANTS = {"specular": ["file", "ignored"], "clearcoat": ["file", "ignored", "q
             "animation": ["file", "static"], "skinning": ["file", "static"],
             "shape_keys": ["file", "static"], "animation_spline": ["file", "linear", "static"],
             "shape_keys_spline": ["file", "linear", "static"],
-            "camera": ["file", "static"], "clipping": ["file", "unclipped"], "camera_spline": ["file", "linear", "static"]}
+            "camera": ["file", "static"], "clipping": ["file", "unclipped"], "camera_spline": ["file", "linear", "static"],
+            "soft_lamps": ["sized", "file"]}
 WHAT = {"file": "the exported file", "ignored": "KHR_materials_specular ignored",
         "flipped": "control: the map's green inverted", "nomap": "control: no normal map",
         "opaque": "control: alphaMode ignored (opaque)", "ior1": "control: IOR 1 (no bending)",
@@ -62,7 +66,14 @@ WHAT = {"file": "the exported file", "ignored": "KHR_materials_specular ignored"
         "untextured": "control: the specular textures removed (factors only)",
         "static": "control: the node animation removed (the pose exported, frame 0)",
         "linear": "control: the same keys interpolated linearly (tangents dropped)",
-        "unclipped": "control: the camera's znear 0.01 and no zfar (no clipping)"}
+        "unclipped": "control: the camera's znear 0.01 and no zfar (no clipping)",
+        "sized": "the file, with the job's lights.radius = 0.25 and lights.sun_angle = 10"}
+# Lamp sizes a job gives back (feature soft_lamps, variant sized).
+LIGHTS = {"sized": "[lights]\nradius = 0.25\nsun_angle = 10.0\n"}
+# Features whose rows add the relative RMSE against Cycles: what differs
+# covers a small part of the image (a moved part, a penumbra).
+RMSE_FEATURES = ("animation", "skinning", "shape_keys", "animation_spline", "shape_keys_spline",
+                 "camera", "camera_spline", "soft_lamps")
 # The frames feature_scene.py renders the animated scenes at (its
 # ANIMATION_FRAME), at Blender's 24 fps.
 ANIMATION_FRAME = {"animation": 9, "skinning": 13, "shape_keys": 13, "animation_spline": 5,
@@ -209,8 +220,9 @@ def variants(feature, d, size):
             'scene = "%s.gltf"\nseed = 3\n[image]\nwidth = %d\nheight = %d\n'
             '[frames]\nstart = %d\nend = %d\nfps = 24\n[camera]\nfrom_scene = true\n'
             '[[camera.key]]\nframe = %d\naperture = 0.0\nfocal_distance = 5.0\n'
-            '[buffers]\nversions = 1\nalbedo_ref_spp = 1\n%s'
-            % (name, size, size, frame, frame, frame, world))
+            '[buffers]\nversions = 1\nalbedo_ref_spp = 1\n%s%s'
+            % (name, size, size, frame, frame, frame, world,
+               LIGHTS.get(name, "") if feature == "soft_lamps" else ""))
         print(name)
 
 
@@ -256,9 +268,9 @@ def header(feature):
         print("| Clearcoat Roughness | dofarm / Cycles (R, G, B) | extension ignored (R, G, B) |"
               " clearcoatFactor x 0.25 (R, G, B) |")
         print("| --- | --- | --- | --- |")
-    elif feature in ANIMATION_FRAME:
-        # What moves covers a small part of the image: the relative RMSE
-        # shows a misplaced part where the correlation hardly does.
+    elif feature in RMSE_FEATURES:
+        # What moves (or a penumbra) covers a small part of the image: the
+        # relative RMSE shows it where the correlation hardly does.
         print("| dofarm render | correlation with Cycles | mean / Cycles' mean |"
               " relative RMSE against Cycles |")
         print("| --- | --- | --- | --- |")
@@ -286,11 +298,14 @@ def rows(feature, d, spp, extra):
     cy = luminance(d + "/cycles.pfm", window)
     for name in VARIANTS[feature]:
         x = luminance(image(name), window)
-        what = ("control: KHR_materials_transmission ignored (opaque)"
-                if feature == "transmission" and name == "opaque" else WHAT[name])
+        what = WHAT[name]
+        if feature == "transmission" and name == "opaque":
+            what = "control: KHR_materials_transmission ignored (opaque)"
+        elif feature == "soft_lamps" and name == "file":
+            what = "control: the file alone (a point lamp, parallel sunlight: hard shadows)"
         row = "| %s | %.3f | %.3f |" % (what, correlation(x, cy),
                                           (sum(x) / len(x)) / (sum(cy) / len(cy)))
-        if feature in ANIMATION_FRAME:
+        if feature in RMSE_FEATURES:
             rmse = (sum((a - b) ** 2 for a, b in zip(x, cy)) / len(x)) ** 0.5
             row += " %.3f |" % (rmse / (sum(cy) / len(cy)))
         print(row)

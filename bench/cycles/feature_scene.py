@@ -64,6 +64,10 @@
 #               seen by a camera keyed (Bezier) from (-1.5, -1, 5) rolled
 #               -30 degrees to (1.5, 1, 5) rolled 30 degrees, exported with
 #               its keys (CUBICSPLINE), rendered at frame 5
+#   soft_lamps  a 0.8 m red cube on the grey floor under a 300 W point lamp
+#               of Radius 0.25 m (Blender's default for a new lamp) and a
+#               1 W/m^2 sun of Angle 10 degrees, whose sizes the exporter
+#               drops: soft shadows in Cycles; 96 x 96
 #   shape_keys  a blue ball (radius 0.6 m, 0.8 m over the floor) with a
 #               shape key that stretches it to twice its width along x,
 #               keyed from 0 at frame 1 to 1 at frame 25 (glTF morph
@@ -359,6 +363,14 @@ def main():
         plane(8.0, 2.5, black)
         light(scene, "POINT", 100.0, location=(0.3, 0.2, 2.0))
         light(scene, "SUN", 0.5, rotation=sun_rotation)
+    elif feature == "soft_lamps":
+        size = 96
+        grey_floor()
+        red_cube((0.0, 0.0, 0.4))
+        lamp = light(scene, "POINT", 300.0, location=(-1.0, 0.8, 1.6))
+        lamp.data.shadow_soft_size = 0.25
+        sun = light(scene, "SUN", 1.0, rotation=sun_rotation)
+        sun.data.angle = math.radians(10.0)
     elif scene_kind == "camera":
         size = 96
         grey_floor()

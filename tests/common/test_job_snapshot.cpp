@@ -86,6 +86,24 @@ TEST(JobSnapshot, ReferenceClampIsWrittenOnlyWhenSet) {
   EXPECT_EQ(parse_job_spec(with, spec_path).reference_clamp, 20.0f);
 }
 
+// So are the lamp sizes ([lights]).
+TEST(JobSnapshot, LampSizesAreWrittenOnlyWhenSet) {
+  const fs::path spec_path = fs::path(DOFARM_SOURCE_DIR) / "jobs" / "cornell.toml";
+  JobSpec plain = load_job_spec(spec_path);
+  EXPECT_EQ(canonical_spec_toml(plain, plain.scene.string(), "").find("[lights]"),
+            std::string::npos);
+  JobSpec sized = load_job_spec(spec_path, {"lights.radius=0.25", "lights.sun_angle=0.5"});
+  const std::string with = canonical_spec_toml(sized, sized.scene.string(), "");
+  EXPECT_NE(with.find("[lights]\nradius = 0.25\nsun_angle = 0.5"), std::string::npos) << with;
+  const JobSpec back = parse_job_spec(with, spec_path);
+  EXPECT_EQ(back.light_radius, 0.25f);
+  EXPECT_EQ(back.sun_angle_deg, 0.5f);
+  JobSpec radius_only = load_job_spec(spec_path, {"lights.radius=0.1"});
+  const std::string one = canonical_spec_toml(radius_only, radius_only.scene.string(), "");
+  EXPECT_NE(one.find("radius = 0.1"), std::string::npos) << one;
+  EXPECT_EQ(one.find("sun_angle"), std::string::npos) << one;
+}
+
 TEST(JobSnapshot, DifferencesNameEachChangedKey) {
   const fs::path spec_path = fs::path(DOFARM_SOURCE_DIR) / "jobs/cornell.toml";
   JobSpec a = load_job_spec(spec_path);

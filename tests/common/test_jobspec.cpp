@@ -449,6 +449,27 @@ TEST_F(JobSpecFiles, ReferenceClampIsOptInAndPositive) {
   }
 }
 
+// Lamp sizes (glTF does not carry Blender's): 0 (points, parallel light)
+// unless set; a radius in [0, 1e6] scene units and an angle in [0, 180]
+// degrees; anything else, or an unknown key of [lights], is an error naming
+// the key.
+TEST_F(JobSpecFiles, LampSizesAreOptInAndBounded) {
+  EXPECT_EQ(parse(kOneKey).light_radius, 0.0f);
+  EXPECT_EQ(parse(kOneKey).sun_angle_deg, 0.0f);
+  const JobSpec s = parse(kOneKey, {"lights.radius=0.25", "lights.sun_angle=0.526"});
+  EXPECT_EQ(s.light_radius, 0.25f);
+  EXPECT_EQ(s.sun_angle_deg, 0.526f);
+  for (const char* bad :
+       {"lights.radius=-1", "lights.radius=inf", "lights.radius=2e6", "lights.sun_angle=-0.5",
+        "lights.sun_angle=181", "lights.sun_angle=nan"}) {
+    SCOPED_TRACE(bad);
+    SpecError e = parse_error(kOneKey, {bad});
+    EXPECT_EQ(e.key(), std::string(bad).substr(0, std::string(bad).find('=')));
+  }
+  SpecError e = parse_error(kOneKey, {"lights.size=1"});
+  EXPECT_NE(std::string(e.what()).find("size"), std::string::npos) << e.what();
+}
+
 TEST_F(JobSpecFiles, OverrideOfUnknownKeyIsAnError) {
   SpecError e = parse_error(kOneKey, {"image.widht=64"});
   EXPECT_EQ(e.loc().file, "--set image.widht=64");

@@ -5,6 +5,7 @@
 // The files are written by the tests, except one .glb exported by Blender
 // (tests/data/blender/).
 #include "tests/render/gltf_fixture.h"
+#include "worker/render/scene.h"
 #include "worker/render/scene_motion.h"
 
 namespace dofarm::render {
@@ -277,6 +278,69 @@ TEST(GltfLights, SpotFalloffFollowsTheExtension) {
   // Inner = outer (a hard edge, Blender's blend 0): full inside, 0 outside.
   EXPECT_EQ(spot_falloff(std::cos(0.49f), co, co), 1.0f);
   EXPECT_EQ(spot_falloff(std::cos(0.51f), co, co), 0.0f);
+}
+
+TEST(GltfBlenderExport, TheJobSizesTheLampsAndNamesWhatBlenderLeftOut) {
+  // Blender's exporter drops every lamp's Radius and every Sun's Angle; the
+  // job's [lights] gives them back, and a Blender file without them is
+  // named in a warning that says what renders differently.
+  JobSpec spec;
+  spec.scene = std::filesystem::path(DOFARM_TEST_DATA) / "blender" / "lamps_and_texture.glb";
+  {
+    LogCapture log;
+    SceneData s = load_job_scene_data(spec);
+    ASSERT_EQ(s.lights.size(), 3u);
+    EXPECT_NE(s.generator.find("Blender"), std::string::npos) << s.generator;
+    for (const PunctualLight& l : s.lights) {
+      EXPECT_EQ(l.radius, 0.0f);
+      EXPECT_EQ(l.cos_half_angle, 1.0f);
+    }
+    ASSERT_EQ(log.lines().size(), 1u);
+    EXPECT_NE(log.lines()[0].find("lamps_and_texture.glb"), std::string::npos) << log.lines()[0];
+    EXPECT_NE(log.lines()[0].find("lights.radius"), std::string::npos) << log.lines()[0];
+    EXPECT_NE(log.lines()[0].find("lights.sun_angle"), std::string::npos) << log.lines()[0];
+  }
+  spec.light_radius = 0.25f;
+  spec.sun_angle_deg = 0.526f;
+  LogCapture log;
+  SceneData s = load_job_scene_data(spec);
+  int suns = 0, lamps = 0;
+  for (const PunctualLight& l : s.lights) {
+    if (l.type == PunctualLight::Type::kDirectional) {
+      ++suns;
+      EXPECT_EQ(l.radius, 0.0f);
+      EXPECT_NEAR(l.cos_half_angle, std::cos(0.263 * M_PI / 180), 1e-7);
+    } else {
+      ++lamps;
+      EXPECT_EQ(l.radius, 0.25f);
+      EXPECT_EQ(l.cos_half_angle, 1.0f);
+    }
+  }
+  EXPECT_EQ(suns, 1);
+  EXPECT_EQ(lamps, 2);
+  for (const std::string& line : log.lines()) ADD_FAILURE() << "unexpected warning: " << line;
+}
+
+TEST(GltfLights, AFileNotFromBlenderKeepsPointLampsWithoutAWord) {
+  TempDir dir("lights_other_generator");
+  GltfQuad q = gltf_quad();
+  q.doc["asset"]["generator"] = "some other exporter";
+  q.doc["nodes"].push_back(Json::parse(
+      R"({"name": "lamp", "translation": [0, 1, 0],
+          "extensions": {"KHR_lights_punctual": {"light": 0}}})"));
+  q.doc["scenes"][0]["nodes"].push_back(1);
+  q.doc["extensions"]["KHR_lights_punctual"]["lights"] =
+      Json::parse(R"([{"type": "point", "intensity": 683}])");
+  q.doc["extensionsUsed"] = {"KHR_lights_punctual"};
+  write_gltf(dir.path / "other.gltf", q);
+  JobSpec spec;
+  spec.scene = dir.path / "other.gltf";
+  LogCapture log;
+  SceneData s = load_job_scene_data(spec);
+  EXPECT_EQ(s.generator, "some other exporter");
+  ASSERT_EQ(s.lights.size(), 1u);
+  EXPECT_EQ(s.lights[0].radius, 0.0f);
+  for (const std::string& line : log.lines()) ADD_FAILURE() << "unexpected warning: " << line;
 }
 
 TEST(GltfBlenderExport, LampsEmbeddedTextureAndMappingAsBlenderMeantThem) {

@@ -349,5 +349,146 @@ TEST(PunctualLights, ALightOfZeroIntensityIsNoLight) {
   }
 }
 
+// Lamps with a size (JobSpec [lights]: radius, sun_angle; Blender's lamp
+// Radius and Sun Angle, which glTF does not carry).
+
+TEST(SizedLamps, ADiskLampGivesTheDiskIrradianceEverywhere) {
+  // A lamp of radius r at c is a disk facing every lit point, of radiance
+  // I / (pi r^2): it fills a cone of half-angle alpha, sin^2 alpha = r^2 /
+  // (r^2 + d^2), and a surface whose normal makes phi with the cone's axis
+  // receives pi L sin^2 alpha cos phi = I cos phi / (r^2 + d^2) while the
+  // whole cone is above it (everywhere on this plane).
+  SceneData d = lambert_plane();
+  const Vec3 pos(0.3f, 1.5f, -0.2f), intensity(10, 20, 30);
+  const float r = 0.6f;
+  PunctualLight lamp = point_light(pos, intensity);
+  lamp.radius = r;
+  d.lights.push_back(lamp);
+  auto scene = make_scene(std::move(d));
+  auto expected = [&](Vec3 p) {
+    const Vec3 to = pos - p;
+    const float d2 = length_squared(to);
+    const float cos = to.y / std::sqrt(d2);
+    return intensity * (kAlbedo / kPi * cos / (d2 + r * r));
+  };
+  PixelCheck c = compare_pixels(*scene, top_view(), 64, expected);
+  EXPECT_GT(c.pixels, 400);
+  EXPECT_LT(c.max_error, 0.01);
+  // Not the point lamp's answer: right below the lamp the disk gives
+  // 1.5^2 / (1.5^2 + 0.6^2) = 0.86 of it.
+  auto point_answer = [&](Vec3 p) {
+    const Vec3 to = pos - p;
+    const float d2 = length_squared(to);
+    return intensity * (kAlbedo / kPi * (to.y / std::sqrt(d2)) / d2);
+  };
+  EXPECT_GT(compare_pixels(*scene, top_view(), 64, point_answer).max_error, 0.1);
+}
+
+TEST(SizedLamps, ASunWithAnAngleGivesItsIrradiance) {
+  // A sun of angular diameter 2 theta_m is a disc of radiance E / (pi
+  // sin^2 theta_m): a surface at phi to it receives E cos phi, the file's
+  // irradiance, while the disc is above it.
+  SceneData d = lambert_plane();
+  PunctualLight sun;
+  sun.type = PunctualLight::Type::kDirectional;
+  sun.direction = normalize(Vec3(1, -2, 0.5f));
+  sun.intensity = Vec3(2, 3, 4);
+  sun.cos_half_angle = std::cos(10.0f * kPi / 180);  // 20 degrees across
+  d.lights.push_back(sun);
+  auto scene = make_scene(std::move(d));
+  const float cos = -sun.direction.y;
+  auto expected = [&](Vec3) { return sun.intensity * (kAlbedo / kPi * cos); };
+  PixelCheck c = compare_pixels(*scene, top_view(), 64, expected);
+  EXPECT_GT(c.pixels, 400);
+  EXPECT_LT(c.max_error, 0.01);
+  // Its directions spread over the disc: the samples are not all the axis.
+  LightSample a, b;
+  ASSERT_TRUE(scene->sample_light(Vec3(0), 0.5f, Vec2(0.1f, 0.2f), &a));
+  ASSERT_TRUE(scene->sample_light(Vec3(0), 0.5f, Vec2(0.9f, 0.7f), &b));
+  EXPECT_GT(length(a.wi - b.wi), 0.05f);
+  EXPECT_GE(dot(a.wi, -sun.direction), std::cos(10.0f * kPi / 180) - 1e-6f);
+  EXPECT_GE(dot(b.wi, -sun.direction), std::cos(10.0f * kPi / 180) - 1e-6f);
+}
+
+// The irradiance at p (surface normal +y) from a disk lamp (centre c,
+// radius r, intensity I) with a black square blocker at y = 1, |x|, |z| <=
+// h, by a midpoint quadrature over the disk (an independent computation:
+// its own basis for the disk, its own visibility test).
+double disk_irradiance_quadrature(Vec3 p, Vec3 c, double r, double intensity, double h) {
+  const double nx = p.x - c.x, ny = p.y - c.y, nz = p.z - c.z;  // towards p
+  const double nl = std::sqrt(nx * nx + ny * ny + nz * nz);
+  const double n[3] = {nx / nl, ny / nl, nz / nl};
+  // Any unit vector not parallel to n, then Gram-Schmidt.
+  double a[3] = {1, 0, 0};
+  if (std::fabs(n[0]) > 0.9) a[0] = 0, a[1] = 1;
+  const double an = a[0] * n[0] + a[1] * n[1] + a[2] * n[2];
+  double u[3] = {a[0] - an * n[0], a[1] - an * n[1], a[2] - an * n[2]};
+  const double ul = std::sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
+  for (double& x : u) x /= ul;
+  const double v[3] = {n[1] * u[2] - n[2] * u[1], n[2] * u[0] - n[0] * u[2],
+                       n[0] * u[1] - n[1] * u[0]};
+  const int N = 800;
+  const double cell = 2 * r / N, L = intensity / (M_PI * r * r);
+  double e = 0;
+  for (int i = 0; i < N; ++i)
+    for (int j = 0; j < N; ++j) {
+      const double s = -r + (i + 0.5) * cell, t = -r + (j + 0.5) * cell;
+      if (s * s + t * t > r * r) continue;
+      const double q[3] = {c.x + s * u[0] + t * v[0], c.y + s * u[1] + t * v[1],
+                           c.z + s * u[2] + t * v[2]};
+      const double w[3] = {q[0] - p.x, q[1] - p.y, q[2] - p.z};
+      const double len2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2], len = std::sqrt(len2);
+      // Blocked where the segment crosses y = 1 inside the square.
+      const double k = (1.0 - p.y) / w[1];
+      if (k > 0 && k < 1 && std::fabs(p.x + k * w[0]) <= h && std::fabs(p.z + k * w[2]) <= h)
+        continue;
+      const double cos_p = w[1] / len;
+      const double cos_l = -(w[0] * n[0] + w[1] * n[1] + w[2] * n[2]) / len;
+      if (cos_p > 0 && cos_l > 0) e += L * cos_p * cos_l / len2 * cell * cell;
+    }
+  return e;
+}
+
+TEST(SizedLamps, ADiskLampCastsThePenumbraAQuadratureGives) {
+  // A black (IOR 1: no coat) 0.4 x 0.4 square at y = 1 under a lamp at
+  // y = 2: a point lamp
+  // leaves the plane's centre in full shadow; a lamp of radius 0.5 lights
+  // it partly, as the quadrature over its disk says; a point beyond the
+  // point lamp's shadow sees the whole disk.
+  const Vec3 c(0, 2, 0);
+  const float h = 0.2f, I = 10.0f;
+  auto render_at = [&](float radius, Vec3 target) {
+    SceneData d = lambert_plane();
+    add_quad(d, Vec3(0, 1, 0), Vec3(h, 0, 0), Vec3(0, 0, h), testing::diffuse(Vec3(0.0f), 1.0f));
+    PunctualLight lamp = point_light(c, Vec3(I));
+    lamp.radius = radius;
+    d.lights.push_back(lamp);
+    auto scene = make_scene(std::move(d));
+    IntegratorSettings settings;
+    const Vec3 eye = target + Vec3(1.5f, 0.5f, 0.2f);  // below the blocker
+    const Ray ray{eye, normalize(target - eye)};
+    PixelSampler sampler(SamplerKind::kSobol, 5, 0, 3, 4, Stream::kTest);
+    double sum = 0;
+    const int n = 4096;
+    for (int s = 0; s < n; ++s) {
+      sampler.start_sample(uint32_t(s));
+      sum += trace_path(*scene, ray, sampler, settings).x;
+    }
+    return sum / n;
+  };
+  const Vec3 centre(0.02f, 0, 0.05f), side(0.3f, 0, 0.1f), open(1.2f, 0, -0.4f);
+  EXPECT_EQ(render_at(0.0f, centre), 0.0);
+  for (Vec3 p : {centre, side, open}) {
+    const double want = kAlbedo / M_PI * disk_irradiance_quadrature(p, c, 0.5, I, h);
+    const double got = render_at(0.5f, p);
+    EXPECT_NEAR(got, want, 0.02 * want) << "at " << p.x << ", " << p.z;
+  }
+  // The centre is in the penumbra: lit, but less than with no blocker.
+  const double centre_open = kAlbedo / M_PI * disk_irradiance_quadrature(centre, c, 0.5, I, 0.0);
+  const double centre_lit = kAlbedo / M_PI * disk_irradiance_quadrature(centre, c, 0.5, I, h);
+  EXPECT_GT(centre_lit, 0.05 * centre_open);
+  EXPECT_LT(centre_lit, 0.8 * centre_open);
+}
+
 }  // namespace
 }  // namespace dofarm::render

@@ -318,6 +318,9 @@ GltfInfo read_gltf_info(const std::filesystem::path& path) {
   auto doc = nlohmann::json::parse(json_text, nullptr, /*allow_exceptions=*/false);
   if (!doc.is_object()) return out;  // assimp gives the reason
   out.extensions_used = string_list(doc, "extensionsUsed");
+  if (doc.contains("asset") && doc["asset"].is_object() && doc["asset"].contains("generator") &&
+      doc["asset"]["generator"].is_string())
+    out.generator = doc["asset"]["generator"].get<std::string>();
   out.extensions_required = string_list(doc, "extensionsRequired");
   if (doc.contains("meshes") && doc["meshes"].is_array())
     for (const auto& mesh : doc["meshes"])

@@ -105,6 +105,7 @@ struct GltfInfo {
     double znear = 0.0, zfar = std::numeric_limits<double>::infinity();
   };
   std::vector<CameraNode> camera_nodes;
+  std::string generator;  // asset.generator ("" when the file gives none)
 };
 
 // The JSON of a .gltf, or of a .glb's JSON chunk; empty where the file is

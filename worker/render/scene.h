@@ -174,7 +174,8 @@ class Scene {
   Vec3 mapped_normal(int tex, float scale, Vec2 st, uint32_t prim, const uint32_t* idx, float b0,
                      float b1, float b2, Vec3 ng, Vec3 d) const;
   float triangle_area(uint32_t prim) const;
-  bool sample_punctual(const PunctualLight& light, Vec3 from, LightSample* out) const;
+  // u: the light sample's numbers, for a lamp with a size.
+  bool sample_punctual(const PunctualLight& light, Vec3 from, Vec2 u, LightSample* out) const;
   // Whether sample_light() and light_pdf() treat light triangle i, seen
   // from `from`, by its solid angle (worker/render/spherical_triangle.h)
   // rather than by area: where `from` is closer to the triangle's centroid
@@ -238,7 +239,12 @@ struct RayCount {
 };
 RayCount thread_ray_count();
 
-// Loads the job's scene file and environment and builds the Scene.
+// The job's scene file with what the job adds to it: its lamps' sizes
+// ([lights]; a warning where a Blender file's lamps stay points).
+SceneData load_job_scene_data(const JobSpec& spec);
+
+// Loads the job's scene file (load_job_scene_data) and environment and
+// builds the Scene.
 std::shared_ptr<const Scene> load_scene(const JobSpec& spec);
 
 }  // namespace dofarm::render

@@ -651,6 +651,7 @@ SceneData load_scene_data(const std::filesystem::path& path) {
   }
   SceneData out;
   out.source = path;
+  out.generator = gltf.generator;
   Loader loader(path, scene, gltf, &out);
   loader.materials();
   loader.animation_channels();

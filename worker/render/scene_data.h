@@ -137,6 +137,12 @@ struct PunctualLight {
   // Directional: the irradiance on a surface facing it.
   Vec3 intensity{0.0f};
   float cos_inner = 1.0f, cos_outer = -1.0f;  // spot cone: full inside inner, 0 outside outer
+  // A lamp's size, which glTF does not carry (JobSpec::light_radius,
+  // sun_angle_deg): point and spot, the radius of a disk facing the lit
+  // point; directional, the cosine of half the angular diameter. 0 and 1:
+  // a point, parallel light (a delta light).
+  float radius = 0.0f;
+  float cos_half_angle = 1.0f;
 };
 
 // KHR_lights_punctual's spot falloff, the smooth one the extension's
@@ -149,6 +155,7 @@ struct SceneCamera;  // worker/render/scene_motion.h
 
 struct SceneData {
   std::filesystem::path source;  // file it came from (empty if built in code)
+  std::string generator;         // a glTF's asset.generator (what wrote the file)
   std::vector<Vec3> positions;
   // Per vertex; empty = use geometric normals. Unit length, except that a
   // zero normal means "use the geometric normal" for that vertex (add_mesh
