@@ -6,6 +6,9 @@
 #   feature_compare.py header FEATURE
 #   feature_compare.py variants FEATURE DIR SIZE   -> DIR/<variant>.toml, prints the variants
 #   feature_compare.py rows FEATURE DIR SPP [SPECULAR TINT]
+#   feature_compare.py versus CYCLES.pfm LABEL=DOFARM.pfm...   (any two
+#               renders of one size: correlation, mean ratio, relative RMSE;
+#               bench/cycles/default_scene_vs_cycles.sh)
 #
 # Variants (each a job of its own, rendered by bench/render_spp):
 #   specular    file (as exported), ignored (KHR_materials_specular removed:
@@ -311,6 +314,23 @@ def rows(feature, d, spp, extra):
         print(row)
 
 
+def versus(cycles_pfm, labelled):
+    """One row per dofarm render against Cycles' image."""
+    cy = luminance(cycles_pfm)
+    mean_cy = sum(cy) / len(cy)
+    print("| dofarm render | correlation with Cycles | mean / Cycles' mean |"
+          " relative RMSE against Cycles |")
+    print("| --- | --- | --- | --- |")
+    for item in labelled:
+        label, path = item.rsplit("=", 1)
+        x = luminance(path)
+        if len(x) != len(cy):
+            raise SystemExit("%s: not the size of %s" % (path, cycles_pfm))
+        rmse = (sum((a - b) ** 2 for a, b in zip(x, cy)) / len(x)) ** 0.5
+        print("| %s | %.3f | %.3f | %.3f |" % (label, correlation(x, cy),
+                                               (sum(x) / len(x)) / mean_cy, rmse / mean_cy))
+
+
 def main():
     a = sys.argv[1:]
     if len(a) >= 2 and a[0] == "header":
@@ -319,6 +339,8 @@ def main():
         variants(a[1], a[2], int(a[3]))
     elif len(a) >= 4 and a[0] == "rows":
         rows(a[1], a[2], a[3], a[4:])
+    elif len(a) >= 3 and a[0] == "versus":
+        versus(a[1], a[2:])
     else:
         raise SystemExit(__doc__ or "usage: see the head of feature_compare.py")
 
