@@ -5,6 +5,7 @@
 // The files are written by the tests, except one .glb exported by Blender
 // (tests/data/blender/).
 #include "tests/render/gltf_fixture.h"
+#include "worker/render/camera.h"
 #include "worker/render/scene.h"
 #include "worker/render/scene_motion.h"
 
@@ -488,6 +489,24 @@ TEST(LoadSceneData, AnOrthographicCameraIsRefusedWhereTheJobTakesIt) {
   SceneData p = load_scene_data(dir.path / "persp.gltf");
   EXPECT_EQ(p.camera_track.size(), 1u);
   EXPECT_TRUE(p.camera_refused.empty());
+}
+
+// A Blender file without a camera (Blender 3.4 exports cameras only with
+// Include > Cameras ticked): the refusal says where the checkbox is; a
+// file from elsewhere gets the plain message.
+TEST(LoadSceneData, ABlenderFileWithoutACameraNamesTheExportersCheckbox) {
+  const auto path = std::filesystem::path(DOFARM_TEST_DATA) / "blender" / "lamps_and_texture.glb";
+  SceneData s = load_scene_data(path);
+  ASSERT_FALSE(s.scene_camera);
+  const std::string blender = no_scene_camera_message(s, path.string());
+  EXPECT_NE(blender.find("has no camera (Blender writes its cameras into glTF only with "
+                         "Include > Cameras ticked)"),
+            std::string::npos)
+      << blender;
+  s.generator = "another exporter";
+  const std::string other = no_scene_camera_message(s, path.string());
+  EXPECT_EQ(other.find("Blender"), std::string::npos) << other;
+  EXPECT_NE(other.find("has no camera; add one"), std::string::npos) << other;
 }
 
 // The scene camera's clipping planes come from the file's JSON: znear and

@@ -249,9 +249,16 @@ float focus_distance(const JobSpec& spec, const CameraKey& key, const CameraStat
 }  // namespace
 
 std::string no_scene_camera_message(const SceneData& scene, const std::string& scene_path) {
+  // Blender's glTF exporter writes the scene's cameras only with Include >
+  // Cameras ticked, which Blender 3.4 leaves off.
+  const bool blender_without_any =
+      scene.camera_refused.empty() && scene.generator.find("Blender") != std::string::npos;
   return "the scene \"" + scene_path + "\" has no camera" +
          (scene.camera_refused.empty() ? std::string()
                                        : " that dofarm can render: " + scene.camera_refused) +
+         (blender_without_any
+              ? " (Blender writes its cameras into glTF only with Include > Cameras ticked)"
+              : "") +
          "; add one to it, or set camera.from_scene = false and give the pose in "
          "[[camera.key]]";
 }
