@@ -156,10 +156,16 @@ std::string canonical_spec_toml(const JobSpec& spec, const std::string& scene,
   }
   // Written only when set, so that the snapshots (and content hashes) of
   // jobs without lamp sizes stay what they were.
-  if (spec.light_radius > 0 || spec.sun_angle_deg > 0) {
+  if (spec.light_radius > 0 || spec.sun_angle_deg > 0 || !spec.lamp_sizes.empty()) {
     line("\n[lights]");
     if (spec.light_radius > 0) line("radius = " + number(spec.light_radius));
     if (spec.sun_angle_deg > 0) line("sun_angle = " + number(spec.sun_angle_deg));
+    for (const JobSpec::LampSize& lamp : spec.lamp_sizes) {
+      line("\n[[lights.lamp]]");
+      line("name = " + quoted(lamp.name));
+      if (lamp.radius >= 0) line("radius = " + number(lamp.radius));
+      if (lamp.sun_angle_deg >= 0) line("sun_angle = " + number(lamp.sun_angle_deg));
+    }
   }
   line("\n[buffers]");
   line("versions = " + std::to_string(spec.versions));

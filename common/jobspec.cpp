@@ -249,11 +249,33 @@ void read_environment(const Section& s, const fs::path& base, JobSpec& spec) {
 }
 
 void read_lights(const Section& s, JobSpec& spec) {
-  s.check_keys({"radius", "sun_angle"});
-  if (auto v = s.number("radius", Interval::closed(0, 1e6, "a radius in [0, 1e6] scene units")))
-    spec.light_radius = float(*v);
-  if (auto v = s.number("sun_angle", Interval::closed(0, 180, "an angle in [0, 180] degrees")))
-    spec.sun_angle_deg = float(*v);
+  s.check_keys({"radius", "sun_angle", "lamp"});
+  const Interval radius_range = Interval::closed(0, 1e6, "a radius in [0, 1e6] scene units");
+  const Interval angle_range = Interval::closed(0, 180, "an angle in [0, 180] degrees");
+  if (auto v = s.number("radius", radius_range)) spec.light_radius = float(*v);
+  if (auto v = s.number("sun_angle", angle_range)) spec.sun_angle_deg = float(*v);
+  const toml::array* lamps = s.array_of_tables("lamp");
+  if (!lamps) return;
+  for (size_t i = 0; i < lamps->size(); ++i) {
+    Section ls(s.origins(), lamps->get(i)->as_table(), fmt::format("{}.lamp.{}", s.name(), i),
+               s.loc());
+    ls.check_keys({"name", "radius", "sun_angle"});
+    JobSpec::LampSize size;
+    size.index = int(i);
+    auto name = ls.string("name");
+    if (!name || name->empty())
+      fail(ls.loc(), ls.key("name"), "required: the lamp's name in the scene");
+    size.name = *name;
+    if (auto v = ls.number("radius", radius_range)) size.radius = float(*v);
+    if (auto v = ls.number("sun_angle", angle_range)) size.sun_angle_deg = float(*v);
+    if (size.radius < 0 && size.sun_angle_deg < 0)
+      fail(ls.loc(), ls.name(), "gives neither radius nor sun_angle");
+    for (const JobSpec::LampSize& before : spec.lamp_sizes)
+      if (before.name == size.name)
+        ls.fail_at("name", fmt::format("lamp \"{}\" is sized already by lights.lamp.{}", size.name,
+                                       before.index));
+    spec.lamp_sizes.push_back(size);
+  }
 }
 
 void read_buffers(const Section& s, JobSpec& spec) {

@@ -85,6 +85,16 @@ struct JobSpec {
   // parallel light, as the file says (docs/renderer.md, "Lamp size").
   float light_radius = 0.0f;
   float sun_angle_deg = 0.0f;
+  // [[lights.lamp]]: one lamp's size by its name in the scene (the glTF
+  // node's), over the two above; a value not given (< 0) keeps theirs.
+  // Checked against the scene when it loads (load_job_scene_data).
+  struct LampSize {
+    std::string name;
+    float radius = -1.0f;         // point and spot lamps
+    float sun_angle_deg = -1.0f;  // directional lights
+    int index = 0;                // in the file, for messages (lights.lamp.N)
+  };
+  std::vector<LampSize> lamp_sizes;
 
   // [buffers]
   int versions = 10;

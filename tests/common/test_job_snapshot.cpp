@@ -102,6 +102,18 @@ TEST(JobSnapshot, LampSizesAreWrittenOnlyWhenSet) {
   const std::string one = canonical_spec_toml(radius_only, radius_only.scene.string(), "");
   EXPECT_NE(one.find("radius = 0.1"), std::string::npos) << one;
   EXPECT_EQ(one.find("sun_angle"), std::string::npos) << one;
+  // One lamp by name, read back as written.
+  JobSpec by_name = load_job_spec(spec_path);
+  by_name.lamp_sizes.push_back({"Light.001", 0.1f, -1.0f, 0});
+  by_name.lamp_sizes.push_back({"Sun", -1.0f, 2.5f, 1});
+  const std::string named = canonical_spec_toml(by_name, by_name.scene.string(), "");
+  const JobSpec named_back = parse_job_spec(named, spec_path);
+  ASSERT_EQ(named_back.lamp_sizes.size(), 2u) << named;
+  EXPECT_EQ(named_back.lamp_sizes[0].name, "Light.001");
+  EXPECT_EQ(named_back.lamp_sizes[0].radius, 0.1f);
+  EXPECT_LT(named_back.lamp_sizes[0].sun_angle_deg, 0.0f);
+  EXPECT_EQ(named_back.lamp_sizes[1].sun_angle_deg, 2.5f);
+  EXPECT_EQ(canonical_spec_toml(named_back, by_name.scene.string(), ""), named);
 }
 
 TEST(JobSnapshot, DifferencesNameEachChangedKey) {

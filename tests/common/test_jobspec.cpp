@@ -470,6 +470,44 @@ TEST_F(JobSpecFiles, LampSizesAreOptInAndBounded) {
   EXPECT_NE(std::string(e.what()).find("size"), std::string::npos) << e.what();
 }
 
+// [[lights.lamp]]: one lamp's size by name, over the table's own; a name is
+// required, so is one of the sizes, and a name may be sized once.
+TEST_F(JobSpecFiles, LampsAreSizedOneByOneByName) {
+  const std::string text = std::string(kOneKey) +
+                           "\n[lights]\nradius = 0.25\n"
+                           "[[lights.lamp]]\nname = \"Light.001\"\nradius = 0.1\n"
+                           "[[lights.lamp]]\nname = \"Sun\"\nsun_angle = 2.5\n";
+  const JobSpec s = parse(text);
+  EXPECT_EQ(s.light_radius, 0.25f);
+  ASSERT_EQ(s.lamp_sizes.size(), 2u);
+  EXPECT_EQ(s.lamp_sizes[0].name, "Light.001");
+  EXPECT_EQ(s.lamp_sizes[0].radius, 0.1f);
+  EXPECT_LT(s.lamp_sizes[0].sun_angle_deg, 0.0f);  // not given
+  EXPECT_EQ(s.lamp_sizes[1].name, "Sun");
+  EXPECT_EQ(s.lamp_sizes[1].sun_angle_deg, 2.5f);
+  EXPECT_EQ(s.lamp_sizes[1].index, 1);
+  // --set reaches an entry like a camera key.
+  EXPECT_EQ(parse(text, {"lights.lamp.0.radius=0.3"}).lamp_sizes[0].radius, 0.3f);
+  const struct {
+    const char* extra;
+    const char* key;
+  } bad[] = {
+      {"\n[[lights.lamp]]\nradius = 0.1\n", "lights.lamp.0.name"},
+      {"\n[[lights.lamp]]\nname = \"Key\"\n", "lights.lamp.0"},
+      {"\n[[lights.lamp]]\nname = \"Key\"\nradius = -1\n", "lights.lamp.0.radius"},
+      {"\n[[lights.lamp]]\nname = \"Key\"\nsun_angle = 200\n", "lights.lamp.0.sun_angle"},
+      {"\n[[lights.lamp]]\nname = \"Key\"\nsize = 1\n", "lights.lamp.0.size"},
+      {"\n[[lights.lamp]]\nname = \"Key\"\nradius = 0.1\n"
+       "[[lights.lamp]]\nname = \"Key\"\nradius = 0.2\n",
+       "lights.lamp.1.name"},
+  };
+  for (const auto& b : bad) {
+    SCOPED_TRACE(b.extra);
+    SpecError e = parse_error(std::string(kOneKey) + b.extra);
+    EXPECT_EQ(e.key(), b.key) << e.what();
+  }
+}
+
 TEST_F(JobSpecFiles, OverrideOfUnknownKeyIsAnError) {
   SpecError e = parse_error(kOneKey, {"image.widht=64"});
   EXPECT_EQ(e.loc().file, "--set image.widht=64");

@@ -322,6 +322,45 @@ TEST(GltfBlenderExport, TheJobSizesTheLampsAndNamesWhatBlenderLeftOut) {
   for (const std::string& line : log.lines()) ADD_FAILURE() << "unexpected warning: " << line;
 }
 
+TEST(GltfBlenderExport, OneLampIsSizedByItsName) {
+  // lamps_and_texture.glb's lamps are the nodes "Point", "Spot" and "Sun".
+  JobSpec spec;
+  spec.scene = std::filesystem::path(DOFARM_TEST_DATA) / "blender" / "lamps_and_texture.glb";
+  spec.light_radius = 0.25f;
+  spec.lamp_sizes.push_back({"Spot", 0.05f, -1.0f, 0});
+  spec.lamp_sizes.push_back({"Sun", -1.0f, 2.0f, 1});
+  {
+    LogCapture log;
+    SceneData s = load_job_scene_data(spec);
+    for (const PunctualLight& l : s.lights) {
+      if (l.name == "Point") EXPECT_EQ(l.radius, 0.25f);  // the table's own
+      if (l.name == "Spot") EXPECT_EQ(l.radius, 0.05f);
+      if (l.name == "Sun") EXPECT_NEAR(l.cos_half_angle, std::cos(1.0 * M_PI / 180), 1e-7);
+    }
+    for (const std::string& line : log.lines()) ADD_FAILURE() << "unexpected warning: " << line;
+  }
+  // A name the scene does not have: an error at the entry's name, listing
+  // the lamps there are.
+  spec.lamp_sizes.push_back({"Key", 0.1f, -1.0f, 2});
+  try {
+    load_job_scene_data(spec);
+    FAIL() << "sized a lamp the scene does not have";
+  } catch (const SpecError& e) {
+    EXPECT_EQ(e.key(), "lights.lamp.2.name");
+    EXPECT_NE(std::string(e.what()).find("\"Point\", \"Spot\", \"Sun\""), std::string::npos)
+        << e.what();
+  }
+  // A size of the other kind: a radius for the Sun.
+  spec.lamp_sizes = {{"Sun", 0.1f, -1.0f, 0}};
+  try {
+    load_job_scene_data(spec);
+    FAIL() << "gave a sun a radius";
+  } catch (const SpecError& e) {
+    EXPECT_EQ(e.key(), "lights.lamp.0.radius");
+    EXPECT_NE(std::string(e.what()).find("sun_angle"), std::string::npos) << e.what();
+  }
+}
+
 TEST(GltfLights, AFileNotFromBlenderKeepsPointLampsWithoutAWord) {
   TempDir dir("lights_other_generator");
   GltfQuad q = gltf_quad();

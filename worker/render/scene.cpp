@@ -1,5 +1,6 @@
 #include "worker/render/scene.h"
 
+#include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
@@ -648,12 +649,44 @@ SceneData load_job_scene_data(const JobSpec& spec) {
     else
       light.radius = spec.light_radius;
   }
+  // [[lights.lamp]]: one lamp by name, every light of that name (the glTF
+  // node's); a name the scene does not have, or a size of the other kind,
+  // is an error at the entry.
+  for (const JobSpec::LampSize& size : spec.lamp_sizes) {
+    const std::string at = fmt::format("lights.lamp.{}", size.index);
+    bool found = false;
+    for (PunctualLight& light : data.lights) {
+      if (light.name != size.name) continue;
+      found = true;
+      const bool sun = light.type == PunctualLight::Type::kDirectional;
+      if (sun && size.radius >= 0)
+        throw SpecError(
+            spec.where(at + ".radius"), at + ".radius",
+            fmt::format("lamp \"{}\" is a directional light (a Sun): give sun_angle", size.name));
+      if (!sun && size.sun_angle_deg >= 0)
+        throw SpecError(spec.where(at + ".sun_angle"), at + ".sun_angle",
+                        fmt::format("lamp \"{}\" is a point or spot lamp: give radius", size.name));
+      if (sun)
+        light.cos_half_angle = std::cos(0.5f * size.sun_angle_deg * kPi / 180.0f);
+      else
+        light.radius = size.radius;
+    }
+    if (!found) {
+      std::string names;
+      for (const PunctualLight& light : data.lights)
+        names += (names.empty() ? "\"" : ", \"") + light.name + "\"";
+      throw SpecError(
+          spec.where(at + ".name"), at + ".name",
+          fmt::format("the scene {} has no lamp named \"{}\"; its lamps: {}", spec.scene.string(),
+                      size.name, names.empty() ? std::string("none") : names));
+    }
+  }
   // Blender's exporter writes its name into asset.generator ("Khronos glTF
   // Blender I/O vX.Y.Z") and leaves out every lamp's size, which Blender
   // renders with: a new lamp's Radius is 0.25 m (0.1 m for the lamp of
   // Blender's start-up scene), a Sun's Angle 0.526 degrees.
   if (!data.lights.empty() && spec.light_radius == 0 && spec.sun_angle_deg == 0 &&
-      data.generator.find("Blender") != std::string::npos) {
+      spec.lamp_sizes.empty() && data.generator.find("Blender") != std::string::npos) {
     spdlog::warn(
         "{}: written by Blender, whose lamp Radius and Sun Angle glTF does not carry: its "
         "lamps render as points and parallel light, with hard shadows; for Blender's soft "
