@@ -117,6 +117,9 @@ std::shared_ptr<const render::Scene> load_scene_checked(const JobSpec& spec) {
   try {
     return render::load_scene(spec);
   } catch (const SpecError& e) {
+    // The job's own keys checked against the scene ([[lights.lamp]]) are
+    // located where the job sets them; everything else is the scene's.
+    if (e.key().rfind("lights.", 0) == 0) throw;
     throw SpecError(key_location(spec.spec_path, "scene"), "scene",
                     "\"" + spec.scene.string() + "\": " + e.message());
   } catch (const std::exception& e) {

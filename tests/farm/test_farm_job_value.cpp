@@ -351,8 +351,18 @@ TEST(JobValue, ContentErrorsAreBadInputAndWriteNothing) {
   write_text(ortho,
              "scene = \"ortho.gltf\"\n[image]\nwidth = 16\nheight = 16\n\n[camera]\n"
              "from_scene = true\n[environment]\ncolor = [1.0, 1.0, 1.0]\n");
+  // A lamp sized by a name the scene does not have (its lamps: Point, Spot,
+  // Sun).
+  const fs::path no_such_lamp = dir / "no_such_lamp.toml";
+  write_text(no_such_lamp,
+             "scene = \"" +
+                 (fs::path(DOFARM_TEST_DATA) / "blender" / "lamps_and_texture.glb").string() +
+                 "\"\n[image]\nwidth = 16\nheight = 16\n[[camera.key]]\n"
+                 "position = [0.0, 3.0, 0.01]\nlook_at = [0.0, 0.0, 0.0]\n"
+                 "[[lights.lamp]]\nname = \"Key\"\nradius = 0.1\n");
   const std::vector<Case> cases = {
       {no_camera, no_camera.string() + ":5:14: \"camera.from_scene\": the scene"},
+      {no_such_lamp, no_such_lamp.string() + ":9:8: \"lights.lamp.0.name\": the scene"},
       {ortho, ortho.string() + ":7:14: \"camera.from_scene\": the scene \"" +
                   (dir / "ortho.gltf").string() +
                   "\" has no camera that dofarm can render: its camera \"Plan\" is orthographic"},
