@@ -37,6 +37,17 @@ PunctualLight point_light(Vec3 position, Vec3 intensity) {
   return l;
 }
 
+// A directional light travelling along `direction` (unit) that gives the
+// irradiance `irradiance` to a surface facing it.
+PunctualLight sun_light(Vec3 direction, Vec3 irradiance) {
+  PunctualLight l;
+  l.type = PunctualLight::Type::kDirectional;
+  l.name = "sun";
+  l.direction = direction;
+  l.intensity = irradiance;
+  return l;
+}
+
 struct PixelCheck {
   int pixels = 0;
   double max_error = 0;  // largest |L - expected| / max(expected, floor), per channel
@@ -138,10 +149,7 @@ TEST(PunctualLights, SpotInsideOutsideAndInTheFalloff) {
 
 TEST(PunctualLights, DirectionalLightGivesItsIrradiance) {
   SceneData d = lambert_plane();
-  PunctualLight sun;
-  sun.type = PunctualLight::Type::kDirectional;
-  sun.direction = normalize(Vec3(1, -2, 0.5f));
-  sun.intensity = Vec3(2, 3, 4);
+  const PunctualLight sun = sun_light(normalize(Vec3(1, -2, 0.5f)), Vec3(2, 3, 4));
   d.lights.push_back(sun);
   auto scene = make_scene(std::move(d));
   const float cos = -sun.direction.y;
@@ -264,10 +272,7 @@ TEST(PunctualLights, LightPdfAndEnvironmentPdfMatchWhatSampleLightGives) {
   SceneData d = lambert_plane();
   add_quad(d, Vec3(0, 3, 0), Vec3(0.5f, 0, 0), Vec3(0, 0, 0.5f), testing::emitter(Vec3(8)));
   d.lights.push_back(point_light(Vec3(0, 1, 0), Vec3(3)));
-  PunctualLight sun;
-  sun.type = PunctualLight::Type::kDirectional;
-  sun.direction = Vec3(0, -1, 0);
-  sun.intensity = Vec3(0.7f);
+  const PunctualLight sun = sun_light(Vec3(0, -1, 0), Vec3(0.7f));
   d.lights.push_back(sun);
   auto scene = make_scene(std::move(d), testing::constant_env(0.3f));
   const Vec3 from(0.2f, 0.5f, -0.1f);
@@ -305,10 +310,7 @@ TEST(PunctualLights, SelectionFollowsPower) {
   SceneData d = lambert_plane();
   add_quad(d, Vec3(0, 3, 0), Vec3(0.5f, 0, 0), Vec3(0, 0, 0.5f), testing::emitter(Vec3(2)));
   d.lights.push_back(point_light(Vec3(0, 1, 0), Vec3(1)));
-  PunctualLight sun;
-  sun.type = PunctualLight::Type::kDirectional;
-  sun.direction = Vec3(0, -1, 0);
-  sun.intensity = Vec3(0.5f);
+  const PunctualLight sun = sun_light(Vec3(0, -1, 0), Vec3(0.5f));
   d.lights.push_back(sun);
   auto scene = make_scene(std::move(d));
   const double r = scene->radius();
@@ -389,10 +391,7 @@ TEST(SizedLamps, ASunWithAnAngleGivesItsIrradiance) {
   // sin^2 theta_m): a surface at phi to it receives E cos phi, the file's
   // irradiance, while the disc is above it.
   SceneData d = lambert_plane();
-  PunctualLight sun;
-  sun.type = PunctualLight::Type::kDirectional;
-  sun.direction = normalize(Vec3(1, -2, 0.5f));
-  sun.intensity = Vec3(2, 3, 4);
+  PunctualLight sun = sun_light(normalize(Vec3(1, -2, 0.5f)), Vec3(2, 3, 4));
   sun.cos_half_angle = std::cos(10.0f * kPi / 180);  // 20 degrees across
   d.lights.push_back(sun);
   auto scene = make_scene(std::move(d));
