@@ -282,9 +282,10 @@ TEST(GltfLights, SpotFalloffFollowsTheExtension) {
 }
 
 TEST(GltfBlenderExport, TheJobSizesTheLampsAndNamesWhatBlenderLeftOut) {
-  // Blender's exporter drops every lamp's Radius and every Sun's Angle; the
-  // job's [lights] gives them back, and a Blender file without them is
-  // named in a warning that says what renders differently.
+  // Blender's exporter drops every lamp's Radius and every Sun's Angle, and
+  // the World; the job's [lights] and [environment] give them back, and a
+  // Blender file without them is named in one warning that says what
+  // renders differently and which keys set it.
   JobSpec spec;
   spec.scene = std::filesystem::path(DOFARM_TEST_DATA) / "blender" / "lamps_and_texture.glb";
   {
@@ -300,9 +301,20 @@ TEST(GltfBlenderExport, TheJobSizesTheLampsAndNamesWhatBlenderLeftOut) {
     EXPECT_NE(log.lines()[0].find("lamps_and_texture.glb"), std::string::npos) << log.lines()[0];
     EXPECT_NE(log.lines()[0].find("lights.radius"), std::string::npos) << log.lines()[0];
     EXPECT_NE(log.lines()[0].find("lights.sun_angle"), std::string::npos) << log.lines()[0];
+    EXPECT_NE(log.lines()[0].find("World"), std::string::npos) << log.lines()[0];
   }
   spec.light_radius = 0.25f;
   spec.sun_angle_deg = 0.526f;
+  {
+    // The lamps sized, the World still missing: the warning names it alone.
+    LogCapture log;
+    load_job_scene_data(spec);
+    ASSERT_EQ(log.lines().size(), 1u);
+    EXPECT_EQ(log.lines()[0].find("lights.radius"), std::string::npos) << log.lines()[0];
+    EXPECT_NE(log.lines()[0].find("[environment]"), std::string::npos) << log.lines()[0];
+  }
+  spec.environment = EnvironmentSpec{};
+  spec.environment->color = Vec3(0.0509f);
   LogCapture log;
   SceneData s = load_job_scene_data(spec);
   int suns = 0, lamps = 0;
@@ -327,6 +339,8 @@ TEST(GltfBlenderExport, OneLampIsSizedByItsName) {
   JobSpec spec;
   spec.scene = std::filesystem::path(DOFARM_TEST_DATA) / "blender" / "lamps_and_texture.glb";
   spec.light_radius = 0.25f;
+  spec.environment = EnvironmentSpec{};
+  spec.environment->color = Vec3(0.0509f);
   spec.lamp_sizes.push_back({"Spot", 0.05f, -1.0f, 0});
   spec.lamp_sizes.push_back({"Sun", -1.0f, 2.0f, 1});
   {

@@ -683,16 +683,28 @@ SceneData load_job_scene_data(const JobSpec& spec) {
   }
   // Blender's exporter writes its name into asset.generator ("Khronos glTF
   // Blender I/O vX.Y.Z") and leaves out every lamp's size, which Blender
-  // renders with: a new lamp's Radius is 0.25 m (0.1 m for the lamp of
-  // Blender's start-up scene), a Sun's Angle 0.526 degrees.
-  if (!data.lights.empty() && spec.light_radius == 0 && spec.sun_angle_deg == 0 &&
-      spec.lamp_sizes.empty() && data.generator.find("Blender") != std::string::npos) {
-    spdlog::warn(
-        "{}: written by Blender, whose lamp Radius and Sun Angle glTF does not carry: its "
-        "lamps render as points and parallel light, with hard shadows; for Blender's soft "
-        "shadows set lights.radius (metres; Blender's default 0.25, or 0.1 for the start-up "
-        "scene's lamp) and lights.sun_angle (degrees; default 0.526) in the job",
-        spec.scene.string());
+  // renders with (a new lamp's Radius is 0.25 m, 0.1 m for the lamp of
+  // Blender's start-up scene, a Sun's Angle 0.526 degrees), and the World
+  // (the start-up scene's is a uniform grey of 0.0509). A job that gives
+  // neither is told, once, what renders differently and which keys say it.
+  if (data.generator.find("Blender") != std::string::npos) {
+    std::vector<std::string> missing;
+    if (!data.lights.empty() && spec.light_radius == 0 && spec.sun_angle_deg == 0 &&
+        spec.lamp_sizes.empty())
+      missing.push_back(
+          "its lamps' Radius and Sun Angle (they render as points and parallel light, with "
+          "hard shadows; set lights.radius in metres, Blender's default 0.25 or 0.1 for the "
+          "start-up scene's lamp, and lights.sun_angle in degrees, default 0.526)");
+    if (!spec.environment)
+      missing.push_back(
+          "its World (the scene renders without sky light, on black; set [environment], "
+          "e.g. color = [0.0509, 0.0509, 0.0509] for the start-up scene's World)");
+    if (!missing.empty()) {
+      std::string what = missing[0];
+      for (size_t i = 1; i < missing.size(); ++i) what += ", nor " + missing[i];
+      spdlog::warn("{}: written by Blender, whose glTF export does not carry {}",
+                   spec.scene.string(), what);
+    }
   }
   return data;
 }
