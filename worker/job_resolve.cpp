@@ -117,9 +117,11 @@ std::shared_ptr<const render::Scene> load_scene_checked(const JobSpec& spec) {
   try {
     return render::load_scene(spec);
   } catch (const SpecError& e) {
-    // The job's own keys checked against the scene ([[lights.lamp]]) are
-    // located where the job sets them; everything else is the scene's.
-    if (e.key().rfind("lights.", 0) == 0) throw;
+    // The scene's own content errors (key "scene", located in the scene
+    // file) are put at the job's scene key; an error at another key is a
+    // job key checked against the scene ([[lights.lamp]]), already located
+    // where the job sets it.
+    if (e.key() != "scene") throw;
     throw SpecError(key_location(spec.spec_path, "scene"), "scene",
                     "\"" + spec.scene.string() + "\": " + e.message());
   } catch (const std::exception& e) {

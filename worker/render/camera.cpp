@@ -251,8 +251,7 @@ float focus_distance(const JobSpec& spec, const CameraKey& key, const CameraStat
 std::string no_scene_camera_message(const SceneData& scene, const std::string& scene_path) {
   // Blender's glTF exporter writes the scene's cameras only with Include >
   // Cameras ticked, which Blender 3.4 leaves off.
-  const bool blender_without_any =
-      scene.camera_refused.empty() && scene.generator.find("Blender") != std::string::npos;
+  const bool blender_without_any = scene.camera_refused.empty() && written_by_blender(scene);
   return "the scene \"" + scene_path + "\" has no camera" +
          (scene.camera_refused.empty() ? std::string()
                                        : " that dofarm can render: " + scene.camera_refused) +

@@ -641,11 +641,11 @@ Vec3 Scene::environment_radiance(const Environment::Located& at, Vec3 dir, float
 
 SceneData load_job_scene_data(const JobSpec& spec) {
   SceneData data = load_scene_data(spec.scene);
-  const float cos_half_angle =
-      spec.sun_angle_deg > 0 ? std::cos(0.5f * spec.sun_angle_deg * kPi / 180.0f) : 1.0f;
+  // PunctualLight::cos_half_angle of a sun `degrees` across (1 for 0).
+  auto cos_half_angle = [](float degrees) { return std::cos(0.5f * degrees * kPi / 180.0f); };
   for (PunctualLight& light : data.lights) {
     if (light.type == PunctualLight::Type::kDirectional)
-      light.cos_half_angle = cos_half_angle;
+      light.cos_half_angle = cos_half_angle(spec.sun_angle_deg);
     else
       light.radius = spec.light_radius;
   }
@@ -667,7 +667,7 @@ SceneData load_job_scene_data(const JobSpec& spec) {
         throw SpecError(spec.where(at + ".sun_angle"), at + ".sun_angle",
                         fmt::format("lamp \"{}\" is a point or spot lamp: give radius", size.name));
       if (sun)
-        light.cos_half_angle = std::cos(0.5f * size.sun_angle_deg * kPi / 180.0f);
+        light.cos_half_angle = cos_half_angle(size.sun_angle_deg);
       else
         light.radius = size.radius;
     }
@@ -681,13 +681,12 @@ SceneData load_job_scene_data(const JobSpec& spec) {
                       size.name, names.empty() ? std::string("none") : names));
     }
   }
-  // Blender's exporter writes its name into asset.generator ("Khronos glTF
-  // Blender I/O vX.Y.Z") and leaves out every lamp's size, which Blender
+  // Blender's exporter leaves out every lamp's size, which Blender
   // renders with (a new lamp's Radius is 0.25 m, 0.1 m for the lamp of
   // Blender's start-up scene, a Sun's Angle 0.526 degrees), and the World
   // (the start-up scene's is a uniform grey of 0.0509). A job that gives
   // neither is told, once, what renders differently and which keys say it.
-  if (data.generator.find("Blender") != std::string::npos) {
+  if (written_by_blender(data)) {
     std::vector<std::string> missing;
     if (!data.lights.empty() && spec.light_radius == 0 && spec.sun_angle_deg == 0 &&
         spec.lamp_sizes.empty())

@@ -206,6 +206,12 @@ struct SceneData {
                     const Material& m);
 };
 
+// Whether Blender's glTF exporter wrote the file: it puts its name into
+// asset.generator ("Khronos glTF Blender I/O vX.Y.Z").
+inline bool written_by_blender(const SceneData& scene) {
+  return scene.generator.find("Blender") != std::string::npos;
+}
+
 // Loads a glTF 2.0 (.gltf/.glb), OBJ or FBX file, flattening the node
 // hierarchy into world space. Throws SpecError (file name, reason) when the
 // file is missing, unreadable, has no triangles, has a non-finite vertex, a
