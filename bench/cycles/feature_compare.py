@@ -225,7 +225,7 @@ def variants(feature, d, size):
             '[[camera.key]]\nframe = %d\naperture = 0.0\nfocal_distance = 5.0\n'
             '[buffers]\nversions = 1\nalbedo_ref_spp = 1\n%s%s'
             % (name, size, size, frame, frame, frame, world,
-               LIGHTS.get(name, "") if feature == "soft_lamps" else ""))
+               LIGHTS.get(name, "")))
         print(name)
 
 
