@@ -172,6 +172,9 @@ std::string canonical_spec_toml(const JobSpec& spec, const std::string& scene,
   if (spec.reference_error > 0) {
     line("reference_error = " + number(spec.reference_error));
     line("reference_max_spp = " + std::to_string(spec.reference_max_spp));
+    // Only when set: older jobs keep their snapshots and content hashes.
+    if (spec.reference_display_error > 0)
+      line("reference_display_error = " + number(spec.reference_display_error));
   } else {
     line("reference_spp = " + std::to_string(spec.reference_spp));
   }

@@ -280,7 +280,7 @@ void read_lights(const Section& s, JobSpec& spec) {
 
 void read_buffers(const Section& s, JobSpec& spec) {
   s.check_keys({"versions", "reference_spp", "reference_error", "reference_max_spp",
-                "reference_clamp", "albedo_ref_spp"});
+                "reference_display_error", "reference_clamp", "albedo_ref_spp"});
   if (auto v = s.integer("versions", IntRange::between(1, 64))) spec.versions = int(*v);
   s.exclusive("reference_spp", "reference_error");
   if (auto v = s.integer("reference_spp", IntRange::positive())) spec.reference_spp = int(*v);
@@ -290,6 +290,11 @@ void read_buffers(const Section& s, JobSpec& spec) {
   }
   if (auto v = s.integer("reference_max_spp", IntRange::positive()))
     spec.reference_max_spp = int(*v);
+  if (s.find("reference_display_error") && !s.find("reference_error")) {
+    s.fail_at("reference_display_error", "only applies with reference_error");
+  }
+  if (auto v = s.number("reference_display_error", Interval::open(0, 1)))
+    spec.reference_display_error = float(*v);
   if (auto v = s.integer("albedo_ref_spp", IntRange::positive())) spec.albedo_ref_spp = int(*v);
   if (auto v = s.number("reference_clamp", Interval::positive())) spec.reference_clamp = float(*v);
 }

@@ -101,6 +101,11 @@ struct JobSpec {
   int reference_spp = 1024;        // used when reference_error is 0
   float reference_error = 0.0f;    // > 0: per-pixel relative std. error target
   int reference_max_spp = 65536;   // cap when reference_error is used
+  // > 0 (only with reference_error): a pixel also stops once the standard
+  // error of its mean in display space (sRGB of the luminance, the space the
+  // SSIM and PSNR scores read) is at most this, after at least 1024 samples
+  // (docs/renderer.md, "Adaptive references").
+  float reference_display_error = 0.0f;
   // > 0: the reference's samples are clamped (biased, opt-in): everything
   // but directly seen emission, at most this in its largest channel
   // (docs/renderer.md, "How converged is the reference"). 0: unbiased.

@@ -21,7 +21,8 @@ struct Alternatives {
 };
 const std::vector<Alternatives>& alternatives() {
   static const std::vector<Alternatives> kAlternatives = {
-      {"buffers", {{"reference_spp"}, {"reference_error", "reference_max_spp"}}},
+      {"buffers",
+       {{"reference_spp"}, {"reference_error", "reference_max_spp", "reference_display_error"}}},
       {"camera.key.#", {{"look_at", "up"}, {"rotation"}}},
       {"camera.key.#", {{"aperture"}, {"fstop", "focal_length", "sensor_width"}}},
       {"camera.key.#", {{"focal_distance"}, {"focus_point"}, {"focus"}}},

@@ -116,6 +116,23 @@ TEST(JobSnapshot, LampSizesAreWrittenOnlyWhenSet) {
   EXPECT_EQ(canonical_spec_toml(named_back, by_name.scene.string(), ""), named);
 }
 
+// The display-space stopping rule changes the references, so it is part of
+// the job's content; a job without it keeps the snapshot it had before.
+TEST(JobSnapshot, ReferenceDisplayErrorIsWrittenOnlyWhenSet) {
+  const fs::path spec_path = fs::path(DOFARM_SOURCE_DIR) / "jobs" / "cornell.toml";
+  JobSpec relative = load_job_spec(spec_path, {"buffers.reference_error=0.01"});
+  const std::string without = canonical_spec_toml(relative, relative.scene.string(), "");
+  EXPECT_EQ(without.find("reference_display_error"), std::string::npos) << without;
+  JobSpec display = load_job_spec(
+      spec_path, {"buffers.reference_error=0.01", "buffers.reference_display_error=0.002"});
+  const std::string with = canonical_spec_toml(display, display.scene.string(), "");
+  EXPECT_NE(with.find("reference_display_error = 0.002"), std::string::npos) << with;
+  EXPECT_NE(with, without);
+  const JobSpec back = parse_job_spec(with, spec_path);
+  EXPECT_EQ(back.reference_display_error, 0.002f);
+  EXPECT_EQ(canonical_spec_toml(back, back.scene.string(), ""), with);
+}
+
 TEST(JobSnapshot, DifferencesNameEachChangedKey) {
   const fs::path spec_path = fs::path(DOFARM_SOURCE_DIR) / "jobs/cornell.toml";
   JobSpec a = load_job_spec(spec_path);

@@ -210,6 +210,7 @@ rotation = -90
 versions = 4
 reference_error = 0.02
 reference_max_spp = 4096
+reference_display_error = 0.0025
 albedo_ref_spp = 8
 [render]
 max_depth = 7
@@ -244,6 +245,7 @@ task_seconds = 45.0
   EXPECT_EQ(spec.versions, 4);
   EXPECT_EQ(spec.reference_error, 0.02f);
   EXPECT_EQ(spec.reference_max_spp, 4096);
+  EXPECT_EQ(spec.reference_display_error, 0.0025f);
   EXPECT_EQ(spec.albedo_ref_spp, 8);
   EXPECT_EQ(spec.max_depth, 7);
   EXPECT_EQ(spec.rr_start_depth, 2);
@@ -408,11 +410,18 @@ TEST_F(JobSpecFiles, OverrideReplacesItsAlternative) {
   // The file asks for an error target; --set reference_spp switches to a fixed spp.
   std::string text = std::string(kOneKey) +
                      "[buffers]\nreference_error = 0.01\n"
-                     "reference_max_spp = 512\n";
+                     "reference_max_spp = 512\n"
+                     "reference_display_error = 0.002\n";
   JobSpec spec = parse(text, {"buffers.reference_spp=16"});
   EXPECT_EQ(spec.reference_spp, 16);
   EXPECT_EQ(spec.reference_error, 0.0f);
   EXPECT_EQ(spec.reference_max_spp, JobSpec{}.reference_max_spp);
+  EXPECT_EQ(spec.reference_display_error, 0.0f);
+  // Setting the display rule keeps the file's error target: same group.
+  JobSpec display = parse(text, {"buffers.reference_display_error=0.003"});
+  EXPECT_EQ(display.reference_error, 0.01f);
+  EXPECT_EQ(display.reference_max_spp, 512);
+  EXPECT_EQ(display.reference_display_error, 0.003f);
 
   JobSpec rotated = parse(kOneKey, {"camera.key.0.rotation=[0, 45, 0]"});
   EXPECT_FALSE(rotated.camera_keys[0].look_at.has_value());

@@ -126,6 +126,96 @@ TEST(ReferenceHalf, EachPixelHalvesItsOwnCount) {
   EXPECT_GE(counts.size(), 2u) << "the error target should stop pixels at different counts";
 }
 
+// sRGB's slope (IEC 61966-2-1) by a central difference of the curve itself,
+// at the luminance clamped to 1 as the display rule takes it.
+double srgb_slope_numeric(double l) {
+  auto encode = [](double v) {
+    return v <= 0.0031308 ? 12.92 * v : 1.055 * std::pow(v, 1.0 / 2.4) - 0.055;
+  };
+  l = std::min(l, 1.0);
+  const double h = 1e-7;
+  if (l <= 0.0031308 - h) return 12.92;
+  return (encode(l + h) - encode(l - h)) / (2 * h);
+}
+
+// The small room in grey, lit by a lamp of colour k: every path's radiance
+// is k times a scalar, so each channel's variance is k_c^2 / (w . k)^2 times
+// the luminance's, which the renderer reports (reference_var).
+SceneData tinted_room(Vec3 k) {
+  SceneData d;
+  const Material grey = testing::diffuse(Vec3(0.6f));
+  add_quad(d, Vec3(0, 0, 0), Vec3(0, 0, 1), Vec3(1, 0, 0), grey);
+  add_quad(d, Vec3(0, 2, 0), Vec3(1, 0, 0), Vec3(0, 0, 1), grey);
+  add_quad(d, Vec3(0, 1, -1), Vec3(1, 0, 0), Vec3(0, 1, 0), grey);
+  add_quad(d, Vec3(-1, 1, 0), Vec3(0, 1, 0), Vec3(0, 0, 1), testing::diffuse(Vec3(0.3f)));
+  add_quad(d, Vec3(1, 1, 0), Vec3(0, 0, 1), Vec3(0, 1, 0), testing::diffuse(Vec3(0.9f)));
+  add_quad(d, Vec3(0, 1.98f, 0), Vec3(0.3f, 0, 0), Vec3(0, 0, 0.3f), testing::emitter(k * 12.0f));
+  add_box(d, Vec3(0.1f, 0, -0.3f), Vec3(0.7f, 0.8f, 0.3f), testing::diffuse(Vec3(0.2f)));
+  return d;
+}
+
+// The display-space rule (buffers.reference_display_error): each pixel stops
+// at the first batch boundary, from 1024 samples on, where its relative error
+// meets reference_error or the largest of its channels' display-space errors
+// (standard error times sRGB's slope at the channel's mean) meets
+// reference_display_error; else at the cap. Recomputed here from fixed-count
+// renders of the same samples (each reports its mean and the variance of
+// that mean), the adaptive pixel must equal the fixed render at exactly that
+// count. A grey lamp and a red one: with the red one a channel carries all
+// the noise that the luminance shows at a fifth of its size.
+TEST(ReferenceHalf, DisplayRuleStopsWhereEitherErrorIsFirstMet) {
+  const double w[3] = {0.2126, 0.7152, 0.0722};
+  for (Vec3 k : {Vec3(1, 1, 1), Vec3(1, 0, 0)}) {
+    SCOPED_TRACE(k.y == 0 ? "red lamp" : "white lamp");
+    auto scene = make_scene(tinted_room(k));
+    const int kMin = 1024, kCap = 1536;
+    JobSpec adaptive = room_spec(6, 6);
+    adaptive.reference_error = 0.01f;
+    adaptive.reference_max_spp = kCap;
+    adaptive.reference_display_error = 0.004f;
+    const FrameBuffers fa = render_frame(*scene, adaptive, 0);
+    std::map<int, FrameBuffers> fixed;
+    for (int n = 64; n <= kCap; n += 64) {
+      JobSpec s = room_spec(6, 6);
+      s.reference_spp = n;
+      fixed.emplace(n, render_frame(*scene, s, 0));
+    }
+    const double wk = w[0] * k.x + w[1] * k.y + w[2] * k.z;
+    const size_t plane = fa.plane();
+    int by_display = 0, by_relative = 0, at_cap = 0;
+    for (size_t i = 0; i < plane; ++i) {
+      int expected = kCap;
+      bool display_stop = false;
+      for (int n = 64; n <= kCap; n += 64) {
+        const FrameBuffers& f = fixed.at(n);
+        const double lum = luminance_at(f.reference, plane, i);
+        const double se = std::sqrt(double(f.reference_var[i]));
+        const bool relative_met = se / std::max(std::fabs(lum), 1e-3) <= adaptive.reference_error;
+        double display = 0;
+        for (float kc : {k.x, k.y, k.z})
+          display = std::max(display, se / wk * kc * srgb_slope_numeric(lum / wk * kc));
+        const bool display_met = n >= kMin && display <= adaptive.reference_display_error;
+        if (relative_met || display_met) {
+          expected = n;
+          display_stop = !relative_met;
+          break;
+        }
+      }
+      for (int c = 0; c < 3; ++c)
+        EXPECT_EQ(fa.reference[c * plane + i], fixed.at(expected).reference[c * plane + i])
+            << "pixel " << i << " should stop at " << expected;
+      if (display_stop)
+        ++by_display;
+      else if (expected == kCap)
+        ++at_cap;
+      else
+        ++by_relative;
+    }
+    // The scene has to exercise the rule: some pixels stop by it, before the cap.
+    EXPECT_GT(by_display, 0) << "relative " << by_relative << ", cap " << at_cap;
+  }
+}
+
 // With independent random numbers the two halves are independent, each with
 // twice the variance of the full mean, so E[(A - B)^2] = 4 Var(R), and
 // reference_var estimates Var(R): their ratio, averaged over pixels, is 1.

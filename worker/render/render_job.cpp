@@ -29,26 +29,66 @@ float to_buffer(double v) {
   return float(std::clamp(v, -double(FLT_MAX), double(FLT_MAX)));
 }
 
-// Per-pixel mean and variance of luminance (Welford), in double: a reference
-// accumulates up to 2^16 samples.
+// Running mean and sum of squared deviations (Welford), in double: a
+// reference accumulates up to 2^16 samples.
+struct Welford {
+  double mean = 0, m2 = 0;
+  void add(double x, int n) {
+    double d = x - mean;
+    mean += d / n;
+    m2 += d * (x - mean);
+  }
+  // Variance of the mean of n samples.
+  double variance_of_mean(int n) const { return n > 1 ? m2 / (double(n - 1) * n) : 0.0; }
+};
+
+// Per-pixel sums, and mean and variance of the luminance and, for the
+// display-space rule, of each channel.
 struct PixelAccumulator {
+  explicit PixelAccumulator(bool per_channel) : per_channel_(per_channel) {}
   double sum[3] = {0, 0, 0};
-  double mean_lum = 0, m2 = 0;
+  Welford lum;
+  Welford channel[3];
   int n = 0;
   void add(Vec3 c) {
     for (int i = 0; i < 3; ++i) sum[i] += c[i];
-    double l = luminance(c);
     ++n;
-    double d = l - mean_lum;
-    mean_lum += d / n;
-    m2 += d * (l - mean_lum);
+    lum.add(luminance(c), n);
+    if (per_channel_)
+      for (int i = 0; i < 3; ++i) channel[i].add(c[i], n);
   }
-  // Variance of the mean of the n samples.
-  double variance_of_mean() const { return n > 1 ? m2 / (double(n - 1) * n) : 0.0; }
+  double variance_of_mean() const { return lum.variance_of_mean(n); }
   double relative_error() const {
-    return std::sqrt(variance_of_mean()) / std::max(std::fabs(mean_lum), 1e-3);
+    return std::sqrt(variance_of_mean()) / std::max(std::fabs(lum.mean), 1e-3);
   }
+  // Standard error of the mean in display space, by the delta method: each
+  // channel's standard error times the slope of the sRGB curve (IEC
+  // 61966-2-1, the encoding trainer/metrics.h scores in, channel by channel)
+  // at that channel's mean; the largest of the three. Above 1 the scores
+  // clamp; the slope at 1 is kept there, so a bright pixel is never judged
+  // converged by the clamp alone (its relative error decides).
+  double display_error() const {
+    double worst = 0;
+    for (const Welford& c : channel)
+      worst = std::max(worst, std::sqrt(c.variance_of_mean(n)) * srgb_slope(c.mean));
+    return worst;
+  }
+
+  static double srgb_slope(double v) {
+    if (v <= 0.0031308) return 12.92;
+    return 1.055 / 2.4 * std::pow(std::min(v, 1.0), 1.0 / 2.4 - 1.0);
+  }
+
+ private:
+  bool per_channel_;
 };
+
+// The display-space rule applies from this many samples on: it stops dark
+// pixels far earlier than the relative rule, and the sample variance of a
+// heavy-tailed estimator read from few samples can miss the rare bright
+// paths entirely (a premature stop biases the pixel low). 1024 samples are
+// about 2% of a study tile's time (docs/renderer.md, "Adaptive references").
+constexpr int kReferenceDisplayMinSpp = 1024;
 
 class PixelRenderer {
  public:
@@ -148,7 +188,7 @@ class PixelRenderer {
     // ceil(n/2) samples; for an even n (adaptive batches of 64 always are)
     // B is exactly the mean of the other n/2.
     PixelSampler ref(spec_.sampler, spec_.seed, frame_, x, y, Stream::kReference);
-    PixelAccumulator acc;
+    PixelAccumulator acc(spec_.reference_display_error > 0);
     const bool adaptive = spec_.reference_error > 0;
     const int target = adaptive ? spec_.reference_max_spp : spec_.reference_spp;
     const int batch = 64;
@@ -164,7 +204,7 @@ class PixelRenderer {
       acc.add(trace_path(scene_, lens_ray(ref, x, y), ref, reference_settings_));
       if (s + 1 == half_of_target) half_sum = {acc.sum[0], acc.sum[1], acc.sum[2]};
       if (adaptive && (s + 1) % 32 == 0) sums_at_32.push_back({acc.sum[0], acc.sum[1], acc.sum[2]});
-      if (adaptive && (s + 1) % batch == 0 && acc.relative_error() <= spec_.reference_error) break;
+      if (adaptive && (s + 1) % batch == 0 && converged(acc)) break;
     }
     int half_n = half_of_target;
     if (acc.n < target) {  // stopped early: after a whole batch, so acc.n = 64k
@@ -178,6 +218,15 @@ class PixelRenderer {
          Vec3(to_buffer(half_sum[0] / half_n), to_buffer(half_sum[1] / half_n),
               to_buffer(half_sum[2] / half_n)));
     out.reference_var[px.i] = to_buffer(acc.variance_of_mean());
+  }
+
+  // The adaptive reference's stopping rule: the relative standard error of
+  // the luminance, or, when the job sets reference_display_error, the
+  // standard error in display space, whichever is met first.
+  bool converged(const PixelAccumulator& acc) const {
+    if (acc.relative_error() <= spec_.reference_error) return true;
+    return spec_.reference_display_error > 0 && acc.n >= kReferenceDisplayMinSpp &&
+           acc.display_error() <= spec_.reference_display_error;
   }
 
   // Pixel jitter (box filter), then the lens only when there is one. With a
@@ -305,6 +354,17 @@ FrameBuffers render_frame(const JobSpec& spec, int frame, std::optional<Rect> ti
   return render_frame(*scene, spec, frame, tile, options);
 }
 
+namespace {
+// The reference's sample count or stopping rule, as the EXR header states it.
+std::string reference_rule(const JobSpec& spec) {
+  if (spec.reference_error <= 0) return std::to_string(spec.reference_spp);
+  std::string rule = "error<=" + std::to_string(spec.reference_error);
+  if (spec.reference_display_error > 0)
+    rule += " or display_error<=" + std::to_string(spec.reference_display_error);
+  return rule + " max_spp=" + std::to_string(spec.reference_max_spp);
+}
+}  // namespace
+
 void render_frame_to_exr(const JobSpec& spec, int frame, std::optional<Rect> tile,
                          const std::filesystem::path& out, const RenderOptions& options,
                          const Scene* scene) {
@@ -318,9 +378,7 @@ void render_frame_to_exr(const JobSpec& spec, int frame, std::optional<Rect> til
       {"dofarm.scene", spec.scene.string()},
       {"dofarm.seed", std::to_string(spec.seed)},
       {"dofarm.image", std::to_string(spec.width) + "x" + std::to_string(spec.height)},
-      {"dofarm.spp.reference", spec.reference_error > 0
-                                   ? "error<=" + std::to_string(spec.reference_error)
-                                   : std::to_string(spec.reference_spp)},
+      {"dofarm.spp.reference", reference_rule(spec)},
       {"dofarm.spp.albedo_ref", std::to_string(spec.albedo_ref_spp)},
       {"dofarm.render_seconds", std::to_string(seconds)},
   };
