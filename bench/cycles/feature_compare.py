@@ -37,6 +37,8 @@
 #   soft_lamps  sized (the job's [lights] radius = 0.25, sun_angle = 10:
 #               the lamps' sizes in Blender), file (control: the file alone,
 #               a point lamp and parallel sunlight)
+#   lamp_mirror sized, file (control: the file alone: points, which no
+#               mirror shows)
 #   clearcoat   file, ignored (KHR_materials_clearcoat removed), quarter
 #               (clearcoatFactor x 0.25: Blender 3.4's Principled v1 weighs
 #               its clearcoat lobe by a quarter, as Disney's 2012 model does)
@@ -61,7 +63,7 @@ VARIANTS = {"specular": ["file", "ignored"], "clearcoat": ["file", "ignored", "q
             "shape_keys": ["file", "static"], "animation_spline": ["file", "linear", "static"],
             "shape_keys_spline": ["file", "linear", "static"],
             "camera": ["file", "static"], "clipping": ["file", "unclipped"], "camera_spline": ["file", "linear", "static"],
-            "soft_lamps": ["sized", "file"]}
+            "soft_lamps": ["sized", "file"], "lamp_mirror": ["sized", "file"]}
 WHAT = {"file": "the exported file", "ignored": "KHR_materials_specular ignored",
         "flipped": "control: the map's green inverted", "nomap": "control: no normal map",
         "opaque": "control: alphaMode ignored (opaque)", "ior1": "control: IOR 1 (no bending)",
@@ -71,12 +73,12 @@ WHAT = {"file": "the exported file", "ignored": "KHR_materials_specular ignored"
         "linear": "control: the same keys interpolated linearly (tangents dropped)",
         "unclipped": "control: the camera's znear 0.01 and no zfar (no clipping)",
         "sized": "the file, with the job's lights.radius = 0.25 and lights.sun_angle = 10"}
-# Lamp sizes a job gives back (feature soft_lamps, variant sized).
+# Lamp sizes a job gives back (features soft_lamps and lamp_mirror, variant sized).
 LIGHTS = {"sized": "[lights]\nradius = 0.25\nsun_angle = 10.0\n"}
 # Features whose rows add the relative RMSE against Cycles: what differs
 # covers a small part of the image (a moved part, a penumbra).
 RMSE_FEATURES = ("animation", "skinning", "shape_keys", "animation_spline", "shape_keys_spline",
-                 "camera", "camera_spline", "soft_lamps")
+                 "camera", "camera_spline", "soft_lamps", "lamp_mirror")
 # The frames feature_scene.py renders the animated scenes at (its
 # ANIMATION_FRAME), at Blender's 24 fps.
 ANIMATION_FRAME = {"animation": 9, "skinning": 13, "shape_keys": 13, "animation_spline": 5,
@@ -306,6 +308,8 @@ def rows(feature, d, spp, extra):
             what = "control: KHR_materials_transmission ignored (opaque)"
         elif feature == "soft_lamps" and name == "file":
             what = "control: the file alone (a point lamp, parallel sunlight: hard shadows)"
+        elif feature == "lamp_mirror" and name == "file":
+            what = "control: the file alone (points, which the mirror cannot show)"
         row = "| %s | %.3f | %.3f |" % (what, correlation(x, cy),
                                           (sum(x) / len(x)) / (sum(cy) / len(cy)))
         if feature in RMSE_FEATURES:

@@ -68,6 +68,11 @@
 #               of Radius 0.25 m (Blender's default for a new lamp) and a
 #               1 W/m^2 sun of Angle 10 degrees, whose sizes the exporter
 #               drops: soft shadows in Cycles; 96 x 96
+#   lamp_mirror the lamps of soft_lamps over a mirror: a metal sphere
+#               (base colour 0.9, Roughness 0, radius 0.6 m) on the grey
+#               floor, which shows the lamp's disk and the sun's disc (in
+#               Cycles a lamp with a size is seen by every bounce ray,
+#               never by the camera); 96 x 96
 #   shape_keys  a blue ball (radius 0.6 m, 0.8 m over the floor) with a
 #               shape key that stretches it to twice its width along x,
 #               keyed from 0 at frame 1 to 1 at frame 25 (glTF morph
@@ -371,6 +376,19 @@ def main():
         lamp.data.shadow_soft_size = 0.25
         sun = light(scene, "SUN", 1.0, rotation=sun_rotation)
         sun.data.angle = math.radians(10.0)
+    elif feature == "lamp_mirror":
+        size = 96
+        grey_floor()
+        mirror, p = principled("mirror", (0.9, 0.9, 0.9), 0.0)
+        p.inputs["Metallic"].default_value = 1.0
+        bpy.ops.mesh.primitive_uv_sphere_add(radius=0.6, location=(0.0, 0.0, 0.6), segments=64,
+                                             ring_count=32)
+        bpy.ops.object.shade_smooth()
+        bpy.context.active_object.data.materials.append(mirror)
+        lamp = light(scene, "POINT", 300.0, location=(-1.0, 0.8, 1.6))
+        lamp.data.shadow_soft_size = 0.25
+        sun = light(scene, "SUN", 1.0, rotation=sun_rotation)
+        sun.data.angle = math.radians(10.0)
     elif scene_kind == "camera":
         size = 96
         grey_floor()
@@ -436,6 +454,12 @@ def main():
     c.filter_width = 1.0
     c.max_bounces = 8
     c.transmission_bounces = 8
+    if feature == "lamp_mirror":
+        # The floor is lit by the lamps through the mirror too (a caustic),
+        # which Blender's default indirect clamp of 10 and Filter Glossy
+        # would cut and blur; dofarm does neither.
+        c.sample_clamp_indirect = 0.0
+        c.blur_glossy = 0.0
 
     bpy.ops.export_scene.gltf(filepath=os.path.join(out, "scene.gltf"),
                               export_format="GLTF_SEPARATE", export_lights=True,

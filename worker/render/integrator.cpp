@@ -1,6 +1,7 @@
 #include "worker/render/integrator.h"
 
 #include <cmath>
+#include <limits>
 
 #include "worker/render/bsdf.h"
 
@@ -53,6 +54,20 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
     SurfaceHit hit;
     bool found = scene.intersect(ray, &hit);
     if (depth == 0 && albedo) *albedo = primary_albedo(found ? &hit : nullptr);
+    // Lamps with a size that this bounce ray passes (not the camera ray:
+    // Cycles does not show lamps to the camera either), weighed like an
+    // emissive triangle's hit.
+    if (depth > 0 && scene.has_sized_lamps() && (delta_bounce || use_bsdf_hits)) [[unlikely]] {
+      const bool weigh = !delta_bounce && use_mis;
+      const Vec3 le =
+          scene.lamps_along(prev_p, ray.d, found ? hit.t : std::numeric_limits<float>::infinity(),
+                            [&](float light_pdf) {
+                              return weigh ? power_heuristic(prev_bsdf_pdf, light_pdf) : 1.0f;
+                            });
+      L += beta * le;
+      if (settings.observer && max_component(le) > 0)
+        settings.observer->contribution(PathObserver::Kind::kBsdfHit, depth, beta * le);
+    }
     // KHR_materials_volume: a segment that ends on the inside of a mesh
     // whose material absorbs ran through that medium (closed meshes that do
     // not overlap): Beer-Lambert, exp(-sigma_a t).

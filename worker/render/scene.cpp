@@ -222,6 +222,13 @@ void Scene::build() {
   }
   light_select_ = Distribution1D(power);
   if (env_sampled_) env_select_pmf_ = light_select_.pmf(power.size() - 1);
+  sized_lamps_.clear();
+  for (size_t i = 0; i < data_.lights.size(); ++i) {
+    const PunctualLight& l = data_.lights[i];
+    const bool sized =
+        l.type == PunctualLight::Type::kDirectional ? l.cos_half_angle < 1.0f : l.radius > 0;
+    if (sized && light_select_.pmf(light_tris_.size() + i) > 0) sized_lamps_.push_back(uint32_t(i));
+  }
 
   // Embree: one static triangle geometry over the shared vertex and index data.
   device_ = rtcNewDevice("threads=1");  // our own pool parallelises; the BVH build is small
@@ -468,8 +475,8 @@ bool Scene::sample_light(Vec3 from, const LightChoice& choice, LightSample* out)
   out->is_delta = false;
   if (i >= light_tris_.size() && i < light_tris_.size() + data_.lights.size()) {
     if (!sample_punctual(data_.lights[i - light_tris_.size()], from, u, out)) return false;
-    out->pdf = pmf;
-    return true;
+    out->pdf = out->is_delta ? pmf : out->pdf * pmf;
+    return std::isfinite(out->pdf) && out->pdf > 0;
   }
   if (i >= light_tris_.size()) {  // the environment
     EnvSample es = environment_->sample(choice.env);
@@ -524,11 +531,34 @@ bool Scene::sample_light(Vec3 from, const LightChoice& choice, LightSample* out)
   return std::isfinite(out->pdf);
 }
 
+namespace {
+
+// A sun of angular radius theta_m (cos_half_angle c < 1): a disc of uniform
+// radiance E / (pi sin^2 theta_m), so that a surface facing it receives E
+// (the irradiance of the file), sampled uniformly in its cone (pdf
+// 1 / (2 pi (1 - cos theta_m)), Pharr et al., pbrt 3rd ed., 13.6.2).
+Vec3 sun_radiance(const PunctualLight& sun) {
+  const float c = sun.cos_half_angle;
+  return sun.intensity / (kPi * (1.0f - c) * (1.0f + c));
+}
+float sun_cone_pdf(const PunctualLight& sun) {
+  return 1.0f / (kTwoPi * (1.0f - sun.cos_half_angle));
+}
+// A lamp of radius r as Cycles 3.4 renders it: a disk of that radius facing
+// the lit point, of radiance I / (pi r^2) (the same power as the point seen
+// from afar).
+Vec3 disk_radiance(const PunctualLight& lamp) {
+  return lamp.intensity / (kPi * lamp.radius * lamp.radius);
+}
+
+}  // namespace
+
 bool Scene::sample_punctual(const PunctualLight& light, Vec3 from, Vec2 u, LightSample* out) const {
-  // Sized lamps (PunctualLight::radius, cos_half_angle) are sampled by their
-  // own area or cone and hand back radiance over that pdf, so that, as for a
-  // delta light, the estimate is f * radiance / (selection probability); no
-  // BSDF sample can hit them, so MIS does not weigh them (is_delta).
+  // A lamp without a size is a delta light: radiance is the irradiance it
+  // gives over the selection probability alone (is_delta). A sized lamp
+  // (PunctualLight::radius, cos_half_angle) is sampled by its own area or
+  // cone like any area light: its radiance and solid-angle pdf, weighed by
+  // MIS against the BSDF samples that reach it (lamps_along()).
   out->is_delta = true;
   if (light.type == PunctualLight::Type::kDirectional) {
     out->distance = std::numeric_limits<float>::infinity();
@@ -538,18 +568,15 @@ bool Scene::sample_punctual(const PunctualLight& light, Vec3 from, Vec2 u, Light
       out->radiance = light.intensity;  // irradiance on a surface facing the light
       return true;
     }
-    // A sun of angular radius theta_m: a disc of uniform radiance
-    // E / (pi sin^2 theta_m), so that a surface facing it receives E (the
-    // irradiance of the file), sampled uniformly in its cone (pdf
-    // 1 / (2 pi (1 - cos theta_m)), Pharr et al., pbrt 3rd ed., 13.6.2);
-    // radiance over pdf is 2 E / (1 + cos theta_m).
     const float cos_t = 1.0f - u.x * (1.0f - c);
     const float sin_t = std::sqrt(std::max(0.0f, 1.0f - cos_t * cos_t));
     float sp, cp;
     precise_sincos(kTwoPi * u.y, &sp, &cp);
     out->wi = normalize(Frame(-light.direction).to_world(Vec3(sin_t * cp, sin_t * sp, cos_t)));
-    out->radiance = light.intensity * (2.0f / (1.0f + c));
-    return is_finite(out->wi);
+    out->radiance = sun_radiance(light);
+    out->pdf = sun_cone_pdf(light);
+    out->is_delta = false;
+    return is_finite(out->wi) && is_finite(out->radiance);
   }
   Vec3 d = light.position - from;
   float dist2 = length_squared(d);
@@ -560,12 +587,10 @@ bool Scene::sample_punctual(const PunctualLight& light, Vec3 from, Vec2 u, Light
   // Inverse-square law: irradiance I / d^2 on a surface facing the light.
   Vec3 radiance = light.intensity / dist2;
   if (light.radius > 0) {
-    // A lamp of radius r as Cycles 3.4 renders it: a disk of that radius
-    // facing the lit point, of radiance I / (pi r^2) (the same power seen
-    // from afar), a point p on it uniform by area. The solid-angle pdf is
-    // |p - from|^2 / (cos_l pi r^2), with cos_l = dist / |p - from| (p lies
-    // in the plane through the centre normal to the centre's direction),
-    // so radiance over pdf is I cos_l / |p - from|^2.
+    // The disk facing `from` (disk_radiance()), a point p on it uniform by
+    // area. The solid-angle pdf is |p - from|^2 / (cos_l pi r^2), with
+    // cos_l = dist / |p - from| (p lies in the plane through the centre
+    // normal to the centre's direction).
     const Vec2 disk = sample_concentric_disk(u) * light.radius;
     const Frame f(-out->wi);
     const Vec3 p = light.position + f.t * disk.x + f.b * disk.y;
@@ -575,7 +600,9 @@ bool Scene::sample_punctual(const PunctualLight& light, Vec3 from, Vec2 u, Light
     const float len = std::sqrt(len2);
     out->wi = to / len;
     out->distance = len;
-    radiance = light.intensity * ((dist / len) / len2);
+    out->pdf = len2 / ((dist / len) * kPi * light.radius * light.radius);
+    out->is_delta = false;
+    radiance = disk_radiance(light);
   }
   if (light.type == PunctualLight::Type::kSpot) {
     float falloff = spot_falloff(dot(-out->wi, light.direction), light.cos_inner, light.cos_outer);
@@ -583,7 +610,41 @@ bool Scene::sample_punctual(const PunctualLight& light, Vec3 from, Vec2 u, Light
     radiance = radiance * falloff;
   }
   out->radiance = radiance;
-  return is_finite(radiance);
+  return is_finite(radiance) && (out->is_delta || (std::isfinite(out->pdf) && out->pdf > 0));
+}
+
+Vec3 Scene::lamp_hit(uint32_t i, Vec3 from, Vec3 dir, float t_max, float* pdf) const {
+  *pdf = 0;
+  const PunctualLight& l = data_.lights[i];
+  const float pmf = light_select_.pmf(light_tris_.size() + i);
+  if (l.type == PunctualLight::Type::kDirectional) {
+    // Seen only by a ray that escapes, inside the sun's cone.
+    if (!std::isinf(t_max) || !(dot(dir, -l.direction) >= l.cos_half_angle)) return Vec3(0);
+    *pdf = pmf * sun_cone_pdf(l);
+    return sun_radiance(l);
+  }
+  // The disk through the lamp's centre c facing `from`: with m = c - from,
+  // the plane dot(x - c, m) = 0 is reached at t = |m|^2 / dot(dir, m).
+  const Vec3 m = l.position - from;
+  const float dm = dot(dir, m);
+  if (!(dm > 0)) return Vec3(0);
+  const float m2 = length_squared(m);
+  const float t = m2 / dm;
+  if (!(t < t_max) || !std::isfinite(t)) return Vec3(0);
+  const Vec3 q = from + dir * t;
+  if (!(length_squared(q - l.position) <= l.radius * l.radius)) return Vec3(0);
+  Vec3 le = disk_radiance(l);
+  if (l.type == PunctualLight::Type::kSpot) {
+    const float falloff = spot_falloff(dot(-dir, l.direction), l.cos_inner, l.cos_outer);
+    if (!(falloff > 0)) return Vec3(0);
+    le = le * falloff;
+  }
+  // As sample_punctual(): |q - from|^2 / (cos_l pi r^2), cos_l = dm / |m|.
+  const float cos_l = dm / std::sqrt(m2);
+  const float p = pmf * t * t / (cos_l * kPi * l.radius * l.radius);
+  if (!(p > 0) || !std::isfinite(p) || !is_finite(le)) return Vec3(0);
+  *pdf = p;
+  return le;
 }
 
 bool Scene::by_solid_angle(size_t i, Vec3 from, double* solid_angle) const {

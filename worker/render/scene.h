@@ -67,9 +67,12 @@ struct LightSample {
   float distance = 0;  // to the light point (infinity for the environment)
   Vec3 radiance;
   float pdf = 0;  // solid angle, including the light-selection probability
-  // A point, spot or directional light: `pdf` is then the selection
-  // probability alone and `radiance` the irradiance-giving intensity over
-  // distance squared; no BSDF sample can hit it, so MIS does not weigh it.
+  // A point, spot or directional light without a size: `pdf` is then the
+  // selection probability alone and `radiance` the irradiance-giving
+  // intensity over distance squared; no BSDF sample can hit it, so MIS does
+  // not weigh it. A lamp with a size (PunctualLight::radius,
+  // cos_half_angle) is an area light like any other: radiance and
+  // solid-angle pdf, and BSDF samples reach it (Scene::lamps_along).
   bool is_delta = false;
 };
 
@@ -122,6 +125,24 @@ class Scene {
   // Solid-angle pdf that sample_light() would give to reaching `hit` (an
   // emissive triangle) from `from`.
   float light_pdf(Vec3 from, const SurfaceHit& hit) const;
+  // The lamps with a size (a disk facing the lit point, a sun's disc) that
+  // a ray from `from` along the unit `dir` passes before `t_max` (infinity:
+  // the ray escapes, and a sun's disc can be seen): the sum of their
+  // radiances, each times weight(its solid-angle pdf under sample_light(),
+  // selection included). The lamps are emitters that neither block nor
+  // scatter light (shadow rays ignore them too); a camera ray is not to
+  // ask, as in Cycles, which does not show lamps to the camera.
+  bool has_sized_lamps() const { return !sized_lamps_.empty(); }
+  template <class Weight>
+  Vec3 lamps_along(Vec3 from, Vec3 dir, float t_max, Weight weight) const {
+    Vec3 sum(0);
+    for (uint32_t i : sized_lamps_) {
+      float pdf;
+      const Vec3 le = lamp_hit(i, from, dir, t_max, &pdf);
+      if (pdf > 0) sum += le * weight(pdf);
+    }
+    return sum;
+  }
   // The environment's radiance towards `dir` (which must have one) and the
   // solid-angle pdf sample_light() would give to that direction (selection
   // probability included), from one lookup.
@@ -176,6 +197,10 @@ class Scene {
   float triangle_area(uint32_t prim) const;
   // u: the light sample's numbers, for a lamp with a size.
   bool sample_punctual(const PunctualLight& light, Vec3 from, Vec2 u, LightSample* out) const;
+  // Lamp data_.lights[i] (one with a size) where the ray (from, dir, t_max)
+  // meets it: its radiance, and *pdf the solid-angle pdf sample_light()
+  // gives that direction (0 where the ray misses it).
+  Vec3 lamp_hit(uint32_t i, Vec3 from, Vec3 dir, float t_max, float* pdf) const;
   // Whether sample_light() and light_pdf() treat light triangle i, seen
   // from `from`, by its solid angle (worker/render/spherical_triangle.h)
   // rather than by area: where `from` is closer to the triangle's centroid
@@ -222,6 +247,7 @@ class Scene {
   // Selection over light_tris_, then data_.lights, then (if sampled) the
   // environment.
   Distribution1D light_select_;
+  std::vector<uint32_t> sized_lamps_;  // indices in data_.lights with a size and a share
   bool env_sampled_ = false;
   float env_select_pmf_ = 0;
   Vec3 center_{0};

@@ -125,7 +125,9 @@ struct CameraTrackKey {
 };
 
 // A KHR_lights_punctual light, in world space and the renderer's units.
-// Delta lights: only next-event estimation reaches them.
+// Without a size, a delta light that only next-event estimation reaches;
+// with one (radius, cos_half_angle), an area light that BSDF samples reach
+// as well (Scene::lamps_along).
 struct PunctualLight {
   enum class Type { kPoint, kSpot, kDirectional };
   Type type = Type::kPoint;
