@@ -389,18 +389,29 @@ TEST(SizedLamps, ADiskLampGivesTheDiskIrradianceEverywhere) {
 
 TEST(SizedLamps, ASunWithAnAngleGivesItsIrradiance) {
   // A sun of angular diameter 2 theta_m is a disc of radiance E / (pi
-  // sin^2 theta_m): a surface at phi to it receives E cos phi, the file's
-  // irradiance, while the disc is above it.
+  // tan^2 theta_m), as Cycles 3.4 renders a Sun's Angle: a surface at phi
+  // to its centre receives pi L sin^2 theta_m cos phi = E cos^2 theta_m
+  // cos phi while the disc is above it (here up to 30 + 30 degrees from
+  // the normal, less than 90).
+  for (float half_deg : {30.0f, 10.0f}) {
+    SCOPED_TRACE(half_deg);
+    SceneData d = lambert_plane();
+    PunctualLight sun = sun_light(normalize(Vec3(1, -2, 0.5f)), Vec3(2, 3, 4));
+    sun.cos_half_angle = std::cos(half_deg * kPi / 180);
+    d.lights.push_back(sun);
+    auto scene = make_scene(std::move(d));
+    const float cos = -sun.direction.y;
+    const float c2 = sun.cos_half_angle * sun.cos_half_angle;
+    auto expected = [&](Vec3) { return sun.intensity * (kAlbedo / kPi * cos * c2); };
+    PixelCheck c = compare_pixels(*scene, top_view(), 256, expected);
+    EXPECT_GT(c.pixels, 400);
+    EXPECT_LT(c.max_error, 0.01);
+  }
   SceneData d = lambert_plane();
   PunctualLight sun = sun_light(normalize(Vec3(1, -2, 0.5f)), Vec3(2, 3, 4));
   sun.cos_half_angle = std::cos(10.0f * kPi / 180);  // 20 degrees across
   d.lights.push_back(sun);
   auto scene = make_scene(std::move(d));
-  const float cos = -sun.direction.y;
-  auto expected = [&](Vec3) { return sun.intensity * (kAlbedo / kPi * cos); };
-  PixelCheck c = compare_pixels(*scene, top_view(), 64, expected);
-  EXPECT_GT(c.pixels, 400);
-  EXPECT_LT(c.max_error, 0.01);
   // Its directions spread over the disc: the samples are not all the axis.
   LightSample a, b;
   ASSERT_TRUE(scene->sample_light(Vec3(0), 0.5f, Vec2(0.1f, 0.2f), &a));
@@ -548,7 +559,7 @@ TEST(SizedLamps, ABsdfRayFindsTheLampWithThePdfSampleLightGave) {
 }
 
 // A perfect mirror (metal of base colour 1, roughness 0: Fresnel 1) shows a
-// sized lamp at its radiance, I / (pi r^2) for a disk, E / (pi sin^2
+// sized lamp at its radiance, I / (pi r^2) for a disk, E / (pi tan^2
 // theta_m) for a sun's disc, whatever the light-sampling strategy (a delta
 // bounce is counted by all three), and nothing just past the edge; the
 // camera itself does not see lamps, as in Cycles 3.4 (measured there: a
@@ -580,8 +591,9 @@ TEST(SizedLamps, AMirrorShowsTheLampTheCameraDoesNot) {
     return trace_path(*scene, Ray{eye, normalize(at - eye)}, sampler, settings);
   };
   const Vec3 disk_le = intensity / (kPi * r * r);
-  const float sin2 = 1.0f - sun.cos_half_angle * sun.cos_half_angle;
-  const Vec3 sun_le = sun.intensity / (kPi * sin2);
+  // E / (pi tan^2 theta_m).
+  const float cos2 = sun.cos_half_angle * sun.cos_half_angle;
+  const Vec3 sun_le = sun.intensity * (cos2 / (kPi * (1.0f - cos2)));
   for (LightStrategy s : {LightStrategy::kMis, LightStrategy::kNeeOnly, LightStrategy::kBsdfOnly}) {
     SCOPED_TRACE(int(s));
     // Eye at the mirror image of the lamp's direction: the ray reflects

@@ -533,13 +533,16 @@ bool Scene::sample_light(Vec3 from, const LightChoice& choice, LightSample* out)
 
 namespace {
 
-// A sun of angular radius theta_m (cos_half_angle c < 1): a disc of uniform
-// radiance E / (pi sin^2 theta_m), so that a surface facing it receives E
-// (the irradiance of the file), sampled uniformly in its cone (pdf
-// 1 / (2 pi (1 - cos theta_m)), Pharr et al., pbrt 3rd ed., 13.6.2).
+// A sun of angular radius theta_m (cos_half_angle c < 1) as Cycles 3.4
+// renders a Sun's Angle: a disc of uniform radiance E / (pi tan^2 theta_m),
+// the Sun's Strength over the area of a disc of radius tan theta_m at unit
+// distance (measured in Blender 3.4: 124.80 for Strength 3 and Angle 10
+// degrees, 2.8657 for Angle 60; docs/renderer.md, "Lamp size"), so that a
+// surface facing it receives E cos^2 theta_m. Sampled uniformly in its cone
+// (pdf 1 / (2 pi (1 - cos theta_m)), Pharr et al., pbrt 3rd ed., 13.6.2).
 Vec3 sun_radiance(const PunctualLight& sun) {
   const float c = sun.cos_half_angle;
-  return sun.intensity / (kPi * (1.0f - c) * (1.0f + c));
+  return sun.intensity * (c * c / (kPi * (1.0f - c) * (1.0f + c)));
 }
 float sun_cone_pdf(const PunctualLight& sun) {
   return 1.0f / (kTwoPi * (1.0f - sun.cos_half_angle));
