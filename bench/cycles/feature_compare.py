@@ -37,6 +37,8 @@
 #   soft_lamps  sized (the job's [lights] radius = 0.25, sun_angle = 10:
 #               the lamps' sizes in Blender), file (control: the file alone,
 #               a point lamp and parallel sunlight)
+#   spot_cone   file, khr (control: asset.generator not Blender's, so the
+#               spot takes KHR_lights_punctual's recommended falloff)
 #   lamp_mirror sized, file (control: the file alone: points, which no
 #               mirror shows)
 #   clearcoat   file, ignored (KHR_materials_clearcoat removed), quarter
@@ -63,7 +65,8 @@ VARIANTS = {"specular": ["file", "ignored"], "clearcoat": ["file", "ignored", "q
             "shape_keys": ["file", "static"], "animation_spline": ["file", "linear", "static"],
             "shape_keys_spline": ["file", "linear", "static"],
             "camera": ["file", "static"], "clipping": ["file", "unclipped"], "camera_spline": ["file", "linear", "static"],
-            "soft_lamps": ["sized", "file"], "lamp_mirror": ["sized", "file"]}
+            "soft_lamps": ["sized", "file"], "lamp_mirror": ["sized", "file"],
+            "spot_cone": ["file", "khr"]}
 WHAT = {"file": "the exported file", "ignored": "KHR_materials_specular ignored",
         "flipped": "control: the map's green inverted", "nomap": "control: no normal map",
         "opaque": "control: alphaMode ignored (opaque)", "ior1": "control: IOR 1 (no bending)",
@@ -72,13 +75,14 @@ WHAT = {"file": "the exported file", "ignored": "KHR_materials_specular ignored"
         "static": "control: the node animation removed (the pose exported, frame 0)",
         "linear": "control: the same keys interpolated linearly (tangents dropped)",
         "unclipped": "control: the camera's znear 0.01 and no zfar (no clipping)",
-        "sized": "the file, with the job's lights.radius = 0.25 and lights.sun_angle = 10"}
+        "sized": "the file, with the job's lights.radius = 0.25 and lights.sun_angle = 10",
+        "khr": "control: the same file said to come from elsewhere (KHR_lights_punctual's recommended falloff)"}
 # Lamp sizes a job gives back (features soft_lamps and lamp_mirror, variant sized).
 LIGHTS = {"sized": "[lights]\nradius = 0.25\nsun_angle = 10.0\n"}
 # Features whose rows add the relative RMSE against Cycles: what differs
 # covers a small part of the image (a moved part, a penumbra).
 RMSE_FEATURES = ("animation", "skinning", "shape_keys", "animation_spline", "shape_keys_spline",
-                 "camera", "camera_spline", "soft_lamps", "lamp_mirror")
+                 "camera", "camera_spline", "soft_lamps", "lamp_mirror", "spot_cone")
 # The frames feature_scene.py renders the animated scenes at (its
 # ANIMATION_FRAME), at Blender's 24 fps.
 ANIMATION_FRAME = {"animation": 9, "skinning": 13, "shape_keys": 13, "animation_spline": 5,
@@ -195,6 +199,8 @@ def variants(feature, d, size):
                     m.get("extensions", {}).get("KHR_materials_specular", {}).pop(key, None)
         elif name == "static":
             v.pop("animations", None)
+        elif name == "khr":
+            v["asset"]["generator"] = "feature_compare.py"  # not Blender: the extension's falloff
         elif name == "linear":
             linear_samplers(v, d)
         elif name == "unclipped":

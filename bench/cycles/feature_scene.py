@@ -68,6 +68,10 @@
 #               of Radius 0.25 m (Blender's default for a new lamp) and a
 #               1 W/m^2 sun of Angle 10 degrees, whose sizes the exporter
 #               drops: soft shadows in Cycles; 96 x 96
+#   spot_cone   a 1000 W spot lamp 2 m over the grey floor pointing straight
+#               down, Spot Size 90 degrees and Blend 0.5 (glTF outer cone
+#               45 degrees, inner 22.5), Radius 0: the cone's edge and its
+#               falloff on the floor; 96 x 96
 #   lamp_mirror the lamps of soft_lamps over a mirror: a metal sphere
 #               (base colour 0.9, Roughness 0, radius 0.6 m) on the grey
 #               floor, which shows the lamp's disk and the sun's disc (in
@@ -376,6 +380,12 @@ def main():
         lamp.data.shadow_soft_size = 0.25
         sun = light(scene, "SUN", 1.0, rotation=sun_rotation)
         sun.data.angle = math.radians(10.0)
+    elif feature == "spot_cone":
+        size = 96
+        grey_floor()
+        spot = light(scene, "SPOT", 1000.0, location=(0.0, 0.0, 2.0))
+        spot.data.spot_size = math.radians(90.0)
+        spot.data.spot_blend = 0.5
     elif feature == "lamp_mirror":
         size = 96
         grey_floor()

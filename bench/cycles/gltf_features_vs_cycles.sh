@@ -13,7 +13,7 @@
 # their Bezier keys (CUBICSPLINE samplers); a moving camera, sampled per
 # frame and as a spline; the camera's clipping planes (znear, zfar); and
 # lamps with a Radius and a Sun with an Angle (the job's [lights]), also
-# as a mirror shows them.
+# as a mirror shows them; a spot lamp's cone and Blend.
 # bench/cycles/feature_scene.py builds, exports and renders each scene with
 # Cycles; dofarm renders the exported file and control variants
 # (bench/cycles/feature_compare.py says which and what is measured), and
@@ -52,7 +52,7 @@ for pair in "0 0" "0.5 0" "1 0" "0.5 1"; do
   scene specular "$out/specular-s$1-t$2" 64 "$1" "$2"
 done
 for feature in specular_texture normal_map normal_map_tangents alpha_mask alpha_blend uv_map animation skinning shape_keys \
-  animation_spline shape_keys_spline camera camera_spline clipping soft_lamps lamp_mirror clearcoat_normal; do
+  animation_spline shape_keys_spline camera camera_spline clipping soft_lamps lamp_mirror spot_cone clearcoat_normal; do
   echo
   echo "$feature ($spp spp):"
   python3 "$here/feature_compare.py" header "$feature"

@@ -205,6 +205,9 @@ TEST(GltfLights, BlenderUnitsGiveCyclesIntensityAndIrradiance) {
   // spot_size 60 degrees, blend 0.25: outer 30 degrees, inner 22.5 degrees.
   EXPECT_NEAR(spot.cos_outer, std::cos(float(M_PI) / 6), 1e-6f);
   EXPECT_NEAR(spot.cos_inner, std::cos(float(M_PI) / 8), 1e-6f);
+  // This file does not say Blender wrote it (asset.generator): the
+  // extension's falloff, not Cycles' (GltfLights.BlenderSpotsAttenuateAsCycles).
+  EXPECT_LT(spot.blender_spot_blend, 0.0f);
 
   const PunctualLight& sun = s.lights[2];
   EXPECT_EQ(sun.type, PunctualLight::Type::kDirectional);
@@ -281,6 +284,35 @@ TEST(GltfLights, SpotFalloffFollowsTheExtension) {
   EXPECT_EQ(spot_falloff(std::cos(0.51f), co, co), 0.0f);
 }
 
+// Cycles 3.4's spot (kernel light.h, spot_attenuation), for Blender's spots:
+// the cosine to the axis, times a smoothstep over the last (1 - cos theta_s)
+// x Blend of the cosine's range. Spot Size 90 degrees, Blend 0.5: at 20
+// degrees from the axis (before the blend starts at 31.4) the cosine alone,
+// at 35 degrees cos 35 x smoothstep(0.76509) = 0.70478 (computed by hand
+// from the definitions), 0 at and beyond 45.
+TEST(GltfLights, BlenderSpotsAttenuateAsCycles) {
+  const float c45 = std::cos(45.0f * kPi / 180);
+  EXPECT_NEAR(cycles_spot_attenuation(1.0f, c45, 0.5f), 1.0f, 1e-6f);
+  EXPECT_NEAR(cycles_spot_attenuation(std::cos(20.0f * kPi / 180), c45, 0.5f), 0.939693f, 1e-5f);
+  EXPECT_NEAR(cycles_spot_attenuation(std::cos(35.0f * kPi / 180), c45, 0.5f), 0.704783f, 1e-5f);
+  EXPECT_EQ(cycles_spot_attenuation(c45, c45, 0.5f), 0.0f);
+  EXPECT_EQ(cycles_spot_attenuation(std::cos(50.0f * kPi / 180), c45, 0.5f), 0.0f);
+  // Blend 0: a hard edge, the cosine up to it.
+  EXPECT_NEAR(cycles_spot_attenuation(std::cos(44.0f * kPi / 180), c45, 0.0f),
+              std::cos(44.0f * kPi / 180), 1e-6f);
+  // The choice by light: a spot Blender wrote carries its Blend
+  // (GltfBlenderExport.*), and only such a spot attenuates as Cycles.
+  PunctualLight spot;
+  spot.type = PunctualLight::Type::kSpot;
+  spot.cos_outer = std::cos(0.5f);
+  spot.cos_inner = std::cos(0.3f);
+  EXPECT_EQ(spot_attenuation(spot, std::cos(0.4f)),
+            spot_falloff(std::cos(0.4f), spot.cos_inner, spot.cos_outer));
+  spot.blender_spot_blend = 0.4f;
+  EXPECT_EQ(spot_attenuation(spot, std::cos(0.4f)),
+            cycles_spot_attenuation(std::cos(0.4f), spot.cos_outer, 0.4f));
+}
+
 TEST(GltfBlenderExport, TheJobSizesTheLampsAndNamesWhatBlenderLeftOut) {
   // Blender's exporter drops every lamp's Radius and every Sun's Angle, and
   // the World; the job's [lights] and [environment] give them back, and a
@@ -296,6 +328,12 @@ TEST(GltfBlenderExport, TheJobSizesTheLampsAndNamesWhatBlenderLeftOut) {
     for (const PunctualLight& l : s.lights) {
       EXPECT_EQ(l.radius, 0.0f);
       EXPECT_EQ(l.cos_half_angle, 1.0f);
+      // The file's Spot: Size 60 degrees, Blend 0.25 (cones 30 and 22.5
+      // degrees): its Blend comes back, for Cycles' attenuation.
+      if (l.type == PunctualLight::Type::kSpot)
+        EXPECT_NEAR(l.blender_spot_blend, 0.25f, 1e-5f);
+      else
+        EXPECT_LT(l.blender_spot_blend, 0.0f);
     }
     ASSERT_EQ(log.lines().size(), 1u);
     EXPECT_NE(log.lines()[0].find("lamps_and_texture.glb"), std::string::npos) << log.lines()[0];

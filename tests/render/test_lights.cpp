@@ -148,6 +148,44 @@ TEST(PunctualLights, SpotInsideOutsideAndInTheFalloff) {
   EXPECT_GT(outside, 20);
 }
 
+// The same plane under a spot that Blender wrote (Spot Size 80 degrees,
+// Blend 0.5): Cycles 3.4's attenuation, written out here from its
+// definition (the cosine to the axis, times a smoothstep in the cosine over
+// the last half of the cone's cosine range).
+TEST(PunctualLights, ABlenderSpotLightsThePlaneAsCycles) {
+  SceneData d = lambert_plane();
+  PunctualLight spot = point_light(Vec3(0, 2, 0), Vec3(50));
+  spot.type = PunctualLight::Type::kSpot;
+  spot.direction = Vec3(0, -1, 0);
+  const float half = 40 * kPi / 180, blend = 0.5f;
+  spot.cos_outer = std::cos(half);
+  spot.cos_inner = std::cos(half * (1 - blend));  // what the exporter writes
+  spot.blender_spot_blend = blend;
+  d.lights.push_back(spot);
+  auto scene = make_scene(std::move(d));
+  int full = 0, smooth = 0, dark = 0;
+  auto expected = [&](Vec3 p) {
+    const Vec3 to = spot.position - p;
+    const float d2 = length_squared(to);
+    const double cos = to.y / std::sqrt(d2);  // to the axis, and to the plane's normal
+    const double edge = std::cos(double(half)), width = (1 - edge) * blend;
+    double a = 0;
+    if (cos > edge) {
+      const double x = std::min(1.0, (cos - edge) / width);
+      a = cos * x * x * (3 - 2 * x);
+      ++(x < 1 ? smooth : full);
+    } else {
+      ++dark;
+    }
+    return Vec3(50) * float(a * kAlbedo / kPi * cos / d2);
+  };
+  PixelCheck c = compare_pixels(*scene, top_view(), 2, expected);
+  EXPECT_LT(c.max_error, 1e-4);
+  EXPECT_GT(full, 20);
+  EXPECT_GT(smooth, 20);
+  EXPECT_GT(dark, 20);
+}
+
 TEST(PunctualLights, DirectionalLightGivesItsIrradiance) {
   SceneData d = lambert_plane();
   const PunctualLight sun = sun_light(normalize(Vec3(1, -2, 0.5f)), Vec3(2, 3, 4));

@@ -608,7 +608,7 @@ bool Scene::sample_punctual(const PunctualLight& light, Vec3 from, Vec2 u, Light
     radiance = disk_radiance(light);
   }
   if (light.type == PunctualLight::Type::kSpot) {
-    float falloff = spot_falloff(dot(-out->wi, light.direction), light.cos_inner, light.cos_outer);
+    float falloff = spot_attenuation(light, dot(-out->wi, light.direction));
     if (!(falloff > 0)) return false;
     radiance = radiance * falloff;
   }
@@ -638,7 +638,7 @@ Vec3 Scene::lamp_hit(uint32_t i, Vec3 from, Vec3 dir, float t_max, float* pdf) c
   if (!(length_squared(q - l.position) <= l.radius * l.radius)) return Vec3(0);
   Vec3 le = disk_radiance(l);
   if (l.type == PunctualLight::Type::kSpot) {
-    const float falloff = spot_falloff(dot(-dir, l.direction), l.cos_inner, l.cos_outer);
+    const float falloff = spot_attenuation(l, dot(-dir, l.direction));
     if (!(falloff > 0)) return Vec3(0);
     le = le * falloff;
   }

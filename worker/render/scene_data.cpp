@@ -38,6 +38,18 @@ float spot_falloff(float cos_angle, float cos_inner, float cos_outer) {
   return t * t;
 }
 
+float cycles_spot_attenuation(float cos_angle, float cos_half_spot, float blend) {
+  if (!(cos_angle > cos_half_spot)) return 0.0f;
+  const float t = cos_angle - cos_half_spot;
+  const float smooth = (1.0f - cos_half_spot) * blend;
+  float a = cos_angle;
+  if (smooth > 0 && t < smooth) {
+    const float x = t / smooth;
+    a *= x * x * (3.0f - 2.0f * x);
+  }
+  return a;
+}
+
 // ---------------------------------------------------------------------------
 // SceneData
 

@@ -145,12 +145,32 @@ struct PunctualLight {
   // a point, parallel light (a delta light).
   float radius = 0.0f;
   float cos_half_angle = 1.0f;
+  // A spot from a file Blender wrote: its Spot Blend, recovered from the
+  // cones (the exporter writes inner = outer (1 - blend)), and the spot
+  // attenuates as Cycles 3.4 attenuates it (cycles_spot_attenuation). < 0:
+  // the extension's recommended falloff (spot_falloff).
+  float blender_spot_blend = -1.0f;
 };
 
 // KHR_lights_punctual's spot falloff, the smooth one the extension's
 // specification recommends: (clamp((cos - cos_outer) / (cos_inner - cos_outer)))^2,
 // the denominator kept above 1e-3.
 float spot_falloff(float cos_angle, float cos_inner, float cos_outer);
+
+// How Cycles 3.4 attenuates a Blender Spot of half angle theta_s (cosine
+// `cos_half_spot`) and Spot Blend b at an angle whose cosine is c from its
+// axis: 0 outside the cone; inside, c itself, times smoothstep(t / s) where
+// t = c - cos theta_s is below s = (1 - cos theta_s) b (Cycles'
+// spot_attenuation: its light falls off with the cosine to the axis too).
+float cycles_spot_attenuation(float cos_angle, float cos_half_spot, float blend);
+
+// A spot's attenuation towards a direction at cosine `cos_angle` from its
+// axis: Cycles' for a Blender spot, else the extension's.
+inline float spot_attenuation(const PunctualLight& spot, float cos_angle) {
+  return spot.blender_spot_blend >= 0
+             ? cycles_spot_attenuation(cos_angle, spot.cos_outer, spot.blender_spot_blend)
+             : spot_falloff(cos_angle, spot.cos_inner, spot.cos_outer);
+}
 
 struct SceneMotion;  // worker/render/scene_motion.h
 struct SceneCamera;  // worker/render/scene_motion.h

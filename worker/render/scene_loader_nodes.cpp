@@ -3,6 +3,7 @@
 #include <assimp/anim.h>
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -344,6 +345,12 @@ void Loader::lights() {
         light.type = PunctualLight::Type::kSpot;
         light.cos_inner = std::cos(al->mAngleInnerCone);
         light.cos_outer = std::cos(al->mAngleOuterCone);
+        // Blender's exporter writes its Spot Size and Blend as the cones
+        // (outer = size / 2, inner = outer (1 - blend)); Cycles attenuates
+        // by neither cone's KHR falloff (scene_data.h).
+        if (written_by_blender(*out_) && al->mAngleOuterCone > 0)
+          light.blender_spot_blend =
+              std::clamp(1.0f - al->mAngleInnerCone / al->mAngleOuterCone, 0.0f, 1.0f);
         break;
       case aiLightSource_DIRECTIONAL:
         light.type = PunctualLight::Type::kDirectional;
