@@ -39,6 +39,8 @@
 #               a point lamp and parallel sunlight)
 #   spot_cone   file, khr (control: asset.generator not Blender's, so the
 #               spot takes KHR_lights_punctual's recommended falloff)
+#   spot_soft   sized (the job's [lights] radius = 0.25), file (control: a
+#               point spot, hard edges)
 #   lamp_mirror sized, file (control: the file alone: points, which no
 #               mirror shows)
 #   clearcoat   file, ignored (KHR_materials_clearcoat removed), quarter
@@ -66,7 +68,7 @@ VARIANTS = {"specular": ["file", "ignored"], "clearcoat": ["file", "ignored", "q
             "shape_keys_spline": ["file", "linear", "static"],
             "camera": ["file", "static"], "clipping": ["file", "unclipped"], "camera_spline": ["file", "linear", "static"],
             "soft_lamps": ["sized", "file"], "lamp_mirror": ["sized", "file"],
-            "spot_cone": ["file", "khr"]}
+            "spot_cone": ["file", "khr"], "spot_soft": ["sized", "file"]}
 WHAT = {"file": "the exported file", "ignored": "KHR_materials_specular ignored",
         "flipped": "control: the map's green inverted", "nomap": "control: no normal map",
         "opaque": "control: alphaMode ignored (opaque)", "ior1": "control: IOR 1 (no bending)",
@@ -82,7 +84,7 @@ LIGHTS = {"sized": "[lights]\nradius = 0.25\nsun_angle = 10.0\n"}
 # Features whose rows add the relative RMSE against Cycles: what differs
 # covers a small part of the image (a moved part, a penumbra).
 RMSE_FEATURES = ("animation", "skinning", "shape_keys", "animation_spline", "shape_keys_spline",
-                 "camera", "camera_spline", "soft_lamps", "lamp_mirror", "spot_cone")
+                 "camera", "camera_spline", "soft_lamps", "lamp_mirror", "spot_cone", "spot_soft")
 # The frames feature_scene.py renders the animated scenes at (its
 # ANIMATION_FRAME), at Blender's 24 fps.
 ANIMATION_FRAME = {"animation": 9, "skinning": 13, "shape_keys": 13, "animation_spline": 5,
@@ -314,6 +316,8 @@ def rows(feature, d, spp, extra):
             what = "control: KHR_materials_transmission ignored (opaque)"
         elif feature == "soft_lamps" and name == "file":
             what = "control: the file alone (a point lamp, parallel sunlight: hard shadows)"
+        elif feature == "spot_soft" and name == "file":
+            what = "control: the file alone (a point spot: hard shadow)"
         elif feature == "lamp_mirror" and name == "file":
             what = "control: the file alone (points, which the mirror cannot show)"
         row = "| %s | %.3f | %.3f |" % (what, correlation(x, cy),

@@ -72,6 +72,8 @@
 #               down, Spot Size 90 degrees and Blend 0.5 (glTF outer cone
 #               45 degrees, inner 22.5), Radius 0: the cone's edge and its
 #               falloff on the floor; 96 x 96
+#   spot_soft   the spot of spot_cone with Radius 0.25 m over the red cube:
+#               the cone's edge and the cube's shadow both soft; 96 x 96
 #   lamp_mirror the lamps of soft_lamps over a mirror: a metal sphere
 #               (base colour 0.9, Roughness 0, radius 0.6 m) on the grey
 #               floor, which shows the lamp's disk and the sun's disc (in
@@ -380,12 +382,15 @@ def main():
         lamp.data.shadow_soft_size = 0.25
         sun = light(scene, "SUN", 1.0, rotation=sun_rotation)
         sun.data.angle = math.radians(10.0)
-    elif feature == "spot_cone":
+    elif feature in ("spot_cone", "spot_soft"):
         size = 96
         grey_floor()
         spot = light(scene, "SPOT", 1000.0, location=(0.0, 0.0, 2.0))
         spot.data.spot_size = math.radians(90.0)
         spot.data.spot_blend = 0.5
+        if feature == "spot_soft":
+            red_cube((0.3, 0.2, 0.4))
+            spot.data.shadow_soft_size = 0.25
     elif feature == "lamp_mirror":
         size = 96
         grey_floor()
