@@ -553,6 +553,12 @@ float sun_cone_pdf(const PunctualLight& sun) {
 Vec3 disk_radiance(const PunctualLight& lamp) {
   return lamp.intensity / (kPi * lamp.radius * lamp.radius);
 }
+// The solid-angle pdf of a point on that disk, uniform by area, seen from
+// distance sqrt(dist2) at cosine cos_l to the disk's normal:
+// dist2 / (cos_l pi r^2).
+float disk_pdf(const PunctualLight& lamp, float dist2, float cos_l) {
+  return dist2 / (cos_l * kPi * lamp.radius * lamp.radius);
+}
 
 }  // namespace
 
@@ -591,9 +597,8 @@ bool Scene::sample_punctual(const PunctualLight& light, Vec3 from, Vec2 u, Light
   Vec3 radiance = light.intensity / dist2;
   if (light.radius > 0) {
     // The disk facing `from` (disk_radiance()), a point p on it uniform by
-    // area. The solid-angle pdf is |p - from|^2 / (cos_l pi r^2), with
-    // cos_l = dist / |p - from| (p lies in the plane through the centre
-    // normal to the centre's direction).
+    // area (disk_pdf()), with cos_l = dist / |p - from| (p lies in the plane
+    // through the centre normal to the centre's direction).
     const Vec2 disk = sample_concentric_disk(u) * light.radius;
     const Frame f(-out->wi);
     const Vec3 p = light.position + f.t * disk.x + f.b * disk.y;
@@ -603,7 +608,7 @@ bool Scene::sample_punctual(const PunctualLight& light, Vec3 from, Vec2 u, Light
     const float len = std::sqrt(len2);
     out->wi = to / len;
     out->distance = len;
-    out->pdf = len2 / ((dist / len) * kPi * light.radius * light.radius);
+    out->pdf = disk_pdf(light, len2, dist / len);
     out->is_delta = false;
     radiance = disk_radiance(light);
   }
@@ -642,9 +647,8 @@ Vec3 Scene::lamp_hit(uint32_t i, Vec3 from, Vec3 dir, float t_max, float* pdf) c
     if (!(falloff > 0)) return Vec3(0);
     le = le * falloff;
   }
-  // As sample_punctual(): |q - from|^2 / (cos_l pi r^2), cos_l = dm / |m|.
-  const float cos_l = dm / std::sqrt(m2);
-  const float p = pmf * t * t / (cos_l * kPi * l.radius * l.radius);
+  // As sample_punctual(), with cos_l = dm / |m|.
+  const float p = pmf * disk_pdf(l, t * t, dm / std::sqrt(m2));
   if (!(p > 0) || !std::isfinite(p) || !is_finite(le)) return Vec3(0);
   *pdf = p;
   return le;
