@@ -48,6 +48,9 @@ constexpr const char* kRotationAttr = "dofarm.camera.rotation";
 constexpr const char* kFovAttr = "dofarm.camera.fov";
 constexpr const char* kFocalDistanceAttr = "dofarm.camera.focal_distance";
 constexpr const char* kApertureAttr = "dofarm.camera.aperture";
+// Only in the header of an orthographic camera's frame (absent: perspective),
+// so a perspective frame's file is what it was before orthographic cameras.
+constexpr const char* kOrthoHeightAttr = "dofarm.camera.ortho_height";
 
 // What the root R, G, B hold (dofarm.rgb).
 constexpr const char* kRgbReference = "reference";
@@ -150,6 +153,7 @@ void write_camera(Imf::Header& header, const CameraState& cam) {
   header.insert(kFovAttr, Imf::FloatAttribute(cam.fov_deg));
   header.insert(kFocalDistanceAttr, Imf::FloatAttribute(cam.focal_distance));
   header.insert(kApertureAttr, Imf::FloatAttribute(cam.aperture));
+  if (cam.orthographic()) header.insert(kOrthoHeightAttr, Imf::FloatAttribute(cam.ortho_height));
 }
 
 CameraState read_camera(const Imf::Header& header, const std::filesystem::path& path) {
@@ -170,6 +174,9 @@ CameraState read_camera(const Imf::Header& header, const std::filesystem::path& 
   cam.focal_distance =
       required_attribute<Imf::FloatAttribute>(header, kFocalDistanceAttr, path).value();
   cam.aperture = required_attribute<Imf::FloatAttribute>(header, kApertureAttr, path).value();
+  if (header.find(kOrthoHeightAttr) != header.end())
+    cam.ortho_height =
+        required_attribute<Imf::FloatAttribute>(header, kOrthoHeightAttr, path).value();
   return cam;
 }
 }  // namespace

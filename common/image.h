@@ -20,9 +20,14 @@ struct CameraState {
   float time = 0;  // seconds = frame / fps
   float position[3] = {0, 0, 0};
   float rotation[4] = {1, 0, 0, 0};  // unit quaternion w, x, y, z
-  float fov_deg = 40;
+  float fov_deg = 40;                // vertical; 0 for an orthographic camera
   float focal_distance = 1;
   float aperture = 0;
+  // An orthographic camera (glTF camera.orthographic, Blender's
+  // Orthographic type): the height of its view in scene units; 0 for a
+  // perspective camera.
+  float ortho_height = 0;
+  bool orthographic() const { return ortho_height > 0; }
 };
 
 struct FrameBuffers {

@@ -106,7 +106,7 @@ json build_report(const ShardReader& r) {
       sum.update(d.data(), d.size() * sizeof(float));
     }
     auto row = camera_to_row(fb.camera);
-    sum.update(row.data(), sizeof row);
+    sum.update(row.data(), size_t(camera_columns_of(info.schema)) * sizeof(float));
   }
   uint64_t computed = sum.digest();
 

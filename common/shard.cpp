@@ -25,18 +25,23 @@ namespace fs = std::filesystem;
 
 const std::array<const char*, kCameraColumns>& camera_columns() {
   static const std::array<const char*, kCameraColumns> names = {
-      "frame",      "time",       "position_x", "position_y", "position_z",     "rotation_w",
-      "rotation_x", "rotation_y", "rotation_z", "fov_deg",    "focal_distance", "aperture"};
+      "frame",          "time",       "position_x",  "position_y", "position_z",
+      "rotation_w",     "rotation_x", "rotation_y",  "rotation_z", "fov_deg",
+      "focal_distance", "aperture",   "ortho_height"};
   return names;
 }
 
-std::array<float, kCameraColumns> camera_to_row(const CameraState& c) {
-  return {float(c.frame), c.time,        c.position[0],    c.position[1],
-          c.position[2],  c.rotation[0], c.rotation[1],    c.rotation[2],
-          c.rotation[3],  c.fov_deg,     c.focal_distance, c.aperture};
+int camera_columns_of(const std::string& schema) {
+  return schema == kShardSchemaV2 || schema == kShardSchemaV1 ? kCameraColumnsV2 : kCameraColumns;
 }
 
-CameraState camera_from_row(const float* r) {
+std::array<float, kCameraColumns> camera_to_row(const CameraState& c) {
+  return {float(c.frame),   c.time,        c.position[0], c.position[1], c.position[2],
+          c.rotation[0],    c.rotation[1], c.rotation[2], c.rotation[3], c.fov_deg,
+          c.focal_distance, c.aperture,    c.ortho_height};
+}
+
+CameraState camera_from_row(const float* r, int columns) {
   CameraState c;
   c.frame = int(std::lround(r[0]));
   c.time = r[1];
@@ -45,6 +50,7 @@ CameraState camera_from_row(const float* r) {
   c.fov_deg = r[9];
   c.focal_distance = r[10];
   c.aperture = r[11];
+  c.ortho_height = columns > kCameraColumnsV2 ? r[12] : 0.0f;
   return c;
 }
 
@@ -152,6 +158,7 @@ struct ShardReader::Impl {
   ShardReaderOptions options;
   Handle file;
   std::map<std::string, Handle> datasets;  // buffers and "camera"
+  int camera_columns = kCameraColumns;     // of the "camera" dataset (by schema)
   // Image datasets stored as the writer stores them: chunk shape (rank of the
   // dataset) per name; absent = read through H5Dread.
   std::map<std::string, std::vector<hsize_t>> direct;
@@ -354,9 +361,10 @@ void ShardReader::Impl::open(const fs::path& path_in) {
   if (H5Aexists(f, "schema") <= 0)
     throw ShardFormatError(where + ": no 'schema' attribute; not a dofarm shard");
   i.schema = read_attr_string(f, "schema", path);
-  if (i.schema != kShardSchema && i.schema != kShardSchemaV1)
-    throw ShardFormatError(where + ": schema '" + i.schema + "' is not supported (this build reads " +
-                           kShardSchema + " and " + kShardSchemaV1 + ")");
+  if (i.schema != kShardSchema && i.schema != kShardSchemaV2 && i.schema != kShardSchemaV1)
+    throw ShardFormatError(where + ": schema '" + i.schema +
+                           "' is not supported (this build reads " + kShardSchema + ", " +
+                           kShardSchemaV2 + " and " + kShardSchemaV1 + ")");
   i.batch_id = read_attr_string(f, "batch_id", path);
   i.scene_id = read_attr_string(f, "scene_id", path);
   i.scene_hash = read_attr_string(f, "scene_hash", path);
@@ -407,7 +415,8 @@ void ShardReader::Impl::open(const fs::path& path_in) {
   };
   for (const BufferInfo& b : buffer_infos())
     open_checked(b.name, dataset_dims(b, i), b.optional_in_shards);
-  open_checked("camera", {hsize_t(i.frame_count()), hsize_t(kCameraColumns)});
+  m.camera_columns = camera_columns_of(i.schema);
+  open_checked("camera", {hsize_t(i.frame_count()), hsize_t(m.camera_columns)});
   for (const BufferInfo& b : buffer_infos())
     if (m.datasets.count(b.name)) probe_direct(b.name, b);
 }
@@ -465,10 +474,11 @@ bool ShardReader::decodes_chunks(const std::string& buffer) const {
 std::vector<CameraState> ShardReader::cameras() const {
   H5Lock lock;
   int n = frame_count();
-  std::vector<float> rows(size_t(n) * kCameraColumns);
+  const int k = impl_->camera_columns;
+  std::vector<float> rows(size_t(n) * k);
   impl_->read("camera", nullptr, 0, n, 0, {}, rows.data(), rows.size());
   std::vector<CameraState> out;
-  for (int f = 0; f < n; ++f) out.push_back(camera_from_row(&rows[size_t(f) * kCameraColumns]));
+  for (int f = 0; f < n; ++f) out.push_back(camera_from_row(&rows[size_t(f) * k], k));
   return out;
 }
 
@@ -484,8 +494,8 @@ FrameBuffers ShardReader::read_frame(int frame, const std::vector<std::string>& 
   fb.versions = i.versions;
   fb.rect = {0, 0, i.width, i.height};
   float row[kCameraColumns];
-  impl_->read("camera", nullptr, frame, 1, 0, {}, row, kCameraColumns);
-  fb.camera = camera_from_row(row);
+  impl_->read("camera", nullptr, frame, 1, 0, {}, row, size_t(impl_->camera_columns));
+  fb.camera = camera_from_row(row, impl_->camera_columns);
   for (const BufferInfo& b : buffer_infos()) {
     bool wanted = buffers.empty();
     for (const std::string& name : buffers) wanted |= name == b.name;
@@ -554,8 +564,9 @@ uint64_t ShardReader::compute_data_checksum() const {
       const std::vector<float>& data = buffer_data(fb, b.name);
       sum.update(data.data(), data.size() * sizeof(float));
     }
+    // The row as the shard's schema stores it (12 columns before version 3).
     auto row = camera_to_row(fb.camera);
-    sum.update(row.data(), sizeof row);
+    sum.update(row.data(), size_t(impl_->camera_columns) * sizeof(float));
   }
   return sum.digest();
 }

@@ -34,8 +34,11 @@
 
 namespace dofarm {
 
-inline constexpr const char* kShardSchema = "dofarm.shard/2";
-// Version 1 lacks job_hash (and its scene_hash covers only the scene file
+inline constexpr const char* kShardSchema = "dofarm.shard/3";
+// Version 2 lacks the camera's ortho_height column (its frames are all
+// perspective); readers still take it.
+inline constexpr const char* kShardSchemaV2 = "dofarm.shard/2";
+// Version 1 lacks job_hash as well (and its scene_hash covers only the scene file
 // and environment map); readers still take it.
 inline constexpr const char* kShardSchemaV1 = "dofarm.shard/1";
 // Spatial chunk edge; chunks are clipped to the image when it is smaller.
@@ -80,12 +83,17 @@ struct ShardInfo {
 
 // Columns of the `camera` dataset, in order (also stored as its "columns"
 // attribute): frame, time, position_x/y/z, rotation_w/x/y/z, fov_deg,
-// focal_distance, aperture. The frame number is stored as float32, exact
-// below 2^24.
-inline constexpr int kCameraColumns = 12;
+// focal_distance, aperture, ortho_height. The frame number is stored as
+// float32, exact below 2^24. Versions 1 and 2 have the first 12.
+inline constexpr int kCameraColumns = 13;
+inline constexpr int kCameraColumnsV2 = 12;
 const std::array<const char*, kCameraColumns>& camera_columns();
 std::array<float, kCameraColumns> camera_to_row(const CameraState& c);
-CameraState camera_from_row(const float* row);
+// A row of `columns` values (kCameraColumns, or kCameraColumnsV2 for a
+// version 1 or 2 shard: ortho_height 0).
+CameraState camera_from_row(const float* row, int columns = kCameraColumns);
+// The camera columns a shard of `schema` has.
+int camera_columns_of(const std::string& schema);
 
 // Comma-separated channel names of a buffer ("R,G,B", "X,Y,Z", "Y").
 const char* buffer_channel_names(const std::string& buffer);

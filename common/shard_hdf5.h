@@ -238,9 +238,12 @@ inline Handle select_crop(hid_t dataset, const BufferInfo* b, int f0, int n, int
                           std::vector<hsize_t>* count_out = nullptr) {
   Handle space = checked(H5Dget_space(dataset), H5Sclose, path, "getting dataspace");
   std::vector<hsize_t> start, count;
-  if (!b) {  // camera
+  if (!b) {  // camera: all its columns (12 before version 3)
+    hsize_t dims[2] = {0, 0};
+    if (H5Sget_simple_extent_ndims(space.get()) != 2) h5_fail(path, "camera is not 2-D");
+    H5Sget_simple_extent_dims(space.get(), dims, nullptr);
     start = {hsize_t(f0), 0};
-    count = {hsize_t(n), hsize_t(kCameraColumns)};
+    count = {hsize_t(n), dims[1]};
   } else {
     start = {hsize_t(f0)};
     count = {hsize_t(n)};

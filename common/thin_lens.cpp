@@ -17,6 +17,16 @@ float coc_diameter_pixels(float aperture_radius, float focus_distance, float tan
   return std::isfinite(c) ? float(std::min(c, double(FLT_MAX))) : FLT_MAX;
 }
 
+float ortho_coc_diameter_pixels(float aperture_radius, float focus_distance, float ortho_height,
+                                int height, float z) {
+  if (aperture_radius <= 0) return 0;
+  if (!(z > 0)) return FLT_MAX;
+  const double s = focus_distance;
+  const double c = 2.0 * double(aperture_radius) * std::fabs(double(z) - s) / s * double(height) /
+                   double(ortho_height);
+  return std::isfinite(c) ? float(std::min(c, double(FLT_MAX))) : FLT_MAX;
+}
+
 float fstop_lens_radius(double focal_length_mm, double fstop) {
   // Cycles' thin lens: aperture radius = focal length / (2 N), mm -> m.
   const double r = focal_length_mm / (2.0 * fstop) * 1e-3;

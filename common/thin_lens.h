@@ -15,6 +15,16 @@ namespace dofarm {
 float coc_diameter_pixels(float aperture_radius, float focus_distance, float tan_half_vfov,
                           int height, float z);
 
+// The same for an orthographic camera whose view is `ortho_height` scene
+// units high: every point of the lens disk looks along the viewing axis, so
+// the rays through one film point meet at depth S and spread at depth z
+// over 2A |z - S| / S (no 1/z: the view does not shrink with depth), at
+// H / ortho_height pixels per scene unit. z <= 0 (no depth) gives the limit
+// z -> infinity, which is unbounded: clamped to float's range, as are all
+// values.
+float ortho_coc_diameter_pixels(float aperture_radius, float focus_distance, float ortho_height,
+                                int height, float z);
+
 // Lens radius in metres of an f-number N at focal length f (mm): Blender's
 // and Cycles' thin lens, radius = f / (2 N). Clamped to float's range.
 float fstop_lens_radius(double focal_length_mm, double fstop);

@@ -43,6 +43,16 @@
 #               point spot, hard edges)
 #   lamp_mirror sized, file (control: the file alone: points, which no
 #               mirror shows)
+#   ortho       file (an orthographic camera, 3 m across), persp (control:
+#               a perspective camera that frames the floor the same: what a
+#               user would get from a renderer without orthographic cameras)
+#   ortho_dof   file (the job's fstop = 0.8, focal_distance = 4.2, as set in
+#               Blender: lens radius 1 / (2 N) = 0.625, focal plane 4.2 m
+#               beyond Clip Start), lens (control: the radius a perspective
+#               camera's 50 mm lens would give at f/0.8, 0.03125),
+#               from_camera (control: focal_distance 3.2, the focal plane
+#               4.2 m from the camera, as if Cycles counted Focus Distance
+#               from the camera), pinhole (control: no lens)
 #   clearcoat   file, ignored (KHR_materials_clearcoat removed), quarter
 #               (clearcoatFactor x 0.25: Blender 3.4's Principled v1 weighs
 #               its clearcoat lobe by a quarter, as Disney's 2012 model does)
@@ -55,6 +65,7 @@
 # for specular_texture too (the highlight, which the checker modulates).
 import copy
 import json
+import math
 import struct
 import sys
 import zlib
@@ -68,7 +79,8 @@ VARIANTS = {"specular": ["file", "ignored"], "clearcoat": ["file", "ignored", "q
             "shape_keys_spline": ["file", "linear", "static"],
             "camera": ["file", "static"], "clipping": ["file", "unclipped"], "camera_spline": ["file", "linear", "static"],
             "soft_lamps": ["sized", "file"], "lamp_mirror": ["sized", "file"],
-            "spot_cone": ["file", "khr"], "spot_soft": ["sized", "file"]}
+            "spot_cone": ["file", "khr"], "spot_soft": ["sized", "file"],
+            "ortho": ["file", "persp"], "ortho_dof": ["file", "lens", "from_camera", "pinhole"]}
 WHAT = {"file": "the exported file", "ignored": "KHR_materials_specular ignored",
         "flipped": "control: the map's green inverted", "nomap": "control: no normal map",
         "opaque": "control: alphaMode ignored (opaque)", "ior1": "control: IOR 1 (no bending)",
@@ -78,13 +90,22 @@ WHAT = {"file": "the exported file", "ignored": "KHR_materials_specular ignored"
         "linear": "control: the same keys interpolated linearly (tangents dropped)",
         "unclipped": "control: the camera's znear 0.01 and no zfar (no clipping)",
         "sized": "the file, with the job's lights.radius = 0.25 and lights.sun_angle = 10",
-        "khr": "control: the same file said to come from elsewhere (KHR_lights_punctual's recommended falloff)"}
+        "khr": "control: the same file said to come from elsewhere (KHR_lights_punctual's recommended falloff)",
+        "persp": "control: a perspective camera framing the floor the same (yfov 33.4 degrees)",
+        "lens": "control: lens radius 0.03125 (50 mm at f/0.8, a perspective camera's)",
+        "from_camera": "control: focal_distance 3.2 (the focal plane 4.2 m from the camera, not from Clip Start)",
+        "pinhole": "control: no lens (aperture 0)"}
+# The lens keys of a variant's job ([[camera.key]]); default a pinhole.
+LENS = {("ortho_dof", "file"): "fstop = 0.8\nfocal_distance = 4.2\n",
+        ("ortho_dof", "lens"): "aperture = 0.03125\nfocal_distance = 4.2\n",
+        ("ortho_dof", "from_camera"): "fstop = 0.8\nfocal_distance = 3.2\n"}
 # Lamp sizes a job gives back (features soft_lamps and lamp_mirror, variant sized).
 LIGHTS = {"sized": "[lights]\nradius = 0.25\nsun_angle = 10.0\n"}
 # Features whose rows add the relative RMSE against Cycles: what differs
 # covers a small part of the image (a moved part, a penumbra).
 RMSE_FEATURES = ("animation", "skinning", "shape_keys", "animation_spline", "shape_keys_spline",
-                 "camera", "camera_spline", "soft_lamps", "lamp_mirror", "spot_cone", "spot_soft")
+                 "camera", "camera_spline", "soft_lamps", "lamp_mirror", "spot_cone", "spot_soft",
+                 "ortho", "ortho_dof")
 # The frames feature_scene.py renders the animated scenes at (its
 # ANIMATION_FRAME), at Blender's 24 fps.
 ANIMATION_FRAME = {"animation": 9, "skinning": 13, "shape_keys": 13, "animation_spline": 5,
@@ -205,6 +226,17 @@ def variants(feature, d, size):
             v["asset"]["generator"] = "feature_compare.py"  # not Blender: the extension's falloff
         elif name == "linear":
             linear_samplers(v, d)
+        elif name == "persp":
+            # Half of 3 m at the floor, 5 m away: yfov = 2 atan(1.5 / 5).
+            for cam in v.get("cameras", []):
+                near = cam["orthographic"]["znear"]
+                far = cam["orthographic"].get("zfar")
+                cam.pop("orthographic")
+                cam["type"] = "perspective"
+                cam["perspective"] = {"yfov": 2.0 * math.atan(1.5 / 5.0), "aspectRatio": 1.0,
+                                      "znear": near}
+                if far:
+                    cam["perspective"]["zfar"] = far
         elif name == "unclipped":
             for cam in v.get("cameras", []):
                 cam["perspective"]["znear"] = 0.01
@@ -232,9 +264,10 @@ def variants(feature, d, size):
         open("%s/%s.toml" % (d, name), "w").write(
             'scene = "%s.gltf"\nseed = 3\n[image]\nwidth = %d\nheight = %d\n'
             '[frames]\nstart = %d\nend = %d\nfps = 24\n[camera]\nfrom_scene = true\n'
-            '[[camera.key]]\nframe = %d\naperture = 0.0\nfocal_distance = 5.0\n'
+            '[[camera.key]]\nframe = %d\n%s'
             '[buffers]\nversions = 1\nalbedo_ref_spp = 1\n%s%s'
-            % (name, size, size, frame, frame, frame, world,
+            % (name, size, size, frame, frame, frame,
+               LENS.get((feature, name), "aperture = 0.0\nfocal_distance = 5.0\n"), world,
                LIGHTS.get(name, "")))
         print(name)
 

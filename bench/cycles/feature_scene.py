@@ -404,6 +404,12 @@ def main():
         lamp.data.shadow_soft_size = 0.25
         sun = light(scene, "SUN", 1.0, rotation=sun_rotation)
         sun.data.angle = math.radians(10.0)
+    elif feature in ("ortho", "ortho_dof"):
+        size = 96
+        grey_floor()
+        red_cube((0.3, 0.2, 0.4))
+        light(scene, "POINT", 300.0, location=(-1.5, 1.5, 1.5))
+        light(scene, "SUN", 0.5, rotation=sun_rotation)
     elif scene_kind == "camera":
         size = 96
         grey_floor()
@@ -443,6 +449,18 @@ def main():
         # 5 m below beyond Clip End; the cube's top, 4.2 m below, between.
         cam.data.clip_start = 3.0
         cam.data.clip_end = 4.7
+    if feature in ("ortho", "ortho_dof"):
+        # Orthographic, 3 m across, looking down on the cube from 5 m.
+        cam.data.type = "ORTHO"
+        cam.data.ortho_scale = 3.0
+    if feature == "ortho_dof":
+        # Focused on the cube's top (view depth 4.2), the floor 0.8 m
+        # behind it; f/0.8. Clip Start 1 m: were Cycles' focus distance
+        # counted from Clip Start, the focal plane would lie 1 m deeper.
+        cam.data.clip_start = 1.0
+        cam.data.dof.use_dof = True
+        cam.data.dof.focus_distance = 4.2
+        cam.data.dof.aperture_fstop = 0.8
     if scene_kind == "camera":
         # Across the cube from (-1.5, -1, 5) to (1.5, 1, 5), rolling 60 degrees.
         for frame, sign in ((1, -1.0), (25, 1.0)):

@@ -52,7 +52,7 @@ for pair in "0 0" "0.5 0" "1 0" "0.5 1"; do
   scene specular "$out/specular-s$1-t$2" 64 "$1" "$2"
 done
 for feature in specular_texture normal_map normal_map_tangents alpha_mask alpha_blend uv_map animation skinning shape_keys \
-  animation_spline shape_keys_spline camera camera_spline clipping soft_lamps lamp_mirror spot_cone spot_soft clearcoat_normal; do
+  animation_spline shape_keys_spline camera camera_spline clipping soft_lamps lamp_mirror spot_cone spot_soft ortho ortho_dof clearcoat_normal; do
   echo
   echo "$feature ($spp spp):"
   python3 "$here/feature_compare.py" header "$feature"

@@ -64,6 +64,11 @@ inline FrameBuffers make_frame(int frame) {
   fb.camera.fov_deg = 40.0f + frame;
   fb.camera.focal_distance = 3.6f;
   fb.camera.aperture = 0.05f;
+  // Odd frames orthographic (no field of view, a view 2.5 units high).
+  if (frame % 2) {
+    fb.camera.fov_deg = 0.0f;
+    fb.camera.ortho_height = 2.5f;
+  }
   return fb;
 }
 

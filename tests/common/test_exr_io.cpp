@@ -136,6 +136,7 @@ void expect_frames_identical(const FrameBuffers& a, const FrameBuffers& b) {
   EXPECT_EQ(bits(a.camera.fov_deg), bits(b.camera.fov_deg));
   EXPECT_EQ(bits(a.camera.focal_distance), bits(b.camera.focal_distance));
   EXPECT_EQ(bits(a.camera.aperture), bits(b.camera.aperture));
+  EXPECT_EQ(bits(a.camera.ortho_height), bits(b.camera.ortho_height));
   for (const BufferInfo& info : buffer_infos())
     expect_bits_equal(buffer_data(a, info.name), buffer_data(b, info.name), info.name);
 }
@@ -165,6 +166,27 @@ TEST_F(ExrIo, FrameRoundTripIsBitExact) {
   expect_frames_identical(fb, back.buffers);
   EXPECT_EQ(back.attributes, attrs);
   EXPECT_EQ(files_in_dir(), std::vector<std::string>{"frame.exr"}) << "temporary file left over";
+}
+
+// An orthographic camera's view height travels in its own attribute; a
+// perspective frame's header has none (its file is what it was before
+// orthographic cameras), and reads back as perspective.
+TEST_F(ExrIo, OrthographicCameraHeightRoundTripsAndOnlyThen) {
+  FrameBuffers fb = make_frame(6, 5, 1, 99);
+  fb.rect = {0, 0, 6, 5};
+  const fs::path persp = dir_ / "persp.exr", ortho = dir_ / "ortho.exr";
+  write_frame_exr(persp, fb);
+  fb.camera.fov_deg = 0;
+  fb.camera.ortho_height = 2.75f;
+  write_frame_exr(ortho, fb);
+  EXPECT_EQ(read_frame_exr(ortho).buffers.camera.ortho_height, 2.75f);
+  EXPECT_EQ(read_frame_exr(persp).buffers.camera.ortho_height, 0.0f);
+  auto has_attr = [](const fs::path& p) {
+    Imf::InputFile in(p.c_str());
+    return in.header().find("dofarm.camera.ortho_height") != in.header().end();
+  };
+  EXPECT_TRUE(has_attr(ortho));
+  EXPECT_FALSE(has_attr(persp));
 }
 
 // The checksum returned by the writer and the one the reader computes are both

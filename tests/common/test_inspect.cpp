@@ -23,7 +23,7 @@ TEST(Inspect, TextReportHasShapesStatsAndNoNonFiniteValues) {
   std::ostringstream out, err;
   EXPECT_EQ(inspect_shard(dir.path() / "s.h5", false, out, err), kExitOk) << err.str();
   std::string s = out.str();
-  EXPECT_NE(s.find("dofarm.shard/2"), std::string::npos) << s;
+  EXPECT_NE(s.find("dofarm.shard/3"), std::string::npos) << s;
   EXPECT_NE(s.find("3x2x3x50x70"), std::string::npos) << s;  // noisy shape
   EXPECT_NE(s.find("1x1x3x50x64"), std::string::npos) << s;  // noisy chunk
   EXPECT_NE(s.find("shuffle,deflate(4),fletcher32"), std::string::npos) << s;
@@ -38,7 +38,7 @@ TEST(Inspect, JsonReportParsesAndHoldsExactStatistics) {
   std::ostringstream out, err;
   ASSERT_EQ(inspect_shard(dir.path() / "s.h5", true, out, err), kExitOk) << err.str();
   nlohmann::json j = nlohmann::json::parse(out.str());
-  EXPECT_EQ(j["attributes"]["schema"], "dofarm.shard/2");
+  EXPECT_EQ(j["attributes"]["schema"], "dofarm.shard/3");
   EXPECT_EQ(j["attributes"]["job_hash"], make_info().job_hash);
   EXPECT_EQ(j["frames"], kFrames);
   EXPECT_EQ(j["non_finite"], 0);

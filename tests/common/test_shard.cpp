@@ -84,6 +84,7 @@ TEST(Shard, FullFramesReadBackBitForBit) {
     EXPECT_EQ(c.rotation[2], e.rotation[2]);
     EXPECT_EQ(c.fov_deg, e.fov_deg);
     EXPECT_EQ(c.aperture, e.aperture);
+    EXPECT_EQ(c.ortho_height, e.ortho_height);
   }
   EXPECT_EQ(r.compute_data_checksum(), res.data_checksum);
   EXPECT_EQ(r.info().data_checksum, res.data_checksum);
@@ -156,7 +157,7 @@ TEST(Shard, AttributesRoundTrip) {
   write_shard(dir.path() / "s.h5", in, make_frames());
   ShardReader r(dir.path() / "s.h5");
   const ShardInfo& out = r.info();
-  EXPECT_EQ(out.schema, "dofarm.shard/2");
+  EXPECT_EQ(out.schema, "dofarm.shard/3");
   EXPECT_EQ(out.batch_id, in.batch_id);
   EXPECT_EQ(out.scene_id, in.scene_id);
   EXPECT_EQ(out.scene_hash, in.scene_hash);
@@ -181,7 +182,10 @@ TEST(Shard, AttributesRoundTrip) {
   std::vector<CameraState> cams = r.cameras();
   ASSERT_EQ(cams.size(), size_t(kFrames));
   EXPECT_EQ(cams[1].frame, kFirstFrame + 1);
-  EXPECT_EQ(cams[1].fov_deg, 40.0f + kFirstFrame + 1);
+  EXPECT_EQ(cams[0].fov_deg, 40.0f + kFirstFrame);
+  EXPECT_EQ(cams[0].ortho_height, 0.0f);
+  EXPECT_EQ(cams[1].fov_deg, 0.0f);  // an odd frame: orthographic
+  EXPECT_EQ(cams[1].ortho_height, 2.5f);
 }
 
 std::vector<hsize_t> chunk_dims(hid_t file, const char* name, std::vector<H5Z_filter_t>* filters) {
@@ -220,7 +224,7 @@ TEST(Shard, ChunksAreOneFrameVersionAndTileWithLosslessFilters) {
   filters.clear();
   EXPECT_EQ(chunk_dims(f.id, "coc", &filters), (std::vector<hsize_t>{1, 1, 50, 64}));
   filters.clear();
-  EXPECT_EQ(chunk_dims(f.id, "camera", &filters), (std::vector<hsize_t>{kFrames, 12}));
+  EXPECT_EQ(chunk_dims(f.id, "camera", &filters), (std::vector<hsize_t>{kFrames, 13}));
 }
 
 TEST(Shard, DatasetsCarryChannelAndColumnNames) {
@@ -246,7 +250,7 @@ TEST(Shard, DatasetsCarryChannelAndColumnNames) {
   EXPECT_EQ(attr("depth", "channels"), "Y");
   EXPECT_EQ(attr("camera", "columns"),
             "frame,time,position_x,position_y,position_z,rotation_w,rotation_x,rotation_y,"
-            "rotation_z,fov_deg,focal_distance,aperture");
+            "rotation_z,fov_deg,focal_distance,aperture,ortho_height");
 }
 
 // Every dimension of every dataset has a label and one attached dimension
@@ -331,7 +335,7 @@ TEST(Shard, EveryDimensionHasALabelAndAScale) {
   const std::vector<std::string> columns = strings("column");
   ASSERT_EQ(columns.size(), size_t(kCameraColumns));
   EXPECT_EQ(columns.front(), "frame");
-  EXPECT_EQ(columns.back(), "aperture");
+  EXPECT_EQ(columns.back(), "ortho_height");
 }
 
 // h5dump (Debian's hdf5-tools) shows the labels and the scales; only run
@@ -376,14 +380,77 @@ TEST(Shard, UnknownSchemaVersionIsRefusedByName) {
   TempDir dir;
   fs::path p = dir.path() / "s.h5";
   write_shard(p, make_info(), make_frames());
-  set_schema(p, "dofarm.shard/3", false);
+  set_schema(p, "dofarm.shard/4", false);
   try {
     ShardReader r(p);
-    FAIL() << "a dofarm.shard/3 file was accepted";
+    FAIL() << "a dofarm.shard/4 file was accepted";
   } catch (const ShardFormatError& e) {
-    EXPECT_EQ(std::string(e.what()), "shard " + p.string() +
-                                         ": schema 'dofarm.shard/3' is not supported (this build "
-                                         "reads dofarm.shard/2 and dofarm.shard/1)");
+    EXPECT_EQ(std::string(e.what()),
+              "shard " + p.string() +
+                  ": schema 'dofarm.shard/4' is not supported (this build "
+                  "reads dofarm.shard/3, dofarm.shard/2 and dofarm.shard/1)");
+  }
+}
+
+// Makes a version 3 shard what a version 2 writer (or version 1, with
+// `schema` so) wrote: the camera's first 12 columns, and the data checksum
+// of that walk (docs/shard_format.md), computed here independently of the
+// reader.
+void downgrade(const fs::path& p, const char* schema, const std::vector<FrameBuffers>& frames) {
+  set_schema(p, schema, std::string(schema) == "dofarm.shard/1");
+  RawFile f(p, H5F_ACC_RDWR);
+  ASSERT_GE(H5Ldelete(f.id, "camera", H5P_DEFAULT), 0);
+  const hsize_t dims[2] = {frames.size(), hsize_t(kCameraColumnsV2)};
+  std::vector<float> rows;
+  Checksum64 sum;
+  for (const FrameBuffers& fb : frames) {
+    for (const BufferInfo& b : buffer_infos()) {
+      const std::vector<float>& d = buffer_data(fb, b.name);
+      sum.update(d.data(), d.size() * sizeof(float));
+    }
+    const auto row = camera_to_row(fb.camera);
+    sum.update(row.data(), kCameraColumnsV2 * sizeof(float));
+    rows.insert(rows.end(), row.begin(), row.begin() + kCameraColumnsV2);
+  }
+  hid_t space = H5Screate_simple(2, dims, nullptr);
+  hid_t ds =
+      H5Dcreate2(f.id, "camera", H5T_IEEE_F32LE, space, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+  ASSERT_GE(H5Dwrite(ds, H5T_NATIVE_FLOAT, H5S_ALL, H5S_ALL, H5P_DEFAULT, rows.data()), 0);
+  H5Dclose(ds);
+  H5Sclose(space);
+  ASSERT_GE(H5Adelete(f.id, "data_checksum"), 0);
+  const std::string text = checksum_to_string(sum.digest());
+  const char* c = text.c_str();
+  hid_t t = H5Tcopy(H5T_C_S1);
+  H5Tset_size(t, H5T_VARIABLE);
+  hid_t s = H5Screate(H5S_SCALAR);
+  hid_t a = H5Acreate2(f.id, "data_checksum", t, s, H5P_DEFAULT, H5P_DEFAULT);
+  ASSERT_GE(H5Awrite(a, t, &c), 0);
+  H5Aclose(a);
+  H5Sclose(s);
+  H5Tclose(t);
+}
+
+// Version 2 shards (12 camera columns, all frames perspective) still read:
+// their cameras as written with ortho_height 0, and the data checksum over
+// the 12 columns they store.
+TEST(Shard, VersionTwoShardsWithTwelveCameraColumnsStillRead) {
+  TempDir dir;
+  fs::path p = dir.path() / "s.h5";
+  auto frames = make_frames();
+  for (FrameBuffers& fb : frames) fb.camera.ortho_height = 0, fb.camera.fov_deg = 35.0f;
+  write_shard(p, make_info(), frames);
+  downgrade(p, "dofarm.shard/2", frames);
+  ShardReader r(p);
+  EXPECT_EQ(r.info().schema, "dofarm.shard/2");
+  EXPECT_EQ(r.compute_data_checksum(), r.info().data_checksum);
+  const std::vector<CameraState> cams = r.cameras();
+  ASSERT_EQ(cams.size(), frames.size());
+  for (size_t f = 0; f < frames.size(); ++f) {
+    EXPECT_EQ(cams[f].fov_deg, 35.0f);
+    EXPECT_EQ(cams[f].aperture, frames[f].camera.aperture);
+    EXPECT_EQ(cams[f].ortho_height, 0.0f);
+    EXPECT_EQ(r.read_frame(int(f)).camera.position[0], frames[f].camera.position[0]);
   }
 }
 
@@ -391,9 +458,11 @@ TEST(Shard, VersionOneShardsWithoutJobHashStillRead) {
   TempDir dir;
   fs::path p = dir.path() / "s.h5";
   auto frames = make_frames();
+  for (FrameBuffers& fb : frames) fb.camera.ortho_height = 0, fb.camera.fov_deg = 35.0f;
   write_shard(p, make_info(), frames);
-  set_schema(p, "dofarm.shard/1", true);
+  downgrade(p, "dofarm.shard/1", frames);
   ShardReader r(p);
+  EXPECT_EQ(r.compute_data_checksum(), r.info().data_checksum);
   EXPECT_EQ(r.info().schema, "dofarm.shard/1");
   EXPECT_EQ(r.info().job_hash, "");
   EXPECT_EQ(r.info().scene_hash, make_info().scene_hash);

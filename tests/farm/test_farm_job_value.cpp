@@ -332,14 +332,14 @@ TEST(JobValue, ContentErrorsAreBadInputAndWriteNothing) {
                                    "\"\n[image]\nwidth = 16\nheight = 16\n[[camera.key]]\n"
                                    "position = [0.0, 1.0, 3.9]\nlook_at = [0.0, 1.0, 10.0]\n"
                                    "aperture = 0.05\nfocus = \"auto\"\n");
-  // camera.from_scene on a scene whose camera is orthographic (Blender's
-  // Orthographic type; it used to render with a field of view of 0).
+  // camera.from_scene on a scene whose camera is orthographic with a ymag
+  // of 0, which glTF forbids (it would show a line of the scene).
   write_text(dir / "ortho.gltf",
              R"({"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0, 1]}],
     "nodes": [{"mesh": 0}, {"name": "Plan", "camera": 0, "translation": [0.5, 5, 0.5],
                "rotation": [-0.7071068, 0, 0, 0.7071068]}],
     "cameras": [{"type": "orthographic",
-                 "orthographic": {"xmag": 1, "ymag": 1, "znear": 0.1, "zfar": 10}}],
+                 "orthographic": {"xmag": 1, "ymag": 0, "znear": 0.1, "zfar": 10}}],
     "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
     "accessors": [{"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3",
                    "min": [0, 0, 0], "max": [1, 0, 1]},

@@ -546,10 +546,12 @@ TEST(LoadSceneData, EmptyOrCameraOnlyGltfSaysWhy) {
   EXPECT_NE(what.find("No scene"), std::string::npos) << what;
 }
 
-// An orthographic camera (Blender's Orthographic type) is not rendered with
-// a field of view of 0: a job that takes the scene's camera is refused,
-// naming the camera and why; a job with its own poses still loads the scene.
-TEST(LoadSceneData, AnOrthographicCameraIsRefusedWhereTheJobTakesIt) {
+// An orthographic camera (Blender's Orthographic type) is read with its
+// film (xmag, ymag) and clipping planes, and a frame through it is
+// orthographic; one whose ymag glTF forbids (0) is refused where a job
+// takes it, naming the camera and why; a job with its own poses still
+// loads the scene.
+TEST(LoadSceneData, AnOrthographicCameraIsReadFromItsXmagAndYmag) {
   TempDir dir("ortho");
   GltfQuad q = gltf_quad();
   q.doc["nodes"].push_back(Json::parse(R"({"name": "Plan", "camera": 0,
@@ -558,9 +560,29 @@ TEST(LoadSceneData, AnOrthographicCameraIsRefusedWhereTheJobTakesIt) {
   q.doc["cameras"] = Json::parse(R"([{"name": "Plan", "type": "orthographic",
       "orthographic": {"xmag": 2.0, "ymag": 1.0, "znear": 0.1, "zfar": 100}}])");
   write_gltf(dir.path / "ortho.gltf", q);
-  SceneData s = load_scene_data(dir.path / "ortho.gltf");
+  const SceneData o = load_scene_data(dir.path / "ortho.gltf");
+  EXPECT_TRUE(o.camera_refused.empty()) << o.camera_refused;
+  ASSERT_TRUE(o.scene_camera);
+  EXPECT_EQ(o.scene_camera->ymag, 1.0f);
+  EXPECT_EQ(o.scene_camera->aspect, 2.0f);
+  EXPECT_EQ(o.scene_camera->znear, 0.1f);
+  EXPECT_EQ(o.scene_camera->zfar, 100.0f);
+  JobSpec ortho_spec;
+  ortho_spec.width = 64;
+  ortho_spec.height = 32;
+  ortho_spec.camera_from_scene = true;
+  const CameraState oc = camera_for_frame(ortho_spec, o, 0);
+  EXPECT_EQ(oc.ortho_height, 2.0f);
+  EXPECT_EQ(oc.fov_deg, 0.0f);
+  EXPECT_NEAR(oc.position[1], 5.0f, 1e-6f);
+
+  q.doc["cameras"] = Json::parse(R"([{"name": "Plan", "type": "orthographic",
+      "orthographic": {"xmag": 2.0, "ymag": 0.0, "znear": 0.1, "zfar": 100}}])");
+  write_gltf(dir.path / "flat.gltf", q);
+  SceneData s = load_scene_data(dir.path / "flat.gltf");
   EXPECT_TRUE(s.camera_track.empty());
-  EXPECT_NE(s.camera_refused.find("orthographic"), std::string::npos) << s.camera_refused;
+  EXPECT_NE(s.camera_refused.find("orthographic with xmag 2 and ymag 0"), std::string::npos)
+      << s.camera_refused;
   EXPECT_NE(s.camera_refused.find("\"Plan\""), std::string::npos) << s.camera_refused;
   JobSpec spec;
   spec.width = spec.height = 8;
@@ -568,7 +590,7 @@ TEST(LoadSceneData, AnOrthographicCameraIsRefusedWhereTheJobTakesIt) {
   spec.key_locations["camera.from_scene"] = FileLoc{"job.toml", 3, 1};
   try {
     camera_for_frame(spec, s, 0);
-    FAIL() << "rendered an orthographic camera";
+    FAIL() << "rendered an orthographic camera of height 0";
   } catch (const SpecError& e) {
     EXPECT_EQ(e.key(), "camera.from_scene");
     EXPECT_NE(std::string(e.what()).find("orthographic"), std::string::npos) << e.what();

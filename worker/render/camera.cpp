@@ -25,6 +25,24 @@ Camera::Camera(const CameraState& s, int width, int height, CameraClip clip)
   position_ = Vec3(s.position[0], s.position[1], s.position[2]);
   tan_half_fov_ = std::tan(0.5f * s.fov_deg * kPi / 180.0f);
   aspect_ = float(width) / float(height);
+  if (s.orthographic()) ortho_half_height_ = 0.5f * s.ortho_height;
+}
+
+Vec3 Camera::film_point(Vec2 film) const {
+  float sx = (2.0f * film.x / float(width_) - 1.0f) * ortho_half_height_ * aspect_;
+  float sy = (1.0f - 2.0f * film.y / float(height_)) * ortho_half_height_;
+  return {sx, sy, -clip_.near};
+}
+
+Ray Camera::ortho_clipped(Ray ray, Vec3 view_dir) const {
+  // The ray leaves the near plane; its view depth grows by cos_axis per
+  // unit of t from there.
+  if (std::isfinite(clip_.far)) {
+    const float cos_axis = -view_dir.z / length(view_dir);
+    ray.t_max = (clip_.far - clip_.near) / cos_axis;
+    if (!(ray.t_max >= 0)) ray.t_max = std::numeric_limits<float>::infinity();
+  }
+  return ray;
 }
 
 Vec3 Camera::film_direction(Vec2 film) const {
@@ -46,12 +64,36 @@ Ray Camera::clipped(Ray ray, Vec3 view_dir) const {
 }
 
 Ray Camera::pinhole_ray(Vec2 film) const {
+  if (ortho_half_height_ > 0) {
+    const Vec3 axis(0.0f, 0.0f, -1.0f);
+    return ortho_clipped({position_ + rotation_.rotate(film_point(film)), rotation_.rotate(axis)},
+                         axis);
+  }
   const Vec3 fd = film_direction(film);
   return clipped({position_, normalize(rotation_.rotate(fd))}, fd);
 }
 
 Ray Camera::generate_ray(Vec2 film, Vec2 lens) const {
   if (!has_lens()) return pinhole_ray(film);  // bit-identical to the pinhole
+  if (ortho_half_height_ > 0) {
+    // The lens point d beside the film point looks at the film point's
+    // place on the focal plane S beyond the lens plane: direction (-d, -S).
+    // The lens plane is the near clipping plane, as Cycles has it (its
+    // rays leave Clip Start, and its Focus Distance counts from there;
+    // bench/README.md, "Orthographic cameras").
+    const Vec2 d = sample_concentric_disk(lens) * state_.aperture;
+    const Vec3 origin = film_point(film) + Vec3(d.x, d.y, 0.0f);
+    Vec3 dir(-d.x, -d.y, -state_.focal_distance);
+    const float len2 = dot(dir, dir);
+    if (!(len2 >= FLT_MIN && len2 <= FLT_MAX)) {
+      const double v[3] = {-double(d.x), -double(d.y), -double(state_.focal_distance)};
+      const double len = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+      dir = len > 0 ? Vec3(float(v[0] / len), float(v[1] / len), float(v[2] / len))
+                    : Vec3(0.0f, 0.0f, -1.0f);
+    }
+    return ortho_clipped({position_ + rotation_.rotate(origin), normalize(rotation_.rotate(dir))},
+                         dir);
+  }
   const Vec3 fd = film_direction(film);
   Vec3 focus = fd * state_.focal_distance;  // on the plane z = -S
   Vec2 d = sample_concentric_disk(lens) * state_.aperture;
@@ -72,6 +114,12 @@ Ray Camera::generate_ray(Vec2 film, Vec2 lens) const {
 }
 
 float Camera::coc_pixels(float z) const {
+  if (ortho_half_height_ > 0) {
+    if (!(z > 0) && std::isfinite(clip_.far)) z = clip_.far;
+    // Depths from the lens plane (the near clipping plane).
+    return ortho_coc_diameter_pixels(state_.aperture, state_.focal_distance, state_.ortho_height,
+                                     height_, z > 0 ? std::max(z - clip_.near, FLT_MIN) : z);
+  }
   return coc_diameter_pixels(state_.aperture, state_.focal_distance, tan_half_fov_, height_, z);
 }
 
@@ -147,6 +195,17 @@ float fitted_vertical_fov(float yfov_deg, float camera_aspect, int width, int he
   return float(2.0 * std::atan(tv) * 180.0 / M_PI);
 }
 
+float fitted_ortho_height(float ymag, float camera_aspect, int width, int height) {
+  const float own = 2.0f * ymag;
+  if (!(camera_aspect > 0) || width <= 0 || height <= 0) return own;
+  if (describe_aspect_mismatch(camera_aspect, width, height).empty()) return own;
+  // The film's half-extents (ymag a, ymag); its longer one spans the
+  // image's longer side.
+  const double longer = double(ymag) * std::max(double(camera_aspect), 1.0);
+  const double image_aspect = double(width) / height;
+  return float(2.0 * (image_aspect >= 1 ? longer / image_aspect : longer));
+}
+
 ImageSize image_size_for_aspect(float camera_aspect, int width, int height) {
   constexpr int kDefaultSide = 512;
   if (!(camera_aspect > 0))
@@ -196,8 +255,12 @@ std::string describe_aspect_mismatch(float camera_aspect, int width, int height)
       share(yr, "height"));
 }
 
-float lens_radius(const CameraKey& key, float vertical_fov_deg, int width, int height) {
+float lens_radius(const CameraKey& key, float vertical_fov_deg, int width, int height,
+                  bool orthographic) {
   if (!(key.fstop > 0)) return key.aperture;
+  // Cycles (blender/camera.cpp): an orthographic camera's aperture radius
+  // is 1 / (2 N); measured against Cycles in bench/README.md.
+  if (orthographic) return float(std::min(1.0 / (2.0 * double(key.fstop)), double(FLT_MAX)));
   double focal_mm = key.focal_length_mm;
   if (!(focal_mm > 0)) {
     // Blender: fov = 2 atan(sensor / (2 f)) across the sensor-fitted side,
@@ -211,9 +274,11 @@ float lens_radius(const CameraKey& key, float vertical_fov_deg, int width, int h
 
 namespace {
 
-// The focus distance of `key` for the frame's camera `s` (pose and fov set).
+// The focus distance of `key` for the frame's camera `s` (pose and fov set),
+// from its lens plane at view depth `lens_plane` (an orthographic camera's
+// near clipping plane, else 0).
 float focus_distance(const JobSpec& spec, const CameraKey& key, const CameraState& s,
-                     const Autofocus& autofocus) {
+                     const Autofocus& autofocus, float lens_plane) {
   const std::string prefix = fmt::format("camera.key.{}.", key.index);
   switch (key.focus) {
     case FocusMode::kNone:
@@ -222,18 +287,25 @@ float focus_distance(const JobSpec& spec, const CameraKey& key, const CameraStat
     case FocusMode::kPoint: {
       const Quat q = conjugate(to_quat(s.rotation));
       const Vec3 p = key.focus_point - Vec3(s.position[0], s.position[1], s.position[2]);
-      const float depth = -q.rotate(p).z;
+      const float depth = -q.rotate(p).z - lens_plane;
       if (!(depth > 0) || !std::isfinite(depth)) {
-        throw SpecError(spec.where(prefix + "focus_point"), prefix + "focus_point",
-                        fmt::format("the point is not in front of the camera at frame {} (view "
-                                    "depth {:g}): its depth cannot be the focus distance",
-                                    s.frame, depth));
+        throw SpecError(
+            spec.where(prefix + "focus_point"), prefix + "focus_point",
+            lens_plane > 0
+                ? fmt::format("the point is not beyond the orthographic camera's near clipping "
+                              "plane at frame {} (view depth {:g}, the plane at {:g}): its "
+                              "depth cannot be the focus distance",
+                              s.frame, depth + lens_plane, lens_plane)
+                : fmt::format("the point is not in front of the camera at frame {} (view "
+                              "depth {:g}): its depth cannot be the focus distance",
+                              s.frame, depth));
       }
       return depth;
     }
     case FocusMode::kAuto: {
       DOFARM_CHECK_OP(bool(autofocus), ==, true);
       std::optional<float> depth = autofocus(s);
+      if (depth) *depth -= lens_plane;  // a camera ray starts at or beyond it
       if (!depth || !(*depth > 0) || !std::isfinite(*depth)) {
         throw SpecError(spec.where(prefix + "focus"), prefix + "focus",
                         fmt::format("autofocus at frame {}: the ray through the image centre "
@@ -294,7 +366,12 @@ CameraState camera_for_frame(const JobSpec& spec, const SceneData& scene, int fr
                                     scene.scene_camera->name, frame));
       }
       store(&s, key.position, key.rotation);
-      s.fov_deg = fitted_vertical_fov(key.yfov_deg, key.aspect, spec.width, spec.height);
+      if (key.ymag > 0) {
+        s.fov_deg = 0;
+        s.ortho_height = fitted_ortho_height(key.ymag, key.aspect, spec.width, spec.height);
+      } else {
+        s.fov_deg = fitted_vertical_fov(key.yfov_deg, key.aspect, spec.width, spec.height);
+      }
     } else {
       size_t j0, j1;
       float v;
@@ -302,8 +379,14 @@ CameraState camera_for_frame(const JobSpec& spec, const SceneData& scene, int fr
           track, s.time, [](const CameraTrackKey& k) { return k.time; }, &j0, &j1, &v);
       store(&s, lerp(track[j0].position, track[j1].position, v),
             slerp(track[j0].rotation, track[j1].rotation, v));
-      s.fov_deg = fitted_vertical_fov(track[j0].yfov_deg * (1 - v) + track[j1].yfov_deg * v,
-                                      track[j0].aspect, spec.width, spec.height);
+      if (track[j0].ymag > 0) {
+        s.fov_deg = 0;
+        s.ortho_height = fitted_ortho_height(track[j0].ymag * (1 - v) + track[j1].ymag * v,
+                                             track[j0].aspect, spec.width, spec.height);
+      } else {
+        s.fov_deg = fitted_vertical_fov(track[j0].yfov_deg * (1 - v) + track[j1].yfov_deg * v,
+                                        track[j0].aspect, spec.width, spec.height);
+      }
     }
   } else if (!keys.empty()) {
     store(&s, lerp(keys[i0].position, keys[i1].position, w),
@@ -313,10 +396,13 @@ CameraState camera_for_frame(const JobSpec& spec, const SceneData& scene, int fr
   if (!keys.empty()) {
     // Each key's lens for this frame's camera, then blended; a key of weight
     // 0 is not evaluated (its focus point may be behind this frame's camera).
-    const float r0 = lens_radius(keys[i0], s.fov_deg, spec.width, spec.height);
-    const float r1 = w > 0 ? lens_radius(keys[i1], s.fov_deg, spec.width, spec.height) : r0;
-    const float d0 = focus_distance(spec, keys[i0], s, autofocus);
-    const float d1 = w > 0 && i1 != i0 ? focus_distance(spec, keys[i1], s, autofocus) : d0;
+    const bool ortho = s.orthographic();
+    const float r0 = lens_radius(keys[i0], s.fov_deg, spec.width, spec.height, ortho);
+    const float r1 = w > 0 ? lens_radius(keys[i1], s.fov_deg, spec.width, spec.height, ortho) : r0;
+    const float lens_plane = ortho ? camera_clip(spec, scene).near : 0.0f;
+    const float d0 = focus_distance(spec, keys[i0], s, autofocus, lens_plane);
+    const float d1 =
+        w > 0 && i1 != i0 ? focus_distance(spec, keys[i1], s, autofocus, lens_plane) : d0;
     s.focal_distance = d0 * (1 - w) + d1 * w;
     s.aperture = r0 * (1 - w) + r1 * w;
   }

@@ -1,5 +1,9 @@
 // Thin-lens camera (pbrt-v3 section 6.2.3) resolved for one frame, with the
-// physical circle of confusion used for the `coc` buffer.
+// physical circle of confusion used for the `coc` buffer. Perspective, or
+// orthographic (CameraState::ortho_height > 0): parallel rays from the film
+// rectangle on the near clipping plane, with a thin lens as Cycles gives
+// one (the lens on that plane, each of its points looking at the film
+// point's place on the focal plane, focal_distance beyond the lens).
 //
 // Conventions: camera space looks down -z with +y up; raster space has its
 // origin at the top-left pixel corner, x right, y down. View-space depth is
@@ -50,13 +54,21 @@ class Camera {
   // The pinhole ray through `film`, whatever the aperture (aux buffers).
   Ray pinhole_ray(Vec2 film) const;
   // Circle-of-confusion diameter in pixels of a point at view-space depth z
-  // (common/thin_lens.h, coc_diameter_pixels). 0 at aperture 0.
+  // (common/thin_lens.h, coc_diameter_pixels, or ortho_coc_diameter_pixels).
+  // 0 at aperture 0. z <= 0 is a ray that escapes: the limit z -> infinity,
+  // or for an orthographic camera, whose blur grows without bound with
+  // depth, the far clipping plane's CoC (float's largest without one); its
+  // focal plane lies focal_distance beyond the near clipping plane.
   float coc_pixels(float z) const;
   float view_depth(Vec3 p) const;      // along the viewing axis
   Vec3 to_view(Vec3 world_dir) const;  // rotate into camera space
 
  private:
   Vec3 film_direction(Vec2 film) const;  // camera space, z = -1
+  Vec3 film_point(Vec2 film) const;      // orthographic: camera space, z = -near
+  // An orthographic ray, which leaves the near plane, with its t range up
+  // to the far plane (view_dir as for clipped()).
+  Ray ortho_clipped(Ray ray, Vec3 view_dir) const;
   // ray with its t range set from the clipping planes; view_dir is its
   // direction in camera space, any length (the cosine to the viewing axis
   // is computed only where a plane clips).
@@ -67,6 +79,7 @@ class Camera {
   Vec3 position_;
   int width_, height_;
   float tan_half_fov_, aspect_;
+  float ortho_half_height_ = 0;  // > 0: orthographic
 };
 
 // ---------------------------------------------------------------------------
@@ -82,6 +95,11 @@ class Camera {
 // render aspect (io_scene_gltf2 gather_cameras: yfov = 2 atan(tan(angle/2) /
 // aspect) for a landscape image).
 float fitted_vertical_fov(float yfov_deg, float camera_aspect, int width, int height);
+// The same fit for an orthographic camera (glTF camera.orthographic, xmag
+// and ymag half the film's width and height): the view height, in scene
+// units, that a width x height image shows of a film 2 ymag high and
+// camera_aspect = xmag / ymag wide. 2 ymag when the aspects match.
+float fitted_ortho_height(float ymag, float camera_aspect, int width, int height);
 
 // The image size a job gets when its spec leaves width and/or height out
 // (`width`/`height` 0 = not given): the longer side 512 when neither is
@@ -131,8 +149,10 @@ inline float frame_time(const JobSpec& spec, int frame) { return float(frame) / 
 // Lens radius in scene units (metres) of an f-number: Blender/Cycles' thin
 // lens, radius = focal_length / (2 N). Without a focal length it is
 // sensor_width / (2 tan(fov/2)) over the image's longer side, as Blender
-// relates the two (sensor fit AUTO).
-float lens_radius(const CameraKey& key, float vertical_fov_deg, int width, int height);
+// relates the two (sensor fit AUTO). An orthographic camera has no focal
+// length: Cycles makes its radius 1 / (2 N) scene units.
+float lens_radius(const CameraKey& key, float vertical_fov_deg, int width, int height,
+                  bool orthographic = false);
 
 // Concentric square-to-disk mapping (Shirley & Chiu 1997).
 Vec2 sample_concentric_disk(Vec2 u);

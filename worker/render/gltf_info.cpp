@@ -337,15 +337,20 @@ GltfInfo read_gltf_info(const std::filesystem::path& path) {
       if (!node.is_object() || !node.contains("camera") || !node["camera"].is_number_unsigned())
         continue;
       const size_t c = node["camera"].get<size_t>();
-      if (c >= cameras.size() || !cameras[c].is_object() || !cameras[c].contains("perspective") ||
-          !cameras[c]["perspective"].is_object())
-        continue;
-      const auto& p = cameras[c]["perspective"];
+      if (c >= cameras.size() || !cameras[c].is_object()) continue;
       GltfInfo::CameraNode cn;
+      cn.orthographic = !cameras[c].contains("perspective") &&
+                        cameras[c].contains("orthographic") &&
+                        cameras[c]["orthographic"].is_object();
+      const char* type = cn.orthographic ? "orthographic" : "perspective";
+      if (!cameras[c].contains(type) || !cameras[c][type].is_object()) continue;
+      const auto& p = cameras[c][type];
       cn.node =
           node.contains("name") && node["name"].is_string() ? node["name"].get<std::string>() : "";
       if (p.contains("znear") && p["znear"].is_number()) cn.znear = p["znear"].get<double>();
       if (p.contains("zfar") && p["zfar"].is_number()) cn.zfar = p["zfar"].get<double>();
+      if (p.contains("xmag") && p["xmag"].is_number()) cn.xmag = p["xmag"].get<double>();
+      if (p.contains("ymag") && p["ymag"].is_number()) cn.ymag = p["ymag"].get<double>();
       out.camera_nodes.push_back(cn);
     }
   }

@@ -97,12 +97,17 @@ struct GltfInfo {
     std::vector<float> cubic;
   };
   std::vector<AnimatedPath> animated_paths;
-  // Every node that holds a perspective camera: its name ("" when it has
-  // none) and the camera's clipping planes (znear, zfar; zfar infinite
-  // when the file gives none, as glTF 3.10.2 defines).
+  // Every node that holds a camera: its name ("" when it has none) and the
+  // camera's clipping planes (znear, zfar; zfar infinite when the file
+  // gives none, as glTF 3.10.2 defines for a perspective camera); for an
+  // orthographic one also xmag and ymag, half its film's width and height
+  // (NaN where the file gives no number).
   struct CameraNode {
     std::string node;
     double znear = 0.0, zfar = std::numeric_limits<double>::infinity();
+    bool orthographic = false;
+    double xmag = std::numeric_limits<double>::quiet_NaN();
+    double ymag = std::numeric_limits<double>::quiet_NaN();
   };
   std::vector<CameraNode> camera_nodes;
   std::string generator;  // asset.generator ("" when the file gives none)

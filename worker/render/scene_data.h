@@ -120,8 +120,12 @@ struct CameraTrackKey {
   Quat rotation;  // camera looks down its -z
   float yfov_deg = 40;
   // Width over height of the camera's film as the file gives it (glTF
-  // camera.perspective.aspectRatio); 0 when the file does not say.
+  // camera.perspective.aspectRatio, or xmag / ymag); 0 when the file does
+  // not say.
   float aspect = 0;
+  // An orthographic camera (glTF camera.orthographic): half the height of
+  // its film in scene units (ymag); 0 for a perspective camera.
+  float ymag = 0;
 };
 
 // A KHR_lights_punctual light, in world space and the renderer's units.
@@ -210,7 +214,7 @@ struct SceneData {
   std::vector<CameraTrackKey> camera_track;
   std::shared_ptr<const SceneCamera> scene_camera;
   // Why the file's camera cannot be used, where it has one that dofarm
-  // does not render (an orthographic camera); camera_track is then empty.
+  // does not render; camera_track is then empty.
   std::string camera_refused;
   std::vector<PunctualLight> lights;         // glTF KHR_lights_punctual
   // Meshes and lights that the file's node animation moves; null when

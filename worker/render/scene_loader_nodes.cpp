@@ -40,22 +40,43 @@ void Loader::camera_track() {
   const aiCamera* cam = scene_->mCameras[0];
   const aiNode* cam_node = scene_->mRootNode->FindNode(cam->mName);
   if (!cam_node) return;
+  const bool gltf = is_gltf(path_);
+  // Its entry in the file's JSON: the camera node of the same name, or the
+  // file's only camera node (clipping planes, and an orthographic camera's
+  // size; assimp 5.2 puts 100 in place of a zfar the file leaves out, which
+  // glTF reads as infinite, and gives an orthographic camera only xmag).
+  const GltfInfo::CameraNode* json = nullptr;
+  for (const GltfInfo::CameraNode& c : gltf_.camera_nodes)
+    if (c.node == cam->mName.C_Str()) json = &c;
+  if (!json && gltf_.camera_nodes.size() == 1) json = &gltf_.camera_nodes.front();
   // An orthographic camera (glTF camera.orthographic, Blender's Orthographic
-  // type): assimp 5.2 gives it no field of view and its xmag as
-  // mOrthographicWidth. dofarm's cameras are perspective thin lenses, and
-  // rendering it with a field of view of 0 would show one point of the
-  // scene in every pixel; a job that asks for it is refused
-  // (camera_for_frame(), complete_spec_from_scene()).
+  // type): assimp gives it no field of view; its film is 2 xmag by 2 ymag
+  // scene units (glTF 3.10.3). Read from a glTF file's JSON; from another
+  // format (or with a size glTF forbids) a job that takes it is refused
+  // (camera_for_frame(), complete_spec_from_scene()): rendered with a field
+  // of view of 0 it would show one point of the scene in every pixel.
+  float ymag = 0, ortho_aspect = 0;
   if (!(cam->mHorizontalFOV > 0) || !std::isfinite(cam->mHorizontalFOV)) {
     const std::string name = cam->mName.C_Str();
-    out_->camera_refused =
-        cam->mOrthographicWidth > 0
-            ? fmt::format(
-                  "its camera \"{}\" is orthographic (half width {:g}); dofarm renders "
-                  "perspective cameras only",
-                  name, cam->mOrthographicWidth)
-            : fmt::format("its camera \"{}\" has no field of view", name);
-    return;
+    const bool ortho = gltf && json && json->orthographic;
+    const double x = ortho ? std::fabs(json->xmag) : 0.0, y = ortho ? std::fabs(json->ymag) : 0.0;
+    if (ortho && x > 0 && y > 0 && x < 1e30 && y < 1e30 && x / y < 1e6 && y / x < 1e6) {
+      ymag = float(y);
+      ortho_aspect = float(x / y);
+    } else {
+      out_->camera_refused =
+          ortho ? fmt::format(
+                      "its camera \"{}\" is orthographic with xmag {:g} and ymag {:g}, and glTF "
+                      "requires both to be non-zero numbers",
+                      name, json->xmag, json->ymag)
+          : cam->mOrthographicWidth > 0
+              ? fmt::format(
+                    "its camera \"{}\" is orthographic (half width {:g}); dofarm renders "
+                    "orthographic cameras from glTF files only",
+                    name, cam->mOrthographicWidth)
+              : fmt::format("its camera \"{}\" has no field of view", name);
+      return;
+    }
   }
   // The camera on its node, posed by the node hierarchy's samplers at any
   // time (SceneCamera; camera_for_frame() asks it at each frame's time),
@@ -82,7 +103,6 @@ void Loader::camera_track() {
   camera->motion = motion_;
   camera->node = cam_index;
   camera->name = cam->mName.C_Str();
-  const bool gltf = is_gltf(path_);
   camera->position = gltf ? Vec3(0.0f) : to_vec3(cam->mPosition);
   camera->back = gltf ? Vec3(0, 0, 1) : -normalize(to_vec3(cam->mLookAt), Vec3(0, 0, -1));
   camera->up = gltf ? Vec3(0, 1, 0) : normalize(to_vec3(cam->mUp), Vec3(0, 1, 0));
@@ -90,22 +110,22 @@ void Loader::camera_track() {
   // against a file with yfov 0.8, aspect 2: it reports 1.6), so dividing
   // recovers glTF's yfov exactly. Other importers store the full horizontal
   // angle, which converts through the tangents.
-  const float aspect = cam->mAspect > 0 ? cam->mAspect : 1.0f;
-  const float yfov = gltf ? cam->mHorizontalFOV / aspect
-                          : 2.0f * std::atan(std::tan(cam->mHorizontalFOV * 0.5f) / aspect);
-  camera->yfov_deg = yfov * 180.0f / kPi;
-  camera->aspect = cam->mAspect > 0 ? cam->mAspect : 0.0f;
-  // Its clipping planes, from the file's JSON (assimp 5.2 puts 100 in
-  // place of a zfar the file leaves out, which glTF reads as infinite): the
-  // camera node of the same name, or the file's only camera node.
-  const GltfInfo::CameraNode* clip = nullptr;
-  for (const GltfInfo::CameraNode& c : gltf_.camera_nodes)
-    if (c.node == camera->name) clip = &c;
-  if (!clip && gltf_.camera_nodes.size() == 1) clip = &gltf_.camera_nodes.front();
-  if (clip) {
+  if (ymag > 0) {
+    camera->yfov_deg = 0;
+    camera->ymag = ymag;
+    camera->aspect = ortho_aspect;
+  } else {
+    const float aspect = cam->mAspect > 0 ? cam->mAspect : 1.0f;
+    const float yfov = gltf ? cam->mHorizontalFOV / aspect
+                            : 2.0f * std::atan(std::tan(cam->mHorizontalFOV * 0.5f) / aspect);
+    camera->yfov_deg = yfov * 180.0f / kPi;
+    camera->aspect = cam->mAspect > 0 ? cam->mAspect : 0.0f;
+  }
+  // Its clipping planes, from the file's JSON.
+  if (const GltfInfo::CameraNode* clip = json) {
     if (std::isfinite(clip->znear) && clip->znear > 0 && clip->znear < 1e30) {
       camera->znear = float(clip->znear);
-    } else {
+    } else if (!(ymag > 0 && clip->znear == 0)) {  // glTF allows an orthographic znear of 0
       spdlog::warn(
           "{}: camera \"{}\" has znear {:g}, which glTF requires to be positive; not "
           "clipped near",

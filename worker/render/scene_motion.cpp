@@ -130,6 +130,7 @@ CameraTrackKey SceneCamera::at(float time) const {
   key.rotation = quat_from_axes(w_right, w_up, w_back);
   key.yfov_deg = yfov_deg;
   key.aspect = aspect;
+  key.ymag = ymag;
   return key;
 }
 

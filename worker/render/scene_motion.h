@@ -146,6 +146,7 @@ struct SceneCamera {
   Vec3 position{0.0f}, back{0, 0, 1}, up{0, 1, 0};
   float yfov_deg = 40;
   float aspect = 0;  // CameraTrackKey::aspect
+  float ymag = 0;    // CameraTrackKey::ymag: > 0 orthographic
   // Clipping planes (glTF znear, zfar; camera.h CameraClip): 0 and
   // infinity where the file gives none.
   float znear = 0.0f, zfar = std::numeric_limits<float>::infinity();
