@@ -358,22 +358,27 @@ TEST(Shard, H5dumpShowsDimensionLabels) {
   EXPECT_NE(out.find("DIMENSION_LIST"), std::string::npos) << out;
 }
 
+// Replaces the root string attribute `name` with `value`.
+void replace_string_attr(const RawFile& f, const char* name, const char* value) {
+  ASSERT_GE(H5Adelete(f.id, name), 0);
+  hid_t t = H5Tcopy(H5T_C_S1);
+  H5Tset_size(t, H5T_VARIABLE);
+  hid_t s = H5Screate(H5S_SCALAR);
+  hid_t a = H5Acreate2(f.id, name, t, s, H5P_DEFAULT, H5P_DEFAULT);
+  ASSERT_GE(H5Awrite(a, t, &value), 0);
+  H5Aclose(a);
+  H5Sclose(s);
+  H5Tclose(t);
+}
+
 // Replaces the shard's schema attribute (and drops job_hash when asked), as
 // an older or newer writer would have left it.
 void set_schema(const fs::path& p, const char* schema, bool drop_job_hash) {
   RawFile f(p, H5F_ACC_RDWR);
-  ASSERT_GE(H5Adelete(f.id, "schema"), 0);
   if (drop_job_hash) {
     ASSERT_GE(H5Adelete(f.id, "job_hash"), 0);
   }
-  hid_t t = H5Tcopy(H5T_C_S1);
-  H5Tset_size(t, H5T_VARIABLE);
-  hid_t s = H5Screate(H5S_SCALAR);
-  hid_t a = H5Acreate2(f.id, "schema", t, s, H5P_DEFAULT, H5P_DEFAULT);
-  ASSERT_GE(H5Awrite(a, t, &schema), 0);
-  H5Aclose(a);
-  H5Sclose(s);
-  H5Tclose(t);
+  replace_string_attr(f, "schema", schema);
 }
 
 TEST(Shard, UnknownSchemaVersionIsRefusedByName) {
@@ -418,17 +423,7 @@ void downgrade(const fs::path& p, const char* schema, const std::vector<FrameBuf
   ASSERT_GE(H5Dwrite(ds, H5T_NATIVE_FLOAT, H5S_ALL, H5S_ALL, H5P_DEFAULT, rows.data()), 0);
   H5Dclose(ds);
   H5Sclose(space);
-  ASSERT_GE(H5Adelete(f.id, "data_checksum"), 0);
-  const std::string text = checksum_to_string(sum.digest());
-  const char* c = text.c_str();
-  hid_t t = H5Tcopy(H5T_C_S1);
-  H5Tset_size(t, H5T_VARIABLE);
-  hid_t s = H5Screate(H5S_SCALAR);
-  hid_t a = H5Acreate2(f.id, "data_checksum", t, s, H5P_DEFAULT, H5P_DEFAULT);
-  ASSERT_GE(H5Awrite(a, t, &c), 0);
-  H5Aclose(a);
-  H5Sclose(s);
-  H5Tclose(t);
+  replace_string_attr(f, "data_checksum", checksum_to_string(sum.digest()).c_str());
 }
 
 // Version 2 shards (12 camera columns, all frames perspective) still read:

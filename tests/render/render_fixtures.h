@@ -99,6 +99,20 @@ inline SceneData small_room(float scale = 1.0f) {
   return d;
 }
 
+// A frame camera at `from` looking at `to` (+y up), the rest as given.
+inline CameraState posed_camera(Vec3 from, Vec3 to) {
+  CameraState s;
+  s.position[0] = from.x;
+  s.position[1] = from.y;
+  s.position[2] = from.z;
+  const Quat q = quat_look_at(from, to, Vec3(0, 1, 0));
+  s.rotation[0] = q.w;
+  s.rotation[1] = q.x;
+  s.rotation[2] = q.y;
+  s.rotation[3] = q.z;
+  return s;
+}
+
 inline bool same_bytes(const FrameBuffers& a, const FrameBuffers& b) {
   for (const BufferInfo& info : buffer_infos()) {
     const auto& x = buffer_data(a, info.name);

@@ -288,15 +288,7 @@ TEST(SceneCamera, FromSceneWithoutACameraIsAnErrorAtTheKey) {
 // point, where the pinhole's plane distance along a tilted ray differs
 // from the lens ray's.
 TEST(CameraClipping, CameraRaysSpanTheViewDepthsBetweenThePlanes) {
-  CameraState s;
-  s.position[0] = 1;
-  s.position[1] = 2;
-  s.position[2] = 3;
-  const Quat q = quat_look_at(Vec3(1, 2, 3), Vec3(4, 0, -2), Vec3(0, 1, 0));
-  s.rotation[0] = q.w;
-  s.rotation[1] = q.x;
-  s.rotation[2] = q.y;
-  s.rotation[3] = q.z;
+  CameraState s = testing::posed_camera(Vec3(1, 2, 3), Vec3(4, 0, -2));
   s.fov_deg = 60;
   s.focal_distance = 3;
   s.aperture = 0.4f;

@@ -21,15 +21,7 @@ using testing::make_spec;
 // A camera at (1, 2, 3) looking at (4, 0, -2): no axis of the world lines
 // up with the camera's.
 CameraState ortho_state(float height, float focal = 1, float aperture = 0) {
-  CameraState s;
-  s.position[0] = 1;
-  s.position[1] = 2;
-  s.position[2] = 3;
-  const Quat q = quat_look_at(Vec3(1, 2, 3), Vec3(4, 0, -2), Vec3(0, 1, 0));
-  s.rotation[0] = q.w;
-  s.rotation[1] = q.x;
-  s.rotation[2] = q.y;
-  s.rotation[3] = q.z;
+  CameraState s = testing::posed_camera(Vec3(1, 2, 3), Vec3(4, 0, -2));
   s.fov_deg = 0;
   s.ortho_height = height;
   s.focal_distance = focal;
