@@ -9,17 +9,26 @@
 // ("reference_ceiling") holds the figures and the commands that made them.
 //
 // Usage: reference_ceiling FILE.exr|FILE.h5 ...
-//        reference_ceiling --pair A.exr B.exr
+//        reference_ceiling --staged DIR
+//        reference_ceiling --pair A.exr|DIR@FRAME B.exr|DIR@FRAME
 // Prints one line per frame and a summary line; asserts nothing. --pair
 // scores two renders of the same frame with different seeds against each
 // other (the issue's own definition of the ceiling: an independent second
 // reference at the full sample count), to compare with the half-vs-half
 // figure of each, and gives the ratio of their mean radiances (A over B:
 // what a clamped reference loses against an unbiased B,
-// buffers.reference_clamp).
+// buffers.reference_clamp). --staged scores the frames of a farm batch
+// while it renders: DIR is its staging folder (OUT/.staging/BATCH), whose
+// tile EXRs are pasted into frames, and every frame whose tiles cover it
+// is measured as a whole (SSIM's windows then cross the tiles' borders, as
+// in the shard the batch will write); the render time is the sum of its
+// tiles'. Frames still missing tiles are counted, not measured. In --pair,
+// DIR@FRAME is frame FRAME assembled from such a folder.
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -60,6 +69,67 @@ Row measure(const dofarm::FrameBuffers& fb, double seconds) {
           coc_max};
 }
 
+double render_seconds(const dofarm::ExrFrame& exr) {
+  auto it = exr.attributes.find("dofarm.render_seconds");
+  return it == exr.attributes.end() ? NAN : std::stod(it->second);
+}
+
+// A batch's staged tiles (its OUT/.staging/BATCH folder), by frame.
+struct StagedFrame {
+  std::vector<std::filesystem::path> tiles;
+  long long covered = 0;  // pixels
+  dofarm::FrameExtent extent;
+  bool complete() const { return covered == (long long)extent.width * extent.height; }
+};
+std::map<int, StagedFrame> staged_index(const std::filesystem::path& dir) {
+  std::map<int, StagedFrame> frames;
+  std::vector<std::filesystem::path> paths;
+  for (const auto& e : std::filesystem::directory_iterator(dir))
+    if (e.is_regular_file() && e.path().extension() == ".exr") paths.push_back(e.path());
+  std::sort(paths.begin(), paths.end());
+  for (const auto& p : paths) {
+    const dofarm::ExrFrame exr = dofarm::read_frame_exr(p);
+    StagedFrame& f = frames[exr.buffers.camera.frame];
+    f.tiles.push_back(p);
+    f.covered += (long long)exr.buffers.width * exr.buffers.height;
+    f.extent = exr.frame;
+  }
+  return frames;
+}
+
+// The whole frame its tiles make, and the sum of their render times.
+dofarm::FrameBuffers assemble(const StagedFrame& f, double* seconds) {
+  dofarm::FrameBuffers whole;
+  *seconds = 0;
+  for (const auto& p : f.tiles) {
+    const dofarm::ExrFrame exr = dofarm::read_frame_exr(p);
+    if (whole.width == 0) {
+      whole.allocate(f.extent.width, f.extent.height, exr.buffers.versions);
+      whole.rect = {0, 0, f.extent.width, f.extent.height};
+      whole.camera = exr.buffers.camera;
+    }
+    whole.paste(exr.buffers);
+    *seconds += render_seconds(exr);
+  }
+  return whole;
+}
+
+// A frame EXR, or DIR@FRAME: frame FRAME assembled from the staging folder
+// DIR (it must be complete).
+dofarm::FrameBuffers load_frame(const std::string& arg) {
+  const size_t at = arg.rfind('@');
+  if (at == std::string::npos || std::filesystem::is_regular_file(arg))
+    return dofarm::read_frame_exr(arg).buffers;
+  const int frame = std::stoi(arg.substr(at + 1));
+  const std::map<int, StagedFrame> index = staged_index(arg.substr(0, at));
+  auto it = index.find(frame);
+  if (it == index.end() || !it->second.complete())
+    throw std::runtime_error("frame " + std::to_string(frame) + " is not complete in " +
+                             arg.substr(0, at));
+  double seconds;
+  return assemble(it->second, &seconds);
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -69,11 +139,17 @@ int main(int argc, char** argv) {
   }
   if (std::string(argv[1]) == "--pair") {
     if (argc != 4) {
-      std::fprintf(stderr, "usage: reference_ceiling --pair A.exr B.exr\n");
+      std::fprintf(stderr, "usage: reference_ceiling --pair A.exr|DIR@FRAME B.exr|DIR@FRAME\n");
       return 2;
     }
-    const dofarm::FrameBuffers a = dofarm::read_frame_exr(argv[2]).buffers;
-    const dofarm::FrameBuffers b = dofarm::read_frame_exr(argv[3]).buffers;
+    dofarm::FrameBuffers a, b;
+    try {
+      a = load_frame(argv[2]);
+      b = load_frame(argv[3]);
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "reference_ceiling: %s\n", e.what());
+      return 1;
+    }
     if (a.width != b.width || a.height != b.height) {
       std::fprintf(stderr, "reference_ceiling: %s and %s differ in size\n", argv[2], argv[3]);
       return 2;
@@ -95,7 +171,34 @@ int main(int argc, char** argv) {
   std::vector<Row> rows;
   std::printf("%-40s %6s %9s %9s %9s %9s %9s %8s\n", "file", "frame", "ceiling", "exact", "rel_med",
               "rel_p99", "render_s", "coc_max");
-  for (int a = 1; a < argc; ++a) {
+  if (std::string(argv[1]) == "--staged") {
+    if (argc != 3) {
+      std::fprintf(stderr, "usage: reference_ceiling --staged DIR\n");
+      return 2;
+    }
+    try {
+      int incomplete = 0;
+      for (const auto& [frame, f] : staged_index(argv[2])) {
+        if (!f.complete()) {
+          ++incomplete;
+          continue;
+        }
+        double seconds;
+        const dofarm::FrameBuffers whole = assemble(f, &seconds);
+        rows.push_back(measure(whole, seconds));
+        const Row& row = rows.back();
+        std::printf("%-40s %6d %9.5f %9.5f %9.4f %9.4f %9.1f %8.1f\n", "(staged tiles)", frame,
+                    row.ssim, row.exact, row.median_rel, row.p99_rel, row.seconds, row.coc_max);
+      }
+      std::printf("staged: %zu whole frames, %d with tiles still missing\n", rows.size(),
+                  incomplete);
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "%s: %s\n", argv[2], e.what());
+      return 1;
+    }
+    if (rows.empty()) return 1;
+  }
+  for (int a = 1; a < argc && std::string(argv[1]) != "--staged"; ++a) {
     const std::string path = argv[a];
     try {
       if (path.size() > 3 && path.substr(path.size() - 3) == ".h5") {
@@ -108,8 +211,7 @@ int main(int argc, char** argv) {
         }
       } else {
         dofarm::ExrFrame exr = dofarm::read_frame_exr(path);
-        auto it = exr.attributes.find("dofarm.render_seconds");
-        double sec = it == exr.attributes.end() ? NAN : std::stod(it->second);
+        const double sec = render_seconds(exr);
         rows.push_back(measure(exr.buffers, sec));
         std::printf("%-40s %6d %9.5f %9.5f %9.4f %9.4f %9.1f %8.1f\n", path.c_str(),
                     exr.buffers.camera.frame, rows.back().ssim, rows.back().exact,
