@@ -156,7 +156,8 @@ void complete_spec_from_scene(JobSpec& spec, const render::Scene& scene) {
     spec.height = size.height;
     spec.width_given = spec.height_given = true;
     check_batch_size(spec);
-    if (std::string why = render::describe_aspect_mismatch(aspect, spec.width, spec.height);
+    if (std::string why = render::describe_aspect_mismatch(aspect, spec.width, spec.height,
+                                                           track.front().ymag > 0);
         !why.empty())
       spdlog::warn("{}: {}", spec.spec_path.string(), why);
   }

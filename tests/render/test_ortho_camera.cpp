@@ -141,6 +141,10 @@ TEST(OrthoCamera, FilmFitsTheImageAsBlendersAutoFit) {
   EXPECT_FLOAT_EQ(fitted_ortho_height(1.0f, 0.5f, 64, 64), 2.0f);    // portrait film
   EXPECT_FLOAT_EQ(fitted_ortho_height(1.0f, 0.0f, 64, 16), 2.0f);    // no aspect: ymag
   EXPECT_FLOAT_EQ(fitted_ortho_height(1.0f, 2.0f, 641, 321), 2.0f);  // rounding: a match
+  // The warning says what it crops in Blender's words.
+  const std::string why = describe_aspect_mismatch(2.0f, 64, 64, true);
+  EXPECT_NE(why.find("the Orthographic Scale spans the longer side"), std::string::npos) << why;
+  EXPECT_NE(why.find("200% of the camera's height"), std::string::npos) << why;
   // A scene camera key with ymag makes an orthographic frame.
   SceneData d;
   d.source = "ortho.gltf";

@@ -239,7 +239,8 @@ std::string share(double f, const char* side) {
 
 }  // namespace
 
-std::string describe_aspect_mismatch(float camera_aspect, int width, int height) {
+std::string describe_aspect_mismatch(float camera_aspect, int width, int height,
+                                     bool orthographic) {
   if (!(camera_aspect > 0) || width <= 0 || height <= 0) return "";
   // The size either side derives from the other is a match: rounding to
   // whole pixels is not a crop.
@@ -250,8 +251,9 @@ std::string describe_aspect_mismatch(float camera_aspect, int width, int height)
   const double yr = image_aspect >= 1 ? longer / image_aspect : longer;
   return fmt::format(
       "the scene camera is {} but the image is {}x{} ({}): as in Blender (sensor fit auto: the "
-      "field of view spans the longer side), the image shows {} and {}",
-      ratio_text(a), width, height, ratio_text(image_aspect), share(xr / a, "width"),
+      "{} spans the longer side), the image shows {} and {}",
+      ratio_text(a), width, height, ratio_text(image_aspect),
+      orthographic ? "Orthographic Scale" : "field of view", share(xr / a, "width"),
       share(yr, "height"));
 }
 

@@ -112,7 +112,10 @@ ImageSize image_size_for_aspect(float camera_aspect, int width, int height);
 // "" when a width x height image shows exactly the camera's film, else one
 // line saying what it crops or adds, e.g. `the scene camera is 16:9 but the
 // image is 512x512: it shows the camera's full width and 178% of its height`.
-std::string describe_aspect_mismatch(float camera_aspect, int width, int height);
+// `orthographic`: the camera's Orthographic Scale spans the longer side,
+// not its field of view.
+std::string describe_aspect_mismatch(float camera_aspect, int width, int height,
+                                     bool orthographic = false);
 
 // ---------------------------------------------------------------------------
 // One frame's camera
