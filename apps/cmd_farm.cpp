@@ -135,6 +135,10 @@ Command add_run_impl(CLI::App& app) {
       ->capture_default_str()
       ->check(CLI::Range(0, 4096));
   cmd->add_option("--lease", a->lease_seconds, "task lease in seconds")->capture_default_str();
+  cmd->add_option("--stall-timeout", a->stall_timeout,
+                  "fail the batch after this many seconds without a live local worker; 0 = never")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
   add_set_option(cmd, *sets);
   add_http_options(cmd, *http);
   return {cmd, [a, sets, job, out, http, &app]() {

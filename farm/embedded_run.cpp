@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cstring>
+#include <optional>
 #include <thread>
 
 #include "common/job_snapshot.h"
@@ -51,6 +52,12 @@ std::string foreign_content(const fs::path& out) {
   return "";
 }
 
+// How long workers get to leave after their batch ended, and to exit after
+// SIGTERM (a worker hands its task back within about 2 s of it: worker.cpp,
+// kStopGraceSeconds).
+constexpr std::chrono::seconds kLeaveSeconds{5};
+constexpr std::chrono::seconds kKillSeconds{10};
+
 }  // namespace
 
 EmbeddedRunResult run_embedded(const EmbeddedRunOptions& o, const std::atomic<bool>& stop) {
@@ -92,6 +99,7 @@ EmbeddedRunResult run_embedded(const EmbeddedRunOptions& o, const std::atomic<bo
   so.shutdown_when_idle = true;
   so.http = o.http;
   so.scheduler.lease_seconds = o.lease_seconds;
+  so.scheduler.stall_timeout = o.stall_timeout;
   coordinator::Server server(so, clock);
   coordinator::Server::JobSubmission sub = server.submit_job(out, job.snapshot, o.overrides);
   if (!sub.refusal.empty()) throw RunRefused(sub.refusal);
@@ -120,11 +128,13 @@ EmbeddedRunResult run_embedded(const EmbeddedRunOptions& o, const std::atomic<bo
   // Progress counts finished tasks (render tiles and shard packs). Every
   // local worker blocklisted means nobody is left to render the batch: stop
   // rather than wait for a worker that never comes.
+  bool running = true;  // the batch, as finished() last saw it
   auto finished = [&](int* total) {
     auto st = server.scheduler().status(result.batch);
     if (st.batches.empty()) return int64_t(0);
     const auto& b = st.batches[0];
     *total = b.tasks_total;
+    running = b.batch.state == coordinator::BatchState::kRunning;
     result.stranded = b.batch.state == coordinator::BatchState::kRunning &&
                       int(b.blocklisted.size()) >= o.workers;
     return int64_t(b.tasks_done + b.tasks_failed);
@@ -136,7 +146,21 @@ EmbeddedRunResult run_embedded(const EmbeddedRunOptions& o, const std::atomic<bo
   // It counts tasks (render tiles and shard packs), and says so.
   Progress progress("batch " + result.batch, total, "tasks", po);
   progress.advance(done);
-  auto last = std::chrono::steady_clock::now();
+  // Workers leave by themselves: told "shutdown" once the batch has ended,
+  // or handing their task back on SIGTERM. One that does neither (stopped by
+  // SIGSTOP or a debugger, or hung) must not keep `run` waiting forever: it
+  // gets SIGTERM kLeaveSeconds after the batch ended (at once on stop or
+  // when stranded), with SIGCONT, without which a stopped process never
+  // acts on it, and SIGKILL kKillSeconds later. Its lease, if it held one,
+  // expires and the task is rendered again on the next run.
+  using Steady = std::chrono::steady_clock;
+  auto signal_workers = [&](int sig) {
+    for (pid_t pid : children)
+      if (pid > 0) kill(pid, sig);
+  };
+  std::optional<Steady::time_point> ended, terminated;
+  bool killed = false;
+  auto last = Steady::now();
   size_t alive = children.size();
   while (alive > 0) {
     server.poll_once(100);
@@ -147,14 +171,29 @@ EmbeddedRunResult run_embedded(const EmbeddedRunOptions& o, const std::atomic<bo
         --alive;
       }
     }
-    if (stop || result.stranded)
-      for (pid_t pid : children)
-        if (pid > 0) kill(pid, SIGTERM);
-    if (std::chrono::steady_clock::now() - last > std::chrono::seconds(1)) {
-      last = std::chrono::steady_clock::now();
+    if (alive == 0) break;
+    const auto now = Steady::now();
+    if (now - last > std::chrono::seconds(1)) {
+      last = now;
       int64_t now_done = finished(&total);
       progress.advance(now_done - done);
       done = now_done;
+      if (!ended && !running) ended = now;
+    }
+    const bool overstayed = ended && now - *ended > kLeaveSeconds;
+    if (!terminated && (stop || result.stranded || overstayed)) {
+      if (overstayed)
+        spdlog::warn("batch {} ended {} s ago and {} local worker(s) still run; stopping them",
+                     result.batch, kLeaveSeconds.count(), alive);
+      signal_workers(SIGTERM);
+      signal_workers(SIGCONT);
+      terminated = now;
+    } else if (terminated && !killed && now - *terminated > kKillSeconds) {
+      spdlog::warn("{} local worker(s) still run {} s after SIGTERM; killing them", alive,
+                   kKillSeconds.count());
+      signal_workers(SIGCONT);
+      signal_workers(SIGKILL);
+      killed = true;
     }
   }
   // Let the last results in before reading the final state.

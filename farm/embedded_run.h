@@ -12,7 +12,9 @@
 //     and the batch of this job resumes (its staged tiles and shards checked)
 //     or a new one is planned;
 //  4. workers are started and served until they exit: when the batch ends,
-//     on stop, or when every worker is blocklisted (stranded).
+//     on stop, or when every worker is blocklisted (stranded). A worker that
+//     does not leave (stopped, hung) gets SIGTERM 5 s after the batch ended,
+//     SIGKILL 10 s after that, so `run` always returns.
 #pragma once
 
 #include <atomic>
@@ -34,6 +36,9 @@ struct EmbeddedRunOptions {
   int workers = 2;
   int threads = 0;  // per worker; 0 = cores / workers, at least 1
   double lease_seconds = 30;
+  // Fail the batch after this long without an eligible worker (0 = never);
+  // the coordinator's --stall-timeout.
+  double stall_timeout = coordinator::SchedulerOptions{}.stall_timeout;
   std::filesystem::path exe;         // the dofarm executable the workers run
   std::string worker_log_level = "warn";
   bool progress = true;              // draw a progress bar on stderr

@@ -12,6 +12,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cstring>
@@ -272,6 +273,22 @@ inline Child start_worker(const fs::path& dir, const std::string& endpoint, cons
                                    "1",      "--give-up",   "120"};
   args.insert(args.end(), extra.begin(), extra.end());
   return Child(args, dir / (id + ".out"), dir / (id + ".err"));
+}
+
+// The worker processes a `dofarm run` of process `run_pid` started
+// ("local-RUNPID-N" in their command line), found in /proc.
+inline std::vector<pid_t> local_worker_pids(pid_t run_pid) {
+  const std::string tag = "local-" + std::to_string(run_pid) + "-";
+  std::vector<pid_t> pids;
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator("/proc", ec)) {
+    std::string cmd = read_text(e.path() / "cmdline");
+    std::replace(cmd.begin(), cmd.end(), '\0', ' ');
+    if (cmd.find(tag) == std::string::npos || cmd.find(" worker ") == std::string::npos) continue;
+    const pid_t pid = std::atoi(e.path().filename().c_str());
+    if (pid > 0) pids.push_back(pid);
+  }
+  return pids;
 }
 
 // One request/reply on a fresh connection (the same wire messages the CLI

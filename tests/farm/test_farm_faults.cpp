@@ -182,17 +182,10 @@ TEST(FarmFaults, SigtermedWorkerReleasesItsTaskAndExitsZero) {
   EXPECT_EQ(row->state, coordinator::TaskState::kPending);
 }
 
-// The local workers of a `dofarm run` that died without stopping them
-// ("local-RUNPID-N" in their command line); they are ours to clean up.
+// The local workers of a `dofarm run` that died without stopping them are
+// ours to clean up.
 void kill_orphaned_local_workers(pid_t run_pid) {
-  const std::string tag = "local-" + std::to_string(run_pid) + "-";
-  for (const auto& e : fs::directory_iterator("/proc")) {
-    std::string cmd = read_text(e.path() / "cmdline");
-    std::replace(cmd.begin(), cmd.end(), '\0', ' ');
-    if (cmd.find(tag) == std::string::npos || cmd.find(" worker ") == std::string::npos) continue;
-    const pid_t pid = std::atoi(e.path().filename().c_str());
-    if (pid > 0) ::kill(pid, SIGKILL);
-  }
+  for (pid_t pid : local_worker_pids(run_pid)) ::kill(pid, SIGKILL);
 }
 
 // `dofarm coordinator` stops cleanly on SIGTERM/SIGINT (exit 0). Where the

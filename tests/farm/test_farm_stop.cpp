@@ -91,5 +91,74 @@ TEST(FarmStop, WorkerStoppedMidTaskHandsItsTaskBack) {
   EXPECT_EQ(b.at("tasks_pending"), b.at("tasks_total")) << b.dump(2);
 }
 
+// `dofarm run` whose local worker is frozen (SIGSTOP: alive, silent, and
+// deaf to SIGTERM until continued) used to wait for it forever: once its
+// batch had failed for want of a live worker it logged "100% ... ETA 0s"
+// for hours, and SIGTERM or Ctrl-C did not end it either. Now a worker that
+// does not leave gets SIGTERM with SIGCONT, then SIGKILL, and `run` returns.
+// A 64x64 tile at 1024 reference spp: seconds of work, never finished here.
+struct FrozenWorkerRun {
+  FrozenWorkerRun(const TempDir& tmp, const std::vector<std::string>& extra) {
+    TinyJob j;
+    j.width = j.height = j.tile = 64;
+    j.frame_end = 0;
+    j.per_shard = 1;
+    j.reference_spp = 1024;
+    const fs::path job = write_job(tmp.path(), "job.toml", j);
+    std::vector<std::string> args = {"run",       job.string(), "--out",     (tmp / "out").string(),
+                                     "--workers", "1",          "--threads", "1"};
+    args.insert(args.end(), extra.begin(), extra.end());
+    run = Child(args, tmp / "run.out", tmp / "run.err");
+    started = poll_until("the local worker to start", [&] {
+      workers = local_worker_pids(run.pid());
+      return !workers.empty();
+    });
+    for (pid_t pid : workers) ::kill(pid, SIGSTOP);
+  }
+  ~FrozenWorkerRun() {
+    for (pid_t pid : local_worker_pids(run.pid())) ::kill(pid, SIGKILL);
+  }
+  // No worker of this run is left (a killed one may linger as a zombie,
+  // whose command line is empty).
+  ::testing::AssertionResult workers_gone() {
+    return poll_until(
+        "the local worker to be gone", [&] { return local_worker_pids(run.pid()).empty(); }, 10);
+  }
+  Child run;
+  std::vector<pid_t> workers;
+  ::testing::AssertionResult started = ::testing::AssertionFailure();
+};
+
+TEST(FarmStop, RunWithAFrozenWorkerStopsOnSigterm) {
+  TempDir tmp;
+  FrozenWorkerRun f(tmp, {"--lease", "600"});
+  ASSERT_TRUE(f.started) << f.run.describe();
+  const auto t0 = Clock::now();
+  f.run.signal(SIGTERM);
+  std::optional<int> rc = f.run.wait(30);
+  ASSERT_TRUE(rc.has_value()) << "`run` still waits for its frozen worker 30 s after SIGTERM\n"
+                              << f.run.describe();
+  EXPECT_EQ(*rc, 1) << "the batch is not done: a runtime failure\n" << f.run.describe();
+  EXPECT_TRUE(f.workers_gone()) << f.run.describe();
+  std::fprintf(stderr, "[ farm    ] run exited %.2f s after SIGTERM\n", seconds_since(t0));
+}
+
+TEST(FarmStop, RunWhoseBatchStalledWithAFrozenWorkerEnds) {
+  TempDir tmp;
+  FrozenWorkerRun f(tmp, {"--lease", "2", "--stall-timeout", "2"});
+  ASSERT_TRUE(f.started) << f.run.describe();
+  // The lease expires (2 s), the batch fails after 2 s without a live
+  // worker, the worker gets 5 s to leave and 10 more after SIGTERM.
+  std::optional<int> rc = f.run.wait(60);
+  ASSERT_TRUE(rc.has_value()) << "`run` still waits for its frozen worker after its batch "
+                                 "ended\n"
+                              << f.run.describe();
+  EXPECT_EQ(*rc, 1) << f.run.describe();
+  EXPECT_NE(f.run.out().find(": failed, 0/1 frames"), std::string::npos) << f.run.describe();
+  EXPECT_NE(f.run.err().find("no eligible worker"), std::string::npos) << f.run.describe();
+  EXPECT_NE(f.run.err().find("still run; stopping them"), std::string::npos) << f.run.describe();
+  EXPECT_TRUE(f.workers_gone()) << f.run.describe();
+}
+
 }  // namespace
 }  // namespace dofarm::farm_testing

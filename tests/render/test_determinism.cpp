@@ -3,6 +3,9 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <thread>
 
 #include "tests/render/render_fixtures.h"
 
@@ -84,6 +87,32 @@ TEST(Determinism, ReferenceOnlyGivesTheSameReferenceAndNothingElse) {
   EXPECT_TRUE(zero(ref.albedo_ref));
   EXPECT_TRUE(zero(ref.depth));
   EXPECT_EQ(stats.paths, uint64_t(20 * 14 * 8));  // the reference's paths only
+}
+
+// A cancel request is seen within a pixel, not only between blocks: one
+// block of reference pixels at study settings takes seconds, and a worker
+// told to stop must hand its task back at once. Here the only block of the
+// tile would take tens of seconds; cancelled after 0.2 s, the render throws
+// (when cancel was seen only between blocks it finished the block and
+// returned).
+TEST(RenderCancel, ACancelRequestIsSeenInsideABlock) {
+  auto scene = make_scene(testing::small_room());
+  JobSpec spec = make_spec(16, 16, Vec3(0, 1, 3), Vec3(0, 1, 0), 45);
+  spec.reference_spp = 1 << 17;
+  RenderOptions opt;
+  opt.threads = 1;
+  opt.block_size = 16;
+  std::atomic<bool> cancel{false};
+  opt.cancel = &cancel;
+  std::thread stopper([&] {
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+    cancel = true;
+  });
+  const auto t0 = std::chrono::steady_clock::now();
+  EXPECT_THROW(render_frame(*scene, spec, 0, std::nullopt, opt), Cancelled);
+  stopper.join();
+  const double took = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  EXPECT_LT(took, 10.0);
 }
 
 }  // namespace

@@ -318,11 +318,16 @@ FrameBuffers render_frame(const Scene& loaded, const JobSpec& spec, int frame,
     const uint64_t rays_before = thread_ray_count().total();
     try {
       for (int b = next++; b < blocks; b = next++) {
-        if (options.cancel && *options.cancel) throw Cancelled();
         int x0 = (b % bx) * bs, y0 = (b / bx) * bs;
+        // Checked per pixel: a block of reference pixels at tens of
+        // thousands of samples takes seconds, and a stopped worker should
+        // hand its task back at once.
         for (int y = y0; y < std::min(y0 + bs, rect.h); ++y)
-          for (int x = x0; x < std::min(x0 + bs, rect.w); ++x)
+          for (int x = x0; x < std::min(x0 + bs, rect.w); ++x) {
+            if (options.cancel && options.cancel->load(std::memory_order_relaxed))
+              throw Cancelled();
             pixels.render(rect.x + x, rect.y + y, out, size_t(y) * rect.w + x);
+          }
         if (progress) progress->advance();
       }
     } catch (...) {

@@ -26,7 +26,7 @@ struct RenderOptions {
   int block_size = 16;           // pixels per side of a thread-pool work item
   bool progress = false;         // log progress lines / a bar on a terminal
   RenderStats* stats = nullptr;  // filled in when set
-  // Checked between blocks: when it becomes true, render_frame() throws
+  // Checked before every pixel: when it becomes true, render_frame() throws
   // Cancelled (a worker told to stop hands its task back).
   const std::atomic<bool>* cancel = nullptr;
   // Render the reference buffer (and reference_half, reference_var) alone;
