@@ -98,6 +98,9 @@ class Heartbeat {
     thread_.join();
   }
   bool lost() const { return lost_; }
+  // Set when the coordinator says the lease is no longer this worker's
+  // (expired and given to another, or its batch cancelled).
+  const std::atomic<bool>& lost_flag() const { return lost_; }
 
  private:
   std::mutex mutex_;
@@ -211,6 +214,9 @@ class Worker {
         render::RenderOptions opt;
         opt.threads = options_.threads;
         opt.cancel = &stop_;
+        // A tile whose lease was taken away is someone else's now, or
+        // nobody's: rendering on would only be refused (it could be minutes).
+        opt.cancel_also = &heartbeat.lost_flag();
         StagedTile t = render_tile(spec, *scene, batch, out_dir, frame, rect, opt);
         Json done = base;
         done["staged_path"] = t.path.string();
@@ -248,6 +254,10 @@ class Worker {
         throw RuntimeError("unknown task kind \"" + kind + "\"");
       }
     } catch (const render::Cancelled&) {
+      if (heartbeat.lost() && !stop_) {
+        spdlog::warn("task {}: the lease was taken away; abandoning the task", task);
+        return;
+      }
       spdlog::info("task {}: stopping; handing the task back", task);
       send_result(client, protocol::encode("release", base));
     } catch (const StagedTileError& e) {

@@ -18,14 +18,14 @@ constexpr double kStopSeconds = 5;
 // reference spp: seconds of work, so a SIGTERM certainly finds the worker
 // rendering) and worker w1 holding its lease.
 struct LongTaskFarm {
-  explicit LongTaskFarm(const TempDir& tmp, double lease_seconds)
+  explicit LongTaskFarm(const TempDir& tmp, double lease_seconds, int reference_spp = 512)
       : coord(tmp.path(), "coordinator", tmp / "state", lease_seconds) {
     TinyJob big;
     big.width = big.height = 128;
     big.tile = 128;
     big.frame_end = 0;
     big.per_shard = 1;
-    big.reference_spp = 512;
+    big.reference_spp = reference_spp;
     const fs::path job = write_job(tmp.path(), "big.toml", big);
     CliResult sub = run_cli(tmp.path(), "submit",
                             {"submit", job.string(), "--coordinator", coord.endpoint(), "--out",
@@ -89,6 +89,27 @@ TEST(FarmStop, WorkerStoppedMidTaskHandsItsTaskBack) {
   const Json b = batch_of(farm_status(ep, farm.batch), farm.batch);
   EXPECT_EQ(b.at("tasks_leased"), 0) << b.dump(2);
   EXPECT_EQ(b.at("tasks_pending"), b.at("tasks_total")) << b.dump(2);
+}
+
+// A worker whose lease is taken away mid-render (here: its batch is
+// cancelled) stops at its next heartbeat's answer instead of rendering on a
+// tile that would be refused: 128x128 at 16384 reference spp is minutes of
+// work on one thread, and it used to finish it.
+TEST(FarmStop, WorkerAbandonsATaskWhoseLeaseWasTakenAway) {
+  TempDir tmp;
+  LongTaskFarm farm(tmp, 60, 1 << 14);
+  ASSERT_FALSE(farm.batch.empty());
+  ASSERT_TRUE(farm.leased) << farm.worker.describe();
+  const std::string ep = farm.coord.endpoint();
+  CliResult cancel = run_cli(tmp.path(), "cancel", {"cancel", farm.batch, "--coordinator", ep});
+  ASSERT_EQ(cancel.status, 0) << cancel.out << cancel.err;
+  const auto t0 = Clock::now();
+  EXPECT_TRUE(poll_until(
+      "the worker to abandon its task",
+      [&] { return farm.worker.err().find("abandoning the task") != std::string::npos; }, 15))
+      << farm.worker.describe();
+  std::fprintf(stderr, "[ farm    ] task abandoned %.2f s after the cancel\n", seconds_since(t0));
+  EXPECT_TRUE(farm.worker.running()) << "it goes on serving\n" << farm.worker.describe();
 }
 
 // `dofarm run` whose local worker is frozen (SIGSTOP: alive, silent, and

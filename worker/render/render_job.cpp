@@ -314,6 +314,10 @@ FrameBuffers render_frame(const Scene& loaded, const JobSpec& spec, int frame,
   const auto t0 = std::chrono::steady_clock::now();
   std::exception_ptr error;
   std::mutex error_mutex;
+  auto cancelled = [&] {
+    return (options.cancel && options.cancel->load(std::memory_order_relaxed)) ||
+           (options.cancel_also && options.cancel_also->load(std::memory_order_relaxed));
+  };
   auto work = [&] {
     const uint64_t rays_before = thread_ray_count().total();
     try {
@@ -324,8 +328,7 @@ FrameBuffers render_frame(const Scene& loaded, const JobSpec& spec, int frame,
         // hand its task back at once.
         for (int y = y0; y < std::min(y0 + bs, rect.h); ++y)
           for (int x = x0; x < std::min(x0 + bs, rect.w); ++x) {
-            if (options.cancel && options.cancel->load(std::memory_order_relaxed))
-              throw Cancelled();
+            if (cancelled()) throw Cancelled();
             pixels.render(rect.x + x, rect.y + y, out, size_t(y) * rect.w + x);
           }
         if (progress) progress->advance();

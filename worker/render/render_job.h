@@ -26,9 +26,11 @@ struct RenderOptions {
   int block_size = 16;           // pixels per side of a thread-pool work item
   bool progress = false;         // log progress lines / a bar on a terminal
   RenderStats* stats = nullptr;  // filled in when set
-  // Checked before every pixel: when it becomes true, render_frame() throws
-  // Cancelled (a worker told to stop hands its task back).
+  // Checked before every pixel: when either becomes true, render_frame()
+  // throws Cancelled (a worker told to stop hands its task back; one whose
+  // lease was taken away abandons it).
   const std::atomic<bool>* cancel = nullptr;
+  const std::atomic<bool>* cancel_also = nullptr;
   // Render the reference buffer (and reference_half, reference_var) alone;
   // every other buffer stays zero. For benchmarks that compare the path
   // tracer's image with another renderer's (bench/render_spp): Cycles
