@@ -268,6 +268,7 @@ Command add_submit(CLI::App& app) {
     std::string job, out;
     CoordinatorArgs coordinator;
     std::vector<std::string> sets;
+    int priority = coordinator::kDefaultPriority;
   };
   auto a = std::make_shared<Args>();
   CLI::App* cmd =
@@ -278,6 +279,11 @@ Command add_submit(CLI::App& app) {
       ->type_name("DIR")
       ->required();
   add_set_option(cmd, a->sets);
+  cmd->add_option("--priority", a->priority,
+                  "the new batch's priority: higher batches' tasks are handed out first, equal "
+                  "ones oldest first; change it later with `dofarm priority`")
+      ->check(CLI::Range(coordinator::kMinPriority, coordinator::kMaxPriority))
+      ->capture_default_str();
   return {cmd, [a]() {
             // The job is resolved and checked here (located errors, exit 2,
             // nothing written), copied into the output folder, and sent as
@@ -288,15 +294,18 @@ Command add_submit(CLI::App& app) {
               throw SpecError(FileLoc{}, "", why);
             fs::create_directories(out);
             worker::materialize_job(job, out);
-            auto r = checked(call_coordinator(
-                a->coordinator.client(),
-                protocol::encode("submit", {{"snapshot", job.snapshot.to_json(-1)},
-                                            {"out_dir", out.string()}})));
+            auto r = checked(
+                call_coordinator(a->coordinator.client(),
+                                 protocol::encode("submit", {{"snapshot", job.snapshot.to_json(-1)},
+                                                             {"out_dir", out.string()},
+                                                             {"priority", a->priority}})));
             const std::string batch = r.str("batch");
             write_output_owner(out, {job.snapshot.hash(), batch, job.snapshot.source_spec});
             if (r.body.value("existing", false))
-              spdlog::info("{} already holds batch {} of this job (job {})", out.string(), batch,
-                           job.snapshot.hash());
+              spdlog::info(
+                  "{} already holds batch {} of this job (job {}); it keeps its priority "
+                  "(`dofarm priority` changes it)",
+                  out.string(), batch, job.snapshot.hash());
             std::cout << batch << std::endl;
             return kExitOk;
           }};
@@ -447,6 +456,33 @@ Command add_resume(CLI::App& app) {
   return add_batch_op(app, "resume", "Resume a failed or cancelled batch");
 }
 Command add_cancel(CLI::App& app) { return add_batch_op(app, "cancel", "Cancel a batch"); }
+
+Command add_priority(CLI::App& app) {
+  struct Args {
+    std::string batch;
+    int priority = coordinator::kDefaultPriority;
+    CoordinatorArgs coordinator;
+  };
+  auto a = std::make_shared<Args>();
+  CLI::App* cmd = app.add_subcommand(
+      "priority",
+      "Give a batch another priority (0-100, default 50): the runnable tasks of higher "
+      "batches are handed out first; leases already held are kept");
+  cmd->add_option("batch", a->batch, "batch id")->required();
+  cmd->add_option("priority", a->priority, "0 (last) .. 100 (first)")
+      ->check(CLI::Range(coordinator::kMinPriority, coordinator::kMaxPriority))
+      ->required();
+  add_coordinator_option(cmd, a->coordinator);
+  return {cmd, [a]() {
+            auto r = checked(call_coordinator(
+                a->coordinator.client(),
+                protocol::encode("priority", {{"batch", a->batch}, {"priority", a->priority}})));
+            if (!r.body.value("ok", false))
+              throw SpecError(FileLoc{}, "batch", r.body.value("message", std::string("refused")));
+            std::cout << r.body.value("message", std::string()) << std::endl;
+            return kExitOk;
+          }};
+}
 
 Command add_inspect(CLI::App& app) {
   struct Args {

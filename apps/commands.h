@@ -23,6 +23,7 @@ Command add_status(CLI::App& app);
 Command add_events(CLI::App& app);
 Command add_resume(CLI::App& app);
 Command add_cancel(CLI::App& app);
+Command add_priority(CLI::App& app);
 Command add_inspect(CLI::App& app);
 Command add_keygen(CLI::App& app);
 Command add_verify(CLI::App& app);

@@ -147,9 +147,9 @@ int run_main(int argc, char** argv) {
       "dofarm"};
   return run_cli(app, "dofarm", argc, argv, [](CLI::App& a) {
     return std::vector<Command>{
-        add_render(a), add_run(a),     add_coordinator(a), add_worker(a),
-        add_submit(a), add_status(a),  add_events(a),      add_resume(a),
-        add_cancel(a), add_inspect(a), add_keygen(a),      add_verify(a),
+        add_render(a),  add_run(a),    add_coordinator(a), add_worker(a), add_submit(a),
+        add_status(a),  add_events(a), add_resume(a),      add_cancel(a), add_priority(a),
+        add_inspect(a), add_keygen(a), add_verify(a),
     };
   });
 }

@@ -172,7 +172,11 @@ std::vector<MessageDef> make_defs() {
        "refuses a folder that holds another job's batch",
        "`submitted` {batch, job, existing} or `error` {message, bad_input}",
        {string_field("snapshot", kMaxSnapshotTextBytes, Charset::kText, "job.json, compact JSON"),
-        path_field("out_dir", "absolute output folder")}});
+        path_field("out_dir", "absolute output folder"),
+        int_field("priority", 0, 100,
+                  "a new batch's priority, higher served first (50); an existing batch keeps "
+                  "its own")
+            .optional()}});
   d.push_back(
       {"status",
        "CLI",
@@ -201,6 +205,12 @@ std::vector<MessageDef> make_defs() {
                "stops a batch; its leases are revoked",
                "`ack` {ok, message}",
                {batch_id()}});
+  d.push_back({"priority",
+               "CLI",
+               "gives a batch another priority: the runnable tasks of higher-priority batches "
+               "are handed out first, equal priorities oldest batch first; leases held are kept",
+               "`ack` {ok, message}",
+               {batch_id(), int_field("priority", 0, 100, "0 (last) .. 100 (first)")}});
   // Coordinator -> worker / CLI.
   Field input = object_field(
       "",
@@ -275,6 +285,7 @@ std::vector<MessageDef> make_defs() {
       "",
       {batch_id(),
        word_field("state", "running, done, failed, cancelled"),
+       int_field("priority", 0, 100, "higher is served first").optional(),
        path_field("spec_path", "job TOML"),
        path_field("out_dir", "output folder"),
        number_field("created", 0, 1e12, "submission time (seconds since the epoch)"),
@@ -334,7 +345,8 @@ std::vector<MessageDef> make_defs() {
        word_field("level", "info, warn, error"),
        word_field("kind",
                   "lease, expired, retry, failed, blocklisted, submitted, finished, cancelled, "
-                  "resumed, invalidated, late_result (empty: an event older than kinds)"),
+                  "resumed, invalidated, late_result, priority (empty: an event older than "
+                  "kinds)"),
        int_field("task", 0, kMaxId64, "the task it is about (0: none)"),
        string_field("worker", kMaxIdBytes, Charset::kId, "the worker it is about (empty: none)"),
        text_field("text", "what happened, with the error or reason")},

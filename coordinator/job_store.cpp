@@ -27,7 +27,8 @@ CREATE TABLE batches(
   frame_end INTEGER NOT NULL,
   per_shard INTEGER NOT NULL,
   job TEXT NOT NULL DEFAULT '',
-  snapshot TEXT NOT NULL DEFAULT '');
+  snapshot TEXT NOT NULL DEFAULT '',
+  priority INTEGER NOT NULL DEFAULT 50);
 CREATE TABLE tasks(
   id INTEGER PRIMARY KEY,
   batch_id TEXT NOT NULL REFERENCES batches(id),
@@ -250,12 +251,20 @@ bool JobStore::has_column(const std::string& table, const std::string& column) {
 // Stores written before jobs were snapshots lack the batches' job columns;
 // they are added in place (empty for the old batches), so such a store still
 // opens and its batches still run.
+// Stores written before batch priorities get the column with every batch at
+// the default priority, which orders them as before (oldest first).
 void JobStore::add_missing_batch_columns() {
-  if (has_column("batches", "job")) return;
-  Transaction t(*this);
-  exec("ALTER TABLE batches ADD COLUMN job TEXT NOT NULL DEFAULT ''");
-  exec("ALTER TABLE batches ADD COLUMN snapshot TEXT NOT NULL DEFAULT ''");
-  t.commit();
+  if (!has_column("batches", "job")) {
+    Transaction t(*this);
+    exec("ALTER TABLE batches ADD COLUMN job TEXT NOT NULL DEFAULT ''");
+    exec("ALTER TABLE batches ADD COLUMN snapshot TEXT NOT NULL DEFAULT ''");
+    t.commit();
+  }
+  if (!has_column("batches", "priority")) {
+    Transaction t(*this);
+    exec("ALTER TABLE batches ADD COLUMN priority INTEGER NOT NULL DEFAULT 50");
+    t.commit();
+  }
 }
 
 // Stores written before `dofarm events` lack the events' kind, task and
@@ -337,7 +346,7 @@ void JobStore::rollback_group() {
 namespace {
 constexpr const char* kBatchColumns =
     "id, spec_path, overrides, out_dir, state, created, finished, frame_start, frame_end, "
-    "per_shard, rowid, job, snapshot";
+    "per_shard, rowid, job, snapshot, priority";
 }
 
 template <typename S>
@@ -356,17 +365,19 @@ static BatchRow read_batch(const S& s) {
   b.seq = s.int64(10);
   b.job_hash = s.text(11);
   b.snapshot = s.text(12);
+  b.priority = s.integer(13);
   return b;
 }
 
 void JobStore::insert_batch(const BatchRow& b) {
   Statement s(*this,
               "INSERT INTO batches(id, spec_path, overrides, out_dir, state, created, finished, "
-              "frame_start, frame_end, per_shard, job, snapshot) VALUES(?,?,?,?,?,?,?,?,?,?,?,?)");
+              "frame_start, frame_end, per_shard, job, snapshot, priority) "
+              "VALUES(?,?,?,?,?,?,?,?,?,?,?,?,?)");
   s.bind(1, b.id).bind(2, b.spec_path).bind(3, nlohmann::json(b.overrides).dump());
   s.bind(4, b.out_dir).bind(5, to_string(b.state)).bind(6, b.created).bind(7, b.finished);
   s.bind(8, b.frame_start).bind(9, b.frame_end).bind(10, b.per_shard);
-  s.bind(11, b.job_hash).bind(12, b.snapshot).run();
+  s.bind(11, b.job_hash).bind(12, b.snapshot).bind(13, b.priority).run();
 }
 
 std::optional<BatchRow> JobStore::batch(const std::string& id) {
@@ -388,6 +399,11 @@ void JobStore::set_batch_state(const std::string& id, BatchState state,
                                std::optional<double> finished) {
   Statement s(*this, "UPDATE batches SET state=?, finished=? WHERE id=?");
   s.bind(1, to_string(state)).bind(2, finished).bind(3, id).run();
+}
+
+void JobStore::set_batch_priority(const std::string& id, int priority) {
+  Statement s(*this, "UPDATE batches SET priority=? WHERE id=?");
+  s.bind(1, priority).bind(2, id).run();
 }
 
 // --- Tasks
@@ -524,7 +540,9 @@ std::vector<TaskRow> JobStore::runnable_tasks(const std::string& worker, double 
   // pack on the way, which is why the scheduler keeps this answer in memory.)
   std::vector<std::string> running;
   {
-    Statement b(*this, "SELECT id FROM batches WHERE state='running' ORDER BY created, rowid");
+    Statement b(
+        *this,
+        "SELECT id FROM batches WHERE state='running' ORDER BY priority DESC, created, rowid");
     while (b.step()) running.push_back(b.text(0));
   }
   std::vector<TaskRow> out;

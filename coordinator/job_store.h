@@ -53,6 +53,13 @@ namespace dofarm::coordinator {
 
 inline constexpr int kStoreSchemaVersion = 1;
 
+// A batch's priority (Deadline's and Flamenco's 0-100): runnable tasks of a
+// batch of higher priority are handed out before any of a lower one; equal
+// priorities go oldest batch first.
+inline constexpr int kMinPriority = 0;
+inline constexpr int kMaxPriority = 100;
+inline constexpr int kDefaultPriority = 50;
+
 enum class BatchState { kRunning, kDone, kFailed, kCancelled };
 // kFailed: every task is finished and at least one failed for good (the
 // batch went on without it, "done with failures").
@@ -82,6 +89,7 @@ struct BatchRow {
   // Submission order (the row id): ties of `created` are broken by it. Read
   // only; insert_batch ignores it.
   int64_t seq = 0;
+  int priority = kDefaultPriority;  // kMinPriority..kMaxPriority, higher first
 };
 
 struct TaskRow {
@@ -196,6 +204,7 @@ class JobStore {
   std::optional<BatchRow> batch(const std::string& id);
   std::vector<BatchRow> batches();  // oldest first
   void set_batch_state(const std::string& id, BatchState state, std::optional<double> finished);
+  void set_batch_priority(const std::string& id, int priority);
 
   // Tasks
   int64_t insert_task(const TaskRow& task);  // ignores task.id, returns the new one
@@ -217,10 +226,9 @@ class JobStore {
   bool extend_lease(int64_t task, int attempt, const std::string& worker, double expiry);
   // Pending tasks whose back-off has passed, whose dependencies are all done,
   // of running batches that have not blocklisted `worker`; in assignment order:
-  // oldest batch first, then pack tasks (they unblock the trainer), then render
-  // tiles by frame (so shards complete early), then by id. The scheduler
-  // answers this from memory (RunQueue); this query is the reference its
-  // tests hold the memory to.
+  // highest batch priority first, then oldest batch, then pack tasks (they unblock the trainer),
+  // then render tiles by frame (so shards complete early), then by id. The scheduler answers this
+  // from memory (RunQueue); this query is the reference its tests hold the memory to.
   std::vector<TaskRow> runnable_tasks(const std::string& worker, double now, int limit);
   std::vector<TaskRow> leases_expired_by(double now);
   std::vector<TaskRow> leased_tasks(const std::string& batch_id);  // empty: every batch

@@ -76,6 +76,21 @@ RunQueue::Batch* RunQueue::batch(const std::string& id) {
   return it == batches_.end() ? nullptr : &it->second;
 }
 
+void RunQueue::set_priority(const std::string& id, int priority, double now) {
+  Batch* b = batch(id);
+  if (!b || b->row.priority == priority) return;
+  // The keys hold the priority: out of the queue under the old one, back
+  // in under the new.
+  std::vector<Task*> mine;
+  for (auto& [task_id, t] : tasks_)
+    if (t.batch == b) {
+      unplace(t);
+      mine.push_back(&t);
+    }
+  b->row.priority = priority;
+  for (Task* t : mine) place(*t, now);
+}
+
 RunQueue::Task* RunQueue::task(int64_t id) {
   auto it = tasks_.find(id);
   return it == tasks_.end() ? nullptr : &it->second;
@@ -145,7 +160,11 @@ double RunQueue::next_due() const {
 }
 
 RunQueue::Key RunQueue::key(const Task& t) {
-  return {t.batch->row.created, t.batch->row.seq, t.kind == TaskKind::kPackShard ? 0 : 1, t.frame,
+  return {-t.batch->row.priority,
+          t.batch->row.created,
+          t.batch->row.seq,
+          t.kind == TaskKind::kPackShard ? 0 : 1,
+          t.frame,
           t.id};
 }
 

@@ -9,7 +9,8 @@
 //
 //  - runnable: pending tasks whose dependencies are all done and whose
 //    back-off has passed, ordered as JobStore::runnable_tasks orders them
-//    (oldest batch first, packs before tiles, then frame, then id);
+//    (highest batch priority first, then oldest batch, packs before tiles,
+//    then frame, then id);
 //  - delayed: pending tasks with all dependencies done, still in back-off,
 //    by the time they become runnable (promoted when a caller looks);
 //  - per task, the number of its dependencies that are not done: a task
@@ -23,6 +24,7 @@
 #pragma once
 
 #include <cstdint>
+#include <limits>
 #include <map>
 #include <optional>
 #include <set>
@@ -76,6 +78,9 @@ class RunQueue {
   void drop_batch(const std::string& id);
 
   Batch* batch(const std::string& id);
+  // Gives a held batch another priority: its runnable tasks move to their
+  // new place in the queue (`now` as in load_batch).
+  void set_priority(const std::string& id, int priority, double now);
   size_t batch_count() const { return batches_.size(); }
   // A task of a held batch, or null.
   Task* task(int64_t id);
@@ -106,9 +111,10 @@ class RunQueue {
   uint64_t generation() const { return generation_; }
 
  private:
-  // (batch created, batch seq, kind, frame, id): JobStore::runnable_tasks'
-  // order; 'pack_shard' sorts before 'render_tile' there too.
-  using Key = std::tuple<double, int64_t, int, int, int64_t>;
+  // (-batch priority, batch created, batch seq, kind, frame, id):
+  // JobStore::runnable_tasks' order; 'pack_shard' sorts before 'render_tile'
+  // there too.
+  using Key = std::tuple<int, double, int64_t, int, int, int64_t>;
   static Key key(const Task& t);
   void place(Task& t, double now);  // into the queue or the delayed set, if it may run
   void unplace(Task& t);
@@ -126,10 +132,14 @@ template <typename Accept>
 RunQueue::Task* RunQueue::find(const std::string& worker, double now, Accept&& accept) {
   promote(now);
   for (auto it = runnable_.begin(); it != runnable_.end();) {
-    Task& t = tasks_.at(std::get<4>(*it));
+    Task& t = tasks_.at(std::get<5>(*it));
     if (t.batch->blocked.count(worker)) {
-      // Skip the rest of this batch in one step.
-      it = runnable_.lower_bound(Key{std::get<0>(*it), std::get<1>(*it) + 1, 0, 0, 0});
+      // Skip the rest of this batch in one step: to the first key of the
+      // next (the smallest possible rest of a key: packs have frame -1, so a
+      // rest of zeros skipped the next batch's packs).
+      it = runnable_.lower_bound(Key{
+          std::get<0>(*it), std::get<1>(*it), std::get<2>(*it) + 1, std::numeric_limits<int>::min(),
+          std::numeric_limits<int>::min(), std::numeric_limits<int64_t>::min()});
       continue;
     }
     if (accept(t)) return &t;

@@ -117,7 +117,8 @@ std::vector<int64_t> Scheduler::runnable(const std::string& worker) {
 std::string Scheduler::submit(const std::string& spec_path,
                               const std::vector<std::string>& overrides, const std::string& out_dir,
                               const JobSpec& spec, const JobRef& job,
-                              std::optional<double> seconds_per_pixel) {
+                              std::optional<double> seconds_per_pixel, int priority) {
+  DOFARM_CHECK(priority >= kMinPriority && priority <= kMaxPriority);
   const double now = clock_.now();
   const Plan plan = plan_batch(spec, seconds_per_pixel);
   return guarded([&] {
@@ -133,6 +134,7 @@ std::string Scheduler::submit(const std::string& spec_path,
     batch.frame_start = spec.frame_start;
     batch.frame_end = spec.frame_end;
     batch.per_shard = spec.per_shard;
+    batch.priority = priority;
     store_.insert_batch(batch);
     std::vector<int64_t> ids;
     ids.reserve(plan.tasks.size());
@@ -151,7 +153,7 @@ std::string Scheduler::submit(const std::string& spec_path,
                       "submitted " + spec_path + ": " + std::to_string(spec.frame_count()) +
                           " frames, " + std::to_string(plan.shards.size()) + " shards, " +
                           std::to_string(plan.tasks.size()) + " tasks, tile side " +
-                          std::to_string(plan.tile_side),
+                          std::to_string(plan.tile_side) + ", priority " + std::to_string(priority),
                       "submitted", 0, ""});
     load_batch(*store_.batch(batch.id), now);  // read back: the row id orders batches
     tx.commit();

@@ -269,7 +269,8 @@ class Scheduler {
   // never hand tasks to a real worker.
   std::string submit(const std::string& spec_path, const std::vector<std::string>& overrides,
                      const std::string& out_dir, const JobSpec& spec, const JobRef& job = {},
-                     std::optional<double> seconds_per_pixel = std::nullopt);
+                     std::optional<double> seconds_per_pixel = std::nullopt,
+                     int priority = kDefaultPriority);
 
   // A worker said hello (or is still there); any call from a worker counts too.
   void worker_seen(const std::string& worker, const std::string& host, int threads);
@@ -308,6 +309,10 @@ class Scheduler {
   // blocklist is cleared.
   OpResult cancel(const std::string& batch_id);
   OpResult resume(const std::string& batch_id);
+  // Gives a batch another priority (kMinPriority..kMaxPriority; higher is
+  // served first). Leases already held are kept; what is handed out next
+  // follows the new order. Any state: a resumed batch keeps it.
+  OpResult set_priority(const std::string& batch_id, int priority);
 
   // Ids of the batches that are running, oldest first (a restarted
   // coordinator checks their staged files).

@@ -33,6 +33,26 @@ OpResult Scheduler::cancel(const std::string& batch_id) {
   });
 }
 
+OpResult Scheduler::set_priority(const std::string& batch_id, int priority) {
+  const double now = clock_.now();
+  return guarded([&]() -> OpResult {
+    if (priority < kMinPriority || priority > kMaxPriority)
+      return {false, "priority " + std::to_string(priority) + " is outside " +
+                         std::to_string(kMinPriority) + ".." + std::to_string(kMaxPriority)};
+    Transaction tx(store_);
+    const std::optional<BatchRow> batch = store_.batch(batch_id);
+    if (!batch) return {false, "no batch " + batch_id};
+    const std::string change =
+        "priority " + std::to_string(batch->priority) + " -> " + std::to_string(priority);
+    if (batch->priority == priority) return {true, batch_id + ": " + change + " (unchanged)"};
+    store_.set_batch_priority(batch_id, priority);
+    store_.add_event({0, now, batch_id, "info", change, "priority", 0, ""});
+    queue_.set_priority(batch_id, priority, now);
+    tx.commit();
+    return {true, batch_id + ": " + change};
+  });
+}
+
 OpResult Scheduler::resume(const std::string& batch_id) {
   const double now = clock_.now();
   return guarded([&]() -> OpResult {

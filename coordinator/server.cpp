@@ -91,7 +91,7 @@ int Server::verify_staged_tiles(const std::string& batch_id) {
 }
 
 Server::JobSubmission Server::submit_job(const fs::path& out_dir_in, const JobSnapshot& snapshot,
-                                        const std::vector<std::string>& overrides) {
+                                         const std::vector<std::string>& overrides, int priority) {
   JobSubmission r;
   const fs::path out_dir = out_dir_in.lexically_normal();
   if (!out_dir.is_absolute()) {
@@ -131,9 +131,10 @@ Server::JobSubmission Server::submit_job(const fs::path& out_dir_in, const JobSn
   }
   if (!r.refusal.empty()) return r;
   r.batch = scheduler_->submit(snapshot.source_spec, overrides, out_dir.string(), spec,
-                               JobRef{hash, snapshot.to_json()});
-  spdlog::info("batch {} submitted: job {} from {}, frames {}..{} -> {}", r.batch, hash,
-               snapshot.source_spec, spec.frame_start, spec.frame_end, out_dir.string());
+                               JobRef{hash, snapshot.to_json()}, std::nullopt, priority);
+  spdlog::info("batch {} submitted: job {} from {}, frames {}..{} -> {}, priority {}", r.batch,
+               hash, snapshot.source_spec, spec.frame_start, spec.frame_end, out_dir.string(),
+               priority);
   return r;
 }
 
@@ -150,7 +151,8 @@ std::string Server::handle_submit(const protocol::Message& m) {
   } catch (const RuntimeError& e) {
     return refuse(e.what());
   }
-  JobSubmission s = submit_job(m.str("out_dir"), snapshot, snapshot.source_overrides);
+  const int priority = m.has("priority") ? int(m.integer("priority")) : kDefaultPriority;
+  JobSubmission s = submit_job(m.str("out_dir"), snapshot, snapshot.source_overrides, priority);
   if (!s.refusal.empty()) return refuse(s.refusal);
   return protocol::encode("submitted",
                           {{"batch", s.batch}, {"job", snapshot.hash()}, {"existing", s.existing}});
@@ -316,6 +318,10 @@ std::string Server::handle(const protocol::Message& m) {
   }
   if (t == "cancel") {
     OpResult r = scheduler_->cancel(m.str("batch"));
+    return protocol::encode("ack", {{"ok", r.ok}, {"message", r.message}});
+  }
+  if (t == "priority") {
+    OpResult r = scheduler_->set_priority(m.str("batch"), int(m.integer("priority")));
     return protocol::encode("ack", {{"ok", r.ok}, {"message", r.message}});
   }
   return protocol::error_reply("the coordinator does not take \"" + t + "\" messages");

@@ -100,7 +100,8 @@ class Server {
     std::string refusal;  // non-empty: refused, bad input
   };
   JobSubmission submit_job(const std::filesystem::path& out_dir, const JobSnapshot& snapshot,
-                           const std::vector<std::string>& overrides);
+                           const std::vector<std::string>& overrides,
+                           int priority = kDefaultPriority);
 
   // Handles one decoded request; public for tests. A `request` with nothing
   // to do gets `wait` at once here (only the receive loop parks).

@@ -115,6 +115,7 @@ Json batch_json(const BatchStatus& b, size_t* task_bytes) {
   }
   Json j = {{"batch", id_text(b.batch.id)},
             {"state", to_string(b.batch.state)},
+            {"priority", b.batch.priority},
             {"spec_path", text(b.batch.spec_path, protocol::kMaxPathBytes)},
             {"out_dir", text(b.batch.out_dir, protocol::kMaxPathBytes)},
             {"created", b.batch.created},

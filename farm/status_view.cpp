@@ -46,7 +46,10 @@ std::string local_time(double t) {
 }
 
 void print_batch(const Json& b, std::ostream& out) {
-  out << str(b, "batch") << "  " << str(b, "state") << "  " << str(b, "spec_path") << "\n";
+  out << str(b, "batch") << "  " << str(b, "state");
+  // Older coordinators do not send it.
+  if (b.contains("priority")) out << "  priority " << num(b, "priority");
+  out << "  " << str(b, "spec_path") << "\n";
   const Json& eta = b.value("eta_seconds", Json());
   // The same duration format as the progress bar (common/progress.h).
   out << fmt::format(

@@ -267,5 +267,39 @@ TEST(JobStoreMigration, StoreWithoutEventKindsGainsThemInPlace) {
   EXPECT_EQ(ev[1].kind, "");
 }
 
+// A store written before batch priorities opens with every batch at the
+// default priority, so its batches are served as before (oldest first), and
+// a priority set afterwards is kept.
+TEST(JobStoreMigration, StoreWithoutPrioritiesGainsThemInPlace) {
+  TempDir dir;
+  const auto path = dir.path() / "old.db";
+  FakeClock clock;
+  std::string first, second;
+  {
+    JobStore store(path);
+    Scheduler s(store, clock);
+    first = s.submit("/jobs/a.toml", {}, "/out/a", testing::tiny_spec(1, 1));
+    clock.advance(1);
+    second = s.submit("/jobs/b.toml", {}, "/out/b", testing::tiny_spec(1, 1), {}, std::nullopt, 90);
+    s.flush();
+  }
+  {
+    sqlite3* db = nullptr;
+    ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
+    const char* sql = "ALTER TABLE batches DROP COLUMN priority";
+    ASSERT_EQ(sqlite3_exec(db, sql, nullptr, nullptr, nullptr), SQLITE_OK) << sql;
+    sqlite3_close(db);
+  }
+  JobStore store(path);
+  EXPECT_EQ(store.batch(first)->priority, kDefaultPriority);
+  EXPECT_EQ(store.batch(second)->priority, kDefaultPriority);
+  Scheduler s(store, clock);
+  std::optional<Assignment> a = s.assign("w1");
+  ASSERT_TRUE(a.has_value());
+  EXPECT_EQ(a->batch_id, first) << "equal priorities: the older batch first";
+  EXPECT_TRUE(s.set_priority(second, 70).ok);
+  EXPECT_EQ(JobStore(path).batch(second)->priority, 70);
+}
+
 }  // namespace
 }  // namespace dofarm::coordinator

@@ -98,8 +98,96 @@ TEST_F(RunQueueTest, InvalidatedTileTakesItsPackOutOfTheQueueUntilItIsDoneAgain)
   EXPECT_EQ(sched_.runnable("w1"), std::vector<int64_t>{pack});
 }
 
+// A worker blocklisted for an older batch still gets the next batch's packs.
+// The queue skips a blocked batch in one step, to the first key after it;
+// that key's rest was zeros, and packs (frame -1) sort below it, so the skip
+// landed past the next batch's packs: w1 saw b's tiles but never b's pack.
+TEST(RunQueue, AWorkerBlocklistedForOneBatchStillGetsTheNextBatchsPack) {
+  TempDir dir;
+  FakeClock clock;
+  SchedulerOptions o;
+  o.blocklist_after = 2;
+  JobStore store(dir.path() / "state.db");
+  Scheduler s(store, clock, o);
+  const std::string a = s.submit("/jobs/a.toml", {}, "/out/a", tiny_spec(6, 6));
+  const std::string b = s.submit("/jobs/b.toml", {}, "/out/b", tiny_spec(1, 1));
+  // w1 fails two of a's tiles: blocklisted for a.
+  for (int i = 0; i < 2; ++i) {
+    const Assignment t = testing::take(s, "w1");
+    ASSERT_EQ(t.batch_id, a);
+    EXPECT_TRUE(s.fail("w1", t.task_id, t.attempt, "boom").worker_blocklisted == (i == 1));
+  }
+  // w2 takes a's other tiles, then renders b's only tile: b's pack is runnable.
+  for (;;) {
+    const Assignment t = testing::take(s, "w2");
+    if (t.task_id == 0) FAIL() << "b's tile never came";
+    if (t.batch_id != b) continue;
+    testing::done(s, "w2", t);
+    break;
+  }
+  // Past the back-off, a's failed tiles run again (for others): the skip
+  // over a is taken for w1.
+  clock.advance(3600);
+  std::vector<int64_t> sql;
+  for (const TaskRow& t : store.runnable_tasks("w1", clock.now(), 1 << 20)) sql.push_back(t.id);
+  EXPECT_EQ(s.runnable("w1"), sql);
+  const std::optional<Assignment> next = s.assign("w1");
+  ASSERT_TRUE(next.has_value());
+  EXPECT_EQ(next->batch_id, b);
+  EXPECT_EQ(next->kind, TaskKind::kPackShard);
+}
+
+// Batch priorities: a later batch of higher priority is served before an
+// older one, equal priorities oldest first, a change reorders what is handed
+// out next (leases held are kept), and the order survives a restart.
+TEST_F(RunQueueTest, HigherPriorityBatchesAreServedFirstAndEqualOnesOldestFirst) {
+  const std::string old_batch = sched_.submit("/jobs/a.toml", {}, "/out/a", tiny_spec(2, 2));
+  clock_.advance(1);
+  const std::string urgent =
+      sched_.submit("/jobs/b.toml", {}, "/out/b", tiny_spec(2, 2), {}, std::nullopt, 80);
+  EXPECT_EQ(store_.batch(old_batch)->priority, kDefaultPriority);
+  EXPECT_EQ(store_.batch(urgent)->priority, 80);
+  // Both batches' tiles are runnable; the urgent one's come first.
+  Assignment a = take("w1");
+  EXPECT_EQ(a.batch_id, urgent);
+  EXPECT_EQ(sql_runnable(store_, "w1"), sched_.runnable("w1"));
+
+  // Lowered below the old batch: the old batch's tiles come next, and the
+  // lease already held stays.
+  EXPECT_TRUE(sched_.set_priority(urgent, 10).ok);
+  EXPECT_EQ(sql_runnable(store_, "w1"), sched_.runnable("w1"));
+  EXPECT_EQ(take("w2").batch_id, old_batch);
+  EXPECT_TRUE(sched_.heartbeat("w1", a.task_id, a.attempt)) << "the lease survives the change";
+
+  // Equal priorities: the older batch first.
+  EXPECT_TRUE(sched_.set_priority(urgent, kDefaultPriority).ok);
+  EXPECT_EQ(take("w3").batch_id, old_batch);
+
+  // Out of range, or no such batch: refused, nothing changed.
+  EXPECT_FALSE(sched_.set_priority(urgent, kMaxPriority + 1).ok);
+  EXPECT_FALSE(sched_.set_priority(urgent, -1).ok);
+  EXPECT_FALSE(sched_.set_priority("b-00000000", 60).ok);
+  EXPECT_EQ(store_.batch(urgent)->priority, kDefaultPriority);
+
+  // Raised again; a restarted coordinator keeps the order (from the store).
+  EXPECT_TRUE(sched_.set_priority(urgent, kMaxPriority).ok);
+  const std::vector<int64_t> before = sched_.runnable("w4");
+  ASSERT_FALSE(before.empty());
+  EXPECT_EQ(store_.task(before.front())->batch_id, urgent);
+  sched_.flush();
+  JobStore reopened(dir_.path() / "state.db");
+  Scheduler restarted(reopened, clock_);
+  EXPECT_EQ(restarted.runnable("w4"), before);
+  EXPECT_EQ(reopened.batch(urgent)->priority, kMaxPriority);
+  // The change is an event of the batch.
+  bool seen = false;
+  for (const EventRow& e : reopened.events(urgent, 100)) seen |= e.kind == "priority";
+  EXPECT_TRUE(seen);
+}
+
 // A seeded random walk through every operation (assign, complete, fail,
-// release, heartbeat, lease expiry, invalidate, cancel, resume, time passing)
+// release, heartbeat, lease expiry, invalidate, cancel, resume, priority
+// changes, time passing)
 // over three batches and four workers. After every step the queue in memory
 // must list exactly the tasks the store's query lists, for every worker; and
 // every 20 steps the coordinator "crashes" (a new store connection and
@@ -137,8 +225,17 @@ TEST(RunQueue, QueueInMemoryAndRebuiltAfterARestartEqualTheStoresAnswer) {
     }
   };
   int failed_for_good = 0, blocklisted = 0, expired = 0, invalidated = 0, restarts = 0;
+  int reprioritised = 0;
+  std::mt19937 priorities(11);  // its own stream: the walk's draws stay as they were
   for (int step = 0; step < 400; ++step) {
     Scheduler& s = *scheds.back();
+    if (step % 9 == 4) {
+      // Batch priorities reorder the queue (ties: oldest batch first).
+      static constexpr int kLevels[] = {kMinPriority, kDefaultPriority, kDefaultPriority + 1,
+                                        kMaxPriority};
+      reprioritised +=
+          s.set_priority(batches[priorities() % batches.size()], kLevels[priorities() % 4]).ok;
+    }
     const std::string& w = workers[pick(workers.size())];
     const int op = int(pick(100));
     if (op < 35) {
@@ -192,6 +289,7 @@ TEST(RunQueue, QueueInMemoryAndRebuiltAfterARestartEqualTheStoresAnswer) {
   EXPECT_GT(blocklisted, 0);
   EXPECT_GT(expired, 0);
   EXPECT_GT(invalidated, 0);
+  EXPECT_GT(reprioritised, 0);
   EXPECT_EQ(restarts, 20);
 }
 
