@@ -429,6 +429,16 @@ Command add_events(CLI::App& app) {
 }
 
 namespace {
+// An operator command's `ack` {ok, message}: the message on stdout, or a
+// refusal (no such batch, nothing to resume) as an error on stderr like
+// every other, not a line on stdout.
+int print_op_reply(const protocol::Message& r) {
+  if (!r.body.value("ok", false))
+    throw SpecError(FileLoc{}, "batch", r.body.value("message", std::string("refused")));
+  std::cout << r.body.value("message", std::string()) << std::endl;
+  return kExitOk;
+}
+
 Command add_batch_op(CLI::App& app, const char* name, const char* help) {
   struct Args {
     std::string batch;
@@ -440,14 +450,8 @@ Command add_batch_op(CLI::App& app, const char* name, const char* help) {
   add_coordinator_option(cmd, a->coordinator);
   std::string type = name;
   return {cmd, [a, type]() {
-            auto r = checked(call_coordinator(a->coordinator.client(),
-                                              protocol::encode(type, {{"batch", a->batch}})));
-            // A refusal (no such batch, nothing to resume) is an error on
-            // stderr like every other, not a line on stdout.
-            if (!r.body.value("ok", false))
-              throw SpecError(FileLoc{}, "batch", r.body.value("message", std::string("refused")));
-            std::cout << r.body.value("message", std::string()) << std::endl;
-            return kExitOk;
+            return print_op_reply(checked(call_coordinator(
+                a->coordinator.client(), protocol::encode(type, {{"batch", a->batch}}))));
           }};
 }
 }  // namespace
@@ -474,13 +478,9 @@ Command add_priority(CLI::App& app) {
       ->required();
   add_coordinator_option(cmd, a->coordinator);
   return {cmd, [a]() {
-            auto r = checked(call_coordinator(
+            return print_op_reply(checked(call_coordinator(
                 a->coordinator.client(),
-                protocol::encode("priority", {{"batch", a->batch}, {"priority", a->priority}})));
-            if (!r.body.value("ok", false))
-              throw SpecError(FileLoc{}, "batch", r.body.value("message", std::string("refused")));
-            std::cout << r.body.value("message", std::string()) << std::endl;
-            return kExitOk;
+                protocol::encode("priority", {{"batch", a->batch}, {"priority", a->priority}}))));
           }};
 }
 
