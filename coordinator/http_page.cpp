@@ -102,6 +102,7 @@ function drawBatches(st) {
     const tr = el('tr', { 'data-batch': b.batch, class: b.batch === selected ? 'sel' : '' },
       cell('batch', b.batch),
       el('td', { 'data-field': 'state', class: 'state-' + b.state }, b.state),
+      cell('priority', b.priority, true),
       el('td', {}, bar(b)),
       cell('frames_rendered', b.frames_rendered, true), cell('frames_packed', b.frames_packed, true),
       cell('frames_total', b.frames_total, true),
@@ -247,7 +248,7 @@ constexpr const char* kBody = R"HTML(
 <header><h1>dofarm</h1><span id="conn">connecting...</span></header>
 <section>
 <h2>Batches</h2>
-<table><thead><tr><th>batch</th><th>state</th><th>frames</th><th>rendered</th><th>packed</th>
+<table><thead><tr><th>batch</th><th>state</th><th>priority</th><th>frames</th><th>rendered</th><th>packed</th>
 <th>of</th><th>tasks done</th><th>running</th><th>pending</th><th>failed</th><th>total</th>
 <th>frames/h</th><th>ETA</th><th>spec</th></tr></thead><tbody id="batch-rows"></tbody></table>
 <p id="batches-omitted" class="muted"></p>

@@ -486,8 +486,9 @@ void expect_page_shows(const std::string& dom, const Json& status) {
     const std::string row = element(dom, "<tr data-batch=\"" + id + "\"", "tr");
     ASSERT_FALSE(row.empty()) << id << " not on the page";
     EXPECT_EQ(field(row, "state"), b.at("state").get<std::string>()) << id;
-    for (const char* k : {"frames_rendered", "frames_packed", "frames_total", "tasks_done",
-                          "tasks_leased", "tasks_pending", "tasks_failed", "tasks_total"})
+    for (const char* k :
+         {"priority", "frames_rendered", "frames_packed", "frames_total", "tasks_done",
+          "tasks_leased", "tasks_pending", "tasks_failed", "tasks_total"})
       EXPECT_EQ(field(row, k), std::to_string(b.at(k).get<int>())) << id << " " << k;
   }
   int live = 0;
