@@ -294,11 +294,13 @@ Command add_submit(CLI::App& app) {
               throw SpecError(FileLoc{}, "", why);
             fs::create_directories(out);
             worker::materialize_job(job, out);
-            auto r = checked(
-                call_coordinator(a->coordinator.client(),
-                                 protocol::encode("submit", {{"snapshot", job.snapshot.to_json(-1)},
-                                                             {"out_dir", out.string()},
-                                                             {"priority", a->priority}})));
+            protocol::Json fields = {{"snapshot", job.snapshot.to_json(-1)},
+                                     {"out_dir", out.string()}};
+            // Sent only when asked for: a coordinator older than priorities
+            // refuses fields it does not know, and serves the default anyway.
+            if (a->priority != coordinator::kDefaultPriority) fields["priority"] = a->priority;
+            auto r = checked(call_coordinator(a->coordinator.client(),
+                                              protocol::encode("submit", std::move(fields))));
             const std::string batch = r.str("batch");
             write_output_owner(out, {job.snapshot.hash(), batch, job.snapshot.source_spec});
             if (r.body.value("existing", false))
