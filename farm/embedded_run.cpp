@@ -135,8 +135,7 @@ EmbeddedRunResult run_embedded(const EmbeddedRunOptions& o, const std::atomic<bo
     const auto& b = st.batches[0];
     *total = b.tasks_total;
     running = b.batch.state == coordinator::BatchState::kRunning;
-    result.stranded = b.batch.state == coordinator::BatchState::kRunning &&
-                      int(b.blocklisted.size()) >= o.workers;
+    result.stranded = running && int(b.blocklisted.size()) >= o.workers;
     return int64_t(b.tasks_done + b.tasks_failed);
   };
   int total = 0;
