@@ -44,6 +44,12 @@ void Progress::advance(int64_t n) {
   report(false);
 }
 
+void Progress::resume_from(int64_t n) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  before_ = std::max<int64_t>(n, 0);
+  done_.store(before_, std::memory_order_relaxed);
+}
+
 void Progress::finish() {
   std::lock_guard<std::mutex> lock(mutex_);
   if (finished_) return;
@@ -72,7 +78,8 @@ void Progress::report(bool final, const std::string& failure) {
       failure.empty() ? fmt::format("done in {}", format_duration(elapsed))
                       : fmt::format("failed after {}: {}", format_duration(elapsed), failure);
   if (mode_ == ProgressOptions::Mode::kBar) {
-    std::string line = format_progress(label_, done, total_, elapsed, options_.bar_width, unit_);
+    std::string line =
+        format_progress(label_, done, total_, elapsed, options_.bar_width, unit_, before_);
     if (final) line += " " + end;
     // \r and "erase to end of line" redraw in place.
     std::fprintf(options_.bar_out, "\r%s\x1b[K%s", line.c_str(), final ? "\n" : "");
@@ -82,7 +89,7 @@ void Progress::report(bool final, const std::string& failure) {
   } else if (final) {
     spdlog::warn("{}: {} {}", label_, counted, end);
   } else {
-    spdlog::info("{}", format_progress(label_, done, total_, elapsed, 0, unit_));
+    spdlog::info("{}", format_progress(label_, done, total_, elapsed, 0, unit_, before_));
   }
 }
 
@@ -96,14 +103,15 @@ std::string format_duration(double seconds) {
   return fmt::format("{}h{:02}m", s / 3600, (s % 3600) / 60);
 }
 
-double estimate_eta(int64_t done, int64_t total, double elapsed_s) {
-  if (done <= 0 || elapsed_s < 0) return -1;
-  if (done >= total) return 0;
-  return elapsed_s * static_cast<double>(total - done) / static_cast<double>(done);
+double estimate_eta(int64_t done, int64_t total, double elapsed_s, int64_t before) {
+  if (done >= total && total > 0) return 0;
+  const int64_t this_run = done - before;
+  if (this_run <= 0 || elapsed_s < 0) return -1;
+  return elapsed_s * static_cast<double>(total - done) / static_cast<double>(this_run);
 }
 
 std::string format_progress(const std::string& label, int64_t done, int64_t total, double elapsed_s,
-                            int bar_width, const std::string& unit) {
+                            int bar_width, const std::string& unit, int64_t before) {
   double frac = total > 0 ? std::clamp(double(done) / double(total), 0.0, 1.0) : 1.0;
   std::string bar;
   if (bar_width > 0) {
@@ -118,7 +126,7 @@ std::string format_progress(const std::string& label, int64_t done, int64_t tota
   }
   return fmt::format("{} {}{:3}% {}/{}{} ETA {}", label, bar, static_cast<int>(frac * 100), done,
                      total, unit.empty() ? "" : " " + unit,
-                     format_duration(estimate_eta(done, total, elapsed_s)));
+                     format_duration(estimate_eta(done, total, elapsed_s, before)));
 }
 
 }  // namespace dofarm

@@ -36,6 +36,11 @@ class Progress {
 
   // Records `n` more units done; thread-safe and cheap when nothing is drawn.
   void advance(int64_t n = 1);
+  // Work resumed with `n` units already done before this run: they count in
+  // the percentage but not in the rate, so the ETA is this run's own (a
+  // resumed batch at 153/1542 must not predict its rest from 153 tasks
+  // "done" in its first second). Call before the first advance().
+  void resume_from(int64_t n);
   // Prints the final line once ("... done in 6s"); later calls do nothing.
   void finish();
   // The work ended without succeeding: the final line says "failed after 6s:
@@ -57,6 +62,7 @@ class Progress {
   ProgressOptions::Mode mode_;
   double start_s_;
   std::atomic<int64_t> done_{0};
+  int64_t before_ = 0;  // done before this run (resume_from)
   std::mutex mutex_;  // guards what follows and the output
   double last_report_s_;
   bool finished_ = false;
@@ -65,12 +71,14 @@ class Progress {
 // The pieces of a progress line, separate so they can be checked exactly.
 // "12s", "3m05s", "1h02m"; "?" for a negative (unknown) duration.
 std::string format_duration(double seconds);
-// Remaining seconds at the mean rate so far; -1 while nothing is done.
-double estimate_eta(int64_t done, int64_t total, double elapsed_s);
+// Remaining seconds at this run's mean rate, (done - before) units in
+// elapsed_s; -1 while this run has done nothing.
+double estimate_eta(int64_t done, int64_t total, double elapsed_s, int64_t before = 0);
 // "label  42% 21/50 tiles ETA 12s", with "[=====>    ] " before the
 // percentage when bar_width > 0 (no unit word when `unit` is empty). The ETA
-// is in format_duration's form, as in `dofarm status`.
+// is in format_duration's form, as in `dofarm status`; `before` units were
+// done before elapsed_s began (estimate_eta).
 std::string format_progress(const std::string& label, int64_t done, int64_t total, double elapsed_s,
-                            int bar_width, const std::string& unit = "");
+                            int bar_width, const std::string& unit = "", int64_t before = 0);
 
 }  // namespace dofarm

@@ -144,7 +144,7 @@ EmbeddedRunResult run_embedded(const EmbeddedRunOptions& o, const std::atomic<bo
   if (!o.progress) po.mode = ProgressOptions::Mode::kOff;
   // It counts tasks (render tiles and shard packs), and says so.
   Progress progress("batch " + result.batch, total, "tasks", po);
-  progress.advance(done);
+  progress.resume_from(done);  // a resumed batch: its rate is this run's
   // Workers leave by themselves: told "shutdown" once the batch has ended,
   // or handing their task back on SIGTERM. One that does neither (stopped by
   // SIGSTOP or a debugger, or hung) must not keep `run` waiting forever: it

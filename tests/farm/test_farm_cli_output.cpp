@@ -78,6 +78,40 @@ TEST(ProgressLine, FailedWorkNeverEndsDone) {
   std::fclose(f);
 }
 
+// A batch resumed at 153/1542 tasks logged "ETA 47s" in its first seconds:
+// the 153 tasks of earlier runs counted as this run's rate. Only the tasks
+// done since the run began count.
+TEST(ProgressLine, AResumedRunsEtaCountsOnlyItsOwnWork) {
+  // 100 done before, 10 since, in 20 s: 90 to go at 0.5 a second.
+  EXPECT_EQ(format_progress("batch b-1", 110, 200, 20, 0, "tasks", 100),
+            "batch b-1  55% 110/200 tasks ETA 3m00s");
+  EXPECT_EQ(estimate_eta(100, 200, 20, 100), -1);  // nothing done yet in this run
+  EXPECT_EQ(estimate_eta(200, 200, 20, 200), 0);   // nothing left
+
+  std::FILE* f = std::tmpfile();
+  ASSERT_NE(f, nullptr);
+  double t = 0;
+  ProgressOptions o;
+  o.mode = ProgressOptions::Mode::kBar;
+  o.bar_interval_s = 0;
+  o.clock = [&] { return t; };
+  o.bar_out = f;
+  {
+    Progress p("batch b-1", 1542, "tasks", o);
+    p.resume_from(153);
+    t = 1;
+    p.advance(0);
+    EXPECT_EQ(p.done(), 153);
+    t = 100;
+    p.advance(1);  // one task in 100 s: 1388 left take 138800 s
+    EXPECT_EQ(p.done(), 154);
+  }
+  const std::string text = read_all(f);
+  EXPECT_NE(text.find("153/1542 tasks ETA ?"), std::string::npos) << text;
+  EXPECT_NE(text.find("154/1542 tasks ETA 38h33m"), std::string::npos) << text;
+  std::fclose(f);
+}
+
 // One duration format: `status` prints the coordinator's eta_seconds as the
 // progress bar prints its own estimate.
 TEST(StatusText, EtaHasTheProgressBarsFormat) {
