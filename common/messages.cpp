@@ -173,9 +173,9 @@ std::vector<MessageDef> make_defs() {
        "`submitted` {batch, job, existing} or `error` {message, bad_input}",
        {string_field("snapshot", kMaxSnapshotTextBytes, Charset::kText, "job.json, compact JSON"),
         path_field("out_dir", "absolute output folder"),
-        int_field("priority", 0, 100,
-                  "a new batch's priority, higher served first (50); an existing batch keeps "
-                  "its own")
+        int_field("priority", kMinPriority, kMaxPriority,
+                  "a new batch's priority, higher served first (" +
+                      std::to_string(kDefaultPriority) + "); an existing batch keeps its own")
             .optional()}});
   d.push_back(
       {"status",
@@ -210,7 +210,9 @@ std::vector<MessageDef> make_defs() {
                "gives a batch another priority: the runnable tasks of higher-priority batches "
                "are handed out first, equal priorities oldest batch first; leases held are kept",
                "`ack` {ok, message}",
-               {batch_id(), int_field("priority", 0, 100, "0 (last) .. 100 (first)")}});
+               {batch_id(), int_field("priority", kMinPriority, kMaxPriority,
+                                      std::to_string(kMinPriority) + " (last) .. " +
+                                          std::to_string(kMaxPriority) + " (first)")}});
   // Coordinator -> worker / CLI.
   Field input = object_field(
       "",
@@ -285,7 +287,7 @@ std::vector<MessageDef> make_defs() {
       "",
       {batch_id(),
        word_field("state", "running, done, failed, cancelled"),
-       int_field("priority", 0, 100, "higher is served first").optional(),
+       int_field("priority", kMinPriority, kMaxPriority, "higher is served first").optional(),
        path_field("spec_path", "job TOML"),
        path_field("out_dir", "output folder"),
        number_field("created", 0, 1e12, "submission time (seconds since the epoch)"),

@@ -31,6 +31,13 @@ inline constexpr size_t kMaxOverrides = 256;    // --set KEY=VALUE per batch
 inline constexpr size_t kMaxPackInputs = 5000;  // staged tiles of one shard (1 MiB frame)
 inline constexpr size_t kMaxSnapshotTextBytes = 900 * 1024;  // a submitted job.json
 
+// A batch's priority (Deadline's and Flamenco's 0-100): runnable tasks of a
+// batch of higher priority are handed out before any of a lower one; equal
+// priorities go oldest batch first.
+inline constexpr int kMinPriority = 0;
+inline constexpr int kMaxPriority = 100;
+inline constexpr int kDefaultPriority = 50;
+
 enum class FieldType { kString, kInt, kNumber, kBool, kArray, kObject, kNullableNumber };
 
 // Which characters a string may hold.

@@ -18,6 +18,9 @@ namespace {
 // Version 1. Times are REAL seconds since the Unix epoch. Enum columns are
 // text (readable in a sqlite3 shell) with CHECK constraints, so a bad write
 // fails loudly instead of corrupting the journal.
+// The batches' priority DEFAULT (here and in add_missing_batch_columns) is
+// the protocol's default priority.
+static_assert(kDefaultPriority == 50);
 constexpr const char* kSchema = R"sql(
 CREATE TABLE batches(
   id TEXT PRIMARY KEY,

@@ -44,6 +44,7 @@
 #include <vector>
 
 #include "common/image.h"
+#include "common/messages.h"
 #include "coordinator/planner.h"
 
 struct sqlite3;
@@ -53,12 +54,10 @@ namespace dofarm::coordinator {
 
 inline constexpr int kStoreSchemaVersion = 1;
 
-// A batch's priority (Deadline's and Flamenco's 0-100): runnable tasks of a
-// batch of higher priority are handed out before any of a lower one; equal
-// priorities go oldest batch first.
-inline constexpr int kMinPriority = 0;
-inline constexpr int kMaxPriority = 100;
-inline constexpr int kDefaultPriority = 50;
+// A batch's priority, as the protocol defines it (common/messages.h).
+using protocol::kDefaultPriority;
+using protocol::kMaxPriority;
+using protocol::kMinPriority;
 
 enum class BatchState { kRunning, kDone, kFailed, kCancelled };
 // kFailed: every task is finished and at least one failed for good (the

@@ -316,14 +316,12 @@ std::string Server::handle(const protocol::Message& m) {
     OpResult r = scheduler_->resume(m.str("batch"));
     return protocol::encode("ack", {{"ok", r.ok}, {"message", r.message}, {"tiles_requeued", bad}});
   }
-  if (t == "cancel") {
-    OpResult r = scheduler_->cancel(m.str("batch"));
+  auto op_ack = [](const OpResult& r) {
     return protocol::encode("ack", {{"ok", r.ok}, {"message", r.message}});
-  }
-  if (t == "priority") {
-    OpResult r = scheduler_->set_priority(m.str("batch"), int(m.integer("priority")));
-    return protocol::encode("ack", {{"ok", r.ok}, {"message", r.message}});
-  }
+  };
+  if (t == "cancel") return op_ack(scheduler_->cancel(m.str("batch")));
+  if (t == "priority")
+    return op_ack(scheduler_->set_priority(m.str("batch"), int(m.integer("priority"))));
   return protocol::error_reply("the coordinator does not take \"" + t + "\" messages");
 }
 
