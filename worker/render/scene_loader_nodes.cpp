@@ -9,6 +9,7 @@
 #include <limits>
 #include <set>
 
+#include "worker/render/foreign_cameras.h"
 #include "worker/render/scene_loader.h"
 
 namespace dofarm::render::detail {
@@ -56,7 +57,47 @@ void Loader::camera_track() {
   // (camera_for_frame(), complete_spec_from_scene()): rendered with a field
   // of view of 0 it would show one point of the scene in every pixel.
   float ymag = 0, ortho_aspect = 0;
-  if (!(cam->mHorizontalFOV > 0) || !std::isfinite(cam->mHorizontalFOV)) {
+  // Collada and FBX: assimp reads an orthographic camera of theirs as a
+  // perspective one (foreign_cameras.h), so the file itself says which it
+  // is. Collada's is rendered from its <orthographic> size; FBX's is
+  // refused (its OrthoZoom has no agreed unit), as is one whose camera the
+  // scan cannot match to assimp's.
+  const ForeignCameras foreign = gltf ? ForeignCameras{} : scan_foreign_cameras(path_);
+  if (foreign.any_orthographic()) {
+    const std::string name = cam->mName.C_Str();
+    const ForeignCamera* own = foreign.find(name);
+    const bool collada = foreign.format == ForeignCameras::Format::kCollada;
+    if (collada && own && !own->orthographic) {
+      // A perspective camera in a file that also has orthographic ones.
+    } else if (collada && own && own->xmag > 0 && own->ymag > 0 && own->xmag < 1e30 &&
+               own->ymag < 1e30 && own->xmag / own->ymag < 1e6 && own->ymag / own->xmag < 1e6) {
+      ymag = float(own->ymag);
+      ortho_aspect = float(own->xmag / own->ymag);
+    } else {
+      const size_t n = foreign.cameras.size();
+      out_->camera_refused =
+          collada && own ? fmt::format(
+                               "its camera \"{}\" is orthographic without a size (Collada "
+                               "<orthographic> needs two of xmag, ymag and aspect_ratio)",
+                               name)
+          : collada ? fmt::format(
+                          "it has orthographic cameras, and which of its cameras is \"{}\" "
+                          "cannot be told; export the scene as glTF",
+                          name)
+          : scene_->mNumCameras == 1
+              ? fmt::format(
+                    "its camera \"{}\" is orthographic (FBX CameraProjectionType 1), "
+                    "which assimp reads as a perspective camera; export the scene as "
+                    "glTF (or Collada) to render it",
+                    name)
+              : fmt::format(
+                    "{} of its {} cameras {} orthographic (FBX CameraProjectionType 1), "
+                    "which assimp reads as perspective cameras without saying which; "
+                    "export the scene as glTF (or Collada) to render it",
+                    n, scene_->mNumCameras, n == 1 ? "is" : "are");
+      return;
+    }
+  } else if (!(cam->mHorizontalFOV > 0) || !std::isfinite(cam->mHorizontalFOV)) {
     const std::string name = cam->mName.C_Str();
     const bool ortho = gltf && json && json->orthographic;
     const double x = ortho ? std::fabs(json->xmag) : 0.0, y = ortho ? std::fabs(json->ymag) : 0.0;
@@ -121,7 +162,16 @@ void Loader::camera_track() {
     camera->yfov_deg = yfov * 180.0f / kPi;
     camera->aspect = cam->mAspect > 0 ? cam->mAspect : 0.0f;
   }
-  // Its clipping planes, from the file's JSON.
+  // Its clipping planes: from a glTF file's JSON; for an orthographic
+  // Collada camera from assimp, which reads them right (its lens sits on
+  // the near plane, as below). Other formats' cameras are not clipped.
+  if (!gltf && ymag > 0) {
+    if (std::isfinite(cam->mClipPlaneNear) && cam->mClipPlaneNear > 0)
+      camera->znear = cam->mClipPlaneNear;
+    if (std::isfinite(cam->mClipPlaneFar) && cam->mClipPlaneFar > camera->znear &&
+        cam->mClipPlaneFar < 1e30f)
+      camera->zfar = cam->mClipPlaneFar;
+  }
   if (const GltfInfo::CameraNode* clip = json) {
     if (std::isfinite(clip->znear) && clip->znear > 0 && clip->znear < 1e30) {
       camera->znear = float(clip->znear);

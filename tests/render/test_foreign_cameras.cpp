@@ -1,0 +1,199 @@
+// Orthographic cameras in Collada and FBX files, which assimp 5.2 reads as
+// perspective ones (worker/render/foreign_cameras.h): the scans on bytes
+// with known answers, and the files Blender 3.4 exports of one scene
+// (tests/data/blender/make_ortho_cameras.py): the Collada camera is the
+// glTF one, the FBX one is refused by name, the perspective FBX is not.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <string>
+
+#include "common/error.h"
+#include "common/jobspec.h"
+#include "tests/render/render_fixtures.h"
+#include "worker/render/camera.h"
+#include "worker/render/foreign_cameras.h"
+#include "worker/render/render_job.h"
+#include "worker/render/scene_data.h"
+#include "worker/render/scene_motion.h"
+
+namespace dofarm::render {
+namespace {
+
+const std::filesystem::path kBlender = std::filesystem::path(DOFARM_TEST_DATA) / "blender";
+
+std::string collada_with(const std::string& optics) {
+  return R"(<?xml version="1.0"?><COLLADA><library_cameras>
+    <camera id="Top-camera" name="Top"><optics><technique_common>)" +
+         optics + R"(</technique_common></optics></camera>
+    <camera id="Side-camera" name="Side"><optics><technique_common>
+      <perspective><xfov sid="xfov">40</xfov><aspect_ratio>1.5</aspect_ratio>
+      <znear>0.1</znear><zfar>100</zfar></perspective></technique_common></optics></camera>
+    </library_cameras><library_visual_scenes><visual_scene id="Scene">
+    <node id="TopNode" name="Plan view" type="NODE"><instance_camera url="#Top-camera"/>
+      <node id="Child" name="Child" type="NODE"/></node>
+    <node id="SideNode" name="Elevation" type="NODE"><instance_camera url="#Side-camera"/></node>
+    </visual_scene></library_visual_scenes></COLLADA>)";
+}
+
+TEST(ForeignCameras, ColladaOrthographicSizeFromAnyTwoOfXmagYmagAndAspect) {
+  struct Case {
+    const char* optics;
+    double xmag, ymag;
+  } cases[] = {
+      {"<orthographic><xmag sid=\"xmag\">3</xmag><aspect_ratio>1.5</aspect_ratio></orthographic>",
+       3, 2},
+      {"<orthographic><ymag>2</ymag><aspect_ratio>1.5</aspect_ratio></orthographic>", 3, 2},
+      {"<orthographic><xmag>4</xmag><ymag> 1 </ymag></orthographic>", 4, 1},
+      {"<orthographic><xmag>4</xmag></orthographic>", 4, 0},  // no height: refused later
+      {"<orthographic><xmag>-4</xmag><ymag>1</ymag></orthographic>", 0, 1},
+  };
+  for (const Case& c : cases) {
+    const ForeignCameras f = scan_collada_cameras(collada_with(c.optics));
+    ASSERT_EQ(f.cameras.size(), 2u) << c.optics;
+    EXPECT_TRUE(f.any_orthographic());
+    // assimp names a Collada camera after the node that holds it.
+    const ForeignCamera* top = f.find("Plan view");
+    ASSERT_NE(top, nullptr);
+    EXPECT_EQ(top->id, "Top-camera");
+    EXPECT_TRUE(top->orthographic);
+    EXPECT_DOUBLE_EQ(top->xmag, c.xmag) << c.optics;
+    EXPECT_DOUBLE_EQ(top->ymag, c.ymag) << c.optics;
+    const ForeignCamera* side = f.find("Elevation");
+    ASSERT_NE(side, nullptr);
+    EXPECT_EQ(side->id, "Side-camera");
+    EXPECT_FALSE(side->orthographic);
+    EXPECT_EQ(f.find("Child"), nullptr);  // holds no camera; two cameras: no guess
+  }
+  const ForeignCameras none = scan_collada_cameras("<COLLADA><library_geometries/></COLLADA>");
+  EXPECT_TRUE(none.cameras.empty());
+  EXPECT_FALSE(none.any_orthographic());
+}
+
+std::string fbx_string(const std::string& s) {
+  std::string out = "S";
+  const uint32_t n = uint32_t(s.size());
+  out.append(reinterpret_cast<const char*>(&n), 4);  // little-endian, as FBX
+  return out + s;
+}
+
+std::string fbx_projection(int32_t value) {
+  std::string p = fbx_string("CameraProjectionType") + fbx_string("enum") + fbx_string("") +
+                  fbx_string("") + "I";
+  p.append(reinterpret_cast<const char*>(&value), 4);
+  return p;
+}
+
+TEST(ForeignCameras, FbxProjectionTypeIsReadFromBinaryAndAsciiFiles) {
+  const std::string magic("Kaydara FBX Binary  \0\x1a\0", 23);
+  // The Definitions' template (0), a perspective camera's own 0, and a
+  // property of another name holding 1.
+  const std::string persp = magic + "..." + fbx_projection(0) + "..P" + fbx_projection(0) +
+                            fbx_string("OrthoZoom") + fbx_string("CameraProjection") +
+                            fbx_string("enum") + fbx_string("") + fbx_string("") + "I" +
+                            std::string("\x01\0\0\0", 4);
+  EXPECT_FALSE(scan_fbx_cameras(persp).any_orthographic());
+  const ForeignCameras two = scan_fbx_cameras(persp + fbx_projection(1) + fbx_projection(1));
+  EXPECT_EQ(two.cameras.size(), 2u);
+  EXPECT_TRUE(two.any_orthographic());
+  EXPECT_EQ(two.find(""), nullptr);  // FBX cameras are not named by the scan
+  // Cut short after the name: nothing read, nothing out of bounds.
+  const std::string cut = magic + fbx_projection(1);
+  EXPECT_FALSE(scan_fbx_cameras(cut.substr(0, cut.size() - 3)).any_orthographic());
+
+  const std::string ascii =
+      "; FBX 7.4.0 project file\nObjects:  {\n P: \"CameraProjectionType\", \"enum\", \"\", "
+      "\"\",0\n";
+  EXPECT_FALSE(scan_fbx_cameras(ascii).any_orthographic());
+  EXPECT_TRUE(scan_fbx_cameras(ascii + "P: \"CameraProjectionType\", \"enum\", \"\", \"\",1\n}\n")
+                  .any_orthographic());
+}
+
+// The start-up scene's camera made Orthographic (scale 6, 16:9, Clip Start
+// 0.5), exported by Blender as glTF and as Collada: the same camera.
+TEST(ForeignCameras, BlendersColladaOrthographicCameraIsItsGltfCamera) {
+  const SceneData gltf = load_scene_data(kBlender / "ortho_camera.glb");
+  const SceneData dae = load_scene_data(kBlender / "ortho_camera.dae");
+  ASSERT_TRUE(gltf.camera_refused.empty()) << gltf.camera_refused;
+  ASSERT_TRUE(dae.camera_refused.empty()) << dae.camera_refused;
+  ASSERT_TRUE(gltf.scene_camera);
+  ASSERT_TRUE(dae.scene_camera);
+  EXPECT_NEAR(gltf.scene_camera->ymag, 3.0f / (16.0f / 9.0f), 1e-5f);
+  EXPECT_NEAR(dae.scene_camera->ymag, gltf.scene_camera->ymag, 1e-5f);
+  EXPECT_NEAR(dae.scene_camera->aspect, gltf.scene_camera->aspect, 1e-5f);
+  EXPECT_EQ(dae.scene_camera->yfov_deg, 0.0f);
+  EXPECT_NEAR(dae.scene_camera->znear, 0.5f, 1e-6f);
+  EXPECT_NEAR(dae.scene_camera->znear, gltf.scene_camera->znear, 1e-6f);
+  EXPECT_NEAR(dae.scene_camera->zfar, gltf.scene_camera->zfar, 1e-3f);
+
+  JobSpec spec;
+  spec.width = 96;
+  spec.height = 54;
+  spec.camera_from_scene = true;
+  const CameraState a = camera_for_frame(spec, gltf, 0);
+  const CameraState b = camera_for_frame(spec, dae, 0);
+  EXPECT_NEAR(a.ortho_height, 2.0f * 3.0f / (16.0f / 9.0f), 1e-5f);
+  EXPECT_NEAR(b.ortho_height, a.ortho_height, 1e-5f);
+  EXPECT_EQ(b.fov_deg, 0.0f);
+  for (int i = 0; i < 3; ++i) EXPECT_NEAR(b.position[i], a.position[i], 1e-4f) << i;
+  // One rotation, whichever sign each file's quaternion has.
+  float dot = 0;
+  for (int i = 0; i < 4; ++i) dot += a.rotation[i] * b.rotation[i];
+  EXPECT_NEAR(std::fabs(dot), 1.0f, 1e-5f);
+
+  // Rendered: the plane fills the same pixels at the same view depths (the
+  // materials differ: Collada has none of glTF's), through a pinhole and
+  // through the lens on Clip Start.
+  for (const float aperture : {0.0f, 0.3f}) {
+    JobSpec job = testing::make_spec(48, 27, Vec3(0), Vec3(0, 0, -1), 40, 11.0f, aperture);
+    job.camera_from_scene = true;
+    job.versions = 1;
+    job.reference_spp = 4;
+    const FrameBuffers fa =
+        render_frame(*testing::make_scene(load_scene_data(kBlender / "ortho_camera.glb"),
+                                          testing::constant_env(1.0f)),
+                     job, 0);
+    const FrameBuffers fb =
+        render_frame(*testing::make_scene(load_scene_data(kBlender / "ortho_camera.dae"),
+                                          testing::constant_env(1.0f)),
+                     job, 0);
+    ASSERT_EQ(fa.depth.size(), fb.depth.size());
+    int plane = 0;
+    for (size_t i = 0; i < fa.depth.size(); ++i) {
+      if (fa.depth[i] > 0) ++plane;
+      ASSERT_NEAR(fb.depth[i], fa.depth[i], 1e-3f * std::max(1.0f, fa.depth[i]))
+          << "pixel " << i << " aperture " << aperture;
+      ASSERT_NEAR(fb.coc[i], fa.coc[i], 1e-3f) << "pixel " << i;
+    }
+    // The plane covers part of the view, not all of it and not none.
+    EXPECT_GT(plane, int(fa.depth.size()) / 10);
+    EXPECT_LT(plane, int(fa.depth.size()));
+  }
+}
+
+TEST(ForeignCameras, BlendersFbxOrthographicCameraIsRefusedAndItsPerspectiveOneIsNot) {
+  const SceneData ortho = load_scene_data(kBlender / "ortho_camera.fbx");
+  EXPECT_NE(ortho.camera_refused.find("\"Camera\" is orthographic (FBX CameraProjectionType 1)"),
+            std::string::npos)
+      << ortho.camera_refused;
+  EXPECT_NE(ortho.camera_refused.find("export the scene as glTF"), std::string::npos);
+  JobSpec spec;
+  spec.width = spec.height = 8;
+  spec.camera_from_scene = true;
+  spec.key_locations["camera.from_scene"] = FileLoc{"job.toml", 4, 1};
+  try {
+    camera_for_frame(spec, ortho, 0);
+    FAIL() << "rendered an FBX orthographic camera as a perspective one";
+  } catch (const SpecError& e) {
+    EXPECT_EQ(e.key(), "camera.from_scene");
+    EXPECT_NE(std::string(e.what()).find("orthographic"), std::string::npos) << e.what();
+  }
+  const SceneData persp = load_scene_data(kBlender / "persp_camera.fbx");
+  EXPECT_TRUE(persp.camera_refused.empty()) << persp.camera_refused;
+  ASSERT_TRUE(persp.scene_camera);
+  EXPECT_GT(persp.scene_camera->yfov_deg, 0.0f);
+}
+
+}  // namespace
+}  // namespace dofarm::render

@@ -1,0 +1,204 @@
+#include "worker/render/foreign_cameras.h"
+
+#include <algorithm>
+#include <cctype>
+#include <cmath>
+#include <cstdint>
+#include <cstdlib>
+#include <cstring>
+#include <fstream>
+#include <iterator>
+#include <regex>
+
+#include "common/error.h"
+
+namespace dofarm::render {
+
+namespace {
+
+std::string lower_extension(const std::filesystem::path& path) {
+  std::string ext = path.extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return char(std::tolower(c)); });
+  return ext;
+}
+
+// The value of attribute `name` in the start tag text `tag` ("" if absent).
+std::string attribute(const std::string& tag, const std::string& name) {
+  const std::regex re("\\s" + name + "\\s*=\\s*\"([^\"]*)\"");
+  std::smatch m;
+  return std::regex_search(tag, m, re) ? m[1].str() : std::string();
+}
+
+// The number inside the first <element ...>number</element> of `text`; 0
+// where there is none or it is not a finite positive number.
+double element_number(const std::string& text, const std::string& element) {
+  const std::regex re("<" + element + "(\\s[^>]*)?>\\s*([^<\\s]+)\\s*</" + element + ">");
+  std::smatch m;
+  if (!std::regex_search(text, m, re)) return 0;
+  const std::string s = m[2].str();
+  char* end = nullptr;
+  const double v = std::strtod(s.c_str(), &end);
+  return end == s.c_str() + s.size() && std::isfinite(v) && v > 0 ? v : 0;
+}
+
+// Start positions of the tags "<name" followed by white space, '>' or '/'.
+std::vector<size_t> tags(const std::string& text, const std::string& name) {
+  std::vector<size_t> at;
+  const std::string open = "<" + name;
+  for (size_t p = text.find(open); p != std::string::npos; p = text.find(open, p + 1)) {
+    const size_t after = p + open.size();
+    if (after < text.size() && (std::isspace(static_cast<unsigned char>(text[after])) ||
+                                text[after] == '>' || text[after] == '/'))
+      at.push_back(p);
+  }
+  return at;
+}
+
+std::string start_tag(const std::string& text, size_t at) {
+  const size_t end = text.find('>', at);
+  return text.substr(at, end == std::string::npos ? std::string::npos : end - at + 1);
+}
+
+}  // namespace
+
+bool ForeignCameras::any_orthographic() const {
+  return std::any_of(cameras.begin(), cameras.end(),
+                     [](const ForeignCamera& c) { return c.orthographic; });
+}
+
+const ForeignCamera* ForeignCameras::find(const std::string& ai_name) const {
+  for (const ForeignCamera& c : cameras)
+    if (!c.node.empty() && c.node == ai_name) return &c;
+  for (const ForeignCamera& c : cameras)
+    if ((!c.name.empty() && c.name == ai_name) || (!c.id.empty() && c.id == ai_name)) return &c;
+  return format == Format::kCollada && cameras.size() == 1 ? &cameras.front() : nullptr;
+}
+
+// COLLADA 1.4.1: <library_cameras><camera id name><optics><technique_common>
+// holds <perspective> or <orthographic> with xmag and/or ymag and
+// aspect_ratio = xmag / ymag (any two of the three). A node's
+// <instance_camera url="#id"> comes before its child nodes (the schema's
+// order), so the last <node> tag opened before it is the node that holds it.
+ForeignCameras scan_collada_cameras(const std::string& text) {
+  ForeignCameras out;
+  out.format = ForeignCameras::Format::kCollada;
+  for (size_t at : tags(text, "camera")) {
+    const std::string tag = start_tag(text, at);
+    size_t end = text.find("</camera>", at);
+    if (tag.size() >= 2 && tag[tag.size() - 2] == '/') end = at + tag.size();
+    const std::string body =
+        text.substr(at, end == std::string::npos ? std::string::npos : end - at);
+    ForeignCamera c;
+    c.id = attribute(tag, "id");
+    c.name = attribute(tag, "name");
+    const size_t ortho = body.find("<orthographic");
+    if (ortho != std::string::npos) {
+      c.orthographic = true;
+      const size_t ortho_end = body.find("</orthographic>", ortho);
+      const std::string optics = body.substr(
+          ortho, ortho_end == std::string::npos ? std::string::npos : ortho_end - ortho);
+      double x = element_number(optics, "xmag"), y = element_number(optics, "ymag");
+      const double aspect = element_number(optics, "aspect_ratio");
+      if (x > 0 && !(y > 0) && aspect > 0) y = x / aspect;
+      if (y > 0 && !(x > 0) && aspect > 0) x = y * aspect;
+      c.xmag = x;
+      c.ymag = y;
+    }
+    out.cameras.push_back(c);
+  }
+  const std::vector<size_t> nodes = tags(text, "node");
+  for (size_t at : tags(text, "instance_camera")) {
+    std::string url = attribute(start_tag(text, at), "url");
+    if (!url.empty() && url[0] == '#') url.erase(0, 1);
+    auto holder = std::upper_bound(nodes.begin(), nodes.end(), at);
+    if (holder == nodes.begin()) continue;
+    const std::string node_tag = start_tag(text, *std::prev(holder));
+    std::string node = attribute(node_tag, "name");
+    if (node.empty()) node = attribute(node_tag, "id");
+    for (ForeignCamera& c : out.cameras)
+      if (c.id == url && c.node.empty()) c.node = node;
+  }
+  return out;
+}
+
+// FBX keeps a camera's projection in its NodeAttribute's Properties70 as
+// P: "CameraProjectionType", "enum", "", "", 0 (perspective) or 1
+// (orthographic). In a binary file a property is a typed list: 'S' + uint32
+// length + bytes for each of the four strings, then 'I' + int32 for the
+// value. The Definitions' template carries the default, 0; a camera whose
+// projection is not the default carries its own.
+ForeignCameras scan_fbx_cameras(const std::string& bytes) {
+  ForeignCameras out;
+  out.format = ForeignCameras::Format::kFbx;
+  static const std::string kBinaryMagic("Kaydara FBX Binary  \0", 21);
+  static const std::string kName = "CameraProjectionType";
+  auto add = [&](int64_t value) {
+    if (value == 1) {
+      ForeignCamera c;
+      c.orthographic = true;
+      out.cameras.push_back(c);
+    }
+  };
+  if (bytes.compare(0, kBinaryMagic.size(), kBinaryMagic) == 0) {
+    for (size_t p = bytes.find(kName); p != std::string::npos; p = bytes.find(kName, p + 1)) {
+      size_t q = p + kName.size();
+      // Three more strings: the type ("enum"), the label and the flags.
+      bool ok = true;
+      for (int s = 0; s < 3 && ok; ++s) {
+        uint32_t len = 0;
+        if (q + 5 > bytes.size() || bytes[q] != 'S') {
+          ok = false;
+          break;
+        }
+        std::memcpy(&len, bytes.data() + q + 1, 4);  // little-endian, as FBX is
+        q += 5 + size_t(len);
+      }
+      if (!ok || q + 5 > bytes.size()) continue;
+      if (bytes[q] == 'I') {
+        int32_t v = 0;
+        std::memcpy(&v, bytes.data() + q + 1, 4);
+        add(v);
+      } else if (bytes[q] == 'L' && q + 9 <= bytes.size()) {
+        int64_t v = 0;
+        std::memcpy(&v, bytes.data() + q + 1, 8);
+        add(v);
+      }
+    }
+    return out;
+  }
+  // ASCII: P: "CameraProjectionType", "enum", "", "",1
+  const std::string quoted = "\"" + kName + "\"";
+  for (size_t p = bytes.find(quoted); p != std::string::npos; p = bytes.find(quoted, p + 1)) {
+    size_t q = p + quoted.size();
+    bool ok = true;
+    for (int s = 0; s < 3 && ok; ++s) {  // , "type" , "label" , "flags"
+      q = bytes.find_first_not_of(" \t", q);
+      ok = q != std::string::npos && bytes[q] == ',';
+      if (ok) q = bytes.find_first_not_of(" \t", q + 1);
+      ok = ok && q != std::string::npos && bytes[q] == '"';
+      if (ok) q = bytes.find('"', q + 1);
+      ok = ok && q != std::string::npos;
+      if (ok) ++q;
+    }
+    if (!ok) continue;
+    q = bytes.find_first_not_of(" \t", q);
+    if (q == std::string::npos || bytes[q] != ',') continue;
+    const char* start = bytes.c_str() + q + 1;
+    char* end = nullptr;
+    const long long v = std::strtoll(start, &end, 10);
+    if (end != start) add(v);
+  }
+  return out;
+}
+
+ForeignCameras scan_foreign_cameras(const std::filesystem::path& path) {
+  const std::string ext = lower_extension(path);
+  if (ext != ".dae" && ext != ".fbx") return {};
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw RuntimeError(path.string() + ": cannot read");
+  const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  return ext == ".dae" ? scan_collada_cameras(bytes) : scan_fbx_cameras(bytes);
+}
+
+}  // namespace dofarm::render

@@ -1,0 +1,48 @@
+// What assimp 5.2 loses of a Collada or FBX file's cameras: whether a camera
+// is orthographic, and its size. Its Collada importer takes <orthographic>'s
+// xmag for a field of view in degrees (Blender's Orthographic Scale 6 comes
+// out as a 3-degree perspective camera), and its FBX importer ignores
+// CameraProjectionType, so both would render a Blender user's orthographic
+// camera as a perspective one, silently. These scans read just that from
+// the file, so that the loader can render the camera as the file defines it
+// (Collada: COLLADA 1.4.1 spec, <orthographic>) or refuse it by name (FBX).
+#pragma once
+
+#include <filesystem>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace dofarm::render {
+
+struct ForeignCamera {
+  std::string id, name;  // Collada's camera element; FBX: empty
+  bool orthographic = false;
+  // Collada <orthographic>: half the film's width and height in scene units
+  // (0 where the file gives neither it nor the aspect ratio to derive it).
+  double xmag = 0, ymag = 0;
+  std::string node;  // Collada: the name of the node that instantiates it
+};
+
+struct ForeignCameras {
+  enum class Format { kOther, kCollada, kFbx };
+  Format format = Format::kOther;
+  std::vector<ForeignCamera> cameras;  // FBX: one entry per orthographic camera only
+
+  bool any_orthographic() const;
+  // The camera that assimp names `ai_name` (Collada: the instantiating node's
+  // name, else the camera's own name or id, else the file's only camera);
+  // null where it cannot be told.
+  const ForeignCamera* find(const std::string& ai_name) const;
+};
+
+// Reads `path` (.dae: Collada text; .fbx: binary or ASCII FBX); other
+// formats give Format::kOther and no cameras. Throws RuntimeError if the
+// file cannot be read.
+ForeignCameras scan_foreign_cameras(const std::filesystem::path& path);
+
+// The same on a file's bytes (for tests).
+ForeignCameras scan_collada_cameras(const std::string& text);
+ForeignCameras scan_fbx_cameras(const std::string& bytes);
+
+}  // namespace dofarm::render
