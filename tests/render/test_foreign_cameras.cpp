@@ -195,5 +195,39 @@ TEST(ForeignCameras, BlendersFbxOrthographicCameraIsRefusedAndItsPerspectiveOneI
   EXPECT_GT(persp.scene_camera->yfov_deg, 0.0f);
 }
 
+// Blender writes FBX in centimetres (UnitScaleFactor 1: one unit is 1 cm,
+// every node scaled by 100); the file's unit is applied on loading, so the
+// scene is the size it is in Blender and in its glTF export: the camera at
+// the same place, the 4 m plane at y = -1 spanning [-2, 2].
+TEST(ForeignCameras, BlendersFbxSceneIsInMetresAsInBlender) {
+  const SceneData fbx = load_scene_data(kBlender / "persp_camera.fbx");
+  const SceneData gltf = load_scene_data(kBlender / "ortho_camera.glb");
+  ASSERT_FALSE(fbx.positions.empty());
+  Vec3 lo(1e30f), hi(-1e30f);
+  for (const Vec3& p : fbx.positions) {
+    lo = Vec3(std::min(lo.x, p.x), std::min(lo.y, p.y), std::min(lo.z, p.z));
+    hi = Vec3(std::max(hi.x, p.x), std::max(hi.y, p.y), std::max(hi.z, p.z));
+  }
+  EXPECT_NEAR(lo.x, -2.0f, 1e-4f);
+  EXPECT_NEAR(hi.x, 2.0f, 1e-4f);
+  EXPECT_NEAR(lo.y, -1.0f, 1e-4f);
+  EXPECT_NEAR(hi.y, -1.0f, 1e-4f);
+  EXPECT_NEAR(lo.z, -2.0f, 1e-4f);
+  EXPECT_NEAR(hi.z, 2.0f, 1e-4f);
+  JobSpec spec;
+  spec.width = 96;
+  spec.height = 54;
+  spec.camera_from_scene = true;
+  const CameraState a = camera_for_frame(spec, gltf, 0);
+  const CameraState b = camera_for_frame(spec, fbx, 0);
+  for (int i = 0; i < 3; ++i) EXPECT_NEAR(b.position[i], a.position[i], 1e-3f) << i;
+  float dot = 0;
+  for (int i = 0; i < 4; ++i) dot += a.rotation[i] * b.rotation[i];
+  EXPECT_NEAR(std::fabs(dot), 1.0f, 1e-5f);
+  // Blender's 50 mm lens on its 36 mm sensor, fitted to the 16:9 width:
+  // vertically 2 atan(18 / 50 / (16 / 9)).
+  EXPECT_NEAR(b.fov_deg, 2.0 * std::atan(18.0 / 50.0 / (16.0 / 9.0)) * 180.0 / M_PI, 0.01);
+}
+
 }  // namespace
 }  // namespace dofarm::render

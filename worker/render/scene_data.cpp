@@ -646,9 +646,14 @@ SceneData load_scene_data(const std::filesystem::path& path) {
   // aiProcess_FindDegenerates (degenerate triangles stay: the renderer copes).
   // aiProcess_FlipUVs: assimp hands out OpenGL uvs (v = 0 at the bottom) for
   // every format; flipping gives back glTF's v = 0 at the top row.
-  const aiScene* scene =
-      importer.ReadFile(path.string(), aiProcess_Triangulate | aiProcess_JoinIdenticalVertices |
-                                           aiProcess_GenSmoothNormals | aiProcess_FlipUVs);
+  // aiProcess_GlobalScale applies the file's own unit, which only FBX
+  // declares (UnitScaleFactor, centimetres per unit): Blender writes FBX in
+  // centimetres, and without it a Blender scene came out 100 times larger
+  // than in Blender, its depths and its job's focal distance and aperture in
+  // centimetres. glTF is in metres already (the step does nothing).
+  const aiScene* scene = importer.ReadFile(
+      path.string(), aiProcess_Triangulate | aiProcess_JoinIdenticalVertices |
+                         aiProcess_GenSmoothNormals | aiProcess_FlipUVs | aiProcess_GlobalScale);
   if (!scene || !scene->mRootNode) {
     std::string why = importer.GetErrorString();
     fail(path, "cannot read: " + (why.empty() ? std::string("assimp gives no reason") : why));
