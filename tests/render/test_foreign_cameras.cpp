@@ -229,5 +229,32 @@ TEST(ForeignCameras, BlendersFbxSceneIsInMetresAsInBlender) {
   EXPECT_NEAR(b.fov_deg, 2.0 * std::atan(18.0 / 50.0 / (16.0 / 9.0)) * 180.0 / M_PI, 0.01);
 }
 
+// Perspective cameras: Blender's Collada and FBX exports of the scene render
+// as its glTF export does, pixel for pixel in view depth.
+TEST(ForeignCameras, BlendersColladaAndFbxPerspectiveCamerasAreItsGltfCamera) {
+  JobSpec job = testing::make_spec(48, 27, Vec3(0), Vec3(0, 0, -1), 40, 11.0f, 0.0f);
+  job.camera_from_scene = true;
+  job.versions = 1;
+  job.reference_spp = 4;
+  auto render = [&](const char* file) {
+    return render_frame(
+        *testing::make_scene(load_scene_data(kBlender / file), testing::constant_env(1.0f)), job,
+        0);
+  };
+  const FrameBuffers gltf = render("persp_camera.glb");
+  int plane = 0;
+  for (float d : gltf.depth) plane += d > 0;
+  EXPECT_GT(plane, int(gltf.depth.size()) / 10);
+  EXPECT_LT(plane, int(gltf.depth.size()));
+  for (const char* file : {"persp_camera.dae", "persp_camera.fbx"}) {
+    const FrameBuffers other = render(file);
+    EXPECT_NEAR(other.camera.fov_deg, gltf.camera.fov_deg, 1e-3f) << file;
+    ASSERT_EQ(other.depth.size(), gltf.depth.size());
+    for (size_t i = 0; i < gltf.depth.size(); ++i)
+      ASSERT_NEAR(other.depth[i], gltf.depth[i], 1e-3f * std::max(1.0f, gltf.depth[i]))
+          << file << " pixel " << i;
+  }
+}
+
 }  // namespace
 }  // namespace dofarm::render
