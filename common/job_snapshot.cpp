@@ -107,6 +107,8 @@ std::string canonical_spec_toml(const JobSpec& spec, const std::string& scene,
   line("fps = " + number(spec.fps));
   line("\n[camera]");
   line(std::string("from_scene = ") + (spec.camera_from_scene ? "true" : "false"));
+  // Only when given, so that the jobs written before the key keep their hashes.
+  if (!spec.camera_name.empty()) line("name = " + quoted(spec.camera_name));
   for (const CameraKey& k : spec.camera_keys) {
     line("\n[[camera.key]]");
     line("frame = " + std::to_string(k.frame));

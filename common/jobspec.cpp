@@ -171,8 +171,15 @@ CameraKey read_camera_key(const Section& s, bool from_scene) {
 }
 
 void read_camera(const Section& s, JobSpec& spec) {
-  s.check_keys({"from_scene", "key"});
+  s.check_keys({"from_scene", "name", "key"});
   if (auto v = s.boolean("from_scene")) spec.camera_from_scene = *v;
+  if (auto v = s.string("name")) {
+    if (!spec.camera_from_scene)
+      s.fail_at("name", "names the scene camera to take: only with camera.from_scene = true");
+    if (v->empty() || v->size() > 1024)
+      s.fail_at("name", "must be a camera's name in the scene, 1 to 1024 bytes");
+    spec.camera_name = *v;
+  }
   const toml::array* keys = s.array_of_tables("key");
 
   struct Keyed {

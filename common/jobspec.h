@@ -71,6 +71,9 @@ struct JobSpec {
 
   // [camera]
   bool camera_from_scene = false;
+  // [camera] name: which of the scene's cameras (by its node's name, as
+  // Blender names the object); empty = the file's first.
+  std::string camera_name;
   std::vector<CameraKey> camera_keys;  // sorted by frame, frames unique
 
   // [environment]

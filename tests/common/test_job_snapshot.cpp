@@ -116,6 +116,26 @@ TEST(JobSnapshot, LampSizesAreWrittenOnlyWhenSet) {
   EXPECT_EQ(canonical_spec_toml(named_back, by_name.scene.string(), ""), named);
 }
 
+// So is the scene camera's name: a job without it keeps its hash.
+TEST(JobSnapshot, CameraNameIsWrittenOnlyWhenSet) {
+  const fs::path spec_path = fs::path(DOFARM_SOURCE_DIR) / "jobs" / "courtyard.toml";
+  JobSpec first = load_job_spec(spec_path);
+  const std::string without =
+      canonical_spec_toml(first, first.scene.string(), first.environment->map.string());
+  EXPECT_EQ(without.find("name ="), std::string::npos) << without;
+  JobSpec named = load_job_spec(spec_path, {"camera.name=Closeup"});
+  EXPECT_EQ(named.camera_name, "Closeup");
+  named.camera_name = "Closeup \"2\"";  // written quoted, read back as it was
+  const std::string with =
+      canonical_spec_toml(named, named.scene.string(), named.environment->map.string());
+  EXPECT_NE(with.find("[camera]\nfrom_scene = true\nname = \"Closeup \\\"2\\\"\""),
+            std::string::npos)
+      << with;
+  const JobSpec back = parse_job_spec(with, spec_path);
+  EXPECT_EQ(back.camera_name, "Closeup \"2\"");
+  EXPECT_EQ(canonical_spec_toml(back, back.scene.string(), back.environment->map.string()), with);
+}
+
 // The display-space stopping rule changes the references, so it is part of
 // the job's content; a job without it keeps the snapshot it had before.
 TEST(JobSnapshot, ReferenceDisplayErrorIsWrittenOnlyWhenSet) {

@@ -368,6 +368,25 @@ TEST_F(JobSpecFiles, FromSceneRefusesFovAndLookAt) {
   }
 }
 
+// camera.name picks one of the scene's cameras: only with from_scene, and
+// never empty.
+TEST_F(JobSpecFiles, CameraNameNeedsFromSceneAndANonEmptyName) {
+  JobSpec spec = parse("scene = \"scene.gltf\"\n[camera]\nfrom_scene = true\nname = \"Closeup\"\n");
+  EXPECT_EQ(spec.camera_name, "Closeup");
+  EXPECT_TRUE(parse("scene = \"scene.gltf\"\n[camera]\nfrom_scene = true\n").camera_name.empty());
+  SpecError alone = parse_error(
+      "scene = \"scene.gltf\"\n[camera]\nname = \"Closeup\"\n[[camera.key]]\nposition = [0, 0, "
+      "5]\nlook_at = [0, 0, 0]\n");
+  EXPECT_EQ(alone.key(), "camera.name");
+  EXPECT_EQ(alone.loc().line, 3);
+  EXPECT_NE(std::string(alone.what()).find("only with camera.from_scene = true"), std::string::npos)
+      << alone.what();
+  SpecError empty =
+      parse_error("scene = \"scene.gltf\"\n[camera]\nfrom_scene = true\nname = \"\"\n");
+  EXPECT_EQ(empty.key(), "camera.name");
+  EXPECT_EQ(empty.loc().line, 4);
+}
+
 TEST_F(JobSpecFiles, WithoutFromSceneAKeyIsRequired) {
   SpecError e = parse_error("scene = \"scene.gltf\"\n");
   EXPECT_EQ(e.key(), "camera.key");

@@ -302,6 +302,64 @@ TEST(JobValue, SceneCameraSizeIsResolvedIntoTheCanonicalSpec) {
   }
 }
 
+// camera.name picks one of the file's cameras (by its node's name) and is
+// part of the job; a name the file lacks is an error at the key that lists
+// the cameras; a file with several cameras and no name says which it takes.
+TEST(JobValue, CameraNameChoosesTheSceneCameraAndTheFirstIsSaidToBeTaken) {
+  TempDir dir;
+  const fs::path scenes = fs::path(DOFARM_SOURCE_DIR) / "jobs/scenes";
+  fs::copy_file(scenes / "cornell.bin", dir / "cornell.bin");
+  Json doc = Json::parse(read_text(scenes / "cornell.gltf"));
+  for (const char* name : {"Wide", "Closeup"}) {
+    doc["nodes"].push_back({{"name", name},
+                            {"camera", doc.value("cameras", Json::array()).size()},
+                            {"translation", {0.0, 1.0, std::string(name) == "Wide" ? 5.0 : 2.0}}});
+    doc["cameras"].push_back(
+        {{"type", "perspective"}, {"perspective", {{"yfov", 0.6}, {"aspectRatio", 1.0}}}});
+    doc["scenes"][0]["nodes"].push_back(doc["nodes"].size() - 1);
+  }
+  write_text(dir / "two.gltf", doc.dump());
+  auto spec_with = [&](const std::string& name, const std::string& camera) {
+    const fs::path p = dir / name;
+    write_text(p,
+               "scene = \"two.gltf\"\n[image]\nwidth = 32\nheight = 32\n[camera]\n"
+               "from_scene = true\n" +
+                   camera);
+    return p;
+  };
+  CliResult first = run_cli(dir.path(), "first",
+                            {"render", spec_with("first.toml", "").string(), "--frame", "0",
+                             "--set", "buffers.versions=1", "--set", "buffers.reference_spp=1",
+                             "--out", (dir / "first.exr").string()});
+  EXPECT_EQ(first.status, 0) << first.err;
+  EXPECT_NE(first.err.find("the scene has 2 cameras"), std::string::npos) << first.err;
+  EXPECT_NE(first.err.find("as camera.name is not set"), std::string::npos) << first.err;
+
+  worker::ResolvedJob closeup =
+      worker::resolve_job(spec_with("closeup.toml", "name = \"Closeup\"\n"), {});
+  EXPECT_EQ(closeup.spec.camera_name, "Closeup");
+  EXPECT_NE(closeup.snapshot.spec_toml.find("name = \"Closeup\""), std::string::npos);
+  worker::ResolvedJob wide = worker::resolve_job(spec_with("wide.toml", "name = \"Wide\"\n"), {});
+  EXPECT_NE(wide.snapshot.hash(), closeup.snapshot.hash());
+  try {
+    worker::resolve_job(spec_with("side.toml", "name = \"Side\"\n"), {});
+    ADD_FAILURE() << "a camera the scene lacks was accepted";
+  } catch (const SpecError& e) {
+    EXPECT_EQ(e.key(), "camera.name");
+    EXPECT_EQ(e.loc().line, 7) << e.what();
+    EXPECT_NE(std::string(e.what()).find("has no camera \"Side\"; its cameras: "),
+              std::string::npos)
+        << e.what();
+    EXPECT_NE(std::string(e.what()).find("\"Closeup\""), std::string::npos) << e.what();
+  }
+  CliResult named = run_cli(dir.path(), "named",
+                            {"render", spec_with("named.toml", "name = \"Wide\"\n").string(),
+                             "--frame", "0", "--set", "buffers.versions=1", "--set",
+                             "buffers.reference_spp=1", "--out", (dir / "named.exr").string()});
+  EXPECT_EQ(named.status, 0) << named.err;
+  EXPECT_EQ(named.err.find("cameras ("), std::string::npos) << named.err;
+}
+
 // Defect 12: content errors are found before anything exists.
 TEST(JobValue, ContentErrorsAreBadInputAndWriteNothing) {
   TempDir dir;

@@ -385,9 +385,15 @@ TEST(GltfBlenderExport, OneLampIsSizedByItsName) {
     LogCapture log;
     SceneData s = load_job_scene_data(spec);
     for (const PunctualLight& l : s.lights) {
-      if (l.name == "Point") EXPECT_EQ(l.radius, 0.25f);  // the table's own
-      if (l.name == "Spot") EXPECT_EQ(l.radius, 0.05f);
-      if (l.name == "Sun") EXPECT_NEAR(l.cos_half_angle, std::cos(1.0 * M_PI / 180), 1e-7);
+      if (l.name == "Point") {
+        EXPECT_EQ(l.radius, 0.25f);  // the table's own
+      }
+      if (l.name == "Spot") {
+        EXPECT_EQ(l.radius, 0.05f);
+      }
+      if (l.name == "Sun") {
+        EXPECT_NEAR(l.cos_half_angle, std::cos(1.0 * M_PI / 180), 1e-7);
+      }
     }
     for (const std::string& line : log.lines()) ADD_FAILURE() << "unexpected warning: " << line;
   }
@@ -602,6 +608,58 @@ TEST(LoadSceneData, AnOrthographicCameraIsReadFromItsXmagAndYmag) {
   SceneData p = load_scene_data(dir.path / "persp.gltf");
   EXPECT_EQ(p.camera_track.size(), 1u);
   EXPECT_TRUE(p.camera_refused.empty());
+}
+
+// A file with several cameras (a Blender scene exports all of them, the
+// active one not marked): the first is the scene camera unless the job
+// names another; a name the file lacks leaves no camera, and says why.
+TEST(LoadSceneData, TheSceneCameraIsTheFirstOrTheOneNamed) {
+  TempDir dir("two_cameras");
+  GltfQuad q = gltf_quad();
+  q.doc["nodes"].push_back(Json::parse(R"({"name": "Plan", "camera": 0,
+      "translation": [0, 5, 0], "rotation": [-0.7071068, 0, 0, 0.7071068]})"));
+  q.doc["nodes"].push_back(Json::parse(R"({"name": "Front", "camera": 1,
+      "translation": [0, 0, 4]})"));
+  q.doc["scenes"][0]["nodes"].push_back(q.doc["nodes"].size() - 2);
+  q.doc["scenes"][0]["nodes"].push_back(q.doc["nodes"].size() - 1);
+  q.doc["cameras"] = Json::parse(R"([
+      {"type": "orthographic", "orthographic": {"xmag": 2.0, "ymag": 1.0, "znear": 0.1, "zfar": 100}},
+      {"type": "perspective", "perspective": {"yfov": 0.5, "znear": 0.1}}])");
+  write_gltf(dir.path / "two.gltf", q);
+
+  const SceneData first = load_scene_data(dir.path / "two.gltf");
+  ASSERT_EQ(first.camera_names.size(), 2u);
+  ASSERT_TRUE(first.scene_camera);
+  EXPECT_EQ(first.scene_camera->name, first.camera_names[0]);
+  const std::string other = first.camera_names[1];
+  EXPECT_TRUE((first.camera_names[0] == "Plan" && other == "Front") ||
+              (first.camera_names[0] == "Front" && other == "Plan"))
+      << first.camera_names[0] << ", " << other;
+
+  const SceneData named = load_scene_data(dir.path / "two.gltf", other);
+  ASSERT_TRUE(named.scene_camera);
+  EXPECT_EQ(named.scene_camera->name, other);
+  EXPECT_EQ(named.camera_names, first.camera_names);
+  JobSpec spec;
+  spec.width = 64;
+  spec.height = 32;
+  spec.camera_from_scene = true;
+  const CameraState plan =
+      camera_for_frame(spec, load_scene_data(dir.path / "two.gltf", "Plan"), 0);
+  EXPECT_EQ(plan.ortho_height, 2.0f);
+  EXPECT_NEAR(plan.position[1], 5.0f, 1e-6f);
+  const CameraState front =
+      camera_for_frame(spec, load_scene_data(dir.path / "two.gltf", "Front"), 0);
+  EXPECT_EQ(front.ortho_height, 0.0f);
+  EXPECT_NEAR(front.fov_deg, 0.5f * 180.0f / float(M_PI), 1e-4f);
+  EXPECT_NEAR(front.position[2], 4.0f, 1e-6f);
+
+  const SceneData missing = load_scene_data(dir.path / "two.gltf", "Side");
+  EXPECT_FALSE(missing.scene_camera);
+  EXPECT_TRUE(missing.camera_track.empty());
+  EXPECT_NE(missing.camera_refused.find("no camera named \"Side\""), std::string::npos)
+      << missing.camera_refused;
+  EXPECT_NE(missing.camera_refused.find("\"Front\""), std::string::npos) << missing.camera_refused;
 }
 
 // A Blender file without a camera (Blender 3.4 exports cameras only with

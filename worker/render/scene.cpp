@@ -708,7 +708,7 @@ Vec3 Scene::environment_radiance(const Environment::Located& at, Vec3 dir, float
 }
 
 SceneData load_job_scene_data(const JobSpec& spec) {
-  SceneData data = load_scene_data(spec.scene);
+  SceneData data = load_scene_data(spec.scene, spec.camera_name);
   // PunctualLight::cos_half_angle of a sun `degrees` across (1 for 0).
   auto cos_half_angle = [](float degrees) { return std::cos(0.5f * degrees * kPi / 180.0f); };
   for (PunctualLight& light : data.lights) {

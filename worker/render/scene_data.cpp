@@ -629,7 +629,7 @@ class RecordingIOSystem : public Assimp::DefaultIOSystem {
 
 }  // namespace
 
-SceneData load_scene_data(const std::filesystem::path& path) {
+SceneData load_scene_data(const std::filesystem::path& path, const std::string& camera) {
   std::error_code ec;
   if (!std::filesystem::is_regular_file(path, ec)) fail(path, "no such file");
   GltfInfo gltf;
@@ -676,7 +676,7 @@ SceneData load_scene_data(const std::filesystem::path& path) {
   if (out.triangle_count() == 0)
     fail(path, "the scene has no triangles (" + std::to_string(scene->mNumMeshes) +
                    " meshes, only points or lines)");
-  loader.camera_track();
+  loader.camera_track(camera);
   loader.lights();
   loader.finish_motion();
   // Normal maps need tangents, which need the texture coordinates they read.

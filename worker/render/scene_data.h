@@ -216,6 +216,9 @@ struct SceneData {
   // Why the file's camera cannot be used, where it has one that dofarm
   // does not render; camera_track is then empty.
   std::string camera_refused;
+  // Every camera of the file, in the order assimp lists them; the scene
+  // camera is the one load_scene_data() was asked for, else the first.
+  std::vector<std::string> camera_names;
   std::vector<PunctualLight> lights;         // glTF KHR_lights_punctual
   // Meshes and lights that the file's node animation moves; null when
   // nothing but the camera moves. The arrays above then hold the nodes'
@@ -253,7 +256,10 @@ inline bool written_by_blender(const SceneData& scene) {
 // through assimp's aiLight. Node animation moves the camera
 // (camera_track), and meshes, skinned meshes and lights (motion); morph
 // targets are named in a warning and not applied.
-SceneData load_scene_data(const std::filesystem::path& path);
+// `camera`: the name of the camera to take as the scene camera (a job's
+// camera.name); empty takes the file's first. A name the file does not have
+// leaves camera_track empty and says so in camera_refused.
+SceneData load_scene_data(const std::filesystem::path& path, const std::string& camera = {});
 
 // Fills data->tangents from positions, normals and uvs (uvs1 for triangles
 // whose material's normal map reads TEXCOORD_1): per triangle the

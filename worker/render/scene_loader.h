@@ -56,9 +56,11 @@ class Loader {
   // (SceneData::motion).
   void node(const aiNode* node, const aiMatrix4x4& parent);
 
-  // The first camera's pose at every key time on its chain of nodes
-  // (SceneData::camera_track); none without a camera.
-  void camera_track();
+  // The pose of the camera named `name` (empty: the first camera) at every
+  // key time on its chain of nodes (SceneData::camera_track); none without
+  // a camera or without one of that name. Lists every camera's name in
+  // SceneData::camera_names.
+  void camera_track(const std::string& name);
   // The KHR_lights_punctual lights (glTF only), placed by their nodes' own
   // transforms; a light on a moving node is kept in SceneMotion as well.
   void lights();

@@ -35,10 +35,23 @@ void Loader::node(const aiNode* node, const aiMatrix4x4& parent) {
 
 // --- camera animation --------------------------------------------------------
 
-void Loader::camera_track() {
+void Loader::camera_track(const std::string& wanted) {
   if (scene_->mNumCameras == 0) return;
-  // The first camera is the scene's camera; others are ignored.
-  const aiCamera* cam = scene_->mCameras[0];
+  // The scene's camera: the one asked for by name, else the first; others
+  // are ignored.
+  const aiCamera* cam = nullptr;
+  for (unsigned i = 0; i < scene_->mNumCameras; ++i) {
+    out_->camera_names.push_back(scene_->mCameras[i]->mName.C_Str());
+    if (!cam && (wanted.empty() || out_->camera_names.back() == wanted)) cam = scene_->mCameras[i];
+  }
+  if (!cam) {
+    std::string names;
+    for (size_t i = 0; i < out_->camera_names.size(); ++i)
+      names += (i ? ", \"" : "\"") + out_->camera_names[i] + "\"";
+    out_->camera_refused =
+        fmt::format("it has no camera named \"{}\" (its cameras: {})", wanted, names);
+    return;
+  }
   const aiNode* cam_node = scene_->mRootNode->FindNode(cam->mName);
   if (!cam_node) return;
   const bool gltf = is_gltf(path_);
