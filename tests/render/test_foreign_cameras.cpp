@@ -23,6 +23,24 @@ namespace {
 
 const std::filesystem::path kBlender = std::filesystem::path(DOFARM_TEST_DATA) / "blender";
 
+// The 16:9 frame of the fixtures' camera, from the scene.
+JobSpec scene_camera_spec() {
+  JobSpec spec;
+  spec.width = 96;
+  spec.height = 54;
+  spec.camera_from_scene = true;
+  return spec;
+}
+
+// The same place (within `tol`) and the same rotation, whichever sign each
+// file's quaternion has.
+void expect_same_pose(const CameraState& a, const CameraState& b, float tol) {
+  for (int i = 0; i < 3; ++i) EXPECT_NEAR(b.position[i], a.position[i], tol) << i;
+  float dot = 0;
+  for (int i = 0; i < 4; ++i) dot += a.rotation[i] * b.rotation[i];
+  EXPECT_NEAR(std::fabs(dot), 1.0f, 1e-5f);
+}
+
 std::string collada_with(const std::string& optics) {
   return R"(<?xml version="1.0"?><COLLADA><library_cameras>
     <camera id="Top-camera" name="Top"><optics><technique_common>)" +
@@ -127,20 +145,12 @@ TEST(ForeignCameras, BlendersColladaOrthographicCameraIsItsGltfCamera) {
   EXPECT_NEAR(dae.scene_camera->znear, gltf.scene_camera->znear, 1e-6f);
   EXPECT_NEAR(dae.scene_camera->zfar, gltf.scene_camera->zfar, 1e-3f);
 
-  JobSpec spec;
-  spec.width = 96;
-  spec.height = 54;
-  spec.camera_from_scene = true;
-  const CameraState a = camera_for_frame(spec, gltf, 0);
-  const CameraState b = camera_for_frame(spec, dae, 0);
+  const CameraState a = camera_for_frame(scene_camera_spec(), gltf, 0);
+  const CameraState b = camera_for_frame(scene_camera_spec(), dae, 0);
   EXPECT_NEAR(a.ortho_height, 2.0f * 3.0f / (16.0f / 9.0f), 1e-5f);
   EXPECT_NEAR(b.ortho_height, a.ortho_height, 1e-5f);
   EXPECT_EQ(b.fov_deg, 0.0f);
-  for (int i = 0; i < 3; ++i) EXPECT_NEAR(b.position[i], a.position[i], 1e-4f) << i;
-  // One rotation, whichever sign each file's quaternion has.
-  float dot = 0;
-  for (int i = 0; i < 4; ++i) dot += a.rotation[i] * b.rotation[i];
-  EXPECT_NEAR(std::fabs(dot), 1.0f, 1e-5f);
+  expect_same_pose(a, b, 1e-4f);
 
   // Rendered: the plane fills the same pixels at the same view depths (the
   // materials differ: Collada has none of glTF's), through a pinhole and
@@ -214,16 +224,9 @@ TEST(ForeignCameras, BlendersFbxSceneIsInMetresAsInBlender) {
   EXPECT_NEAR(hi.y, -1.0f, 1e-4f);
   EXPECT_NEAR(lo.z, -2.0f, 1e-4f);
   EXPECT_NEAR(hi.z, 2.0f, 1e-4f);
-  JobSpec spec;
-  spec.width = 96;
-  spec.height = 54;
-  spec.camera_from_scene = true;
-  const CameraState a = camera_for_frame(spec, gltf, 0);
-  const CameraState b = camera_for_frame(spec, fbx, 0);
-  for (int i = 0; i < 3; ++i) EXPECT_NEAR(b.position[i], a.position[i], 1e-3f) << i;
-  float dot = 0;
-  for (int i = 0; i < 4; ++i) dot += a.rotation[i] * b.rotation[i];
-  EXPECT_NEAR(std::fabs(dot), 1.0f, 1e-5f);
+  const CameraState a = camera_for_frame(scene_camera_spec(), gltf, 0);
+  const CameraState b = camera_for_frame(scene_camera_spec(), fbx, 0);
+  expect_same_pose(a, b, 1e-3f);
   // Blender's 50 mm lens on its 36 mm sensor, fitted to the 16:9 width:
   // vertically 2 atan(18 / 50 / (16 / 9)).
   EXPECT_NEAR(b.fov_deg, 2.0 * std::atan(18.0 / 50.0 / (16.0 / 9.0)) * 180.0 / M_PI, 0.01);
