@@ -9,6 +9,9 @@
 #   feature_compare.py versus CYCLES.pfm LABEL=DOFARM.pfm...   (any two
 #               renders of one size: correlation, mean ratio, relative RMSE;
 #               bench/cycles/default_scene_vs_cycles.sh)
+#   feature_compare.py against NAME REF.pfm LABEL=DOFARM.pfm...   (the same
+#               against another reference, named NAME in the table;
+#               bench/cycles/blender_formats.sh)
 #
 # Variants (each a job of its own, rendered by bench/render_spp):
 #   specular    file (as exported), ignored (KHR_materials_specular removed:
@@ -361,12 +364,12 @@ def rows(feature, d, spp, extra):
         print(row)
 
 
-def versus(cycles_pfm, labelled):
-    """One row per dofarm render against Cycles' image."""
+def versus(cycles_pfm, labelled, reference="Cycles"):
+    """One row per dofarm render against the reference image (Cycles')."""
     cy = luminance(cycles_pfm)
     mean_cy = sum(cy) / len(cy)
-    print("| dofarm render | correlation with Cycles | mean / Cycles' mean |"
-          " relative RMSE against Cycles |")
+    print("| dofarm render | correlation with %s | mean / %s mean |"
+          " relative RMSE against %s |" % (reference, reference, reference))
     print("| --- | --- | --- | --- |")
     for item in labelled:
         label, path = item.rsplit("=", 1)
@@ -388,6 +391,8 @@ def main():
         rows(a[1], a[2], a[3], a[4:])
     elif len(a) >= 3 and a[0] == "versus":
         versus(a[1], a[2:])
+    elif len(a) >= 4 and a[0] == "against":
+        versus(a[2], a[3:], reference=a[1])
     else:
         raise SystemExit(__doc__ or "usage: see the head of feature_compare.py")
 

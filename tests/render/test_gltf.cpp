@@ -531,6 +531,32 @@ TEST(GltfExtensions, VertexColoursAreNamedInAWarning) {
   expect_near3(s.materials[s.tri_material[0]].base_color, Vec3(1.0f), 0.0f);  // not red
 }
 
+// A primitive without a material gets glTF's default material (white
+// metal, roughness 1), as the specification says, and a warning names its
+// mesh: Blender shows an object without a material in a grey diffuse
+// surface, and its exporter writes it without one.
+TEST(GltfMaterials, AMeshWithoutAMaterialIsNamedAndGetsGltfsDefault) {
+  TempDir dir("unmaterialled");
+  GltfQuad q = gltf_quad();
+  q.doc["meshes"][0]["name"] = "Floor";
+  q.doc["meshes"][0]["primitives"][0].erase("material");
+  write_gltf(dir.path / "bare.gltf", q);
+  LogCapture log;
+  SceneData s = load_scene_data(dir.path / "bare.gltf");
+  const std::vector<std::string> lines = log.lines();
+  ASSERT_EQ(lines.size(), 1u);
+  EXPECT_NE(lines[0].find("\"Floor\" without a material"), std::string::npos) << lines[0];
+  const Material& m = s.materials[s.tri_material[0]];
+  expect_near3(m.base_color, Vec3(1.0f), 0.0f);
+  EXPECT_EQ(m.metallic, 1.0f);
+  EXPECT_EQ(m.roughness, 1.0f);
+  // With its material, no warning.
+  write_gltf(dir.path / "with.gltf", gltf_quad());
+  LogCapture none;
+  load_scene_data(dir.path / "with.gltf");
+  EXPECT_TRUE(none.lines().empty()) << none.lines().front();
+}
+
 TEST(LoadSceneData, EmptyOrCameraOnlyGltfSaysWhy) {
   TempDir dir("empty");
   // What Blender 3.4 exports for an empty scene.

@@ -322,12 +322,25 @@ GltfInfo read_gltf_info(const std::filesystem::path& path) {
       doc["asset"]["generator"].is_string())
     out.generator = doc["asset"]["generator"].get<std::string>();
   out.extensions_required = string_list(doc, "extensionsRequired");
-  if (doc.contains("meshes") && doc["meshes"].is_array())
-    for (const auto& mesh : doc["meshes"])
+  if (doc.contains("meshes") && doc["meshes"].is_array()) {
+    size_t index = 0;
+    for (const auto& mesh : doc["meshes"]) {
+      bool unmaterialled = false;
       if (mesh.is_object() && mesh.contains("primitives") && mesh["primitives"].is_array())
-        for (const auto& prim : mesh["primitives"])
-          if (prim.is_object() && prim.contains("attributes") && prim["attributes"].is_object())
+        for (const auto& prim : mesh["primitives"]) {
+          if (!prim.is_object()) continue;
+          if (prim.contains("attributes") && prim["attributes"].is_object())
             out.vertex_colors |= prim["attributes"].contains("COLOR_0");
+          unmaterialled |= !prim.contains("material");
+        }
+      if (unmaterialled)
+        out.meshes_without_material.push_back(mesh.is_object() && mesh.contains("name") &&
+                                                      mesh["name"].is_string()
+                                                  ? mesh["name"].get<std::string>()
+                                                  : "mesh " + std::to_string(index));
+      ++index;
+    }
+  }
   out.textures = texture_refs(doc);
   out.animated_paths = animated_paths(path, doc, bin);
   if (doc.contains("nodes") && doc["nodes"].is_array() && doc.contains("cameras") &&
@@ -587,6 +600,19 @@ void check_extensions(const std::filesystem::path& path, const GltfInfo& info) {
   // uses only where a material reads it, so dofarm does not apply it.
   if (info.vertex_colors)
     spdlog::warn("{}: vertex colours (COLOR_0) are not applied to the base colour", path.string());
+  // glTF 3.9: a primitive without a material gets the default one, white
+  // metal of roughness 1, which dofarm renders as the specification says;
+  // Blender shows an object without a material in its grey default surface
+  // and exports it without one.
+  if (!info.meshes_without_material.empty()) {
+    std::string names;
+    for (const std::string& n : info.meshes_without_material)
+      names += (names.empty() ? "\"" : ", \"") + n + "\"";
+    spdlog::warn(
+        "{}: {} without a material: rendered with glTF's default material (base colour 1, "
+        "metallic 1, roughness 1), not Blender's grey default surface; give {} a material",
+        path.string(), names, info.meshes_without_material.size() == 1 ? "it" : "them");
+  }
 }
 
 }  // namespace dofarm::render

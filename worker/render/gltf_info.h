@@ -83,6 +83,9 @@ struct GltfInfo {
   std::vector<GltfTextureRef> textures;  // the file's textures, in order
   std::vector<std::string> extensions_used, extensions_required;
   bool vertex_colors = false;  // a primitive has COLOR_0 (not applied)
+  // Meshes (their names, else "mesh N") with a primitive that names no
+  // material: glTF gives those its default material.
+  std::vector<std::string> meshes_without_material;
   // Every animation channel that targets a named node's translation,
   // rotation or scale: the animation's index, the node's name, the path and
   // the sampler's interpolation ("LINEAR", "STEP" or "CUBICSPLINE"; assimp

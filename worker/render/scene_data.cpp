@@ -108,6 +108,17 @@ bool is_gltf(const std::filesystem::path& path) {
 }
 
 void Loader::materials() {
+  // Blender's FBX and Collada exporters write a Principled BSDF's Metallic
+  // as the material's reflectivity (FBX ReflectionFactor, Collada
+  // <reflectivity>), and its importers read it back so; assimp 5.2 passes it
+  // on as the reflectivity and leaves the metallic factor unset. Other
+  // exporters' reflectivity means something else (the weight of a Phong
+  // material's mirror reflection), so it is read only from Blender's files
+  // (the generator assimp reports: FBX's Creator, Collada's authoring_tool).
+  aiString generator;
+  const bool from_blender = !is_gltf(path_) && scene_->mMetaData &&
+                            scene_->mMetaData->Get("SourceAsset_Generator", generator) &&
+                            std::string(generator.C_Str()).rfind("Blender", 0) == 0;
   for (unsigned i = 0; i < scene_->mNumMaterials; ++i) {
     const aiMaterial* am = scene_->mMaterials[i];
     Material m;
@@ -119,6 +130,9 @@ void Loader::materials() {
     }
     float value = 0;
     m.metallic = am->Get(AI_MATKEY_METALLIC_FACTOR, value) == AI_SUCCESS ? value : 0.0f;
+    if (from_blender && am->Get(AI_MATKEY_METALLIC_FACTOR, value) != AI_SUCCESS &&
+        am->Get(AI_MATKEY_REFLECTIVITY, value) == AI_SUCCESS && std::isfinite(value))
+      m.metallic = std::clamp(value, 0.0f, 1.0f);
     if (am->Get(AI_MATKEY_ROUGHNESS_FACTOR, value) == AI_SUCCESS) {
       m.roughness = value;
     } else if (am->Get(AI_MATKEY_SHININESS, value) == AI_SUCCESS && value >= 0) {

@@ -1,8 +1,10 @@
-// Orthographic cameras in Collada and FBX files, which assimp 5.2 reads as
-// perspective ones (worker/render/foreign_cameras.h): the scans on bytes
-// with known answers, and the files Blender 3.4 exports of one scene
-// (tests/data/blender/make_ortho_cameras.py): the Collada camera is the
-// glTF one, the FBX one is refused by name, the perspective FBX is not.
+// Blender's Collada and FBX exports against its glTF export of the same
+// scene (tests/data/blender/make_*.py). Orthographic cameras, which assimp
+// 5.2 reads as perspective ones (worker/render/foreign_cameras.h): the scans
+// on bytes with known answers; the Collada camera is the glTF one, the FBX
+// one is refused by name, the perspective ones are the glTF one. FBX
+// units, and the materials' metallic, which Blender writes as their
+// reflectivity.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -257,6 +259,36 @@ TEST(ForeignCameras, BlendersColladaAndFbxPerspectiveCamerasAreItsGltfCamera) {
       ASSERT_NEAR(other.depth[i], gltf.depth[i], 1e-3f * std::max(1.0f, gltf.depth[i]))
           << file << " pixel " << i;
   }
+}
+
+// Blender writes a Principled BSDF's Metallic as the FBX and Collada
+// material's reflectivity: the materials of its three exports of one scene
+// agree in base colour and metallic, and FBX also in roughness (Collada
+// carries a Phong exponent instead).
+TEST(BlenderFormats, ColladaAndFbxMaterialsCarryTheGltfOnesMetallic) {
+  const SceneData gltf = load_scene_data(kBlender / "materials.glb");
+  auto find = [](const SceneData& s, const std::string& name) -> const Material* {
+    for (const Material& m : s.materials)
+      if (m.name == name) return &m;
+    return nullptr;
+  };
+  for (const char* file : {"materials.dae", "materials.fbx"}) {
+    const SceneData other = load_scene_data(kBlender / file);
+    for (const char* name : {"Material", "Metal"}) {
+      const Material* a = find(gltf, name);
+      const Material* b = find(other, name);
+      ASSERT_NE(a, nullptr) << name;
+      ASSERT_NE(b, nullptr) << file << " " << name;
+      EXPECT_NEAR(b->base_color.x, a->base_color.x, 1e-5f) << file << " " << name;
+      EXPECT_NEAR(b->base_color.y, a->base_color.y, 1e-5f) << file << " " << name;
+      EXPECT_NEAR(b->base_color.z, a->base_color.z, 1e-5f) << file << " " << name;
+      EXPECT_EQ(b->metallic, a->metallic) << file << " " << name;
+      if (std::string(file) == "materials.fbx")
+        EXPECT_NEAR(b->roughness, a->roughness, 1e-5f) << name;
+    }
+  }
+  EXPECT_EQ(find(gltf, "Metal")->metallic, 1.0f);
+  EXPECT_EQ(find(gltf, "Material")->metallic, 0.0f);
 }
 
 }  // namespace
