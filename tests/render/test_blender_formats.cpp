@@ -6,9 +6,12 @@
 // units, and the materials' metallic, which Blender writes as their
 // reflectivity.
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <cmath>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
 #include <string>
 
 #include "common/error.h"
@@ -116,6 +119,22 @@ TEST(ForeignCameras, FbxProjectionTypeIsReadFromBinaryAndAsciiFiles) {
   EXPECT_FALSE(scan_fbx_cameras(persp).any_orthographic());
   const ForeignCameras two = scan_fbx_cameras(persp + fbx_projection(1) + fbx_projection(1));
   EXPECT_EQ(two.cameras.size(), 2u);
+  EXPECT_EQ(two.fbx_ortho_zoom, 0.0);  // no OrthoZoom in the file
+  // OrthoZoom: the template's 1, then the camera's own 6 (a double).
+  auto zoom = [](double v) {
+    std::string p = fbx_string("OrthoZoom") + fbx_string("double") + fbx_string("Number") +
+                    fbx_string("") + "D";
+    p.append(reinterpret_cast<const char*>(&v), 8);
+    return p;
+  };
+  const std::string zoomed = magic + zoom(1.0) + fbx_projection(1) + zoom(6.0);
+  EXPECT_EQ(fbx_property_values(zoomed, "OrthoZoom"), (std::vector<double>{1.0, 6.0}));
+  EXPECT_EQ(scan_fbx_cameras(zoomed).fbx_ortho_zoom, 6.0);
+  // A longer name that ends in the same letters is another property.
+  EXPECT_TRUE(fbx_property_values(magic + fbx_string("XOrthoZoom") + fbx_string("double") +
+                                      fbx_string("") + fbx_string("") + "D" + std::string(8, '\0'),
+                                  "OrthoZoom")
+                  .empty());
   EXPECT_TRUE(two.any_orthographic());
   EXPECT_EQ(two.find(""), nullptr);  // FBX cameras are not named by the scan
   // Cut short after the name: nothing read, nothing out of bounds.
@@ -128,65 +147,85 @@ TEST(ForeignCameras, FbxProjectionTypeIsReadFromBinaryAndAsciiFiles) {
   EXPECT_FALSE(scan_fbx_cameras(ascii).any_orthographic());
   EXPECT_TRUE(scan_fbx_cameras(ascii + "P: \"CameraProjectionType\", \"enum\", \"\", \"\",1\n}\n")
                   .any_orthographic());
+  EXPECT_EQ(scan_fbx_cameras(ascii + "P: \"OrthoZoom\", \"double\", \"Number\", \"\",6.5\n")
+                .fbx_ortho_zoom,
+            6.5);
 }
 
 // The start-up scene's camera made Orthographic (scale 6, 16:9, Clip Start
-// 0.5), exported by Blender as glTF and as Collada: the same camera.
-TEST(ForeignCameras, BlendersColladaOrthographicCameraIsItsGltfCamera) {
+// 0.5), exported by Blender as glTF, Collada and FBX: the same camera. FBX
+// holds the scale as OrthoZoom and Clip Start in centimetres.
+TEST(ForeignCameras, BlendersColladaAndFbxOrthographicCamerasAreItsGltfCamera) {
   const SceneData gltf = load_scene_data(kBlender / "ortho_camera.glb");
-  const SceneData dae = load_scene_data(kBlender / "ortho_camera.dae");
   ASSERT_TRUE(gltf.camera_refused.empty()) << gltf.camera_refused;
-  ASSERT_TRUE(dae.camera_refused.empty()) << dae.camera_refused;
   ASSERT_TRUE(gltf.scene_camera);
-  ASSERT_TRUE(dae.scene_camera);
   EXPECT_NEAR(gltf.scene_camera->ymag, 3.0f / (16.0f / 9.0f), 1e-5f);
-  EXPECT_NEAR(dae.scene_camera->ymag, gltf.scene_camera->ymag, 1e-5f);
-  EXPECT_NEAR(dae.scene_camera->aspect, gltf.scene_camera->aspect, 1e-5f);
-  EXPECT_EQ(dae.scene_camera->yfov_deg, 0.0f);
-  EXPECT_NEAR(dae.scene_camera->znear, 0.5f, 1e-6f);
-  EXPECT_NEAR(dae.scene_camera->znear, gltf.scene_camera->znear, 1e-6f);
-  EXPECT_NEAR(dae.scene_camera->zfar, gltf.scene_camera->zfar, 1e-3f);
-
   const CameraState a = camera_for_frame(scene_camera_spec(), gltf, 0);
-  const CameraState b = camera_for_frame(scene_camera_spec(), dae, 0);
   EXPECT_NEAR(a.ortho_height, 2.0f * 3.0f / (16.0f / 9.0f), 1e-5f);
-  EXPECT_NEAR(b.ortho_height, a.ortho_height, 1e-5f);
-  EXPECT_EQ(b.fov_deg, 0.0f);
-  expect_same_pose(a, b, 1e-4f);
+  for (const char* file : {"ortho_camera.dae", "ortho_camera.fbx"}) {
+    SCOPED_TRACE(file);
+    const SceneData other = load_scene_data(kBlender / file);
+    ASSERT_TRUE(other.camera_refused.empty()) << other.camera_refused;
+    ASSERT_TRUE(other.scene_camera);
+    EXPECT_NEAR(other.scene_camera->ymag, gltf.scene_camera->ymag, 1e-5f);
+    EXPECT_NEAR(other.scene_camera->aspect, gltf.scene_camera->aspect, 1e-5f);
+    EXPECT_EQ(other.scene_camera->yfov_deg, 0.0f);
+    EXPECT_NEAR(other.scene_camera->znear, 0.5f, 1e-6f);
+    EXPECT_NEAR(other.scene_camera->zfar, gltf.scene_camera->zfar, 1e-3f);
+    const CameraState b = camera_for_frame(scene_camera_spec(), other, 0);
+    EXPECT_NEAR(b.ortho_height, a.ortho_height, 1e-5f);
+    EXPECT_EQ(b.fov_deg, 0.0f);
+    expect_same_pose(a, b, 1e-3f);
 
-  // Rendered: the plane fills the same pixels at the same view depths (the
-  // materials differ: Collada has none of glTF's), through a pinhole and
-  // through the lens on Clip Start.
-  for (const float aperture : {0.0f, 0.3f}) {
-    JobSpec job = testing::make_spec(48, 27, Vec3(0), Vec3(0, 0, -1), 40, 11.0f, aperture);
-    job.camera_from_scene = true;
-    job.versions = 1;
-    job.reference_spp = 4;
-    const FrameBuffers fa =
-        render_frame(*testing::make_scene(load_scene_data(kBlender / "ortho_camera.glb"),
-                                          testing::constant_env(1.0f)),
-                     job, 0);
-    const FrameBuffers fb =
-        render_frame(*testing::make_scene(load_scene_data(kBlender / "ortho_camera.dae"),
-                                          testing::constant_env(1.0f)),
-                     job, 0);
-    ASSERT_EQ(fa.depth.size(), fb.depth.size());
-    int plane = 0;
-    for (size_t i = 0; i < fa.depth.size(); ++i) {
-      if (fa.depth[i] > 0) ++plane;
-      ASSERT_NEAR(fb.depth[i], fa.depth[i], 1e-3f * std::max(1.0f, fa.depth[i]))
-          << "pixel " << i << " aperture " << aperture;
-      ASSERT_NEAR(fb.coc[i], fa.coc[i], 1e-3f) << "pixel " << i;
+    // Rendered: the plane fills the same pixels at the same view depths (the
+    // materials differ), through a pinhole and through the lens on Clip
+    // Start.
+    for (const float aperture : {0.0f, 0.3f}) {
+      JobSpec job = testing::make_spec(48, 27, Vec3(0), Vec3(0, 0, -1), 40, 11.0f, aperture);
+      job.camera_from_scene = true;
+      job.versions = 1;
+      job.reference_spp = 4;
+      auto render = [&](const char* f) {
+        return render_frame(
+            *testing::make_scene(load_scene_data(kBlender / f), testing::constant_env(1.0f)), job,
+            0);
+      };
+      const FrameBuffers fa = render("ortho_camera.glb");
+      const FrameBuffers fb = render(file);
+      ASSERT_EQ(fa.depth.size(), fb.depth.size());
+      int plane = 0;
+      for (size_t i = 0; i < fa.depth.size(); ++i) {
+        if (fa.depth[i] > 0) ++plane;
+        ASSERT_NEAR(fb.depth[i], fa.depth[i], 1e-3f * std::max(1.0f, fa.depth[i]))
+            << "pixel " << i << " aperture " << aperture;
+        ASSERT_NEAR(fb.coc[i], fa.coc[i], 1e-3f) << "pixel " << i;
+      }
+      // The plane covers part of the view, not all of it and not none.
+      EXPECT_GT(plane, int(fa.depth.size()) / 10);
+      EXPECT_LT(plane, int(fa.depth.size()));
     }
-    // The plane covers part of the view, not all of it and not none.
-    EXPECT_GT(plane, int(fa.depth.size()) / 10);
-    EXPECT_LT(plane, int(fa.depth.size()));
   }
 }
 
-TEST(ForeignCameras, BlendersFbxOrthographicCameraIsRefusedAndItsPerspectiveOneIsNot) {
-  const SceneData ortho = load_scene_data(kBlender / "ortho_camera.fbx");
-  EXPECT_NE(ortho.camera_refused.find("\"Camera\" is orthographic (FBX CameraProjectionType 1)"),
+// The same FBX file, its creator renamed: another exporter's OrthoZoom has
+// no agreed unit, so its orthographic camera is refused by name; the
+// perspective FBX is not refused.
+TEST(ForeignCameras, AnFbxOrthographicCameraNotFromBlenderIsRefused) {
+  const std::filesystem::path dir =
+      std::filesystem::temp_directory_path() / ("dofarm_fbx_" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  std::string bytes;
+  {
+    std::ifstream in(kBlender / "ortho_camera.fbx", std::ios::binary);
+    bytes.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+  }
+  for (size_t p = bytes.find("Blender"); p != std::string::npos; p = bytes.find("Blender", p))
+    bytes.replace(p, 7, "Modeler");
+  std::ofstream(dir / "other.fbx", std::ios::binary) << bytes;
+  const SceneData ortho = load_scene_data(dir / "other.fbx");
+  std::filesystem::remove_all(dir);
+  EXPECT_NE(ortho.camera_refused.find("\"Camera\" is orthographic (FBX CameraProjectionType 1) "
+                                      "with OrthoZoom 6"),
             std::string::npos)
       << ortho.camera_refused;
   EXPECT_NE(ortho.camera_refused.find("export the scene as glTF"), std::string::npos);

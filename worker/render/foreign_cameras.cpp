@@ -122,53 +122,57 @@ ForeignCameras scan_collada_cameras(const std::string& text) {
   return out;
 }
 
-// FBX keeps a camera's projection in its NodeAttribute's Properties70 as
-// P: "CameraProjectionType", "enum", "", "", 0 (perspective) or 1
-// (orthographic). In a binary file a property is a typed list: 'S' + uint32
-// length + bytes for each of the four strings, then 'I' + int32 for the
-// value. The Definitions' template carries the default, 0; a camera whose
-// projection is not the default carries its own.
-ForeignCameras scan_fbx_cameras(const std::string& bytes) {
-  ForeignCameras out;
-  out.format = ForeignCameras::Format::kFbx;
+// The numeric values of every FBX property `name` in the file, in file
+// order. A property is P: "Name", "type", "label", "flags", value... In a
+// binary file that is a typed list: 'S' + uint32 length + bytes for each
+// string, then the value: 'I' int32, 'L' int64, 'D' double, 'F' float
+// (little-endian, as FBX is). In an ASCII file, text after the four quoted
+// strings.
+std::vector<double> fbx_property_values(const std::string& bytes, const std::string& name) {
   static const std::string kBinaryMagic("Kaydara FBX Binary  \0", 21);
-  static const std::string kName = "CameraProjectionType";
-  auto add = [&](int64_t value) {
-    if (value == 1) {
-      ForeignCamera c;
-      c.orthographic = true;
-      out.cameras.push_back(c);
-    }
-  };
+  std::vector<double> values;
   if (bytes.compare(0, kBinaryMagic.size(), kBinaryMagic) == 0) {
-    for (size_t p = bytes.find(kName); p != std::string::npos; p = bytes.find(kName, p + 1)) {
-      size_t q = p + kName.size();
-      // Three more strings: the type ("enum"), the label and the flags.
+    for (size_t p = bytes.find(name); p != std::string::npos; p = bytes.find(name, p + 1)) {
+      // The name is itself an 'S' string of exactly these bytes.
+      uint32_t own = 0;
+      if (p < 5 || bytes[p - 5] != 'S') continue;
+      std::memcpy(&own, bytes.data() + p - 4, 4);
+      if (own != name.size()) continue;
+      size_t q = p + name.size();
       bool ok = true;
-      for (int s = 0; s < 3 && ok; ++s) {
+      for (int s = 0; s < 3 && ok; ++s) {  // the type, the label and the flags
         uint32_t len = 0;
-        if (q + 5 > bytes.size() || bytes[q] != 'S') {
-          ok = false;
-          break;
-        }
-        std::memcpy(&len, bytes.data() + q + 1, 4);  // little-endian, as FBX is
+        ok = q + 5 <= bytes.size() && bytes[q] == 'S';
+        if (!ok) break;
+        std::memcpy(&len, bytes.data() + q + 1, 4);
         q += 5 + size_t(len);
       }
       if (!ok || q + 5 > bytes.size()) continue;
-      if (bytes[q] == 'I') {
-        int32_t v = 0;
-        std::memcpy(&v, bytes.data() + q + 1, 4);
-        add(v);
-      } else if (bytes[q] == 'L' && q + 9 <= bytes.size()) {
-        int64_t v = 0;
-        std::memcpy(&v, bytes.data() + q + 1, 8);
-        add(v);
+      const char type = bytes[q];
+      const size_t width = type == 'I' || type == 'F' ? 4 : type == 'L' || type == 'D' ? 8 : 0;
+      if (width == 0 || q + 1 + width > bytes.size()) continue;
+      const char* at = bytes.data() + q + 1;
+      if (type == 'I') {
+        int32_t v;
+        std::memcpy(&v, at, 4);
+        values.push_back(v);
+      } else if (type == 'L') {
+        int64_t v;
+        std::memcpy(&v, at, 8);
+        values.push_back(double(v));
+      } else if (type == 'F') {
+        float v;
+        std::memcpy(&v, at, 4);
+        values.push_back(v);
+      } else {
+        double v;
+        std::memcpy(&v, at, 8);
+        values.push_back(v);
       }
     }
-    return out;
+    return values;
   }
-  // ASCII: P: "CameraProjectionType", "enum", "", "",1
-  const std::string quoted = "\"" + kName + "\"";
+  const std::string quoted = "\"" + name + "\"";
   for (size_t p = bytes.find(quoted); p != std::string::npos; p = bytes.find(quoted, p + 1)) {
     size_t q = p + quoted.size();
     bool ok = true;
@@ -186,9 +190,29 @@ ForeignCameras scan_fbx_cameras(const std::string& bytes) {
     if (q == std::string::npos || bytes[q] != ',') continue;
     const char* start = bytes.c_str() + q + 1;
     char* end = nullptr;
-    const long long v = std::strtoll(start, &end, 10);
-    if (end != start) add(v);
+    const double v = std::strtod(start, &end);
+    if (end != start) values.push_back(v);
   }
+  return values;
+}
+
+// FBX keeps a camera's projection in its NodeAttribute's Properties70:
+// CameraProjectionType 0 (perspective) or 1 (orthographic), and an
+// orthographic camera's OrthoZoom. The Definitions' template, which comes
+// first in the file, carries the defaults (0 and 1); a camera whose value
+// differs carries its own.
+ForeignCameras scan_fbx_cameras(const std::string& bytes) {
+  ForeignCameras out;
+  out.format = ForeignCameras::Format::kFbx;
+  for (double v : fbx_property_values(bytes, "CameraProjectionType")) {
+    if (v == 1) {
+      ForeignCamera c;
+      c.orthographic = true;
+      out.cameras.push_back(c);
+    }
+  }
+  const std::vector<double> zoom = fbx_property_values(bytes, "OrthoZoom");
+  if (!zoom.empty()) out.fbx_ortho_zoom = zoom.back();
   return out;
 }
 

@@ -5,7 +5,8 @@
 // CameraProjectionType, so both would render a Blender user's orthographic
 // camera as a perspective one, silently. These scans read just that from
 // the file, so that the loader can render the camera as the file defines it
-// (Collada: COLLADA 1.4.1 spec, <orthographic>) or refuse it by name (FBX).
+// (Collada: COLLADA 1.4.1 spec, <orthographic>; FBX from Blender: its
+// OrthoZoom) or refuse it by name (FBX from elsewhere).
 #pragma once
 
 #include <filesystem>
@@ -28,6 +29,10 @@ struct ForeignCameras {
   enum class Format { kOther, kCollada, kFbx };
   Format format = Format::kOther;
   std::vector<ForeignCamera> cameras;  // FBX: one entry per orthographic camera only
+  // FBX: the file's last OrthoZoom, which is its only camera's (the
+  // template's default, 1, when the camera keeps it); 0 without any.
+  // Blender writes its Orthographic Scale there, in Blender units.
+  double fbx_ortho_zoom = 0;
 
   bool any_orthographic() const;
   // The camera that assimp names `ai_name` (Collada: the instantiating node's
@@ -44,5 +49,8 @@ ForeignCameras scan_foreign_cameras(const std::filesystem::path& path);
 // The same on a file's bytes (for tests).
 ForeignCameras scan_collada_cameras(const std::string& text);
 ForeignCameras scan_fbx_cameras(const std::string& bytes);
+// The numeric values of every FBX property `name` (P: "name", type, label,
+// flags, value) in a binary or ASCII file, in file order.
+std::vector<double> fbx_property_values(const std::string& bytes, const std::string& name);
 
 }  // namespace dofarm::render

@@ -107,6 +107,13 @@ bool is_gltf(const std::filesystem::path& path) {
   return ext == ".gltf" || ext == ".glb";
 }
 
+bool Loader::from_blender() const {
+  aiString generator;
+  return !is_gltf(path_) && scene_->mMetaData &&
+         scene_->mMetaData->Get("SourceAsset_Generator", generator) &&
+         std::string(generator.C_Str()).rfind("Blender", 0) == 0;
+}
+
 void Loader::materials() {
   // Blender's FBX and Collada exporters write a Principled BSDF's Metallic
   // as the material's reflectivity (FBX ReflectionFactor, Collada
@@ -114,11 +121,8 @@ void Loader::materials() {
   // on as the reflectivity and leaves the metallic factor unset. Other
   // exporters' reflectivity means something else (the weight of a Phong
   // material's mirror reflection), so it is read only from Blender's files
-  // (the generator assimp reports: FBX's Creator, Collada's authoring_tool).
-  aiString generator;
-  const bool from_blender = !is_gltf(path_) && scene_->mMetaData &&
-                            scene_->mMetaData->Get("SourceAsset_Generator", generator) &&
-                            std::string(generator.C_Str()).rfind("Blender", 0) == 0;
+  // (from_blender()).
+  const bool blender = from_blender();
   for (unsigned i = 0; i < scene_->mNumMaterials; ++i) {
     const aiMaterial* am = scene_->mMaterials[i];
     Material m;
@@ -130,7 +134,7 @@ void Loader::materials() {
     }
     float value = 0;
     m.metallic = am->Get(AI_MATKEY_METALLIC_FACTOR, value) == AI_SUCCESS ? value : 0.0f;
-    if (from_blender && am->Get(AI_MATKEY_METALLIC_FACTOR, value) != AI_SUCCESS &&
+    if (blender && am->Get(AI_MATKEY_METALLIC_FACTOR, value) != AI_SUCCESS &&
         am->Get(AI_MATKEY_REFLECTIVITY, value) == AI_SUCCESS && std::isfinite(value))
       m.metallic = std::clamp(value, 0.0f, 1.0f);
     if (am->Get(AI_MATKEY_ROUGHNESS_FACTOR, value) == AI_SUCCESS) {

@@ -49,6 +49,9 @@ class Loader {
 
   // Reads every material (and the textures they use) into out->materials.
   void materials();
+  // Whether Blender wrote this Collada or FBX file (the generator assimp
+  // reports: FBX's Creator, Collada's authoring_tool); false for glTF.
+  bool from_blender() const;
 
   // Flattens the hierarchy below `node` into world space at the nodes' own
   // transforms; the meshes of nodes that the animation moves (or whose

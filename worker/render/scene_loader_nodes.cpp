@@ -72,20 +72,34 @@ void Loader::camera_track(const std::string& wanted) {
   float ymag = 0, ortho_aspect = 0;
   // Collada and FBX: assimp reads an orthographic camera of theirs as a
   // perspective one (foreign_cameras.h), so the file itself says which it
-  // is. Collada's is rendered from its <orthographic> size; FBX's is
-  // refused (its OrthoZoom has no agreed unit), as is one whose camera the
-  // scan cannot match to assimp's.
+  // is. Collada's is rendered from its <orthographic> size. Blender's FBX
+  // holds the Orthographic Scale as OrthoZoom, in Blender units, spanning
+  // the film's longer side (sensor fit auto, as the glTF exporter's xmag
+  // and ymag say), and is rendered from it when it is the file's only
+  // camera. Other FBX files' OrthoZoom has no agreed unit, and a camera the
+  // scan cannot match to assimp's is unknown: those are refused.
   const ForeignCameras foreign = gltf ? ForeignCameras{} : scan_foreign_cameras(path_);
+  auto usable = [](double x, double y) {
+    return x > 0 && y > 0 && x < 1e30 && y < 1e30 && x / y < 1e6 && y / x < 1e6;
+  };
   if (foreign.any_orthographic()) {
     const std::string name = cam->mName.C_Str();
     const ForeignCamera* own = foreign.find(name);
     const bool collada = foreign.format == ForeignCameras::Format::kCollada;
+    const double zoom = foreign.fbx_ortho_zoom;
+    const double film = cam->mAspect > 0 && std::isfinite(cam->mAspect) ? cam->mAspect : 1.0;
+    const double half_long = 0.5 * zoom;
+    const double fbx_x = film >= 1 ? half_long : half_long * film;
+    const double fbx_y = film >= 1 ? half_long / film : half_long;
     if (collada && own && !own->orthographic) {
       // A perspective camera in a file that also has orthographic ones.
-    } else if (collada && own && own->xmag > 0 && own->ymag > 0 && own->xmag < 1e30 &&
-               own->ymag < 1e30 && own->xmag / own->ymag < 1e6 && own->ymag / own->xmag < 1e6) {
+    } else if (collada && own && usable(own->xmag, own->ymag)) {
       ymag = float(own->ymag);
       ortho_aspect = float(own->xmag / own->ymag);
+    } else if (!collada && from_blender() && scene_->mNumCameras == 1 &&
+               foreign.cameras.size() == 1 && usable(fbx_x, fbx_y)) {
+      ymag = float(fbx_y);
+      ortho_aspect = float(fbx_x / fbx_y);
     } else {
       const size_t n = foreign.cameras.size();
       out_->camera_refused =
@@ -99,10 +113,10 @@ void Loader::camera_track(const std::string& wanted) {
                           name)
           : scene_->mNumCameras == 1
               ? fmt::format(
-                    "its camera \"{}\" is orthographic (FBX CameraProjectionType 1), "
-                    "which assimp reads as a perspective camera; export the scene as "
-                    "glTF (or Collada) to render it",
-                    name)
+                    "its camera \"{}\" is orthographic (FBX CameraProjectionType 1) with "
+                    "OrthoZoom {:g}, which only Blender's FBX files give a unit; export the "
+                    "scene as glTF (or Collada) to render it",
+                    name, zoom)
               : fmt::format(
                     "{} of its {} cameras {} orthographic (FBX CameraProjectionType 1), "
                     "which assimp reads as perspective cameras without saying which; "
@@ -176,14 +190,23 @@ void Loader::camera_track(const std::string& wanted) {
     camera->aspect = cam->mAspect > 0 ? cam->mAspect : 0.0f;
   }
   // Its clipping planes: from a glTF file's JSON; for an orthographic
-  // Collada camera from assimp, which reads them right (its lens sits on
-  // the near plane, as below). Other formats' cameras are not clipped.
+  // Collada or FBX camera from assimp (its lens sits on the near plane, as
+  // below). Other formats' perspective cameras are not clipped.
   if (!gltf && ymag > 0) {
-    if (std::isfinite(cam->mClipPlaneNear) && cam->mClipPlaneNear > 0)
-      camera->znear = cam->mClipPlaneNear;
-    if (std::isfinite(cam->mClipPlaneFar) && cam->mClipPlaneFar > camera->znear &&
-        cam->mClipPlaneFar < 1e30f)
-      camera->zfar = cam->mClipPlaneFar;
+    // FBX's planes are in the file's unit (UnitScaleFactor centimetres),
+    // which aiProcess_GlobalScale applies to nodes and meshes, not to them.
+    float unit = 1.0f;
+    if (foreign.format == ForeignCameras::Format::kFbx) {
+      float cm = 1.0f;
+      if (scene_->mMetaData && scene_->mMetaData->Get("UnitScaleFactor", cm) && std::isfinite(cm) &&
+          cm > 0)
+        unit = cm / 100.0f;
+      else
+        unit = 0.01f;
+    }
+    const float znear = cam->mClipPlaneNear * unit, zfar = cam->mClipPlaneFar * unit;
+    if (std::isfinite(znear) && znear > 0) camera->znear = znear;
+    if (std::isfinite(zfar) && zfar > camera->znear && zfar < 1e30f) camera->zfar = zfar;
   }
   if (const GltfInfo::CameraNode* clip = json) {
     if (std::isfinite(clip->znear) && clip->znear > 0 && clip->znear < 1e30) {
