@@ -46,6 +46,30 @@ void expect_same_pose(const CameraState& a, const CameraState& b, float tol) {
   EXPECT_NEAR(std::fabs(dot), 1.0f, 1e-5f);
 }
 
+// A small frame of a fixture from its own camera under a white sky.
+FrameBuffers render_fixture(const char* file, float aperture) {
+  JobSpec job = testing::make_spec(48, 27, Vec3(0), Vec3(0, 0, -1), 40, 11.0f, aperture);
+  job.camera_from_scene = true;
+  job.versions = 1;
+  job.reference_spp = 4;
+  return render_frame(
+      *testing::make_scene(load_scene_data(kBlender / file), testing::constant_env(1.0f)), job, 0);
+}
+
+// The same view depth and CoC in every pixel, where the plane covers part
+// of the view (not all of it and not none).
+void expect_same_depths(const FrameBuffers& a, const FrameBuffers& b) {
+  ASSERT_EQ(a.depth.size(), b.depth.size());
+  int plane = 0;
+  for (size_t i = 0; i < a.depth.size(); ++i) {
+    if (a.depth[i] > 0) ++plane;
+    ASSERT_NEAR(b.depth[i], a.depth[i], 1e-3f * std::max(1.0f, a.depth[i])) << "pixel " << i;
+    ASSERT_NEAR(b.coc[i], a.coc[i], 1e-3f) << "pixel " << i;
+  }
+  EXPECT_GT(plane, int(a.depth.size()) / 10);
+  EXPECT_LT(plane, int(a.depth.size()));
+}
+
 std::string collada_with(const std::string& optics) {
   return R"(<?xml version="1.0"?><COLLADA><library_cameras>
     <camera id="Top-camera" name="Top"><optics><technique_common>)" +
@@ -181,28 +205,9 @@ TEST(ForeignCameras, BlendersColladaAndFbxOrthographicCamerasAreItsGltfCamera) {
     // materials differ), through a pinhole and through the lens on Clip
     // Start.
     for (const float aperture : {0.0f, 0.3f}) {
-      JobSpec job = testing::make_spec(48, 27, Vec3(0), Vec3(0, 0, -1), 40, 11.0f, aperture);
-      job.camera_from_scene = true;
-      job.versions = 1;
-      job.reference_spp = 4;
-      auto render = [&](const char* f) {
-        return render_frame(
-            *testing::make_scene(load_scene_data(kBlender / f), testing::constant_env(1.0f)), job,
-            0);
-      };
-      const FrameBuffers fa = render("ortho_camera.glb");
-      const FrameBuffers fb = render(file);
-      ASSERT_EQ(fa.depth.size(), fb.depth.size());
-      int plane = 0;
-      for (size_t i = 0; i < fa.depth.size(); ++i) {
-        if (fa.depth[i] > 0) ++plane;
-        ASSERT_NEAR(fb.depth[i], fa.depth[i], 1e-3f * std::max(1.0f, fa.depth[i]))
-            << "pixel " << i << " aperture " << aperture;
-        ASSERT_NEAR(fb.coc[i], fa.coc[i], 1e-3f) << "pixel " << i;
-      }
-      // The plane covers part of the view, not all of it and not none.
-      EXPECT_GT(plane, int(fa.depth.size()) / 10);
-      EXPECT_LT(plane, int(fa.depth.size()));
+      SCOPED_TRACE(aperture);
+      expect_same_depths(render_fixture("ortho_camera.glb", aperture),
+                         render_fixture(file, aperture));
     }
   }
 }
@@ -276,27 +281,12 @@ TEST(ForeignCameras, BlendersFbxSceneIsInMetresAsInBlender) {
 // Perspective cameras: Blender's Collada and FBX exports of the scene render
 // as its glTF export does, pixel for pixel in view depth.
 TEST(ForeignCameras, BlendersColladaAndFbxPerspectiveCamerasAreItsGltfCamera) {
-  JobSpec job = testing::make_spec(48, 27, Vec3(0), Vec3(0, 0, -1), 40, 11.0f, 0.0f);
-  job.camera_from_scene = true;
-  job.versions = 1;
-  job.reference_spp = 4;
-  auto render = [&](const char* file) {
-    return render_frame(
-        *testing::make_scene(load_scene_data(kBlender / file), testing::constant_env(1.0f)), job,
-        0);
-  };
-  const FrameBuffers gltf = render("persp_camera.glb");
-  int plane = 0;
-  for (float d : gltf.depth) plane += d > 0;
-  EXPECT_GT(plane, int(gltf.depth.size()) / 10);
-  EXPECT_LT(plane, int(gltf.depth.size()));
+  const FrameBuffers gltf = render_fixture("persp_camera.glb", 0.0f);
   for (const char* file : {"persp_camera.dae", "persp_camera.fbx"}) {
-    const FrameBuffers other = render(file);
-    EXPECT_NEAR(other.camera.fov_deg, gltf.camera.fov_deg, 1e-3f) << file;
-    ASSERT_EQ(other.depth.size(), gltf.depth.size());
-    for (size_t i = 0; i < gltf.depth.size(); ++i)
-      ASSERT_NEAR(other.depth[i], gltf.depth[i], 1e-3f * std::max(1.0f, gltf.depth[i]))
-          << file << " pixel " << i;
+    SCOPED_TRACE(file);
+    const FrameBuffers other = render_fixture(file, 0.0f);
+    EXPECT_NEAR(other.camera.fov_deg, gltf.camera.fov_deg, 1e-3f);
+    expect_same_depths(gltf, other);
   }
 }
 
