@@ -12,6 +12,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <set>
 #include <string>
 
 #include "common/error.h"
@@ -318,6 +319,45 @@ TEST(BlenderFormats, ColladaAndFbxMaterialsCarryTheGltfOnesMetallic) {
   }
   EXPECT_EQ(find(gltf, "Metal")->metallic, 1.0f);
   EXPECT_EQ(find(gltf, "Material")->metallic, 0.0f);
+}
+
+// Blender exports an object without a material as an <instance_geometry>
+// without a <bind_material>; assimp 5.2 gives it the file's first material
+// (here the cube's blue). It gets the grey diffuse surface Blender renders
+// it in, and the meshes that have materials keep theirs.
+TEST(BlenderFormats, AColladaMeshWithoutAMaterialIsGreyNotTheFirstMaterial) {
+  EXPECT_EQ(collada_unbound_geometries(R"(<node><instance_geometry url="#A-mesh" name="A"/></node>
+      <node><instance_geometry url="#B-mesh"><bind_material/></instance_geometry></node>
+      <node><instance_geometry url="#C-mesh"></instance_geometry></node>
+      <node><instance_geometry url="#B-mesh"/></node>)"),
+            (std::set<std::string>{"A-mesh", "C-mesh"}));
+  const SceneData dae = load_scene_data(kBlender / "materials.dae");
+  int plane = 0, others = 0;
+  for (size_t t = 0; t < dae.tri_material.size(); ++t) {
+    // The plane: at y = -1 and 4 m wide (the cube's bottom face is at
+    // y = -1 too, but 2 m wide).
+    bool on_plane = true, wide = false;
+    for (int k = 0; k < 3; ++k) {
+      const Vec3& p = dae.positions[dae.indices[3 * t + k]];
+      on_plane = on_plane && std::fabs(p.y + 1.0f) < 1e-4f;
+      wide = wide || std::fabs(p.x) > 1.5f;
+    }
+    on_plane = on_plane && wide;
+    const Material& m = dae.materials[dae.tri_material[t]];
+    if (on_plane) {
+      ++plane;
+      EXPECT_EQ(m.name, "(no material)");
+      EXPECT_EQ(m.base_color.x, 0.8f);
+      EXPECT_EQ(m.base_color.z, 0.8f);
+      EXPECT_EQ(m.metallic, 0.0f);
+      EXPECT_EQ(m.specular, 0.0f);
+    } else {
+      ++others;
+      EXPECT_TRUE(m.name == "Material" || m.name == "Metal") << m.name;
+    }
+  }
+  EXPECT_EQ(plane, 2);  // the plane's two triangles
+  EXPECT_GT(others, 12);
 }
 
 }  // namespace

@@ -216,12 +216,35 @@ ForeignCameras scan_fbx_cameras(const std::string& bytes) {
   return out;
 }
 
+std::set<std::string> collada_unbound_geometries(const std::string& text) {
+  std::set<std::string> bound, unbound;
+  for (size_t at : tags(text, "instance_geometry")) {
+    const std::string tag = start_tag(text, at);
+    std::string url = attribute(tag, "url");
+    if (!url.empty() && url[0] == '#') url.erase(0, 1);
+    if (url.empty()) continue;
+    bool binds = false;
+    if (tag.size() < 2 || tag[tag.size() - 2] != '/') {  // not <instance_geometry ... />
+      const size_t end = text.find("</instance_geometry>", at);
+      const size_t bind = text.find("<bind_material", at);
+      binds = bind != std::string::npos && (end == std::string::npos || bind < end);
+    }
+    (binds ? bound : unbound).insert(url);
+  }
+  for (const std::string& id : bound) unbound.erase(id);
+  return unbound;
+}
+
+std::string read_file_bytes(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw RuntimeError(path.string() + ": cannot read");
+  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+}
+
 ForeignCameras scan_foreign_cameras(const std::filesystem::path& path) {
   const std::string ext = lower_extension(path);
   if (ext != ".dae" && ext != ".fbx") return {};
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw RuntimeError(path.string() + ": cannot read");
-  const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::string bytes = read_file_bytes(path);
   return ext == ".dae" ? scan_collada_cameras(bytes) : scan_fbx_cameras(bytes);
 }
 

@@ -11,6 +11,7 @@
 
 #include <filesystem>
 #include <optional>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -52,5 +53,14 @@ ForeignCameras scan_fbx_cameras(const std::string& bytes);
 // The numeric values of every FBX property `name` (P: "name", type, label,
 // flags, value) in a binary or ASCII file, in file order.
 std::vector<double> fbx_property_values(const std::string& bytes, const std::string& name);
+
+// Collada: the ids of the geometries that an <instance_geometry> places
+// without a <bind_material> (and that no other instance binds). assimp 5.2
+// gives them the file's first material; Blender, whose exporter writes an
+// object without a material so, renders them in its grey default surface.
+std::set<std::string> collada_unbound_geometries(const std::string& text);
+
+// The bytes of `path`; throws RuntimeError if it cannot be read.
+std::string read_file_bytes(const std::filesystem::path& path);
 
 }  // namespace dofarm::render

@@ -21,6 +21,7 @@
 #include "common/content_hash.h"
 #include "common/error.h"
 #include "common/exr_io.h"
+#include "worker/render/foreign_cameras.h"
 #include "worker/render/gltf_info.h"
 #include "worker/render/scene_loader.h"
 #include "worker/render/scene_motion.h"
@@ -105,6 +106,20 @@ bool is_gltf(const std::filesystem::path& path) {
   std::transform(ext.begin(), ext.end(), ext.begin(),
                  [](unsigned char c) { return std::tolower(c); });
   return ext == ".gltf" || ext == ".glb";
+}
+
+// Collada geometries placed without a material (collada_unbound_geometries)
+// get the grey diffuse surface Blender renders an object without a material
+// in (Cycles' default surface: a diffuse BSDF of 0.8), not the file's first
+// material, which assimp 5.2 gives them.
+static Material blender_default_surface() {
+  Material m;
+  m.name = "(no material)";
+  m.base_color = Vec3(0.8f);
+  m.metallic = 0.0f;
+  m.roughness = 1.0f;
+  m.specular = 0.0f;  // no specular layer: the base alone, a Lambert lobe
+  return m;
 }
 
 bool Loader::from_blender() const {
@@ -248,6 +263,16 @@ void Loader::materials() {
     }
     check_material(m, i);
     out_->materials.push_back(std::move(m));
+  }
+  std::string ext = path_.extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return std::tolower(c); });
+  if (ext == ".dae") {
+    unbound_geometries_ = collada_unbound_geometries(read_file_bytes(path_));
+    if (!unbound_geometries_.empty()) {
+      unbound_material_ = uint32_t(out_->materials.size());
+      out_->materials.push_back(blender_default_surface());
+    }
   }
 }
 
@@ -408,7 +433,8 @@ void Loader::mesh(const aiMesh* m, const aiMatrix4x4& world, const char* node_na
   if (has_uv && out_->uvs.empty()) out_->uvs.assign(base, Vec2(0, 0));
   // TEXCOORD_1 only where the mesh's material reads it. A mesh without the
   // set (glTF requires it then) reads its TEXCOORD_0 in its place.
-  const uint32_t material = m->mMaterialIndex;
+  const uint32_t material =
+      unbound_geometries_.count(m->mName.C_Str()) ? unbound_material_ : m->mMaterialIndex;
   const bool wants_uv1 = material < out_->materials.size() && out_->materials[material].reads_uv1();
   const bool has_uv1 = wants_uv1 && m->HasTextureCoords(1);
   if (wants_uv1 && out_->uvs1.empty()) out_->uvs1.assign(base, Vec2(0, 0));

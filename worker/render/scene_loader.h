@@ -155,6 +155,11 @@ class Loader {
   std::map<std::string, Channel> channels_;  // by node name
   std::shared_ptr<SceneMotion> motion_ = std::make_shared<SceneMotion>();
   std::map<const aiNode*, uint32_t> motion_index_;
+  // Collada: the geometries instantiated without a material binding, which
+  // assimp 5.2 gives the file's first material, and the grey diffuse
+  // material they get instead (materials()).
+  std::set<std::string> unbound_geometries_;
+  uint32_t unbound_material_ = 0;
 };
 
 }  // namespace dofarm::render::detail
