@@ -8,8 +8,17 @@
 #include <sstream>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 namespace dofarm {
+
+// Names for a message, each in double quotes, joined by ", ":
+// "a", "b", "c" ("" for none).
+inline std::string quoted_list(const std::vector<std::string>& names) {
+  std::string list;
+  for (const std::string& n : names) list += (list.empty() ? "\"" : ", \"") + n + "\"";
+  return list;
+}
 
 inline constexpr int kExitOk = 0;
 inline constexpr int kExitRuntime = 1;

@@ -136,18 +136,13 @@ void complete_spec_from_scene(JobSpec& spec, const render::Scene& scene) {
   const auto& track = scene.data().camera_track;
   if (spec.camera_from_scene) {
     const std::vector<std::string>& names = scene.data().camera_names;
-    auto listed = [&] {
-      std::string list;
-      for (size_t i = 0; i < names.size(); ++i) list += (i ? ", \"" : "\"") + names[i] + "\"";
-      return list;
-    };
     if (!spec.camera_name.empty() &&
         std::find(names.begin(), names.end(), spec.camera_name) == names.end()) {
       throw SpecError(spec.where("camera.name"), "camera.name",
                       names.empty()
                           ? fmt::format("the scene \"{}\" has no camera", spec.scene.string())
                           : fmt::format("the scene \"{}\" has no camera \"{}\"; its cameras: {}",
-                                        spec.scene.string(), spec.camera_name, listed()));
+                                        spec.scene.string(), spec.camera_name, quoted_list(names)));
     }
     // A Blender file holds every camera of the scene, the active one not
     // marked (glTF has no such mark): say which one is taken.
@@ -155,7 +150,7 @@ void complete_spec_from_scene(JobSpec& spec, const render::Scene& scene) {
       spdlog::warn(
           "{}: the scene has {} cameras ({}); rendering from \"{}\", the first, as camera.name "
           "is not set",
-          spec.spec_path.string(), names.size(), listed(), names.front());
+          spec.spec_path.string(), names.size(), quoted_list(names), names.front());
     if (track.empty()) {
       throw SpecError(spec.where("camera.from_scene"), "camera.from_scene",
                       render::no_scene_camera_message(scene.data(), spec.scene.string()));

@@ -16,13 +16,6 @@ namespace dofarm::render {
 
 namespace {
 
-std::string lower_extension(const std::filesystem::path& path) {
-  std::string ext = path.extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(),
-                 [](unsigned char c) { return char(std::tolower(c)); });
-  return ext;
-}
-
 // The value of attribute `name` in the start tag text `tag` ("" if absent).
 std::string attribute(const std::string& tag, const std::string& name) {
   const std::regex re("\\s" + name + "\\s*=\\s*\"([^\"]*)\"");
@@ -60,6 +53,9 @@ std::string start_tag(const std::string& text, size_t at) {
   return text.substr(at, end == std::string::npos ? std::string::npos : end - at + 1);
 }
 
+// Whether a start tag closes itself (<name ... />).
+bool self_closing(const std::string& tag) { return tag.size() >= 2 && tag[tag.size() - 2] == '/'; }
+
 }  // namespace
 
 bool ForeignCameras::any_orthographic() const {
@@ -86,7 +82,7 @@ ForeignCameras scan_collada_cameras(const std::string& text) {
   for (size_t at : tags(text, "camera")) {
     const std::string tag = start_tag(text, at);
     size_t end = text.find("</camera>", at);
-    if (tag.size() >= 2 && tag[tag.size() - 2] == '/') end = at + tag.size();
+    if (self_closing(tag)) end = at + tag.size();
     const std::string body =
         text.substr(at, end == std::string::npos ? std::string::npos : end - at);
     ForeignCamera c;
@@ -224,7 +220,7 @@ std::set<std::string> collada_unbound_geometries(const std::string& text) {
     if (!url.empty() && url[0] == '#') url.erase(0, 1);
     if (url.empty()) continue;
     bool binds = false;
-    if (tag.size() < 2 || tag[tag.size() - 2] != '/') {  // not <instance_geometry ... />
+    if (!self_closing(tag)) {
       const size_t end = text.find("</instance_geometry>", at);
       const size_t bind = text.find("<bind_material", at);
       binds = bind != std::string::npos && (end == std::string::npos || bind < end);
@@ -241,11 +237,11 @@ std::string read_file_bytes(const std::filesystem::path& path) {
   return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
 }
 
-ForeignCameras scan_foreign_cameras(const std::filesystem::path& path) {
-  const std::string ext = lower_extension(path);
-  if (ext != ".dae" && ext != ".fbx") return {};
-  const std::string bytes = read_file_bytes(path);
-  return ext == ".dae" ? scan_collada_cameras(bytes) : scan_fbx_cameras(bytes);
+std::string lower_extension(const std::filesystem::path& path) {
+  std::string ext = path.extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return char(std::tolower(c)); });
+  return ext;
 }
 
 }  // namespace dofarm::render

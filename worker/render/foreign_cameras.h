@@ -10,7 +10,6 @@
 #pragma once
 
 #include <filesystem>
-#include <optional>
 #include <set>
 #include <string>
 #include <vector>
@@ -42,12 +41,8 @@ struct ForeignCameras {
   const ForeignCamera* find(const std::string& ai_name) const;
 };
 
-// Reads `path` (.dae: Collada text; .fbx: binary or ASCII FBX); other
-// formats give Format::kOther and no cameras. Throws RuntimeError if the
-// file cannot be read.
-ForeignCameras scan_foreign_cameras(const std::filesystem::path& path);
-
-// The same on a file's bytes (for tests).
+// The cameras of a file's bytes: Collada text (.dae), binary or ASCII FBX
+// (.fbx).
 ForeignCameras scan_collada_cameras(const std::string& text);
 ForeignCameras scan_fbx_cameras(const std::string& bytes);
 // The numeric values of every FBX property `name` (P: "name", type, label,
@@ -62,5 +57,8 @@ std::set<std::string> collada_unbound_geometries(const std::string& text);
 
 // The bytes of `path`; throws RuntimeError if it cannot be read.
 std::string read_file_bytes(const std::filesystem::path& path);
+
+// The file name's extension in lower case (".dae", ".glb").
+std::string lower_extension(const std::filesystem::path& path);
 
 }  // namespace dofarm::render

@@ -605,13 +605,11 @@ void check_extensions(const std::filesystem::path& path, const GltfInfo& info) {
   // Blender shows an object without a material in its grey default surface
   // and exports it without one.
   if (!info.meshes_without_material.empty()) {
-    std::string names;
-    for (const std::string& n : info.meshes_without_material)
-      names += (names.empty() ? "\"" : ", \"") + n + "\"";
     spdlog::warn(
         "{}: {} without a material: rendered with glTF's default material (base colour 1, "
         "metallic 1, roughness 1), not Blender's grey default surface; give {} a material",
-        path.string(), names, info.meshes_without_material.size() == 1 ? "it" : "them");
+        path.string(), quoted_list(info.meshes_without_material),
+        info.meshes_without_material.size() == 1 ? "it" : "them");
   }
 }
 

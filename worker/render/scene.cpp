@@ -740,9 +740,9 @@ SceneData load_job_scene_data(const JobSpec& spec) {
         light.radius = size.radius;
     }
     if (!found) {
-      std::string names;
-      for (const PunctualLight& light : data.lights)
-        names += (names.empty() ? "\"" : ", \"") + light.name + "\"";
+      std::vector<std::string> lamps;
+      for (const PunctualLight& light : data.lights) lamps.push_back(light.name);
+      const std::string names = quoted_list(lamps);
       throw SpecError(
           spec.where(at + ".name"), at + ".name",
           fmt::format("the scene {} has no lamp named \"{}\"; its lamps: {}", spec.scene.string(),

@@ -102,10 +102,13 @@ uint32_t SceneData::add_mesh(const std::vector<Vec3>& p, const std::vector<Vec3>
 namespace detail {
 
 bool is_gltf(const std::filesystem::path& path) {
-  std::string ext = path.extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(),
-                 [](unsigned char c) { return std::tolower(c); });
+  const std::string ext = lower_extension(path);
   return ext == ".gltf" || ext == ".glb";
+}
+
+const std::string& Loader::file_bytes() {
+  if (!file_bytes_) file_bytes_ = read_file_bytes(path_);
+  return *file_bytes_;
 }
 
 // Collada geometries placed without a material (collada_unbound_geometries)
@@ -264,11 +267,8 @@ void Loader::materials() {
     check_material(m, i);
     out_->materials.push_back(std::move(m));
   }
-  std::string ext = path_.extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(),
-                 [](unsigned char c) { return std::tolower(c); });
-  if (ext == ".dae") {
-    unbound_geometries_ = collada_unbound_geometries(read_file_bytes(path_));
+  if (lower_extension(path_) == ".dae") {
+    unbound_geometries_ = collada_unbound_geometries(file_bytes());
     if (!unbound_geometries_.empty()) {
       unbound_material_ = uint32_t(out_->materials.size());
       out_->materials.push_back(blender_default_surface());

@@ -11,6 +11,7 @@
 #include <initializer_list>
 #include <map>
 #include <memory>
+#include <optional>
 #include <set>
 #include <string>
 #include <tuple>
@@ -52,6 +53,9 @@ class Loader {
   // Whether Blender wrote this Collada or FBX file (the generator assimp
   // reports: FBX's Creator, Collada's authoring_tool); false for glTF.
   bool from_blender() const;
+  // The scene file's bytes, read once, for what assimp does not pass on of
+  // Collada and FBX files (foreign_cameras.h).
+  const std::string& file_bytes();
 
   // Flattens the hierarchy below `node` into world space at the nodes' own
   // transforms; the meshes of nodes that the animation moves (or whose
@@ -160,6 +164,7 @@ class Loader {
   // material they get instead (materials()).
   std::set<std::string> unbound_geometries_;
   uint32_t unbound_material_ = 0;
+  std::optional<std::string> file_bytes_;  // file_bytes()
 };
 
 }  // namespace dofarm::render::detail

@@ -45,11 +45,8 @@ void Loader::camera_track(const std::string& wanted) {
     if (!cam && (wanted.empty() || out_->camera_names.back() == wanted)) cam = scene_->mCameras[i];
   }
   if (!cam) {
-    std::string names;
-    for (size_t i = 0; i < out_->camera_names.size(); ++i)
-      names += (i ? ", \"" : "\"") + out_->camera_names[i] + "\"";
-    out_->camera_refused =
-        fmt::format("it has no camera named \"{}\" (its cameras: {})", wanted, names);
+    out_->camera_refused = fmt::format("it has no camera named \"{}\" (its cameras: {})", wanted,
+                                       quoted_list(out_->camera_names));
     return;
   }
   const aiNode* cam_node = scene_->mRootNode->FindNode(cam->mName);
@@ -78,7 +75,10 @@ void Loader::camera_track(const std::string& wanted) {
   // and ymag say), and is rendered from it when it is the file's only
   // camera. Other FBX files' OrthoZoom has no agreed unit, and a camera the
   // scan cannot match to assimp's is unknown: those are refused.
-  const ForeignCameras foreign = gltf ? ForeignCameras{} : scan_foreign_cameras(path_);
+  const std::string ext = lower_extension(path_);
+  const ForeignCameras foreign = ext == ".dae"   ? scan_collada_cameras(file_bytes())
+                                 : ext == ".fbx" ? scan_fbx_cameras(file_bytes())
+                                                 : ForeignCameras{};
   auto usable = [](double x, double y) {
     return x > 0 && y > 0 && x < 1e30 && y < 1e30 && x / y < 1e6 && y / x < 1e6;
   };
