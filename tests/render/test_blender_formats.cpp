@@ -48,13 +48,14 @@ void expect_same_pose(const CameraState& a, const CameraState& b, float tol) {
 }
 
 // A small frame of a fixture from its own camera under a white sky.
-FrameBuffers render_fixture(const char* file, float aperture) {
+FrameBuffers render_fixture(const char* file, float aperture, const std::string& camera = "") {
   JobSpec job = testing::make_spec(48, 27, Vec3(0), Vec3(0, 0, -1), 40, 11.0f, aperture);
   job.camera_from_scene = true;
   job.versions = 1;
   job.reference_spp = 4;
   return render_frame(
-      *testing::make_scene(load_scene_data(kBlender / file), testing::constant_env(1.0f)), job, 0);
+      *testing::make_scene(load_scene_data(kBlender / file, camera), testing::constant_env(1.0f)),
+      job, 0);
 }
 
 // The same view depth and CoC in every pixel, where the plane covers part
@@ -250,6 +251,69 @@ TEST(ForeignCameras, AnFbxOrthographicCameraNotFromBlenderIsRefused) {
   EXPECT_TRUE(persp.camera_refused.empty()) << persp.camera_refused;
   ASSERT_TRUE(persp.scene_camera);
   EXPECT_GT(persp.scene_camera->yfov_deg, 0.0f);
+}
+
+// A Blender scene with a perspective and an orthographic camera
+// (make_two_cameras.py): the binary FBX file's records name each camera by
+// its Model, so either renders as its glTF twin when the job names it; the
+// orthographic one from its own OrthoZoom. The same file from another
+// exporter still has its perspective camera and refuses the orthographic
+// one by name. A truncated file parses to nothing, out of bounds nowhere.
+TEST(ForeignCameras, EachCameraOfABlenderFbxFileIsFoundByName) {
+  const std::string bytes = read_file_bytes(kBlender / "two_cameras.fbx");
+  const std::vector<FbxNode> top = parse_fbx_binary(bytes);
+  std::set<std::string> names;
+  for (const FbxNode& n : top) names.insert(n.name);
+  for (const char* want : {"FBXHeaderExtension", "Definitions", "Objects", "Connections"})
+    EXPECT_TRUE(names.count(want)) << want;
+  const ForeignCameras scan = scan_fbx_cameras(bytes);
+  ASSERT_EQ(scan.cameras.size(), 2u);
+  const ForeignCamera* persp = scan.find("Camera");
+  const ForeignCamera* ortho = scan.find("Top");
+  ASSERT_TRUE(persp && ortho);
+  EXPECT_FALSE(persp->orthographic);
+  EXPECT_TRUE(ortho->orthographic);
+  EXPECT_DOUBLE_EQ(ortho->ortho_zoom, 5.0);
+  for (size_t cut : {size_t(30), bytes.size() / 3, 2 * bytes.size() / 3})
+    EXPECT_TRUE(parse_fbx_binary(bytes.substr(0, cut)).empty()) << cut;
+
+  for (const char* name : {"Camera", "Top"}) {
+    SCOPED_TRACE(name);
+    const SceneData gltf = load_scene_data(kBlender / "two_cameras.glb", name);
+    const SceneData fbx = load_scene_data(kBlender / "two_cameras.fbx", name);
+    ASSERT_TRUE(fbx.camera_refused.empty()) << fbx.camera_refused;
+    ASSERT_TRUE(gltf.scene_camera && fbx.scene_camera);
+    EXPECT_NEAR(fbx.scene_camera->ymag, gltf.scene_camera->ymag, 1e-5f);
+    EXPECT_NEAR(fbx.scene_camera->yfov_deg, gltf.scene_camera->yfov_deg, 1e-3f);
+    // Clip Start (the orthographic lens's plane; other formats' perspective
+    // cameras are not clipped).
+    if (gltf.scene_camera->ymag > 0)
+      EXPECT_NEAR(fbx.scene_camera->znear, gltf.scene_camera->znear, 1e-5f);
+    const CameraState a = camera_for_frame(scene_camera_spec(), gltf, 0);
+    const CameraState b = camera_for_frame(scene_camera_spec(), fbx, 0);
+    EXPECT_NEAR(b.ortho_height, a.ortho_height, 1e-5f);
+    expect_same_pose(a, b, 1e-3f);
+    expect_same_depths(render_fixture("two_cameras.glb", 0.3f, name),
+                       render_fixture("two_cameras.fbx", 0.3f, name));
+  }
+  EXPECT_GT(load_scene_data(kBlender / "two_cameras.fbx", "Top").scene_camera->ymag, 0.0f);
+  EXPECT_EQ(load_scene_data(kBlender / "two_cameras.fbx", "Camera").scene_camera->ymag, 0.0f);
+
+  const std::filesystem::path dir =
+      std::filesystem::temp_directory_path() / ("dofarm_fbx2_" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  std::string other = bytes;
+  for (size_t p = other.find("Blender"); p != std::string::npos; p = other.find("Blender", p))
+    other.replace(p, 7, "Modeler");
+  std::ofstream(dir / "other.fbx", std::ios::binary) << other;
+  const SceneData top_cam = load_scene_data(dir / "other.fbx", "Top");
+  const SceneData main_cam = load_scene_data(dir / "other.fbx", "Camera");
+  std::filesystem::remove_all(dir);
+  EXPECT_NE(top_cam.camera_refused.find("\"Top\" is orthographic (FBX CameraProjectionType 1) "
+                                        "with OrthoZoom 5"),
+            std::string::npos)
+      << top_cam.camera_refused;
+  EXPECT_TRUE(main_cam.camera_refused.empty()) << main_cam.camera_refused;
 }
 
 // Blender writes FBX in centimetres (UnitScaleFactor 1: one unit is 1 cm,

@@ -8,6 +8,7 @@
 #include <cstring>
 #include <fstream>
 #include <iterator>
+#include <map>
 #include <regex>
 
 #include "common/error.h"
@@ -192,6 +193,239 @@ std::vector<double> fbx_property_values(const std::string& bytes, const std::str
   return values;
 }
 
+namespace {
+
+// Little-endian reads within `bytes`; false past its end.
+template <typename T>
+bool read_le(const std::string& bytes, size_t at, T* v) {
+  if (at > bytes.size() || bytes.size() - at < sizeof(T)) return false;
+  std::memcpy(v, bytes.data() + at, sizeof(T));
+  return true;
+}
+
+class FbxBinaryParser {
+ public:
+  explicit FbxBinaryParser(const std::string& bytes) : b_(bytes) {}
+
+  bool parse(std::vector<FbxNode>* top) {
+    static const std::string kMagic("Kaydara FBX Binary  \0", 21);
+    uint32_t version = 0;
+    if (b_.compare(0, kMagic.size(), kMagic) != 0 || !read_le(b_, 23, &version)) return false;
+    wide_ = version >= 7500;
+    size_t at = 27;
+    return records(&at, b_.size(), 0, top);
+  }
+
+ private:
+  // The records from `*at` up to a null record (or `end`), into `out`.
+  bool records(size_t* at, size_t end, int depth, std::vector<FbxNode>* out) {
+    if (depth > 64) return false;  // no file nests this deep; a loop would
+    while (*at < end) {
+      uint64_t end_offset = 0, count = 0, list_len = 0;
+      uint8_t name_len = 0;
+      const size_t head = wide_ ? 25 : 13;
+      if (!offset(*at, &end_offset) || !offset(*at + (wide_ ? 8 : 4), &count) ||
+          !offset(*at + (wide_ ? 16 : 8), &list_len) ||
+          !read_le(b_, *at + (wide_ ? 24 : 12), &name_len))
+        return false;
+      if (end_offset == 0) {  // the null record closing a nested list (or the top's end)
+        *at += head;
+        return true;
+      }
+      const size_t name_at = *at + head;
+      const size_t props_at = name_at + name_len;
+      if (end_offset <= *at || end_offset > end || props_at > end_offset ||
+          list_len > end_offset - props_at)
+        return false;
+      FbxNode node;
+      node.name = b_.substr(name_at, name_len);
+      size_t p = props_at;
+      for (uint64_t k = 0; k < count; ++k)
+        if (!property(&p, props_at + list_len, &node.properties)) return false;
+      if (p != props_at + list_len) return false;
+      if (p < end_offset && !records(&p, end_offset, depth + 1, &node.children)) return false;
+      out->push_back(std::move(node));
+      *at = end_offset;
+    }
+    return true;
+  }
+
+  bool offset(size_t at, uint64_t* v) {
+    if (wide_) return read_le(b_, at, v);
+    uint32_t u = 0;
+    if (!read_le(b_, at, &u)) return false;
+    *v = u;
+    return true;
+  }
+
+  bool property(size_t* p, size_t end, std::vector<FbxNode::Property>* out) {
+    if (*p >= end) return false;
+    FbxNode::Property prop;
+    prop.type = b_[*p];
+    const size_t at = *p + 1;
+    size_t width = 0;
+    switch (prop.type) {
+      case 'Y': {
+        int16_t v;
+        if (!read_le(b_, at, &v)) return false;
+        prop.i = v;
+        width = 2;
+        break;
+      }
+      case 'C': {
+        uint8_t v;
+        if (!read_le(b_, at, &v)) return false;
+        prop.i = v;
+        width = 1;
+        break;
+      }
+      case 'I': {
+        int32_t v;
+        if (!read_le(b_, at, &v)) return false;
+        prop.i = v;
+        width = 4;
+        break;
+      }
+      case 'L': {
+        int64_t v;
+        if (!read_le(b_, at, &v)) return false;
+        prop.i = v;
+        width = 8;
+        break;
+      }
+      case 'F': {
+        float v;
+        if (!read_le(b_, at, &v)) return false;
+        prop.d = v;
+        width = 4;
+        break;
+      }
+      case 'D': {
+        double v;
+        if (!read_le(b_, at, &v)) return false;
+        prop.d = v;
+        width = 8;
+        break;
+      }
+      case 'S':
+      case 'R': {
+        uint32_t len;
+        if (!read_le(b_, at, &len) || len > end - std::min(end, at + 4)) return false;
+        prop.s = b_.substr(at + 4, len);
+        width = 4 + size_t(len);
+        break;
+      }
+      case 'f':
+      case 'd':
+      case 'l':
+      case 'i':
+      case 'b': {  // array: count, encoding, byte length, then the (maybe deflated) bytes
+        uint32_t stored;
+        if (!read_le(b_, at + 8, &stored)) return false;
+        width = 12 + size_t(stored);
+        break;
+      }
+      default:
+        return false;
+    }
+    if (prop.type != 'D' && prop.type != 'F') prop.d = double(prop.i);
+    if (width > end - std::min(end, at)) return false;
+    *p = at + width;
+    if (prop.type != 'f' && prop.type != 'd' && prop.type != 'l' && prop.type != 'i' &&
+        prop.type != 'b')
+      out->push_back(std::move(prop));
+    return true;
+  }
+
+  const std::string& b_;
+  bool wide_ = false;
+};
+
+const FbxNode* child(const FbxNode& n, const std::string& name) {
+  for (const FbxNode& c : n.children)
+    if (c.name == name) return &c;
+  return nullptr;
+}
+
+// The numbers of a Properties70 list that a camera scan wants: P records
+// ("name", "type", "label", "flags", value).
+void camera_properties(const FbxNode* props70, bool* ortho, double* zoom) {
+  if (!props70) return;
+  for (const FbxNode& p : props70->children) {
+    if (p.name != "P" || p.properties.size() < 5 || p.properties[0].type != 'S') continue;
+    const FbxNode::Property& v = p.properties[4];
+    if (v.type == 'S' || v.type == 'R') continue;
+    if (p.properties[0].s == "CameraProjectionType") *ortho = v.i == 1;
+    if (p.properties[0].s == "OrthoZoom") *zoom = v.d;
+  }
+}
+
+// Every camera of a parsed binary FBX file, named by the Model that its
+// NodeAttribute is connected to ("C", "OO", attribute id, model id). A
+// Model's name is "Name\0\1Model" in binary files; assimp names the camera
+// after the node, "Name". Empty when the file has no such structure.
+std::vector<ForeignCamera> fbx_binary_cameras(const std::vector<FbxNode>& top) {
+  bool default_ortho = false;
+  double default_zoom = 1;  // FBX SDK default, which the template restates
+  std::map<int64_t, std::pair<bool, double>> attributes;  // id -> (ortho, zoom)
+  std::map<int64_t, std::string> models;                  // id -> name
+  std::vector<ForeignCamera> out;
+  for (const FbxNode& n : top) {
+    if (n.name == "Definitions") {
+      for (const FbxNode& type : n.children) {
+        if (type.name != "ObjectType" || type.properties.empty() ||
+            type.properties[0].s != "NodeAttribute")
+          continue;
+        for (const FbxNode& t : type.children)
+          if (t.name == "PropertyTemplate" && !t.properties.empty() &&
+              t.properties[0].s == "FbxCamera")
+            camera_properties(child(t, "Properties70"), &default_ortho, &default_zoom);
+      }
+    }
+  }
+  for (const FbxNode& n : top) {
+    if (n.name != "Objects") continue;
+    for (const FbxNode& o : n.children) {
+      if (o.properties.size() < 3 || o.properties[0].type != 'L' || o.properties[2].s != "Camera")
+        continue;
+      if (o.name == "NodeAttribute") {
+        bool ortho = default_ortho;
+        double zoom = default_zoom;
+        camera_properties(child(o, "Properties70"), &ortho, &zoom);
+        attributes[o.properties[0].i] = {ortho, zoom};
+      } else if (o.name == "Model") {
+        const std::string& full = o.properties[1].s;
+        const size_t sep = full.find(std::string("\0\1", 2));
+        models[o.properties[0].i] = full.substr(0, sep);
+      }
+    }
+  }
+  for (const FbxNode& n : top) {
+    if (n.name != "Connections") continue;
+    for (const FbxNode& c : n.children) {
+      if (c.name != "C" || c.properties.size() < 3 || c.properties[0].s != "OO") continue;
+      const auto a = attributes.find(c.properties[1].i);
+      const auto m = models.find(c.properties[2].i);
+      if (a == attributes.end() || m == models.end()) continue;
+      ForeignCamera cam;
+      cam.name = m->second;
+      cam.orthographic = a->second.first;
+      cam.ortho_zoom = a->second.second;
+      out.push_back(cam);
+    }
+  }
+  return out;
+}
+
+}  // namespace
+
+std::vector<FbxNode> parse_fbx_binary(const std::string& bytes) {
+  std::vector<FbxNode> top;
+  FbxBinaryParser parser(bytes);
+  if (!parser.parse(&top)) top.clear();
+  return top;
+}
+
 // FBX keeps a camera's projection in its NodeAttribute's Properties70:
 // CameraProjectionType 0 (perspective) or 1 (orthographic), and an
 // orthographic camera's OrthoZoom. The Definitions' template, which comes
@@ -200,6 +434,13 @@ std::vector<double> fbx_property_values(const std::string& bytes, const std::str
 ForeignCameras scan_fbx_cameras(const std::string& bytes) {
   ForeignCameras out;
   out.format = ForeignCameras::Format::kFbx;
+  // A binary file names each camera by its Model; an ASCII one (which
+  // Blender does not write) is only scanned for its properties.
+  const std::vector<FbxNode> top = parse_fbx_binary(bytes);
+  if (!top.empty()) {
+    out.cameras = fbx_binary_cameras(top);
+    if (!out.cameras.empty()) return out;
+  }
   for (double v : fbx_property_values(bytes, "CameraProjectionType")) {
     if (v == 1) {
       ForeignCamera c;

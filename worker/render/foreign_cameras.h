@@ -17,18 +17,23 @@
 namespace dofarm::render {
 
 struct ForeignCamera {
-  std::string id, name;  // Collada's camera element; FBX: empty
+  // Collada's camera element; binary FBX: empty id, the name of the camera's
+  // Model (the node assimp names the camera after); ASCII FBX: both empty.
+  std::string id, name;
   bool orthographic = false;
   // Collada <orthographic>: half the film's width and height in scene units
   // (0 where the file gives neither it nor the aspect ratio to derive it).
   double xmag = 0, ymag = 0;
   std::string node;  // Collada: the name of the node that instantiates it
+  double ortho_zoom = 0;  // binary FBX: the camera's OrthoZoom (template default: 1)
 };
 
 struct ForeignCameras {
   enum class Format { kOther, kCollada, kFbx };
   Format format = Format::kOther;
-  std::vector<ForeignCamera> cameras;  // FBX: one entry per orthographic camera only
+  // Binary FBX: every camera, by its Model's name. ASCII FBX: one unnamed
+  // entry per orthographic camera only.
+  std::vector<ForeignCamera> cameras;
   // FBX: the file's last OrthoZoom, which is its only camera's (the
   // template's default, 1, when the camera keeps it); 0 without any.
   // Blender writes its Orthographic Scale there, in Blender units.
@@ -45,6 +50,26 @@ struct ForeignCameras {
 // (.fbx).
 ForeignCameras scan_collada_cameras(const std::string& text);
 ForeignCameras scan_fbx_cameras(const std::string& bytes);
+// A binary FBX file's node records, as far as the camera scan needs them
+// (FBX 7.x binary layout as the Blender developers documented it in 2013,
+// "FBX binary file format specification": a 27-byte header with the
+// version; per record an end offset, a property count and byte length, a
+// name, typed properties, nested records and a null record; 64-bit offsets
+// from version 7500). Array properties are skipped, not kept.
+// Empty when the bytes are not a well-formed binary FBX file.
+struct FbxNode {
+  struct Property {
+    char type = 0;  // 'S' string (and 'R' raw), 'L' 'I' 'Y' 'C' integers, 'D' 'F' reals
+    int64_t i = 0;  // integer types
+    double d = 0;   // every numeric type
+    std::string s;  // 'S' and 'R'
+  };
+  std::string name;
+  std::vector<Property> properties;
+  std::vector<FbxNode> children;
+};
+std::vector<FbxNode> parse_fbx_binary(const std::string& bytes);
+
 // The numeric values of every FBX property `name` (P: "name", type, label,
 // flags, value) in a binary or ASCII file, in file order.
 std::vector<double> fbx_property_values(const std::string& bytes, const std::string& name);

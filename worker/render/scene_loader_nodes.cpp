@@ -72,9 +72,11 @@ void Loader::camera_track(const std::string& wanted) {
   // is. Collada's is rendered from its <orthographic> size. Blender's FBX
   // holds the Orthographic Scale as OrthoZoom, in Blender units, spanning
   // the film's longer side (sensor fit auto, as the glTF exporter's xmag
-  // and ymag say), and is rendered from it when it is the file's only
-  // camera. Other FBX files' OrthoZoom has no agreed unit, and a camera the
-  // scan cannot match to assimp's is unknown: those are refused.
+  // and ymag say), and is rendered from it: in a binary file (which Blender
+  // writes) each camera is found by its Model's name, in an ASCII one only
+  // when it is the file's only camera. Other FBX files' OrthoZoom has no
+  // agreed unit, and a camera the scan cannot match to assimp's is unknown:
+  // those are refused.
   const std::string ext = lower_extension(path_);
   const ForeignCameras foreign = ext == ".dae"   ? scan_collada_cameras(file_bytes())
                                  : ext == ".fbx" ? scan_fbx_cameras(file_bytes())
@@ -86,18 +88,20 @@ void Loader::camera_track(const std::string& wanted) {
     const std::string name = cam->mName.C_Str();
     const ForeignCamera* own = foreign.find(name);
     const bool collada = foreign.format == ForeignCameras::Format::kCollada;
-    const double zoom = foreign.fbx_ortho_zoom;
+    const bool named_fbx = !collada && own && !own->name.empty();
+    const double zoom = named_fbx ? own->ortho_zoom : foreign.fbx_ortho_zoom;
     const double film = cam->mAspect > 0 && std::isfinite(cam->mAspect) ? cam->mAspect : 1.0;
     const double half_long = 0.5 * zoom;
     const double fbx_x = film >= 1 ? half_long : half_long * film;
     const double fbx_y = film >= 1 ? half_long / film : half_long;
-    if (collada && own && !own->orthographic) {
+    if ((collada || named_fbx) && own && !own->orthographic) {
       // A perspective camera in a file that also has orthographic ones.
     } else if (collada && own && usable(own->xmag, own->ymag)) {
       ymag = float(own->ymag);
       ortho_aspect = float(own->xmag / own->ymag);
-    } else if (!collada && from_blender() && scene_->mNumCameras == 1 &&
-               foreign.cameras.size() == 1 && usable(fbx_x, fbx_y)) {
+    } else if (!collada && from_blender() &&
+               (named_fbx || (scene_->mNumCameras == 1 && foreign.cameras.size() == 1)) &&
+               usable(fbx_x, fbx_y)) {
       ymag = float(fbx_y);
       ortho_aspect = float(fbx_x / fbx_y);
     } else {
@@ -111,7 +115,7 @@ void Loader::camera_track(const std::string& wanted) {
                           "it has orthographic cameras, and which of its cameras is \"{}\" "
                           "cannot be told; export the scene as glTF",
                           name)
-          : scene_->mNumCameras == 1
+          : named_fbx || scene_->mNumCameras == 1
               ? fmt::format(
                     "its camera \"{}\" is orthographic (FBX CameraProjectionType 1) with "
                     "OrthoZoom {:g}, which only Blender's FBX files give a unit; export the "
