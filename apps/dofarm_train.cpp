@@ -136,6 +136,7 @@ Command add_eval(CLI::App& app) {
     int frames = 0, images = 8, version = 0, time_size = 0, time_reps = 3, crops = 2,
         crop_size = 64;
     bool validation_only = false;
+    bool held_out = false;
     float coc_override = NAN;
   };
   auto o = std::make_shared<Opts>();
@@ -158,6 +159,10 @@ Command add_eval(CLI::App& app) {
   cmd->add_flag("--validation-only", o->validation_only,
                 "score only the validation frames (by default the report also has a table over "
                 "all frames, as thesis table 5.1)");
+  cmd->add_flag("--held-out", o->held_out,
+                "every frame of --data is a validation frame: frames rendered apart from the "
+                "run's training data (e.g. at cleaner references); a shard the run trained on "
+                "is refused");
   cmd->add_option("--time-size", o->time_size,
                   "also time the denoise of an N x N frame (the first validation frame repeated "
                   "to that size; 0 = off)")
@@ -194,6 +199,7 @@ Command add_eval(CLI::App& app) {
             EvalOptions e{o->run, o->data, o->out, o->frames, o->images, o->version, o->checkpoint};
             e.coc_override = o->coc_override;
             e.all_frames = !o->validation_only;
+            e.held_out = o->held_out;
             e.time_side = o->time_size;
             e.time_reps = o->time_reps;
             e.precision = parse_precision(o->precision, "--precision");

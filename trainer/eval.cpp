@@ -268,6 +268,14 @@ EvalSummary evaluate(const EvalOptions& o) {
     ShardSplit sp = splits.count(key)    ? splits[key]
                     : legacy.count(file) ? legacy[file]
                                          : assign_split(file, key, reader.frame_count(), cfg.data);
+    if (o.held_out) {
+      if (splits.count(key) && sp.train_end > sp.train_begin)
+        throw SpecError(FileLoc{(o.data_dir / file).string()}, "--held-out",
+                        "the run trained on this shard (its split.json holds its content as " +
+                            sp.file + "); held-out frames must be rendered apart");
+      sp.train_begin = sp.train_end = sp.val_begin = 0;
+      sp.val_end = reader.frame_count();
+    }
     den.reset_sequence();
     // The previous scored frame of this shard, for the flicker of (f-1, f).
     int prev_f = -1;
@@ -468,6 +476,7 @@ EvalSummary evaluate(const EvalOptions& o) {
       {"data", o.data_dir.string()},
       {"device", device.str()},
       {"noisy_version", o.version},
+      {"held_out", o.held_out},
       {"checkpoint",
        {{"file", used.checkpoint.string()},
         {"epoch", used.state.epoch},
@@ -506,7 +515,10 @@ EvalSummary evaluate(const EvalOptions& o) {
   std::ofstream md(o.out_dir / "report.md");
   md << "# Denoiser evaluation\n\n"
      << "Run `" << o.run_dir.string() << "`, data `" << o.data_dir.string() << "`, " << done
-     << " validation frames, device " << device.str() << ".\n\n"
+     << (o.held_out ? " held-out frames (`--held-out`: all frames of the data, which the run "
+                      "did not train on)"
+                    : " validation frames")
+     << ", device " << device.str() << ".\n\n"
      << "Checkpoint `" << used.checkpoint.string() << "`: epoch " << used.state.epoch << ", step "
      << used.state.step << ", " << (used.averaged ? "moving average of the" : "trained")
      << " weights, best loss " << cell(used.state.best, 5) << ".\n\n"

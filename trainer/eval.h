@@ -23,6 +23,11 @@ struct EvalOptions {
   // 5.1: table 5.1 averages over each scene's complete set of frames): a
   // second table in the report, "all_frames" in report.json.
   bool all_frames = true;
+  // Every frame of the data is a validation frame: frames rendered apart
+  // from the run's training data (the same sequence's held-out frames at
+  // cleaner references, say). A shard whose content the run's split trained
+  // on is refused.
+  bool held_out = false;
   // Also time the denoise of a side x side frame (the first validation frame
   // repeated periodically to that size), median of `time_reps` runs after
   // one warm-up: "denoise_ms_at_size" in report.json. 0 = off.

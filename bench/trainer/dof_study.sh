@@ -55,7 +55,18 @@
 # blurred window of the K most blurred validation frames (`eval --crops`), the same windows
 # for every configuration, gathered in OUT/crops/ and shown in results.md.
 # --set is passed to every configuration's `train` (e.g. smaller models for
-# a smoke run). Environment: DOFARM_TRAIN (default build/dofarm-train).
+# a smoke run). Environment: DOFARM_TRAIN (default build/dofarm-train),
+# DOFARM (default build/dofarm, for the held-out check).
+#
+# --held-out DIR: a farm output folder of frames that no configuration trains
+# on, rendered with references cleaner than the training shards' (e.g. the
+# study job over frames outside the training range at its own reference
+# setting, while the training shards cap their references: the targets a
+# network learns from may be noisy, the ones it is judged by may not). Every
+# configuration is also evaluated over all of DIR's frames
+# (OUT/reports-held-out/NAME), and results.md gets a second table with the
+# reference ceiling of those frames. Refused when a held-out shard shares a
+# frame with a training shard of the same scene and seed.
 #
 # Resumable: each configuration is its own run folder OUT/runs/NAME (a
 # dofarm-train run, which resumes where it stopped) and its report
@@ -77,6 +88,8 @@ CONFIGS="thesis thesis_nococ default thesis_focus thesis_prefilter thesis_recurr
 SETS=()
 DATA=()
 SEEDS=""
+HELD_OUT=""
+DOFARM=${DOFARM:-$ROOT/build/dofarm}
 PASS=()  # the arguments each seed's study gets (all but --seeds and --out)
 usage() { sed -n '2,54p' "$0" | sed 's/^# \{0,1\}//'; }
 die() { echo "dof_study.sh: $*" >&2; exit 2; }
@@ -89,6 +102,7 @@ while [ $# -gt 0 ]; do
     --crops) CROPS=${2:?}; PASS+=("$1" "$2"); shift 2 ;;
     --configs) CONFIGS=${2:?}; PASS+=("$1" "$2"); shift 2 ;;
     --seeds) SEEDS=${2?}; shift 2 ;;
+    --held-out) HELD_OUT=${2:?}; PASS+=("$1" "$2"); shift 2 ;;
     --set) SETS+=(--set "${2:?}"); PASS+=("$1" "$2"); shift 2 ;;
     -h|--help) usage; exit 0 ;;
     -*) die "unknown option $1 (see --help)" ;;
@@ -105,6 +119,13 @@ command -v python3 > /dev/null || die "python3 is needed for the table and the p
 for d in "${DATA[@]}"; do
   [ -d "$d" ] || die "no data folder $d (render the study set with bench/trainer/render_study.sh)"
 done
+if [ -n "$HELD_OUT" ]; then
+  [ -d "$HELD_OUT" ] || die "--held-out: no data folder $HELD_OUT"
+  [ -x "$DOFARM" ] || die "--held-out: $DOFARM not found (it reads the shards' frames); set DOFARM"
+  HELD_OUT=$(cd "$HELD_OUT" && pwd)
+  python3 "$ROOT/bench/trainer/study_tables.py" held-out-check "$DOFARM" "$HELD_OUT" "${DATA[@]}" ||
+    die "--held-out: $HELD_OUT cannot serve as held-out frames (above)"
+fi
 ABLATION="thesis abl_radiance abl_normal abl_depth abl_coc abl_bottleneck abl_decoder abl_gradloss abl_schedule default"
 for s in $SEEDS; do
   [[ $s =~ ^[0-9]+$ ]] || die "--seeds: expected non-negative integers, got '$s'"
@@ -258,6 +279,21 @@ for c in $CONFIGS; do
       --crops "$CROPS" > /dev/null
     rm -rf "$report"
     mv "$report.tmp" "$report"
+  fi
+  # The held-out frames at clean references: all of them, the same weights.
+  held=$OUT/reports-held-out/$c
+  if [ -n "$HELD_OUT" ]; then
+    if [ -f "$held/report.json" ] && [ "$held/report.json" -nt "$run/checkpoints/last.pt" ]; then
+      echo "dof_study.sh: $c: held-out frames evaluated, not evaluated again"
+    else
+      echo "dof_study.sh: $c: evaluating the held-out frames -> $held"
+      mkdir -p "$OUT/reports-held-out"
+      rm -rf "$held.tmp"
+      "$TRAIN" --log-level warn eval --run "$run" --data "$HELD_OUT" --out "$held.tmp" \
+        --checkpoint last --images 4 --validation-only --held-out --crops "$CROPS" > /dev/null
+      rm -rf "$held"
+      mv "$held.tmp" "$held"
+    fi
   fi
   # The CoC probe (eval --coc-override 0): the same weights fed "everything
   # is sharp"; how much each band loses says how much the model uses its CoC.

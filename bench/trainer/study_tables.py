@@ -5,6 +5,10 @@
       one study's OUT/results.md, results.csv and results.svg from its
       reports (OUT/reports/NAME, and NAME-coc0 where the CoC probe ran) and
       runs (OUT/runs/NAME/loss.csv);
+  study_tables.py held-out-check DOFARM HELD_DIR TRAIN_DIR...
+      exits 1 (saying which) when a shard of HELD_DIR holds a frame that a
+      shard of a TRAIN_DIR of the same scene and seed holds too (read with
+      `DOFARM inspect --json`), or when HELD_DIR has no shard;
   study_tables.py seeds OUT SIDE "S1 S2 ..." NAME=DESCRIPTION...
       the tables across the seeds' studies OUT/seed-S: per configuration the
       mean and the range over the seeds, SSIM by CoC band, the CoC input's
@@ -39,6 +43,83 @@ def write_replacing(path, text):
     with open(path + ".tmp", "w") as f:
         f.write(text)
     os.replace(path + ".tmp", path)
+
+
+def shard_infos(dofarm, folder):
+    """(file, attributes) of every shard of a farm output folder."""
+    import subprocess
+    out = []
+    for name in sorted(os.listdir(folder)):
+        if not name.endswith(".h5"):
+            continue
+        path = os.path.join(folder, name)
+        j = json.loads(subprocess.run([dofarm, "inspect", "--json", path], check=True,
+                                      capture_output=True, text=True).stdout)
+        out.append((path, j["attributes"]))
+    return out
+
+
+def held_out_check(dofarm, held, train_dirs):
+    """0 when no shard of `held` shares a frame with a training shard of the
+    same scene (content hash) and seed; 1, naming both, otherwise."""
+    held_shards = shard_infos(dofarm, held)
+    if not held_shards:
+        print(f"{held}: no shards", file=sys.stderr)
+        return 1
+    bad = 0
+    for d in train_dirs:
+        for tpath, t in shard_infos(dofarm, d):
+            for hpath, h in held_shards:
+                same = (t["scene_hash"], t["seed"]) == (h["scene_hash"], h["seed"])
+                lo = max(t["frame_start"], h["frame_start"])
+                hi = min(t["frame_end"], h["frame_end"])
+                if same and lo <= hi:
+                    print(f"{hpath}: frames {lo}..{hi} are in the training shard {tpath} "
+                          "(same scene and seed)", file=sys.stderr)
+                    bad = 1
+    return bad
+
+
+def held_out_table(out, label):
+    """The table over the held-out frames (OUT/reports-held-out/NAME), or []."""
+    rows = []
+    for c in label:
+        path = os.path.join(out, "reports-held-out", c, "report.json")
+        if os.path.exists(path):
+            rows.append((c, json.load(open(path))))
+    if not rows:
+        return []
+    ceil = rows[0][1].get("reference_ceiling") or {}
+    frames = sorted({f["frame"] for f in rows[0][1].get("frames", []) if "frame" in f})
+    md = ["", "**Held-out frames at clean references** (`--held-out`: frames "
+          + ", ".join(map(str, frames)) + ", which no configuration trained on; the same weights). "
+          f"Reference ceiling of these frames (SSIM of each reference's two halves, a lower bound): {fmt(num(ceil.get('mean_ssim')), '.4f')} "
+          f"(an exact denoiser against these references: {fmt(num(ceil.get('exact_denoiser_mean_ssim')), '.4f')}).", "",
+          "| configuration | SSIM all | SSIM in focus | SSIM out of focus | PSNR all (dB) | PSNR in | "
+          "PSNR out | relMSE all | relMSE in | relMSE out | " +
+          " | ".join(f"SSIM {name}" for _, name in BANDS[1:]) + " |",
+          "| --- " * (11 + len(BANDS) - 1) + "|"]
+    by = {}
+    for c, rep in rows:
+        d = rep["summary"]["denoised"]
+        by[c] = d
+        md.append("| " + " | ".join(
+            [f"`{c}` {label[c]}"] +
+            [fmt(num(d[r]["ssim"]), ".4f") for r in ("all", "in_focus", "out_of_focus")] +
+            [fmt(num(d[r]["psnr"]), ".2f") for r in ("all", "in_focus", "out_of_focus")] +
+            [fmt(num(d[r]["rel_mse"]), ".4f") for r in ("all", "in_focus", "out_of_focus")] +
+            [fmt(num(d.get(r, {}).get("ssim")), ".4f") for r, _ in BANDS[1:]]) + " |")
+    for c in label:
+        if c in by and c + "_nococ" in by:
+            a, b = by[c], by[c + "_nococ"]
+            diff = lambda r, k: num(a.get(r, {}).get(k)) - num(b.get(r, {}).get(k))
+            md.append("| " + " | ".join(
+                [f"CoC input: `{c}` − `{c}_nococ`"] +
+                [fmt(diff(r, "ssim"), "+.4f") for r in ("all", "in_focus", "out_of_focus")] +
+                [fmt(diff(r, "psnr"), "+.2f") for r in ("all", "in_focus", "out_of_focus")] +
+                [fmt(diff(r, "rel_mse"), "+.4f") for r in ("all", "in_focus", "out_of_focus")] +
+                [fmt(diff(r, "ssim"), "+.4f") for r, _ in BANDS[1:]]) + " |")
+    return md
 
 
 def one_study(out, side, label):
@@ -160,8 +241,10 @@ def one_study(out, side, label):
                 cells.append(f"![]({copy(c, same[0]['denoised'], f'{stem}-{c}.png')})" if same else "–")
             cells.append(f"![]({copy(configs[0], w['reference'], stem + '-reference.png')})")
             crops_md.append("| " + " | ".join(cells) + " |")
+    held_md = held_out_table(out, label)
     write_replacing(os.path.join(out, "results.md"),
-                    "\n".join(md) + "\n" + note + "\n".join(coc_md) + "\n" + "\n".join(crops_md) + "\n")
+                    "\n".join(md) + "\n" + note + "\n".join(coc_md) + "\n" + "\n".join(held_md) +
+                    "\n" + "\n".join(crops_md) + "\n")
 
     # Plot: 1 - SSIM (all pixels) against ms per frame, one labelled point each.
     W, H, L, R, T, B = 720, 440, 80, 250, 40, 60
@@ -198,7 +281,7 @@ def one_study(out, side, label):
             svg.append(f'<text x="{W - R + 30}" y="{T + 14 + 20 * i}">{label[name]}</text>')
     svg.append("</svg>")
     write_replacing(os.path.join(out, "results.svg"), "\n".join(svg) + "\n")
-    print("\n".join(md) + "\n" + note + "\n".join(coc_md) + "\n")
+    print("\n".join(md) + "\n" + note + "\n".join(coc_md) + "\n" + "\n".join(held_md) + "\n")
     print(f"dof_study.sh: {out}/results.md, results.csv, results.svg")
 
 
@@ -294,9 +377,12 @@ def across_seeds(out, side, seeds, label):
 
 def main(argv):
     usage = ("usage: study_tables.py study OUT SIDE NAME=DESCRIPTION... | "
+             "held-out-check DOFARM HELD_DIR TRAIN_DIR... | "
              "seeds OUT SIDE \"S1 S2 ...\" NAME=DESCRIPTION...")
     if len(argv) >= 4 and argv[1] == "study":
         one_study(argv[2], int(argv[3]), dict(arg.split("=", 1) for arg in argv[4:]))
+    elif len(argv) >= 5 and argv[1] == "held-out-check":
+        return held_out_check(argv[2], argv[3], argv[4:])
     elif len(argv) >= 5 and argv[1] == "seeds":
         across_seeds(argv[2], int(argv[3]), argv[4].split(),
                      dict(arg.split("=", 1) for arg in argv[5:]))

@@ -60,6 +60,54 @@ TEST(Eval, ReportHasEveryFrameAndBeatsTheNoisyInput) {
   EXPECT_TRUE(j["denoise_ms_at_size"].is_null());  // not asked for
 }
 
+// --held-out: every frame of a folder the run did not train on is scored as
+// a validation frame (the run's own split would make a fresh shard's last
+// sequence validation, or none); a folder holding a shard the run trained on
+// is refused before anything is written.
+TEST(Eval, HeldOutScoresEveryFrameOfAnUnseenShardAndRefusesATrainedOne) {
+  const fs::path held = fresh_dir("eval_held_out_data");
+  testing::write_synthetic_shard(held / "shard-00000.h5", 5, 64, 64, 3, 9, 40);
+  const fs::path out = fresh_dir("eval_held_out");
+  EvalOptions e{trained_run(), held, out / "report", 0, 0, 0};
+  e.held_out = true;
+  e.all_frames = false;
+  const EvalSummary s = evaluate(e);
+  EXPECT_EQ(s.frames, 5);
+  std::ifstream in(out / "report" / "report.json");
+  const nlohmann::json j = nlohmann::json::parse(in);
+  EXPECT_EQ(j["held_out"], true);
+  ASSERT_EQ(j["frames"].size(), 5u);
+  EXPECT_EQ(j["frames"][0]["frame"], 40);
+  EXPECT_EQ(j["frames"][4]["frame"], 44);
+
+  // Without the flag the same folder is split as training data would be:
+  // fewer frames (here none, so eval says so).
+  EvalOptions plain = e;
+  plain.held_out = false;
+  plain.out_dir = out / "plain";
+  int plain_frames = -1;
+  try {
+    plain_frames = evaluate(plain).frames;
+  } catch (const SpecError&) {
+    plain_frames = 0;
+  }
+  EXPECT_LT(plain_frames, 5);
+
+  // The run's own training shard is refused, naming the flag.
+  EvalOptions trained = e;
+  trained.data_dir = shared_data();
+  trained.out_dir = out / "trained";
+  try {
+    evaluate(trained);
+    FAIL() << "a shard the run trained on was accepted as held out";
+  } catch (const SpecError& err) {
+    EXPECT_NE(std::string(err.what()).find("--held-out"), std::string::npos) << err.what();
+    EXPECT_NE(std::string(err.what()).find("trained on this shard"), std::string::npos)
+        << err.what();
+  }
+  EXPECT_FALSE(fs::exists(out / "trained" / "report.json"));
+}
+
 // Full-frame validation (train.val_frames): each epoch's val_frame_ssim and
 // val_tile_ssim are in (0, 1], full_frame_ssim over all validation frames
 // equals what eval scores on them with the same weights, and the tiles'
