@@ -19,8 +19,17 @@ namespace dofarm::trainer {
 Precision parse_precision(const std::string& name, const std::string& key);
 const char* precision_name(Precision p);
 
-// Whether `p` changes anything on `device` (bf16 autocast is the CPU's only;
-// on CUDA the network runs in float32 and the caller says so once).
+// Whether this CPU runs bf16 convolutions in hardware (AVX-512 BF16 or
+// AMX-BF16). Without, libtorch emulates them: on a Zen 3 EPYC (AVX2 only)
+// 16x slower than fp32 per training step and 27x per denoised frame, with
+// gradients at cosine 0.91 to fp32's (docs/trainer.md, "bfloat16 on the
+// CPU"). The environment variable DOFARM_BF16_EMULATED=1 makes bf16 apply
+// anyway (to measure that path).
+bool cpu_runs_bf16_natively();
+bool bf16_emulation_forced();
+// Whether `p` changes anything on `device`: bf16 autocast is the CPU's only
+// (on CUDA the network runs in float32), and only on a CPU that runs bf16
+// natively or with DOFARM_BF16_EMULATED=1; elsewhere the caller says so once.
 bool autocast_applies(Precision p, torch::Device device);
 // Says once, naming `key`, that `p` is not applied on `device`.
 void warn_if_not_applied(Precision p, torch::Device device, const std::string& key);

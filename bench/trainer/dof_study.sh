@@ -65,7 +65,9 @@
 # network learns from may be noisy, the ones it is judged by may not). Every
 # configuration is also evaluated over all of DIR's frames
 # (OUT/reports-held-out/NAME), and results.md gets a second table with the
-# reference ceiling of those frames. Refused when a held-out shard shares a
+# reference ceiling of those frames. With --set data.val_fraction=0 (every
+# rendered frame trains) the held-out frames are what the main table, the
+# crops and the CoC probe score. Refused when a held-out shard shares a
 # frame with a training shard of the same scene and seed.
 #
 # Resumable: each configuration is its own run folder OUT/runs/NAME (a
@@ -264,6 +266,18 @@ for c in $CONFIGS; do
     echo "steps $TOTAL" > "$run/study.done.tmp"
     mv "$run/study.done.tmp" "$run/study.done"
   fi
+  # What the main table scores: the run's validation frames, or, for a run
+  # without any (data.val_fraction = 0, to train on every rendered frame),
+  # the held-out frames.
+  if python3 -c 'import json, sys; sys.exit(0 if any(v["val"][1] > v["val"][0] for v in json.load(open(sys.argv[1]))["shards"].values()) else 1)' "$run/split.json"; then
+    score=(--data "$DATA_DIR" --validation-only)
+    held_separately=1
+  else
+    [ -n "$HELD_OUT" ] ||
+      die "$c: the run has no validation frames (data.val_fraction = 0?) and there is no --held-out folder to score"
+    score=(--data "$HELD_OUT" --validation-only --held-out)
+    held_separately=0
+  fi
   # A report is made again when its run has trained since, or when it is from
   # before the scores by circle of confusion (no "pixel_share").
   if [ -f "$report/report.json" ] && [ "$report/report.json" -nt "$run/checkpoints/last.pt" ] &&
@@ -274,15 +288,14 @@ for c in $CONFIGS; do
     rm -rf "$report.tmp"
     # The last weights: every configuration after the same number of steps
     # (best.pt would pick each by its own criterion).
-    "$TRAIN" --log-level warn eval --run "$run" --data "$DATA_DIR" --out "$report.tmp" \
-      --checkpoint last --images 4 --validation-only --time-size "$TIME_SIZE" \
-      --crops "$CROPS" > /dev/null
+    "$TRAIN" --log-level warn eval --run "$run" "${score[@]}" --out "$report.tmp" \
+      --checkpoint last --images 4 --time-size "$TIME_SIZE" --crops "$CROPS" > /dev/null
     rm -rf "$report"
     mv "$report.tmp" "$report"
   fi
   # The held-out frames at clean references: all of them, the same weights.
   held=$OUT/reports-held-out/$c
-  if [ -n "$HELD_OUT" ]; then
+  if [ -n "$HELD_OUT" ] && [ "$held_separately" = 1 ]; then
     if [ -f "$held/report.json" ] && [ "$held/report.json" -nt "$run/checkpoints/last.pt" ]; then
       echo "dof_study.sh: $c: held-out frames evaluated, not evaluated again"
     else
@@ -304,8 +317,8 @@ for c in $CONFIGS; do
   else
     echo "dof_study.sh: $c: CoC probe (fed CoC 0) -> $probe"
     rm -rf "$probe.tmp"
-    "$TRAIN" --log-level warn eval --run "$run" --data "$DATA_DIR" --out "$probe.tmp" \
-      --checkpoint last --images 0 --validation-only --crops 0 --coc-override 0 > /dev/null
+    "$TRAIN" --log-level warn eval --run "$run" "${score[@]}" --out "$probe.tmp" \
+      --checkpoint last --images 0 --crops 0 --coc-override 0 > /dev/null
     rm -rf "$probe"
     mv "$probe.tmp" "$probe"
   fi

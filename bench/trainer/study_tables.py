@@ -175,7 +175,15 @@ def one_study(out, side, label):
             fmt(r[f"ms_per_{side}px_frame"], ".0f"), str(r["steps"]), fmt(r["train_seconds"], ".0f"),
         ]) + " |")
     frames = sorted({r["frames"] for r in rows})
-    note = (f"\nValidation frames: {', '.join(map(str, frames))}; weights after the last step. "
+    first_report = json.load(open(os.path.join(out, "reports", configs[0], "report.json")))
+    held = bool(first_report.get("held_out"))
+    ceil = first_report.get("reference_ceiling") or {}
+    kind = ("Held-out frames (`eval --held-out`: frames no configuration trained on, "
+            "rendered apart)" if held else "Validation frames")
+    note = (f"\n{kind}: {', '.join(map(str, frames))}; weights after the last step. "
+            "Reference ceiling of these frames (SSIM of each reference's two halves, a lower "
+            f"bound): {fmt(num(ceil.get('mean_ssim')), '.4f')}; an exact denoiser against these "
+            f"references: {fmt(num(ceil.get('exact_denoiser_mean_ssim')), '.4f')}. "
             "SSIM and PSNR on sRGB clamped to [0, 1]; relative MSE and flicker on linear HDR "
             "(docs/trainer.md, \"Evaluation\"). In focus: CoC < 1 px.\n")
     # SSIM by circle of confusion, and what the CoC input adds in each band where

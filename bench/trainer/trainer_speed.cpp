@@ -271,6 +271,14 @@ int main(int argc, char** argv) {
       "bf16, median of %d\n\n",
       dev.str().c_str(), torch::get_num_threads(), replicas_for(o, dev, Precision::kFp32),
       replicas_for(o, dev, Precision::kBf16), o.reps);
+  // What a bf16 row measures (trainer/precision.h): hardware bf16, libtorch's
+  // emulation (forced), or fp32 again (bf16 is not applied on this CPU).
+  if (std::find(o.precisions.begin(), o.precisions.end(), Precision::kBf16) != o.precisions.end())
+    std::printf("bf16 rows: %s\n\n",
+                !autocast_applies(Precision::kBf16, dev) ? "not applied (no AVX-512 BF16 or AMX "
+                                                           "on this CPU): they run fp32"
+                : cpu_runs_bf16_natively()               ? "AVX-512 BF16 / AMX"
+                                                         : "emulated (DOFARM_BF16_EMULATED=1)");
   if (o.kernels) kernels(o, dev);
   if (!o.loop_shard.empty()) loop(o, dev);
   return 0;

@@ -39,15 +39,20 @@ std::vector<std::string> split(const std::string& line, char sep) {
 }
 
 int run_study(const fs::path& data, const fs::path& out, const fs::path& log,
-              const std::string& configs = "", const std::string& extra = "") {
+              const std::string& configs = "", const std::string& extra = "",
+              const std::string& last = "") {
   const std::string cmd =
-      std::string("DOFARM_TRAIN=") + DOFARM_TRAIN_EXE + " bash " + DOFARM_SOURCE_DIR +
+      std::string("DOFARM_TRAIN=") + DOFARM_TRAIN_EXE +
+#ifdef DOFARM_EXE
+      " DOFARM=" + DOFARM_EXE +
+#endif
+      " bash " + DOFARM_SOURCE_DIR +
       "/bench/trainer/dof_study.sh --steps 2 --epochs 1 --time-size 64 --out " + out.string() +
       (configs.empty() ? "" : " --configs '" + configs + "'") + extra +
       " --set 'model.channels=[8, 8, 8, 8, 8]' --set data.crop=32 --set data.sequence=3"
       " --set data.val_fraction=0.25 --set data.readers=1 --set data.queue=4"
       " --set train.batch=2 --set train.val_sequences=1 --set train.device=cpu " +
-      data.string() + " > " + log.string() + " 2>&1";
+      last + " " + data.string() + " > " + log.string() + " 2>&1";
   const int rc = std::system(cmd.c_str());
   return WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
 }
@@ -146,6 +151,62 @@ TEST(Study, OneCommandScoresEveryConfigurationAndResumes) {
     EXPECT_EQ(fs::last_write_time(out / "runs" / c / "checkpoints" / "last.pt"), before[c]) << c;
   }
   EXPECT_EQ(read_all(out / "results.md"), md);  // the same table again
+}
+
+// --held-out: every configuration is also scored on all frames of a folder
+// it did not train on, in a second table with those frames' reference
+// ceiling and the CoC input's gain; with data.val_fraction = 0 the held-out
+// frames are what the main table scores. A folder sharing a frame with the
+// training shards (same scene and seed) is refused before anything trains.
+TEST(Study, HeldOutFramesAreScoredApartAndMayNotOverlapTheTrainingFrames) {
+#ifndef DOFARM_EXE
+  GTEST_SKIP() << "a trainer-only build has no dofarm to read the shards with";
+#else
+  const fs::path dir = testing::scratch_dir("study_held_out");
+  fs::create_directories(dir / "data");
+  fs::create_directories(dir / "held");
+  fs::create_directories(dir / "overlap");
+  testing::write_synthetic_shard(dir / "data" / "shard-00000.h5", 12, 64, 64, 2, 5);
+  testing::write_synthetic_shard(dir / "held" / "shard-00000.h5", 4, 64, 64, 2, 5, 20);
+  testing::write_synthetic_shard(dir / "overlap" / "shard-00000.h5", 4, 64, 64, 2, 5, 10);
+
+  const std::string pair = "default default_nococ";
+  EXPECT_EQ(run_study(dir / "data", dir / "refused", dir / "refused.log", pair,
+                      " --held-out " + (dir / "overlap").string()),
+            2);
+  const std::string refused = read_all(dir / "refused.log");
+  EXPECT_NE(refused.find("frames 10..11 are in the training shard"), std::string::npos) << refused;
+  EXPECT_FALSE(fs::exists(dir / "refused" / "runs"));
+
+  const fs::path out = dir / "out";
+  ASSERT_EQ(run_study(dir / "data", out, dir / "held.log", pair,
+                      " --held-out " + (dir / "held").string()),
+            0)
+      << read_all(dir / "held.log");
+  const std::string md = read_all(out / "results.md");
+  EXPECT_NE(md.find("Validation frames: 3"), std::string::npos) << md;
+  EXPECT_NE(md.find("**Held-out frames at clean references** (`--held-out`: frames 20, 21, 22, 23"),
+            std::string::npos)
+      << md;
+  EXPECT_NE(md.find("| `default_nococ` (c) without CoC input | "), std::string::npos) << md;
+  EXPECT_NE(md.find("| CoC input: `default` − `default_nococ` | "), std::string::npos) << md;
+  for (const char* c : {"default", "default_nococ"}) {
+    const std::string rep = read_all(out / "reports-held-out" / c / "report.json");
+    EXPECT_NE(rep.find("\"held_out\": true"), std::string::npos) << c;
+  }
+
+  // Every rendered frame trains: the held-out frames are the main table's.
+  const fs::path all = dir / "all";
+  ASSERT_EQ(run_study(dir / "data", all, dir / "all.log", pair,
+                      " --held-out " + (dir / "held").string(), "--set data.val_fraction=0"),
+            0)
+      << read_all(dir / "all.log");
+  const std::string all_md = read_all(all / "results.md");
+  EXPECT_NE(all_md.find("Held-out frames (`eval --held-out`"), std::string::npos) << all_md;
+  EXPECT_EQ(all_md.find("**Held-out frames at clean references**"), std::string::npos) << all_md;
+  EXPECT_TRUE(fs::exists(all / "reports" / "default-coc0" / "report.json"));
+  EXPECT_FALSE(fs::exists(all / "reports-held-out"));
+#endif
 }
 
 // --seeds: one study per seed in OUT/seed-S, trained with that seed, and the

@@ -179,7 +179,17 @@ TEST(StepRunner, ReplicaCountFollowsTheConfigDeviceThreadsAndBatch) {
 // before. Each replica thread runs under the same autocast: the split step
 // equals its two parts computed one by one in bf16 at the replicas' thread
 // count (a replica left in fp32 would differ at bf16's 3e-3 level).
+// Where the CPU has no bf16 hardware, bf16 runs through libtorch's
+// emulation, whose gradients are further from fp32's (cosine 0.91 on a Zen
+// 3 EPYC against > 0.99 with AVX-512 BF16): the test forces it
+// (DOFARM_BF16_EMULATED) and bounds it by what was measured there.
+struct ForceBf16 {
+  ForceBf16() { ::setenv("DOFARM_BF16_EMULATED", "1", 1); }
+  ~ForceBf16() { ::unsetenv("DOFARM_BF16_EMULATED"); }
+};
+
 TEST(Precision, Bf16StepIsCloseToFp32InEveryReplica) {
+  const ForceBf16 force;
   const int threads_before = at::get_num_threads();
   ModelConfig mc;
   mc.channels = {8, 12, 12, 16, 16};
@@ -199,7 +209,7 @@ TEST(Precision, Bf16StepIsCloseToFp32InEveryReplica) {
   for (const auto& p : m->parameters()) EXPECT_EQ(p.grad().scalar_type(), torch::kFloat);
   EXPECT_NEAR(b.loss, f.loss, 0.02 * f.loss);
   const double cosine = (gf * gb).sum().item<double>() / (gf.norm() * gb.norm()).item<double>();
-  EXPECT_GT(cosine, 0.99);
+  EXPECT_GT(cosine, cpu_runs_bf16_natively() ? 0.99 : 0.85);
   EXPECT_GT((gf - gb).abs().max().item<double>(), 1e-4 * gf.abs().max().item<double>());
 
   // The split step against its parts, one by one at one thread each.
@@ -520,7 +530,33 @@ TEST(Denoise, ExrFrameGivesTheSameResultAsTheShardFrame) {
   for (float v : direct) ASSERT_TRUE(std::isfinite(v) && v >= 0.0f);
 }
 
+// bf16 is applied on the CPU only where the CPU runs it in hardware (or
+// when forced): elsewhere asking for it gives fp32's gradients exactly.
+TEST(Precision, Bf16IsNotAppliedWhereTheCpuOnlyEmulatesIt) {
+  ASSERT_FALSE(bf16_emulation_forced());
+  EXPECT_EQ(autocast_applies(Precision::kBf16, torch::kCPU), cpu_runs_bf16_natively());
+  EXPECT_FALSE(autocast_applies(Precision::kFp32, torch::kCPU));
+  EXPECT_FALSE(autocast_applies(Precision::kBf16, torch::Device(torch::kCUDA, 0)));
+  {
+    const ForceBf16 force;
+    EXPECT_TRUE(autocast_applies(Precision::kBf16, torch::kCPU));
+  }
+  ModelConfig mc;
+  mc.channels = {8, 8, 8, 8, 8};
+  torch::manual_seed(3);
+  Denoiser m(mc);
+  Batch batch = random_batch(mc, 2, 3, 32);
+  LossConfig lc;
+  const torch::Tensor kernel = log_kernel(lc.log_sigma);
+  compute_gradients(m, batch, lc, kernel);
+  const torch::Tensor gf = flat_grads(m);
+  compute_gradients(m, batch, lc, kernel, {}, Precision::kBf16);
+  const torch::Tensor gb = flat_grads(m);
+  EXPECT_EQ(torch::equal(gf, gb), !cpu_runs_bf16_natively());
+}
+
 TEST(Precision, Bf16DenoiseIsCloseToFp32AndFinite) {
+  const ForceBf16 force;
   FrameBuffers fb = testing::synthetic_frame(3, 48, 40, 2, 9);
   FrameDenoiser exact(trained_run(), torch::kCPU);
   FrameDenoiser fast(trained_run(), torch::kCPU, "best", Precision::kBf16);
