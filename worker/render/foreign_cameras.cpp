@@ -10,6 +10,7 @@
 #include <iterator>
 #include <map>
 #include <regex>
+#include <type_traits>
 
 #include "common/error.h"
 
@@ -264,49 +265,26 @@ class FbxBinaryParser {
     prop.type = b_[*p];
     const size_t at = *p + 1;
     size_t width = 0;
+    bool ok = true;
     switch (prop.type) {
-      case 'Y': {
-        int16_t v;
-        if (!read_le(b_, at, &v)) return false;
-        prop.i = v;
-        width = 2;
+      case 'Y':
+        ok = take<int16_t>(at, &prop, &width);
         break;
-      }
-      case 'C': {
-        uint8_t v;
-        if (!read_le(b_, at, &v)) return false;
-        prop.i = v;
-        width = 1;
+      case 'C':
+        ok = take<uint8_t>(at, &prop, &width);
         break;
-      }
-      case 'I': {
-        int32_t v;
-        if (!read_le(b_, at, &v)) return false;
-        prop.i = v;
-        width = 4;
+      case 'I':
+        ok = take<int32_t>(at, &prop, &width);
         break;
-      }
-      case 'L': {
-        int64_t v;
-        if (!read_le(b_, at, &v)) return false;
-        prop.i = v;
-        width = 8;
+      case 'L':
+        ok = take<int64_t>(at, &prop, &width);
         break;
-      }
-      case 'F': {
-        float v;
-        if (!read_le(b_, at, &v)) return false;
-        prop.d = v;
-        width = 4;
+      case 'F':
+        ok = take<float>(at, &prop, &width);
         break;
-      }
-      case 'D': {
-        double v;
-        if (!read_le(b_, at, &v)) return false;
-        prop.d = v;
-        width = 8;
+      case 'D':
+        ok = take<double>(at, &prop, &width);
         break;
-      }
       case 'S':
       case 'R': {
         uint32_t len;
@@ -328,12 +306,26 @@ class FbxBinaryParser {
       default:
         return false;
     }
+    if (!ok) return false;
     if (prop.type != 'D' && prop.type != 'F') prop.d = double(prop.i);
     if (width > end - std::min(end, at)) return false;
     *p = at + width;
     if (prop.type != 'f' && prop.type != 'd' && prop.type != 'l' && prop.type != 'i' &&
         prop.type != 'b')
       out->push_back(std::move(prop));
+    return true;
+  }
+
+  // A number of type T at `at` into prop (i for integers, d for reals).
+  template <typename T>
+  bool take(size_t at, FbxNode::Property* prop, size_t* width) {
+    T v;
+    if (!read_le(b_, at, &v)) return false;
+    if constexpr (std::is_floating_point_v<T>)
+      prop->d = double(v);
+    else
+      prop->i = int64_t(v);
+    *width = sizeof(T);
     return true;
   }
 
