@@ -247,6 +247,18 @@ EvalSummary evaluate(const EvalOptions& o) {
   std::map<std::string, ShardSplit> splits, legacy;  // by content key / by file
   for (const ShardSplit& sp : load_split_file(o.run_dir))
     (sp.key.empty() ? legacy[sp.file] : splits[sp.key]) = sp;
+  // Held-out frames are checked by content. A split from before content keys
+  // (split.json version 1) names the shards the run trained on by file name
+  // only, and a name proves nothing: refuse rather than trust it.
+  if (o.held_out)
+    for (const auto& [file, sp] : legacy)
+      if (sp.train_end > sp.train_begin)
+        throw SpecError(FileLoc{(o.run_dir / "split.json").string()}, "--held-out",
+                        "the run's split (version 1) names the shards it trained on by file "
+                        "name only (\"" +
+                            file +
+                            "\"), so no shard can be shown to be apart "
+                            "from them; --held-out needs a split keyed by content (version 2)");
   struct Strip {
     std::string shard;
     int frame, width, height;

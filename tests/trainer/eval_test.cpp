@@ -106,6 +106,33 @@ TEST(Eval, HeldOutScoresEveryFrameOfAnUnseenShardAndRefusesATrainedOne) {
         << err.what();
   }
   EXPECT_FALSE(fs::exists(out / "trained" / "report.json"));
+
+  // A run whose split.json is from before content keys (version 1: shards
+  // by file name) cannot show that a shard is apart from its training data,
+  // whatever the shard's name: refused, naming the split file.
+  const fs::path legacy_run = out / "legacy_run";
+  fs::copy(trained_run(), legacy_run, fs::copy_options::recursive);
+  nlohmann::json v2;
+  {
+    std::ifstream sin(legacy_run / "split.json");
+    v2 = nlohmann::json::parse(sin);
+  }
+  nlohmann::json v1 = {{"mode", v2["mode"]}, {"shards", nlohmann::json::object()}};
+  for (const auto& [key, sh] : v2["shards"].items())
+    v1["shards"][sh["file"].get<std::string>()] = {
+        {"frames", sh["frames"]}, {"train", sh["train"]}, {"val", sh["val"]}};
+  std::ofstream(legacy_run / "split.json") << v1.dump();
+  EvalOptions old_split = e;
+  old_split.run_dir = legacy_run;
+  old_split.out_dir = out / "legacy";
+  try {
+    evaluate(old_split);
+    FAIL() << "a version-1 split was trusted by file name";
+  } catch (const SpecError& err) {
+    EXPECT_NE(std::string(err.what()).find("split.json"), std::string::npos) << err.what();
+    EXPECT_NE(std::string(err.what()).find("version 1"), std::string::npos) << err.what();
+  }
+  EXPECT_FALSE(fs::exists(out / "legacy" / "report.json"));
 }
 
 // Full-frame validation (train.val_frames): each epoch's val_frame_ssim and
