@@ -37,7 +37,7 @@
 #
 #   bench/trainer/dof_study.sh [--steps N] [--out DIR] [--epochs E] [--time-size S] [--crops K]
 #                              [--configs "thesis default ..."] [--seeds "1 2 3"]
-#                              [--set KEY=VALUE]... [DATA_DIR...]
+#                              [--held-out DIR]... [--set KEY=VALUE]... [DATA_DIR...]
 #
 # --seeds: run the whole study once per training seed, each a study of its
 # own in OUT/seed-S (with --set train.seed=S; its own table), and write the
@@ -68,7 +68,11 @@
 # reference ceiling of those frames. With --set data.val_fraction=0 (every
 # rendered frame trains) the held-out frames are what the main table, the
 # crops and the CoC probe score. Refused when a held-out shard shares a
-# frame with a training shard of the same scene and seed.
+# frame with a training shard of the same scene and seed. --held-out may be
+# given several times (e.g. one `dofarm run` per held-out frame): the
+# folders are joined in OUT/held-out-data by symbolic links. When the set of
+# held-out shards changes (a folder more, a shard rendered again), every
+# report that scored them is made again (OUT/held-out.sig lists them).
 #
 # Resumable: each configuration is its own run folder OUT/runs/NAME (a
 # dofarm-train run, which resumes where it stopped) and its report
@@ -91,6 +95,7 @@ SETS=()
 DATA=()
 SEEDS=""
 HELD_OUT=""
+HELD_DIRS=()
 DOFARM=${DOFARM:-$ROOT/build/dofarm}
 PASS=()  # the arguments each seed's study gets (all but --seeds and --out)
 usage() { sed -n '2,54p' "$0" | sed 's/^# \{0,1\}//'; }
@@ -104,7 +109,7 @@ while [ $# -gt 0 ]; do
     --crops) CROPS=${2:?}; PASS+=("$1" "$2"); shift 2 ;;
     --configs) CONFIGS=${2:?}; PASS+=("$1" "$2"); shift 2 ;;
     --seeds) SEEDS=${2?}; shift 2 ;;
-    --held-out) HELD_OUT=${2:?}; PASS+=("$1" "$2"); shift 2 ;;
+    --held-out) HELD_DIRS+=("${2:?}"); PASS+=("$1" "$2"); shift 2 ;;
     --set) SETS+=(--set "${2:?}"); PASS+=("$1" "$2"); shift 2 ;;
     -h|--help) usage; exit 0 ;;
     -*) die "unknown option $1 (see --help)" ;;
@@ -121,10 +126,30 @@ command -v python3 > /dev/null || die "python3 is needed for the table and the p
 for d in "${DATA[@]}"; do
   [ -d "$d" ] || die "no data folder $d (render the study set with bench/trainer/render_study.sh)"
 done
+for d in "${HELD_DIRS[@]}"; do
+  [ -d "$d" ] || die "--held-out: no data folder $d"
+done
+if [ ${#HELD_DIRS[@]} -eq 1 ] && [ -z "$SEEDS" ]; then
+  HELD_OUT=$(cd "${HELD_DIRS[0]}" && pwd)
+elif [ ${#HELD_DIRS[@]} -gt 0 ] && [ -z "$SEEDS" ]; then
+  # Several folders: one folder of links, made afresh so that a folder left
+  # out this time is not scored. Each link is named by the folder's place
+  # in the argument list, as held-out folders often share a name (cornell).
+  HELD_OUT=$OUT/held-out-data
+  rm -rf "$HELD_OUT"
+  mkdir -p "$HELD_OUT"
+  i=0
+  for d in "${HELD_DIRS[@]}"; do
+    abs=$(cd "$d" && pwd)
+    for s in "$abs"/*.h5; do
+      [ -e "$s" ] || continue
+      ln -s "$s" "$HELD_OUT/$i-$(basename "$abs")-$(basename "$s")"
+    done
+    i=$((i + 1))
+  done
+fi
 if [ -n "$HELD_OUT" ]; then
-  [ -d "$HELD_OUT" ] || die "--held-out: no data folder $HELD_OUT"
   [ -x "$DOFARM" ] || die "--held-out: $DOFARM not found (it reads the shards' frames); set DOFARM"
-  HELD_OUT=$(cd "$HELD_OUT" && pwd)
   python3 "$ROOT/bench/trainer/study_tables.py" held-out-check "$DOFARM" "$HELD_OUT" "${DATA[@]}" ||
     die "--held-out: $HELD_OUT cannot serve as held-out frames (above)"
 fi
@@ -218,6 +243,30 @@ if [ -n "$SEEDS" ]; then
   for c in $CONFIGS; do described+=("$c=$(describe "$c")"); done
   python3 "$ROOT/bench/trainer/study_tables.py" seeds "$OUT" "$TIME_SIZE" "$SEEDS" "${described[@]}"
   exit 0
+fi
+
+# Reports of held-out frames stand for the set they scored: when that set
+# changes (a folder more or less, a shard rendered again), they go.
+if [ -n "$HELD_OUT" ]; then
+  sig=$(for s in "$HELD_OUT"/*.h5; do
+    [ -e "$s" ] || continue
+    r=$(readlink -f "$s")
+    echo "$r $(stat -c '%s %Y' "$r")"
+  done)
+  if [ ! -f "$OUT/held-out.sig" ] || [ "$(cat "$OUT/held-out.sig")" != "$sig" ]; then
+    stale=()
+    [ -d "$OUT/reports-held-out" ] && stale+=("$OUT/reports-held-out")
+    for r in "$OUT"/reports/*/report.json; do
+      [ -f "$r" ] && grep -q '"held_out": true' "$r" && stale+=("$(dirname "$r")")
+    done
+    if [ ${#stale[@]} -gt 0 ]; then
+      echo "dof_study.sh: the held-out frames changed; their reports are made again"
+      rm -rf "${stale[@]}"
+    fi
+    mkdir -p "$OUT"
+    printf '%s\n' "$sig" > "$OUT/held-out.sig.tmp"
+    mv "$OUT/held-out.sig.tmp" "$OUT/held-out.sig"
+  fi
 fi
 
 [ "$EPOCHS" -le "$STEPS" ] || EPOCHS=$STEPS

@@ -206,6 +206,34 @@ TEST(Study, HeldOutFramesAreScoredApartAndMayNotOverlapTheTrainingFrames) {
   EXPECT_EQ(all_md.find("**Held-out frames at clean references**"), std::string::npos) << all_md;
   EXPECT_TRUE(fs::exists(all / "reports" / "default-coc0" / "report.json"));
   EXPECT_FALSE(fs::exists(all / "reports-held-out"));
+  EXPECT_NE(all_md.find("rendered apart): 4;"), std::string::npos) << all_md;
+
+  // A second held-out folder of the same name (one `dofarm run` per frame
+  // range): both are scored, and the reports of the first set are made again.
+  fs::create_directories(dir / "more" / "held");
+  testing::write_synthetic_shard(dir / "more" / "held" / "shard-00000.h5", 3, 64, 64, 2, 5, 30);
+  ASSERT_EQ(run_study(dir / "data", all, dir / "two.log", pair,
+                      " --held-out " + (dir / "held").string() + " --held-out " +
+                          (dir / "more" / "held").string(),
+                      "--set data.val_fraction=0"),
+            0)
+      << read_all(dir / "two.log");
+  const std::string two_log = read_all(dir / "two.log");
+  EXPECT_NE(two_log.find("the held-out frames changed"), std::string::npos) << two_log;
+  EXPECT_EQ(two_log.find("default: training"), std::string::npos) << two_log;
+  const std::string two_md = read_all(all / "results.md");
+  EXPECT_NE(two_md.find("rendered apart): 7;"), std::string::npos) << two_md;
+  EXPECT_TRUE(fs::exists(all / "held-out-data" / "0-held-shard-00000.h5"));
+  EXPECT_TRUE(fs::exists(all / "held-out-data" / "1-held-shard-00000.h5"));
+  // The same set again: nothing is evaluated again.
+  ASSERT_EQ(run_study(dir / "data", all, dir / "again.log", pair,
+                      " --held-out " + (dir / "held").string() + " --held-out " +
+                          (dir / "more" / "held").string(),
+                      "--set data.val_fraction=0"),
+            0)
+      << read_all(dir / "again.log");
+  const std::string again = read_all(dir / "again.log");
+  EXPECT_EQ(again.find("evaluating"), std::string::npos) << again;
 #endif
 }
 
