@@ -129,6 +129,24 @@ done
 for d in "${HELD_DIRS[@]}"; do
   [ -d "$d" ] || die "--held-out: no data folder $d"
 done
+# join_shards DEST named|numbered DIR...: links in DEST to every shard of
+# the DIRs, named FOLDER-SHARD (numbered: I-FOLDER-SHARD, I the DIR's place
+# in the list, for folders that share a name).
+join_shards() {
+  local dest=$1 how=$2 i=0 d abs s name
+  shift 2
+  mkdir -p "$dest"
+  for d in "$@"; do
+    abs=$(cd "$d" && pwd)
+    for s in "$abs"/*.h5; do
+      [ -e "$s" ] || continue
+      name=$(basename "$abs")-$(basename "$s")
+      [ "$how" = numbered ] && name=$i-$name
+      ln -sfn "$s" "$dest/$name"
+    done
+    i=$((i + 1))
+  done
+}
 if [ ${#HELD_DIRS[@]} -eq 1 ] && [ -z "$SEEDS" ]; then
   HELD_OUT=$(cd "${HELD_DIRS[0]}" && pwd)
 elif [ ${#HELD_DIRS[@]} -gt 0 ] && [ -z "$SEEDS" ]; then
@@ -137,16 +155,7 @@ elif [ ${#HELD_DIRS[@]} -gt 0 ] && [ -z "$SEEDS" ]; then
   # in the argument list, as held-out folders often share a name (cornell).
   HELD_OUT=$OUT/held-out-data
   rm -rf "$HELD_OUT"
-  mkdir -p "$HELD_OUT"
-  i=0
-  for d in "${HELD_DIRS[@]}"; do
-    abs=$(cd "$d" && pwd)
-    for s in "$abs"/*.h5; do
-      [ -e "$s" ] || continue
-      ln -s "$s" "$HELD_OUT/$i-$(basename "$abs")-$(basename "$s")"
-    done
-    i=$((i + 1))
-  done
+  join_shards "$HELD_OUT" numbered "${HELD_DIRS[@]}"
 fi
 if [ -n "$HELD_OUT" ]; then
   [ -x "$DOFARM" ] || die "--held-out: $DOFARM not found (it reads the shards' frames); set DOFARM"
@@ -280,14 +289,7 @@ if [ ${#DATA[@]} -eq 1 ]; then
   DATA_DIR=$(cd "${DATA[0]}" && pwd)
 else
   DATA_DIR=$OUT/data
-  mkdir -p "$DATA_DIR"
-  for d in "${DATA[@]}"; do
-    abs=$(cd "$d" && pwd)
-    for s in "$abs"/*.h5; do
-      [ -e "$s" ] || continue
-      ln -sfn "$s" "$DATA_DIR/$(basename "$abs")-$(basename "$s")"
-    done
-  done
+  join_shards "$DATA_DIR" named "${DATA[@]}"
 fi
 
 
