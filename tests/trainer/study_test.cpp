@@ -212,12 +212,14 @@ TEST(Study, HeldOutFramesAreScoredApartAndMayNotOverlapTheTrainingFrames) {
   // range): both are scored, and the reports of the first set are made again.
   fs::create_directories(dir / "more" / "held");
   testing::write_synthetic_shard(dir / "more" / "held" / "shard-00000.h5", 3, 64, 64, 2, 5, 30);
-  ASSERT_EQ(run_study(dir / "data", all, dir / "two.log", pair,
-                      " --held-out " + (dir / "held").string() + " --held-out " +
-                          (dir / "more" / "held").string(),
-                      "--set data.val_fraction=0"),
-            0)
-      << read_all(dir / "two.log");
+  // Both folders, logged to `log`: the study's exit status.
+  const auto with_both = [&](const fs::path& log) {
+    return run_study(dir / "data", all, log, pair,
+                     " --held-out " + (dir / "held").string() + " --held-out " +
+                         (dir / "more" / "held").string(),
+                     "--set data.val_fraction=0");
+  };
+  ASSERT_EQ(with_both(dir / "two.log"), 0) << read_all(dir / "two.log");
   const std::string two_log = read_all(dir / "two.log");
   EXPECT_NE(two_log.find("the held-out frames changed"), std::string::npos) << two_log;
   EXPECT_EQ(two_log.find("default: training"), std::string::npos) << two_log;
@@ -226,12 +228,7 @@ TEST(Study, HeldOutFramesAreScoredApartAndMayNotOverlapTheTrainingFrames) {
   EXPECT_TRUE(fs::exists(all / "held-out-data" / "0-held-shard-00000.h5"));
   EXPECT_TRUE(fs::exists(all / "held-out-data" / "1-held-shard-00000.h5"));
   // The same set again: nothing is evaluated again.
-  ASSERT_EQ(run_study(dir / "data", all, dir / "again.log", pair,
-                      " --held-out " + (dir / "held").string() + " --held-out " +
-                          (dir / "more" / "held").string(),
-                      "--set data.val_fraction=0"),
-            0)
-      << read_all(dir / "again.log");
+  ASSERT_EQ(with_both(dir / "again.log"), 0) << read_all(dir / "again.log");
   const std::string again = read_all(dir / "again.log");
   EXPECT_EQ(again.find("evaluating"), std::string::npos) << again;
 #endif
