@@ -93,19 +93,26 @@ TEST(Eval, HeldOutScoresEveryFrameOfAnUnseenShardAndRefusesATrainedOne) {
   }
   EXPECT_LT(plain_frames, 5);
 
+  // `opts` is refused with a SpecError that says each of `says`, and
+  // writes no report.
+  const auto expect_refused = [](const EvalOptions& opts, const char* why,
+                                 std::initializer_list<const char*> says) {
+    try {
+      evaluate(opts);
+      ADD_FAILURE() << why;
+    } catch (const SpecError& err) {
+      for (const char* text : says)
+        EXPECT_NE(std::string(err.what()).find(text), std::string::npos) << err.what();
+    }
+    EXPECT_FALSE(fs::exists(opts.out_dir / "report.json"));
+  };
+
   // The run's own training shard is refused, naming the flag.
   EvalOptions trained = e;
   trained.data_dir = shared_data();
   trained.out_dir = out / "trained";
-  try {
-    evaluate(trained);
-    FAIL() << "a shard the run trained on was accepted as held out";
-  } catch (const SpecError& err) {
-    EXPECT_NE(std::string(err.what()).find("--held-out"), std::string::npos) << err.what();
-    EXPECT_NE(std::string(err.what()).find("trained on this shard"), std::string::npos)
-        << err.what();
-  }
-  EXPECT_FALSE(fs::exists(out / "trained" / "report.json"));
+  expect_refused(trained, "a shard the run trained on was accepted as held out",
+                 {"--held-out", "trained on this shard"});
 
   // A run whose split.json is from before content keys (version 1: shards
   // by file name) cannot show that a shard is apart from its training data,
@@ -125,14 +132,8 @@ TEST(Eval, HeldOutScoresEveryFrameOfAnUnseenShardAndRefusesATrainedOne) {
   EvalOptions old_split = e;
   old_split.run_dir = legacy_run;
   old_split.out_dir = out / "legacy";
-  try {
-    evaluate(old_split);
-    FAIL() << "a version-1 split was trusted by file name";
-  } catch (const SpecError& err) {
-    EXPECT_NE(std::string(err.what()).find("split.json"), std::string::npos) << err.what();
-    EXPECT_NE(std::string(err.what()).find("version 1"), std::string::npos) << err.what();
-  }
-  EXPECT_FALSE(fs::exists(out / "legacy" / "report.json"));
+  expect_refused(old_split, "a version-1 split was trusted by file name",
+                 {"split.json", "version 1"});
 }
 
 // Full-frame validation (train.val_frames): each epoch's val_frame_ssim and
