@@ -9,11 +9,15 @@
 //                        --sensor-width MM --focus-distance D] (other renderers' frames)
 //   dofarm-train export --run RUNDIR --out MODEL.pt [--checkpoint ...]
 //
+// A global --threads N sets the intra-op threads (0 = OMP_NUM_THREADS, else
+// every CPU the process may use).
+//
 // Exit status: 0 success, 2 bad input (SpecError, CLI11 parse errors), 1 any
 // other failure, with the error as one line "dofarm-train: error: ..." on
 // stderr; 3 (kExitStopped) when `train` stopped on SIGINT/SIGTERM after
 // finishing its step and writing last.pt (run the same command to resume).
 // A second signal ends the process at once, as the signal's default does.
+#include <ATen/Parallel.h>
 #include <spdlog/spdlog.h>
 
 #include <CLI/CLI.hpp>
@@ -40,6 +44,7 @@
 #include "trainer/inputs.h"
 #include "trainer/precision.h"
 #include "trainer/run_folder.h"
+#include "trainer/step_runner.h"
 #include "trainer/train.h"
 
 namespace dofarm {
@@ -381,8 +386,24 @@ Command add_export(CLI::App& app) {
 
 int run_main(int argc, char** argv) {
   CLI::App app{"dofarm-train: trains and applies the depth-of-field denoiser", "dofarm-train"};
-  return run_cli(app, "dofarm-train", argc, argv, [](CLI::App& a) {
-    return std::vector<Command>{add_train(a), add_eval(a), add_denoise(a), add_export(a)};
+  int threads = 0;
+  return run_cli(app, "dofarm-train", argc, argv, [&threads](CLI::App& a) {
+    a.add_option("--threads", threads,
+                 "intra-op threads of every command; 0 = OMP_NUM_THREADS when set, else the "
+                 "CPUs this process may use (libtorch's own default can be fewer)")
+        ->check(CLI::Range(0, 4096))
+        ->capture_default_str();
+    std::vector<Command> commands{add_train(a), add_eval(a), add_denoise(a), add_export(a)};
+    // Set before the command's first kernel; the train command's replicas
+    // follow from it (train.cpu_replicas).
+    for (Command& c : commands)
+      c.run = [run = std::move(c.run), &threads] {
+        const IntraOpThreads t = choose_intra_op_threads(threads);
+        at::set_num_threads(t.threads);
+        spdlog::info("{} intra-op thread(s) ({})", t.threads, t.source);
+        return run();
+      };
+    return commands;
   });
 }
 

@@ -1,9 +1,12 @@
 #include "trainer/step_runner.h"
 
 #include <ATen/Parallel.h>
+#include <sched.h>
 
+#include <algorithm>
 #include <cmath>
 #include <condition_variable>
+#include <cstdlib>
 #include <exception>
 #include <mutex>
 #include <thread>
@@ -107,6 +110,23 @@ struct StepRunner::Worker {
   bool pending_ = false, busy_ = false, quit_ = false;
   std::thread thread_;  // last: started once the state above exists
 };
+
+int cpus_available() {
+  cpu_set_t set;
+  CPU_ZERO(&set);
+  if (sched_getaffinity(0, sizeof(set), &set) == 0) return std::max(1, CPU_COUNT(&set));
+  return std::max(1u, std::thread::hardware_concurrency());
+}
+
+IntraOpThreads choose_intra_op_threads(int requested) {
+  if (requested > 0) return {requested, "--threads"};
+  if (const char* env = std::getenv("OMP_NUM_THREADS")) {
+    char* end = nullptr;
+    const long n = std::strtol(env, &end, 10);
+    if (end != env && *end == '\0' && n > 0 && n <= 4096) return {int(n), "OMP_NUM_THREADS"};
+  }
+  return {cpus_available(), "CPUs this process may use"};
+}
 
 int step_replicas(int configured, torch::Device device, int threads, int batch,
                   Precision precision) {

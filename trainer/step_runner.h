@@ -6,6 +6,7 @@
 
 #include <functional>
 #include <memory>
+#include <string>
 #include <vector>
 
 #include "trainer/batches.h"
@@ -81,5 +82,19 @@ double clip_gradients(const std::vector<torch::Tensor>& params, double max_norm)
 // than `batch`.
 int step_replicas(int configured, torch::Device device, int threads, int batch,
                   Precision precision = Precision::kFp32);
+
+// The process's intra-op thread count, and where it came from. `requested` >
+// 0 is taken as is; 0 takes OMP_NUM_THREADS when it is set to a positive
+// count, else the CPUs this process may run on (sched_getaffinity: under
+// Slurm, the job's allocation). libtorch's own default is the number of
+// physical cores its cpuinfo finds, which on some virtual machines is 1 of 2
+// (seen on the 2-core build machine: every training step ran on one core).
+struct IntraOpThreads {
+  int threads = 1;
+  std::string source;  // "--threads", "OMP_NUM_THREADS" or "CPUs this process may use"
+};
+IntraOpThreads choose_intra_op_threads(int requested);
+// The CPUs in this process's affinity mask (at least 1).
+int cpus_available();
 
 }  // namespace dofarm::trainer

@@ -3,6 +3,7 @@
 #include <ATen/Parallel.h>
 #include <ATen/autocast_mode.h>
 #include <gtest/gtest.h>
+#include <sched.h>
 #include <spdlog/fmt/fmt.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -668,6 +669,48 @@ TEST(Cli, ThesisPresetByName) {
   EXPECT_EQ(saved.train.schedule, Schedule::kThesis);
   EXPECT_EQ(saved.model.channels, (std::vector<int>{8, 8, 8, 8, 8}));
   EXPECT_TRUE(fs::exists(run / "passes.json"));
+}
+
+// The global --threads sets the intra-op threads of the command (and so the
+// training step's replicas); without it OMP_NUM_THREADS counts where set,
+// else every CPU the process may use: libtorch's own default found 1 core of
+// this machine's 2, and every study run trained on one core.
+TEST(Cli, ThreadsFollowTheOptionTheEnvironmentOrTheCpus) {
+  if (!fs::exists(fs::path(DOFARM_BINARY_DIR) / "dofarm-train")) GTEST_SKIP() << "no binary";
+  const fs::path dir = fresh_dir("cli_threads");
+  int n = 0;
+  auto train = [&](const std::string& env, const std::string& option) {
+    const fs::path run = dir / ("run" + std::to_string(n++)), log = run.string() + ".log";
+    const std::string cmd = env + " " + std::string(DOFARM_BINARY_DIR) + "/dofarm-train " + option +
+                            " --log-level info train --data " + shared_data().string() + " --run " +
+                            run.string() +
+                            " --set 'model.channels=[8, 8, 8, 8, 8]' --set data.crop=32"
+                            " --set data.sequence=3 --set data.readers=1 --set train.epochs=1"
+                            " --set train.steps_per_epoch=2 --set train.val_sequences=1"
+                            " --set train.device=cpu --set train.batch=2 >" +
+                            log.string() + " 2>&1";
+    EXPECT_EQ(std::system(cmd.c_str()), 0) << cmd;
+    std::ifstream in(log);
+    return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  };
+  const std::string by_option = train("env -u OMP_NUM_THREADS", "--threads 2");
+  EXPECT_NE(by_option.find("2 intra-op thread(s) (--threads)"), std::string::npos) << by_option;
+  EXPECT_NE(by_option.find("split across 2 model replicas"), std::string::npos) << by_option;
+  const std::string by_env = train("OMP_NUM_THREADS=1", "");
+  EXPECT_NE(by_env.find("1 intra-op thread(s) (OMP_NUM_THREADS)"), std::string::npos) << by_env;
+  EXPECT_EQ(by_env.find("model replicas"), std::string::npos) << by_env;
+  cpu_set_t set;
+  CPU_ZERO(&set);
+  ASSERT_EQ(sched_getaffinity(0, sizeof(set), &set), 0);
+  const std::string by_cpus = train("env -u OMP_NUM_THREADS", "");
+  EXPECT_NE(by_cpus.find(std::to_string(CPU_COUNT(&set)) +
+                         " intra-op thread(s) (CPUs this process may use)"),
+            std::string::npos)
+      << by_cpus;
+  EXPECT_EQ(run_cli("--threads -1 train --data " + shared_data().string() + " --run " +
+                    (dir / "refused").string()),
+            2);
+  EXPECT_FALSE(fs::exists(dir / "refused"));
 }
 
 }  // namespace
