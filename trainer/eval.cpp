@@ -1,5 +1,6 @@
 #include "trainer/eval.h"
 
+#include <ATen/Parallel.h>
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
@@ -430,7 +431,10 @@ EvalSummary evaluate(const EvalOptions& o) {
       if (r > 0) ms.push_back(sec * 1e3);  // the first run warms up
     }
     std::sort(ms.begin(), ms.end());
-    at_size = {{"side", o.time_side}, {"ms", ms[ms.size() / 2]}, {"reps", ms.size()}};
+    at_size = {{"side", o.time_side},
+               {"ms", ms[ms.size() / 2]},
+               {"reps", ms.size()},
+               {"threads", at::get_num_threads()}};
   }
 
   EvalSummary sum;
@@ -587,13 +591,15 @@ EvalSummary evaluate(const EvalOptions& o) {
     md_rows(every_rows);
   }
   md << "\nMean denoise time: " << cell(sum.ms, 2) << " ms per frame"
-     << (at_size.is_null() ? std::string()
-                           : "; " + cell(sum.ms_at_size, 2) + " ms per " +
-                                 std::to_string(o.time_side) + "² frame (median of " +
-                                 std::to_string(at_size["reps"].get<size_t>()) + ")")
+     << (at_size.is_null()
+             ? std::string()
+             : "; " + cell(sum.ms_at_size, 2) + " ms per " + std::to_string(o.time_side) +
+                   "² frame (median of " + std::to_string(at_size["reps"].get<size_t>()) + ", " +
+                   std::to_string(at_size["threads"].get<int>()) + " intra-op thread(s))")
      << ".\n\n"
      << ceiling.markdown() << "\n\n"
-     << "![loss per epoch](loss.svg)\n\n![loss per step](steps.svg)\n\n![learning rate](lr.svg)\n\n![validation SSIM and PSNR](quality.svg)\n\n"
+     << "![loss per epoch](loss.svg)\n\n![loss per step](steps.svg)\n\n![learning "
+        "rate](lr.svg)\n\n![validation SSIM and PSNR](quality.svg)\n\n"
      << "Comparison images (`frame-NNN.png`): noisy | denoised | reference | error "
         "(mean absolute sRGB difference, ×4, black-red-yellow-white; white = 0.25). "
         "`report.html` shows all of this on one page.\n\n";

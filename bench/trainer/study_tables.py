@@ -129,7 +129,7 @@ def one_study(out, side, label):
             "ssim_all", "ssim_in", "ssim_out", "psnr_all", "psnr_in", "psnr_out",
             "relmse_all", "relmse_in", "relmse_out", "flicker_all", "flicker_in", "flicker_out",
             "ssim_coc_1_4", "ssim_coc_4_16", "ssim_coc_16_up",
-            f"ms_per_{side}px_frame", "steps", "train_seconds"]
+            f"ms_per_{side}px_frame", "steps", "train_seconds", "denoise_threads"]
     bands = BANDS
     rows = []
     for c in configs:
@@ -150,12 +150,14 @@ def one_study(out, side, label):
         row["share"] = rep["summary"].get("pixel_share", {})
         t = rep.get("denoise_ms_at_size") or {}
         row[f"ms_per_{side}px_frame"] = float(t.get("ms", float("nan")))
+        # intra-op threads the denoise was timed on (reports before 2026-12-03: unknown)
+        row["denoise_threads"] = float(t.get("threads", float("nan")))
         row["steps"] = steps
         row["train_seconds"] = seconds
         rows.append(row)
 
     with open(os.path.join(out, "results.csv.tmp"), "w", newline="") as f:
-        w = csv.writer(f)
+        w = csv.writer(f, lineterminator="\n")
         w.writerow(cols)
         for r in rows:
             w.writerow([r[c] if not isinstance(r[c], float) else repr(r[c]) for c in cols])
@@ -165,6 +167,11 @@ def one_study(out, side, label):
           "PSNR out | relMSE all | relMSE in | relMSE out | flicker all | flicker in | flicker out | "
           f"ms / {side}² frame | steps | train wall s |",
           "| --- " * 16 + "|"]
+    threads = {fmt(r["denoise_threads"], ".0f") for r in rows}
+    def ms_cell(r):
+        ms = fmt(r[f"ms_per_{side}px_frame"], ".0f")
+        # rows timed on different thread counts say so in the cell
+        return ms if len(threads) == 1 else f"{ms} ({fmt(r['denoise_threads'], '.0f')} thr)"
     for r in rows:
         md.append("| " + " | ".join([
             f"`{r['config']}` {r['description']}",
@@ -172,7 +179,7 @@ def one_study(out, side, label):
             *(fmt(r[f"psnr_{s}"], ".2f") for s in ("all", "in", "out")),
             *(fmt(r[f"relmse_{s}"], ".4f") for s in ("all", "in", "out")),
             *(fmt(r[f"flicker_{s}"], ".3g") for s in ("all", "in", "out")),
-            fmt(r[f"ms_per_{side}px_frame"], ".0f"), str(r["steps"]), fmt(r["train_seconds"], ".0f"),
+            ms_cell(r), str(r["steps"]), fmt(r["train_seconds"], ".0f"),
         ]) + " |")
     frames = sorted({r["frames"] for r in rows})
     first_report = json.load(open(os.path.join(out, "reports", configs[0], "report.json")))
@@ -185,7 +192,10 @@ def one_study(out, side, label):
             f"bound): {fmt(num(ceil.get('mean_ssim')), '.4f')}; an exact denoiser against these "
             f"references: {fmt(num(ceil.get('exact_denoiser_mean_ssim')), '.4f')}. "
             "SSIM and PSNR on sRGB clamped to [0, 1]; relative MSE and flicker on linear HDR "
-            "(docs/trainer.md, \"Evaluation\"). In focus: CoC < 1 px.\n")
+            "(docs/trainer.md, \"Evaluation\"). In focus: CoC < 1 px." +
+            ("" if threads == {"–"} else
+             f" Denoise timed on {next(iter(threads))} intra-op thread(s)." if len(threads) == 1
+             else " Denoise timed on the intra-op threads each cell names.") + "\n")
     # SSIM by circle of confusion, and what the CoC input adds in each band where
     # a configuration and its copy without the CoC input were both run.
     by = {r["config"]: r for r in rows}
@@ -375,7 +385,7 @@ def across_seeds(out, side, seeds, label):
             for c in configs:
                 row = per[(c, s)]["csv"]
                 if w is None:
-                    w = csv.writer(f)
+                    w = csv.writer(f, lineterminator="\n")
                     w.writerow(["seed"] + list(row))
                 w.writerow([s] + list(row.values()))
     os.replace(os.path.join(out, "results.csv.tmp"), os.path.join(out, "results.csv"))

@@ -71,7 +71,8 @@ TEST(Study, OneCommandScoresEveryConfigurationAndResumes) {
   std::string line;
   ASSERT_TRUE(std::getline(csv, line));
   const std::vector<std::string> header = split(line, ',');
-  ASSERT_EQ(header.size(), 21u) << line;
+  ASSERT_EQ(header.size(), 22u) << line;
+  EXPECT_EQ(header[21], "denoise_threads");
   EXPECT_EQ(header[15], "ssim_coc_1_4");
   EXPECT_EQ(header[17], "ssim_coc_16_up");
   EXPECT_EQ(header[18], "ms_per_64px_frame");
@@ -89,7 +90,8 @@ TEST(Study, OneCommandScoresEveryConfigurationAndResumes) {
     for (size_t i = 3; i < r.size(); ++i)
       EXPECT_EQ(std::isfinite(std::stod(r[i])), header[i] != "ssim_coc_16_up")
           << c << " " << header[i] << " = " << r[i];
-    EXPECT_EQ(r[19], "2") << c;  // steps
+    EXPECT_EQ(r[19], "2") << c;           // steps
+    EXPECT_GE(std::stod(r[21]), 1) << c;  // the threads the denoise was timed on
     // The configuration is what its name says.
     // (configuration, text its config.toml holds or, for the no-CoC
     // network, must not hold)
