@@ -130,8 +130,9 @@ Command add_run_impl(CLI::App& app) {
   cmd->add_option("--workers", a->workers, "local worker processes")
       ->check(CLI::Range(1, 256))
       ->capture_default_str();
-  cmd->add_option("--threads", a->threads,
-                  "render threads per worker; 0 = cores / workers (at least 1)")
+  cmd->add_option(
+         "--threads", a->threads,
+         "render threads per worker; 0 = the CPUs this process may use / workers (at least 1)")
       ->capture_default_str()
       ->check(CLI::Range(0, 4096));
   cmd->add_option("--lease", a->lease_seconds, "task lease in seconds")->capture_default_str();
@@ -231,7 +232,7 @@ Command add_worker(CLI::App& app) {
       ->check(kEndpoint)
       ->type_name("tcp://HOST:PORT")
       ->required();
-  cmd->add_option("--threads", o->threads, "render threads; 0 = all cores")
+  cmd->add_option("--threads", o->threads, "render threads; 0 = the CPUs this process may use")
       ->capture_default_str()
       ->check(CLI::Range(0, 4096));
   cmd->add_option("--curve-public", *curve, "the coordinator's CURVE public key file")

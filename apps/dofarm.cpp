@@ -96,7 +96,7 @@ Command add_render(CLI::App& app) {
   cmd->add_option("--out", args->out, "output EXR file (folders are created)")
       ->type_name("FRAME.exr")
       ->required();
-  cmd->add_option("--threads", args->threads, "render threads; 0 = all hardware threads")
+  cmd->add_option("--threads", args->threads, "render threads; 0 = the CPUs this process may use")
       ->type_name("N")
       ->check(CLI::Range(0, 4096))
       ->capture_default_str();

@@ -36,6 +36,7 @@
 #include <thread>
 #include <vector>
 
+#include "common/cpus.h"
 #include "common/jobspec.h"
 #include "worker/render/environment.h"
 #include "worker/render/render_job.h"
@@ -200,8 +201,7 @@ void run_scene(const char* name, const char* job, int frame, const Args& args) {
   auto scene = std::make_shared<Scene>(dofarm::render::load_job_scene_data(spec), std::move(env));
   scene->set_solid_angle_lights(!args.area_lights);
   const double load_s = seconds_since(t0);
-  const int threads =
-      args.threads > 0 ? args.threads : int(std::max(1u, std::thread::hardware_concurrency()));
+  const int threads = args.threads > 0 ? args.threads : dofarm::cpus_available();
 
   std::printf("\n== %s (jobs/%s, frame %d, %dx%d, %zu triangles, load + BVH %.2f s, %d threads)\n",
               name, job, frame, spec.width, spec.height, scene->data().indices.size() / 3, load_s,
@@ -329,8 +329,9 @@ void run_scene(const char* name, const char* job, int frame, const Args& args) {
 int main(int argc, char** argv) {
   const Args args = parse_args(argc, argv);
   std::setvbuf(stdout, nullptr, _IOLBF, 0);  // progress shows when piped to a file
-  std::printf("render_throughput: size %d, %lld raw rays, threads %d (0 = all = %u)\n", args.size,
-              (long long)args.rays, args.threads, std::thread::hardware_concurrency());
+  std::printf(
+      "render_throughput: size %d, %lld raw rays, threads %d (0 = the CPUs it may use = %d)\n",
+      args.size, (long long)args.rays, args.threads, dofarm::cpus_available());
   try {
     // Frames in the middle of each sequence: the lens is open (aperture > 0).
     run_scene("cornell", "cornell.toml", 48, args);

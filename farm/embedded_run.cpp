@@ -10,8 +10,8 @@
 #include <chrono>
 #include <cstring>
 #include <optional>
-#include <thread>
 
+#include "common/cpus.h"
 #include "common/job_snapshot.h"
 #include "common/progress.h"
 #include "coordinator/clock.h"
@@ -118,8 +118,7 @@ EmbeddedRunResult run_embedded(const EmbeddedRunOptions& o, const std::atomic<bo
   }
 
   // 4: workers, served until they all exit.
-  const int threads =
-      o.threads > 0 ? o.threads : std::max(1, int(std::thread::hardware_concurrency()) / o.workers);
+  const int threads = o.threads > 0 ? o.threads : std::max(1, cpus_available() / o.workers);
   std::vector<pid_t> children;
   for (int i = 0; i < o.workers; ++i)
     children.push_back(spawn_worker(o.exe, server.endpoint(), threads,

@@ -1,7 +1,6 @@
 #include "trainer/step_runner.h"
 
 #include <ATen/Parallel.h>
-#include <sched.h>
 
 #include <algorithm>
 #include <cmath>
@@ -11,6 +10,7 @@
 #include <mutex>
 #include <thread>
 
+#include "common/cpus.h"
 #include "common/error.h"
 #include "trainer/losses.h"
 #include "trainer/precision.h"
@@ -110,13 +110,6 @@ struct StepRunner::Worker {
   bool pending_ = false, busy_ = false, quit_ = false;
   std::thread thread_;  // last: started once the state above exists
 };
-
-int cpus_available() {
-  cpu_set_t set;
-  CPU_ZERO(&set);
-  if (sched_getaffinity(0, sizeof(set), &set) == 0) return std::max(1, CPU_COUNT(&set));
-  return std::max(1u, std::thread::hardware_concurrency());
-}
 
 IntraOpThreads choose_intra_op_threads(int requested) {
   if (requested > 0) return {requested, "--threads"};

@@ -94,7 +94,5 @@ struct IntraOpThreads {
   std::string source;  // "--threads", "OMP_NUM_THREADS" or "CPUs this process may use"
 };
 IntraOpThreads choose_intra_op_threads(int requested);
-// The CPUs in this process's affinity mask (at least 1).
-int cpus_available();
 
 }  // namespace dofarm::trainer

@@ -14,6 +14,7 @@
 #include <thread>
 
 #include "common/checksum.h"
+#include "common/cpus.h"
 #include "common/jobspec.h"
 #include "common/messages.h"
 #include "common/transport.h"
@@ -113,13 +114,17 @@ class Heartbeat {
 class Worker {
  public:
   Worker(const WorkerOptions& o, std::atomic<bool>& stop)
-      : options_(o), stop_(stop), id_(o.id.empty() ? default_id() : o.id), ctx_(1) {}
+      : options_(o), stop_(stop), id_(o.id.empty() ? default_id() : o.id), ctx_(1) {
+    // Resolved once, so the coordinator's status shows the count it renders with.
+    if (options_.threads <= 0) options_.threads = cpus_available();
+  }
 
   int run() {
     ClientOptions co{options_.endpoint, options_.curve_public, options_.request_timeout_ms,
                      options_.curve_client};
     CoordinatorClient client(ctx_, co);
-    spdlog::info("worker {} connecting to {}", id_, options_.endpoint);
+    spdlog::info("worker {} connecting to {} ({} render threads)", id_, options_.endpoint,
+                 options_.threads);
     double backoff = 0.5;
     auto last_contact = std::chrono::steady_clock::now();
     const std::string host = host_name(protocol::kMaxHostBytes);

@@ -10,6 +10,7 @@
 #include <mutex>
 #include <thread>
 
+#include "common/cpus.h"
 #include "common/error.h"
 #include "common/exr_io.h"
 #include "common/progress.h"
@@ -304,7 +305,7 @@ FrameBuffers render_frame(const Scene& loaded, const JobSpec& spec, int frame,
   const int bs = std::max(1, options.block_size);
   const int bx = (rect.w + bs - 1) / bs, by = (rect.h + bs - 1) / bs;
   const int blocks = bx * by;
-  int threads = options.threads > 0 ? options.threads : int(std::thread::hardware_concurrency());
+  int threads = options.threads > 0 ? options.threads : cpus_available();
   threads = std::clamp(threads, 1, std::max(1, blocks));
   std::atomic<int> next{0};
   std::atomic<uint64_t> rays{0};
@@ -349,6 +350,7 @@ FrameBuffers render_frame(const Scene& loaded, const JobSpec& spec, int frame,
   if (options.stats) {
     options.stats->rays += rays;
     options.stats->paths += uint64_t(rect.w) * rect.h * pixels.paths_per_pixel_hint();
+    options.stats->threads = threads;
     options.stats->seconds +=
         std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   }

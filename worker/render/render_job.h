@@ -19,10 +19,11 @@ struct RenderStats {
   uint64_t paths = 0;  // camera paths traced (noisy versions + reference samples)
   uint64_t rays = 0;   // closest-hit + shadow rays, albedo and aux rays included
   double seconds = 0;
+  int threads = 0;  // the threads the last render_frame() ran on
 };
 
 struct RenderOptions {
-  int threads = 0;               // 0 = all hardware threads
+  int threads = 0;               // 0 = the CPUs this process may use (cpus_available)
   int block_size = 16;           // pixels per side of a thread-pool work item
   bool progress = false;         // log progress lines / a bar on a terminal
   RenderStats* stats = nullptr;  // filled in when set
