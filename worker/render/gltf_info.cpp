@@ -7,13 +7,12 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
-#include <fstream>
-#include <iterator>
 #include <map>
 #include <nlohmann/json.hpp>
 #include <set>
 
 #include "common/error.h"
+#include "worker/render/foreign_cameras.h"
 
 namespace dofarm::render {
 
@@ -133,11 +132,6 @@ std::vector<std::string> string_list(const nlohmann::json& doc, const char* key)
 
 namespace {
 
-std::string read_bytes(const std::filesystem::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-}
-
 // A glTF file's JSON and, for a .glb, its binary chunk (glTF 2.0, 4.4:
 // a 12-byte header, then chunks of length, type and data); false where a
 // .glb's JSON chunk is not whole.
@@ -202,7 +196,7 @@ std::string buffer_view_bytes(const std::filesystem::path& path, const nlohmann:
              uri.compare(0, 5, "data:") == 0) {
     data = &(owned = data_uri_bytes(uri, what));
   } else {
-    data = &(owned = read_bytes(path.parent_path() / uri));
+    data = &(owned = read_file_bytes(path.parent_path() / uri));
   }
   auto size_of = [&](const char* key, bool required) -> uint64_t {
     if (!view.contains(key) && !required) return 0;
@@ -247,7 +241,7 @@ std::vector<float> accessor_floats(const std::filesystem::path& path, const nloh
 std::string read_gltf_image(const std::filesystem::path& path, int image) {
   const std::string what = path.string() + ": image " + std::to_string(image);
   std::string json_text, bin;
-  if (!split_gltf(read_bytes(path), &json_text, &bin))
+  if (!split_gltf(read_file_bytes(path), &json_text, &bin))
     throw RuntimeError(what + ": the .glb's JSON chunk is cut short");
   const auto doc = nlohmann::json::parse(json_text, nullptr, /*allow_exceptions=*/false);
   const auto& img = element(doc, "images", image, what);
@@ -312,8 +306,13 @@ std::vector<GltfInfo::AnimatedPath> animated_paths(const std::filesystem::path& 
 }  // namespace
 
 GltfInfo read_gltf_info(const std::filesystem::path& path) {
-  std::string json_text, bin;
-  if (!split_gltf(read_bytes(path), &json_text, &bin)) return {};
+  std::string json_text, bin, bytes;
+  try {
+    bytes = read_file_bytes(path);
+  } catch (const RuntimeError&) {
+    return {};  // the loader says why it cannot read the file
+  }
+  if (!split_gltf(bytes, &json_text, &bin)) return {};
   GltfInfo out;
   auto doc = nlohmann::json::parse(json_text, nullptr, /*allow_exceptions=*/false);
   if (!doc.is_object()) return out;  // assimp gives the reason
