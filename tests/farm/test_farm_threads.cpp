@@ -4,11 +4,11 @@
 // renders with. Before, it counted every hardware thread of the machine and
 // reported 0.
 #include <gtest/gtest.h>
-#include <sched.h>
 
 #include <map>
 #include <string>
 
+#include "tests/cpu_mask.h"
 #include "tests/farm/farm_fixtures.h"
 
 namespace dofarm::farm_testing {
@@ -21,24 +21,17 @@ Child default_worker(const fs::path& dir, const std::string& endpoint, const std
 }
 
 TEST(FarmThreads, AWorkersDefaultIsTheCpusItMayRunOn) {
-  cpu_set_t saved;
-  CPU_ZERO(&saved);
-  ASSERT_EQ(sched_getaffinity(0, sizeof(saved), &saved), 0);
-  if (CPU_COUNT(&saved) < 2) GTEST_SKIP() << "one CPU: nothing to narrow";
+  dofarm::cpu_testing::CpuMask mask;
+  if (mask.count() < 2) GTEST_SKIP() << "one CPU: nothing to narrow";
   TempDir tmp;
   CoordinatorProcess coord(tmp.path(), "coordinator", tmp / "state", 10);
   const std::string ep = coord.endpoint();
 
   Child all = default_worker(tmp.path(), ep, "all");
   // A child inherits the mask of the thread that forks it.
-  int first = 0;
-  while (!CPU_ISSET(first, &saved)) ++first;
-  cpu_set_t one;
-  CPU_ZERO(&one);
-  CPU_SET(first, &one);
-  ASSERT_EQ(sched_setaffinity(0, sizeof(one), &one), 0);
+  ASSERT_TRUE(mask.narrow_to_one());
   Child narrow = default_worker(tmp.path(), ep, "one");
-  ASSERT_EQ(sched_setaffinity(0, sizeof(saved), &saved), 0);
+  ASSERT_TRUE(mask.restore());
 
   std::map<std::string, int> threads;
   Json status;
@@ -49,7 +42,7 @@ TEST(FarmThreads, AWorkersDefaultIsTheCpusItMayRunOn) {
       threads[w.at("worker").get<std::string>()] = w.at("threads").get<int>();
     return threads.size() == 2;
   })) << status.dump();
-  EXPECT_EQ(threads["all"], CPU_COUNT(&saved));
+  EXPECT_EQ(threads["all"], mask.count());
   EXPECT_EQ(threads["one"], 1);
 }
 

@@ -1,7 +1,6 @@
 // DESIGN.md: a frame rendered as 1 tile or as many, with any thread count, is
 // bit-for-bit the same.
 #include <gtest/gtest.h>
-#include <sched.h>
 
 #include <algorithm>
 #include <atomic>
@@ -9,6 +8,7 @@
 #include <thread>
 
 #include "common/cpus.h"
+#include "tests/cpu_mask.h"
 #include "tests/render/render_fixtures.h"
 
 namespace dofarm::render {
@@ -95,30 +95,23 @@ TEST(Determinism, ReferenceOnlyGivesTheSameReferenceAndNothingElse) {
 // under Slurm or taskset), not every hardware thread of the machine: with the
 // mask narrowed to one CPU a default render runs one thread.
 TEST(RenderThreads, DefaultFollowsTheAffinityMask) {
-  cpu_set_t saved;
-  CPU_ZERO(&saved);
-  ASSERT_EQ(sched_getaffinity(0, sizeof(saved), &saved), 0);
-  if (CPU_COUNT(&saved) < 2) GTEST_SKIP() << "one CPU: nothing to narrow";
+  dofarm::cpu_testing::CpuMask mask;
+  if (mask.count() < 2) GTEST_SKIP() << "one CPU: nothing to narrow";
   auto scene = make_scene(testing::small_room());
   const JobSpec spec = make_spec(64, 64, Vec3(0, 1, 3), Vec3(0, 1, 0), 45);  // 16 blocks
   RenderStats wide;
   RenderOptions options;
   options.stats = &wide;
   render_frame(*scene, spec, 0, std::nullopt, options);
-  EXPECT_EQ(wide.threads, std::min(CPU_COUNT(&saved), 16));
+  EXPECT_EQ(wide.threads, std::min(mask.count(), 16));
 
-  int first = 0;
-  while (!CPU_ISSET(first, &saved)) ++first;
-  cpu_set_t one;
-  CPU_ZERO(&one);
-  CPU_SET(first, &one);
-  ASSERT_EQ(sched_setaffinity(0, sizeof(one), &one), 0);
+  ASSERT_TRUE(mask.narrow_to_one());
   RenderStats narrow;
   options.stats = &narrow;
   render_frame(*scene, spec, 0, std::nullopt, options);
-  ASSERT_EQ(sched_setaffinity(0, sizeof(saved), &saved), 0);
+  ASSERT_TRUE(mask.restore());
   EXPECT_EQ(narrow.threads, 1);
-  EXPECT_EQ(cpus_available(), CPU_COUNT(&saved));
+  EXPECT_EQ(cpus_available(), mask.count());
 }
 
 // A cancel request is seen within a pixel, not only between blocks: one
