@@ -16,6 +16,7 @@
 #include <string>
 
 #include "common/error.h"
+#include "common/file_bytes.h"
 #include "common/jobspec.h"
 #include "tests/render/render_fixtures.h"
 #include "worker/render/camera.h"

@@ -6,7 +6,6 @@
 #include <cstdint>
 #include <cstdlib>
 #include <cstring>
-#include <fstream>
 #include <iterator>
 #include <map>
 #include <regex>
@@ -462,12 +461,6 @@ std::set<std::string> collada_unbound_geometries(const std::string& text) {
   }
   for (const std::string& id : bound) unbound.erase(id);
   return unbound;
-}
-
-std::string read_file_bytes(const std::filesystem::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw RuntimeError(path.string() + ": cannot read");
-  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
 }
 
 std::string lower_extension(const std::filesystem::path& path) {

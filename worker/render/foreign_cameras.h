@@ -80,9 +80,6 @@ std::vector<double> fbx_property_values(const std::string& bytes, const std::str
 // object without a material so, renders them in its grey default surface.
 std::set<std::string> collada_unbound_geometries(const std::string& text);
 
-// The bytes of `path`; throws RuntimeError if it cannot be read.
-std::string read_file_bytes(const std::filesystem::path& path);
-
 // The file name's extension in lower case (".dae", ".glb").
 std::string lower_extension(const std::filesystem::path& path);
 

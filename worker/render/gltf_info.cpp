@@ -12,7 +12,7 @@
 #include <set>
 
 #include "common/error.h"
-#include "worker/render/foreign_cameras.h"
+#include "common/file_bytes.h"
 
 namespace dofarm::render {
 

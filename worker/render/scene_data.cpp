@@ -11,7 +11,6 @@
 #include <assimp/Importer.hpp>
 #include <cmath>
 #include <cstring>
-#include <fstream>
 #include <limits>
 #include <map>
 #include <optional>
@@ -21,6 +20,7 @@
 #include "common/content_hash.h"
 #include "common/error.h"
 #include "common/exr_io.h"
+#include "common/file_bytes.h"
 #include "worker/render/foreign_cameras.h"
 #include "worker/render/gltf_info.h"
 #include "worker/render/scene_loader.h"
