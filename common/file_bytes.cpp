@@ -12,8 +12,10 @@ namespace dofarm {
 std::string read_file_bytes(const std::filesystem::path& path) {
   std::error_code ec;
   const std::filesystem::file_status st = std::filesystem::status(path, ec);
-  if (!std::filesystem::exists(st))
+  if (st.type() == std::filesystem::file_type::not_found)
     throw RuntimeError(path.string() + ": cannot read: no such file");
+  // Any other failure to stat (a folder on the way that may not be entered).
+  if (ec) throw RuntimeError(path.string() + ": cannot read: " + ec.message());
   // An ifstream opens a directory and then reads nothing from it.
   if (std::filesystem::is_directory(st))
     throw RuntimeError(path.string() + ": cannot read: it is a directory");

@@ -62,6 +62,13 @@ TEST(FileBytes, WhatCannotBeReadIsAnErrorNamingThePathAndWhy) {
     const std::string locked = read_error(dir.path() / "locked.bin");
     EXPECT_NE(locked.find("locked.bin: cannot read: Permission denied"), std::string::npos)
         << locked;
+    // A file that exists in a folder that may not be entered is not "missing".
+    std::filesystem::create_directories(dir.path() / "closed");
+    write(dir.path() / "closed" / "a.bin", "bytes");
+    ::chmod((dir.path() / "closed").c_str(), 0);
+    const std::string closed = read_error(dir.path() / "closed" / "a.bin");
+    ::chmod((dir.path() / "closed").c_str(), 0700);  // so that TempDir can remove it
+    EXPECT_NE(closed.find("a.bin: cannot read: Permission denied"), std::string::npos) << closed;
   }
 }
 
