@@ -35,6 +35,7 @@
 #include "apps/cli_main.h"
 #include "common/error.h"
 #include "common/exr_io.h"
+#include "common/file_bytes.h"
 #include "common/log.h"
 #include "common/stop_signals.h"
 #include "trainer/config.h"
@@ -115,7 +116,7 @@ Command add_train(CLI::App& app) {
             if (fs::exists(stored)) {
               // A resumed run keeps its settings: --config and --set change
               // only the keys they name, and each change is logged.
-              const TrainConfig saved = parse_train_config(read_text_file(stored), stored);
+              const TrainConfig saved = parse_train_config(read_file_bytes(stored), stored);
               const TrainConfig base = o->preset.empty() ? saved : apply_preset(o->preset, saved);
               t.config = load_train_config(o->config, o->sets, &base);
               for (const std::string& c : config_changes(saved, t.config))

@@ -7,11 +7,11 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
-#include <fstream>
 #include <sstream>
 
 #include "common/content_hash.h"
 #include "common/error.h"
+#include "common/file_bytes.h"
 
 namespace dofarm::trainer {
 
@@ -56,14 +56,6 @@ void replace_file(const fs::path& path, std::string_view bytes) {
 }
 
 }  // namespace
-
-std::string read_text_file(const fs::path& p) {
-  std::ifstream in(p);
-  if (!in) throw RuntimeError(p.string() + ": cannot read");
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
 
 void write_text_atomic(const fs::path& p, const std::string& text) { replace_file(p, text); }
 
@@ -246,7 +238,7 @@ LoadedRun load_run(const fs::path& run_dir, torch::Device device, const std::str
   LoadedRun r;
   if (!fs::exists(run_dir / "config.toml"))
     throw SpecError(FileLoc{run_dir.string()}, "", "not a training run (no config.toml)");
-  r.config = parse_train_config(read_text_file(run_dir / "config.toml"), run_dir / "config.toml");
+  r.config = parse_train_config(read_file_bytes(run_dir / "config.toml"), run_dir / "config.toml");
   r.checkpoint = checkpoint_path(run_dir, which);
   if (!fs::exists(r.checkpoint))
     throw SpecError(FileLoc{r.checkpoint.string()}, "",

@@ -54,8 +54,8 @@ RunState load_checkpoint(const std::filesystem::path& path, Denoiser& model,
 // `dst`'s weights become a copy of `src`'s (same model config).
 void copy_weights(Denoiser& dst, Denoiser& src);
 
-// Whole small text files; write_text_atomic as save_checkpoint.
-std::string read_text_file(const std::filesystem::path& path);
+// Whole small text files are read with read_file_bytes (common/file_bytes.h);
+// write_text_atomic as save_checkpoint.
 void write_text_atomic(const std::filesystem::path& path, const std::string& text);
 
 // The device the config asks for: CUDA when `auto` and available.

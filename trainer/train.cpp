@@ -15,6 +15,7 @@
 #include <thread>
 
 #include "common/error.h"
+#include "common/file_bytes.h"
 #include "common/progress.h"
 #include "trainer/dataset.h"
 #include "trainer/inference.h"
@@ -125,7 +126,7 @@ int64_t steps_per_pass_of(const fs::path& run, const SequenceStream& stream, int
   int64_t n = 0;
   if (fs::exists(file)) {
     try {
-      n = nlohmann::json::parse(read_text_file(file)).at("training_sequences").get<int64_t>();
+      n = nlohmann::json::parse(read_file_bytes(file)).at("training_sequences").get<int64_t>();
     } catch (const nlohmann::json::exception& e) {
       throw RuntimeError(file.string() + ": unreadable: " + e.what());
     }
@@ -218,7 +219,7 @@ TrainResult train_in(const TrainOptions& opt_in) {
   // The run folder is the unit of resume (STYLE.md 10).
   if (fs::exists(run / "config.toml")) {
     TrainConfig saved =
-        parse_train_config(read_text_file(run / "config.toml"), run / "config.toml");
+        parse_train_config(read_file_bytes(run / "config.toml"), run / "config.toml");
     std::string why = incompatible_reason(saved, cfg);
     if (!why.empty())
       throw SpecError(FileLoc{(run / "config.toml").string()}, "",
