@@ -6,10 +6,14 @@
 // frame's reference at 256 x 256 and --spp samples on --threads threads,
 // with the share at_time() adds to the frame. A scene where nothing but the
 // camera moves pays none of it (at_time() returns the scene itself).
+// `--moving lamp`: the grid stands still and a point lamp circles above it
+// on the turning node; such a pose shares the loaded scene's BVH and
+// builds only its lights again.
 // Asserts nothing; the machine is shared, so read the shares, not the
 // absolute seconds.
 //
 // Usage: pose_cost [--spp 16] [--threads 2] [--triangles 20000,200000,2000000]
+//                  [--moving grid|lamp]
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -36,8 +40,9 @@ double seconds_since(std::chrono::steady_clock::time_point t0) {
 }
 
 // A wavy n x n grid of quads (2 n^2 triangles) in the xz plane, 4 m wide,
-// moved as a whole by one node that turns about y over 2 s.
-SceneData moving_grid(int n) {
+// moved as a whole by one node that turns about y over 2 s; or (lamp) the
+// grid still and a point lamp 1 m up, 1 m off the axis, on that node.
+SceneData moving_grid(int n, bool lamp) {
   SceneData d;
   std::vector<Vec3> p, nrm;
   std::vector<uint32_t> idx;
@@ -61,12 +66,22 @@ SceneData moving_grid(int n) {
   const float h = std::sqrt(0.5f);
   node.rotation_keys.values = {Quat{}, Quat{h, 0, h, 0}};
   motion->nodes.push_back(node);
-  MovingPart part;
-  part.vertex_count = uint32_t(p.size());
-  part.index_count = uint32_t(idx.size());
-  motion->parts.push_back(part);
-  motion->positions = p;
-  motion->normals = nrm;
+  if (lamp) {
+    PunctualLight l;
+    l.position = Vec3(1, 1, 0);
+    l.intensity = Vec3(1.0f);
+    d.lights.push_back(l);
+    MovingLight ml;
+    ml.position = l.position;
+    motion->lights.push_back(ml);
+  } else {
+    MovingPart part;
+    part.vertex_count = uint32_t(p.size());
+    part.index_count = uint32_t(idx.size());
+    motion->parts.push_back(part);
+    motion->positions = p;
+    motion->normals = nrm;
+  }
   d.motion = motion;
   return d;
 }
@@ -95,6 +110,7 @@ dofarm::JobSpec spec_of(int spp) {
 
 int main(int argc, char** argv) {
   int spp = 16, threads = 2;
+  bool lamp = false;
   std::vector<int> triangles = {20000, 200000, 2000000};
   for (int i = 1; i < argc; ++i) {
     auto value = [&]() -> std::string {
@@ -108,13 +124,21 @@ int main(int argc, char** argv) {
       spp = std::atoi(value().c_str());
     } else if (!std::strcmp(argv[i], "--threads")) {
       threads = std::atoi(value().c_str());
+    } else if (!std::strcmp(argv[i], "--moving")) {
+      const std::string what = value();
+      if (what != "grid" && what != "lamp") {
+        std::fprintf(stderr, "pose_cost: --moving is grid or lamp, not '%s'\n", what.c_str());
+        return 2;
+      }
+      lamp = what == "lamp";
     } else if (!std::strcmp(argv[i], "--triangles")) {
       triangles.clear();
       std::stringstream list(value());
       for (std::string t; std::getline(list, t, ',');) triangles.push_back(std::atoi(t.c_str()));
     } else {
       std::fprintf(stderr,
-                   "usage: pose_cost [--spp 16] [--threads 2] [--triangles 20000,200000]\n");
+                   "usage: pose_cost [--spp 16] [--threads 2] [--triangles 20000,200000] "
+                   "[--moving grid|lamp]\n");
       return 2;
     }
   }
@@ -123,13 +147,14 @@ int main(int argc, char** argv) {
   options.threads = threads;
   options.reference_only = true;
   std::printf(
-      "| triangles | pose() s | at_time() s (pose + BVH + lights) | frame render s (%d spp, 256^2, "
-      "%d threads) | at_time / render |\n",
-      spp, threads);
+      "| triangles (%s moves) | pose() s | at_time() s (pose + BVH + lights) | frame render s (%d "
+      "spp, 256^2, %d threads) | at_time / render |\n",
+      lamp ? "a lamp" : "the grid", spp, threads);
   std::printf("| --- | --- | --- | --- | --- |\n");
   for (int t : triangles) {
     const int n = std::max(1, int(std::lround(std::sqrt(double(t) / 2.0))));
-    auto scene = std::make_shared<Scene>(moving_grid(n), std::make_unique<Environment>(Vec3(1.0f)));
+    auto scene =
+        std::make_shared<Scene>(moving_grid(n, lamp), std::make_unique<Environment>(Vec3(1.0f)));
     auto t0 = std::chrono::steady_clock::now();
     const SceneData posed = pose(scene->data(), 0.5f);
     const double pose_s = seconds_since(t0);

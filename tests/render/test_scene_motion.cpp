@@ -245,6 +245,70 @@ TEST(SceneMotion, ALightFollowsItsNode) {
   EXPECT_NEAR(lit(0.0f) / lit(1.0f), d2(8.5f) / d2(4.5f), 1e-4f);
 }
 
+TEST(SceneMotion, APoseThatMovesOnlyLampsTracesThroughTheLoadedBvh) {
+  // ALightFollowsItsNode's rig: the lamp moves, the quad (y = 0, x and z
+  // in [0, 1]) stays. A pose shares the loaded scene's BVH instead of
+  // building its own, and keeps it when the loaded scene is gone.
+  TempDir dir("motion_lamp_only");
+  auto rig = [](GltfQuad* q) {
+    q->doc["nodes"].push_back(
+        Json::parse(R"({"name": "rig", "translation": [0, 1, 0], "children": [2]})"));
+    q->doc["nodes"].push_back(Json::parse(R"({"name": "lamp", "translation": [0, -0.5, 0],
+        "extensions": {"KHR_lights_punctual": {"light": 0}}})"));
+    q->doc["scenes"][0]["nodes"] = {0, 1};
+    q->doc["extensions"]["KHR_lights_punctual"]["lights"] =
+        Json::parse(R"([{"type": "point", "intensity": 683}])");
+    q->doc["extensionsUsed"] = {"KHR_lights_punctual"};
+    add_channel(q, 1, "translation", {0, 1}, {0, 5, 0, 0, 9, 0});
+  };
+  const Ray down{Vec3(0.25f, 3, 0.5f), Vec3(0, -1, 0)};
+  const Ray beside{Vec3(1.5f, 3, 0.5f), Vec3(0, -1, 0)};
+  {
+    GltfQuad q = gltf_fixture::gltf_quad();
+    rig(&q);
+    auto loaded = std::make_shared<Scene>(load(dir, "lamp.gltf", q), nullptr);
+    const std::shared_ptr<const Scene> posed = loaded->at_time(0.5f);
+    ASSERT_NE(posed.get(), loaded.get());
+    EXPECT_TRUE(posed->shares_bvh_with(*loaded));
+    EXPECT_TRUE(loaded->at_time(1.0f)->shares_bvh_with(*posed));
+    expect_near3(posed->data().lights[0].position, Vec3(0, 6.5f, 0), 1e-5f);
+    loaded.reset();
+    SurfaceHit hit;
+    ASSERT_TRUE(posed->intersect(down, &hit));
+    EXPECT_NEAR(hit.t, 3.0f, 1e-5f);
+    expect_near3(hit.p, Vec3(0.25f, 0, 0.5f), 1e-6f);
+    EXPECT_FALSE(posed->intersect(beside, &hit));
+    EXPECT_TRUE(posed->occluded(down.o, down.d, 4.0f));
+    EXPECT_FALSE(posed->occluded(down.o, down.d, 2.9f));
+  }
+  {  // The quad moves too (0 -> 2 in y over the first second): each pose
+     // builds its BVH where the quad is then.
+    GltfQuad q = gltf_fixture::gltf_quad();
+    rig(&q);
+    add_channel(&q, 0, "translation", {0, 1}, {0, 0, 0, 0, 2, 0});
+    auto loaded = std::make_shared<Scene>(load(dir, "both.gltf", q), nullptr);
+    const std::shared_ptr<const Scene> posed = loaded->at_time(0.5f);
+    EXPECT_FALSE(posed->shares_bvh_with(*loaded));
+    SurfaceHit hit;
+    ASSERT_TRUE(posed->intersect(down, &hit));
+    EXPECT_NEAR(hit.t, 2.0f, 1e-5f);
+  }
+  {  // Alpha masks: Embree's filter asks the scene that built the BVH, so
+     // a lamp-only pose of a cut-out quad builds its own, which cuts out.
+    GltfQuad q = gltf_fixture::gltf_quad();
+    rig(&q);
+    q.doc["materials"][0]["alphaMode"] = "MASK";
+    q.doc["materials"][0]["pbrMetallicRoughness"]["baseColorFactor"] = {1, 1, 1, 0.2};
+    auto loaded = std::make_shared<Scene>(load(dir, "masked.gltf", q), nullptr);
+    const std::shared_ptr<const Scene> posed = loaded->at_time(0.5f);
+    EXPECT_FALSE(posed->shares_bvh_with(*loaded));
+    loaded.reset();
+    SurfaceHit hit;
+    EXPECT_FALSE(posed->intersect(down, &hit));
+    EXPECT_FALSE(posed->occluded(down.o, down.d, 4.0f));
+  }
+}
+
 // Appends `bytes` as an accessor of `count` elements of `type` and
 // `component` (a glTF componentType); returns its index.
 size_t add_accessor(GltfQuad* q, const std::string& bytes, size_t count, const char* type,

@@ -102,13 +102,27 @@ Scene::Scene(SceneData data, std::unique_ptr<Environment> environment)
 }
 
 Scene::Scene(SceneData posed, std::shared_ptr<const std::vector<Texture>> textures,
-             std::shared_ptr<const Environment> environment, float time)
+             std::shared_ptr<const Environment> environment, float time,
+             std::shared_ptr<const Bvh> bvh)
     : data_(std::move(posed)),
       textures_(std::move(textures)),
       environment_(std::move(environment)),
-      pose_time_(time) {
+      pose_time_(time),
+      bvh_(std::move(bvh)) {
   build();
 }
+
+struct Scene::Bvh {
+  RTCDevice device = nullptr;
+  RTCScene scene = nullptr;
+  Bvh() = default;
+  Bvh(const Bvh&) = delete;
+  Bvh& operator=(const Bvh&) = delete;
+  ~Bvh() {
+    if (scene) rtcReleaseScene(scene);
+    if (device) rtcReleaseDevice(device);
+  }
+};
 
 std::shared_ptr<const Scene> Scene::at_time(float time) const {
   // Not owned: the caller holds this scene for as long as it uses it.
@@ -120,9 +134,15 @@ std::shared_ptr<const Scene> Scene::at_time(float time) const {
   for (const auto& [t, scene] : posed_)
     if (t == time) return scene;
   // Built under the lock: whoever else asks wants the same pose or waits
-  // for its BVH in any case.
-  auto scene =
-      std::shared_ptr<const Scene>(new Scene(pose(data_, time), textures_, environment_, time));
+  // for its BVH in any case. Where only lamps move, every triangle stays
+  // where it was loaded and the pose traces through this scene's BVH. Not
+  // with alpha masks: Embree's filter asks the scene that built the BVH,
+  // which a pose may outlive.
+  const bool alpha = std::any_of(data_.materials.begin(), data_.materials.end(),
+                                 [](const Material& m) { return m.alpha_mask; });
+  auto scene = std::shared_ptr<const Scene>(
+      new Scene(pose(data_, time), textures_, environment_, time,
+                data_.motion->parts.empty() && !alpha ? bvh_ : nullptr));
   if (posed_.size() >= 2) posed_.erase(posed_.begin());
   posed_.emplace_back(time, scene);
   return scene;
@@ -230,25 +250,41 @@ void Scene::build() {
     if (sized && light_select_.pmf(light_tris_.size() + i) > 0) sized_lamps_.push_back(uint32_t(i));
   }
 
-  // Embree: one static triangle geometry over the shared vertex and index data.
-  device_ = rtcNewDevice("threads=1");  // our own pool parallelises; the BVH build is small
-  if (!device_) throw RuntimeError("Embree: cannot create a device");
-  std::string* err = new std::string();
-  rtcSetDeviceErrorFunction(device_, embree_error, err);
-  rtc_scene_ = rtcNewScene(device_);
-  rtcSetSceneFlags(rtc_scene_, RTC_SCENE_FLAG_ROBUST);
-  rtcSetSceneBuildQuality(rtc_scene_, RTC_BUILD_QUALITY_HIGH);
-  RTCGeometry geom = rtcNewGeometry(device_, RTC_GEOMETRY_TYPE_TRIANGLE);
-  vertex_buffer_.assign(data_.positions.size() * 3 + 4, 0.0f);
-  for (size_t i = 0; i < data_.positions.size(); ++i) {
-    vertex_buffer_[i * 3 + 0] = data_.positions[i].x;
-    vertex_buffer_[i * 3 + 1] = data_.positions[i].y;
-    vertex_buffer_[i * 3 + 2] = data_.positions[i].z;
+  if (!bvh_) build_bvh();
+  rtc_scene_ = bvh_->scene;
+}
+
+void Scene::build_bvh() {
+  // Embree: one static triangle geometry over copies of the vertices and
+  // indices in buffers it owns (padded for its vector loads), so the BVH
+  // lives on in the poses that share it.
+  auto bvh = std::make_shared<Bvh>();
+  bvh->device = rtcNewDevice("threads=1");  // our own pool parallelises; the BVH build is small
+  if (!bvh->device) throw RuntimeError("Embree: cannot create a device");
+  std::string err;
+  rtcSetDeviceErrorFunction(bvh->device, embree_error, &err);
+  bvh->scene = rtcNewScene(bvh->device);
+  rtcSetSceneFlags(bvh->scene, RTC_SCENE_FLAG_ROBUST);
+  rtcSetSceneBuildQuality(bvh->scene, RTC_BUILD_QUALITY_HIGH);
+  RTCGeometry geom = rtcNewGeometry(bvh->device, RTC_GEOMETRY_TYPE_TRIANGLE);
+  auto* vertices = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0,
+                                                               RTC_FORMAT_FLOAT3, 3 * sizeof(float),
+                                                               data_.positions.size()));
+  auto* indices = static_cast<uint32_t*>(
+      rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                              3 * sizeof(uint32_t), data_.triangle_count()));
+  if (!vertices || !indices) {
+    rtcReleaseGeometry(geom);
+    rtcSetDeviceErrorFunction(bvh->device, nullptr, nullptr);
+    throw RuntimeError("Embree: cannot allocate the scene's buffers" +
+                       (err.empty() ? std::string() : ": " + err));
   }
-  rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
-                             vertex_buffer_.data(), 0, 3 * sizeof(float), data_.positions.size());
-  rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, data_.indices.data(),
-                             0, 3 * sizeof(uint32_t), data_.triangle_count());
+  for (size_t i = 0; i < data_.positions.size(); ++i) {
+    vertices[i * 3 + 0] = data_.positions[i].x;
+    vertices[i * 3 + 1] = data_.positions[i].y;
+    vertices[i * 3 + 2] = data_.positions[i].z;
+  }
+  std::copy(data_.indices.begin(), data_.indices.end(), indices);
   if (std::any_of(data_.materials.begin(), data_.materials.end(),
                   [](const Material& m) { return m.alpha_mask; })) {
     rtcSetGeometryUserData(geom, this);
@@ -256,23 +292,15 @@ void Scene::build() {
     rtcSetGeometryOccludedFilterFunction(geom, alpha_mask_filter);
   }
   rtcCommitGeometry(geom);
-  rtcAttachGeometry(rtc_scene_, geom);
+  rtcAttachGeometry(bvh->scene, geom);
   rtcReleaseGeometry(geom);
-  rtcCommitScene(rtc_scene_);
-  std::string message = *err;
-  rtcSetDeviceErrorFunction(device_, nullptr, nullptr);
-  delete err;
-  if (!message.empty()) {
-    rtcReleaseScene(rtc_scene_);
-    rtcReleaseDevice(device_);
-    throw RuntimeError("Embree: " + message);
-  }
+  rtcCommitScene(bvh->scene);
+  rtcSetDeviceErrorFunction(bvh->device, nullptr, nullptr);
+  if (!err.empty()) throw RuntimeError("Embree: " + err);
+  bvh_ = std::move(bvh);
 }
 
-Scene::~Scene() {
-  if (rtc_scene_) rtcReleaseScene(rtc_scene_);
-  if (device_) rtcReleaseDevice(device_);
-}
+Scene::~Scene() = default;
 
 namespace {
 // Below this solid angle (a triangle seen nearly edge-on) sample_light()

@@ -167,6 +167,9 @@ class Scene {
   void set_ray_sink(RaySink* sink) { ray_sink_ = sink; }
   // The Embree scene, for benchmarks that trace with bare rtcIntersect1.
   RTCScene embree_scene() const { return rtc_scene_; }
+  // Whether this scene traces through `other`'s BVH (a pose that moves only
+  // lamps shares the loaded scene's: at_time()).
+  bool shares_bvh_with(const Scene& other) const { return bvh_ == other.bvh_; }
   // Whether a ray passes the point at barycentrics (b1, b2) of triangle
   // `prim` (an Embree filter function asks): its material's alpha (alpha =
   // base_alpha times the base colour texture's alpha) is below alpha_cutoff
@@ -217,11 +220,17 @@ class Scene {
   // The same at a point p in the plane of the triangle `idx`.
   Vec2 texcoord_at(const uint32_t* idx, Vec3 p, unsigned set = 0) const;
 
-  // A pose of a moving scene at `time` (at_time()).
+  // Embree's device and BVH over a scene's triangles, which own copies of
+  // the vertices and indices, so a pose can outlive the scene that built it.
+  struct Bvh;
+  // A pose of a moving scene at `time` (at_time()); `bvh`: the BVH of
+  // triangles exactly where `posed` has them, or null to build one.
   Scene(SceneData posed, std::shared_ptr<const std::vector<Texture>> textures,
-        std::shared_ptr<const Environment> environment, float time);
-  // The BVH, the lights and their selection, from data_.
+        std::shared_ptr<const Environment> environment, float time, std::shared_ptr<const Bvh> bvh);
+  // The lights and their selection from data_, and the BVH unless bvh_ is
+  // given.
   void build();
+  void build_bvh();
 
   SceneData data_;
   std::shared_ptr<const std::vector<Texture>> textures_;
@@ -229,9 +238,8 @@ class Scene {
   float pose_time_ = std::nanf("");  // NaN: the scene as loaded
   mutable std::mutex posed_mutex_;
   mutable std::vector<std::pair<float, std::shared_ptr<const Scene>>> posed_;
-  RTCDevice device_ = nullptr;
-  RTCScene rtc_scene_ = nullptr;
-  std::vector<float> vertex_buffer_;  // xyz + padding Embree may read past the end
+  std::shared_ptr<const Bvh> bvh_;
+  RTCScene rtc_scene_ = nullptr;  // bvh_'s
   // Unit geometric normal of each triangle, cross(p1 - p0, p2 - p0); zero for
   // a degenerate one (a hit on it faces the ray instead).
   std::vector<Vec3> tri_normal_;
