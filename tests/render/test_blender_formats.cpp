@@ -317,6 +317,121 @@ TEST(ForeignCameras, EachCameraOfABlenderFbxFileIsFoundByName) {
   EXPECT_TRUE(main_cam.camera_refused.empty()) << main_cam.camera_refused;
 }
 
+// The records of two parsed FBX files agree: the same names and nesting,
+// numbers equal, strings equal once a binary "Name\0\1Class" is written as
+// ASCII "Class::Name". Flags and raw bytes are written differently; only
+// their places are compared.
+void expect_same_records(const std::vector<FbxNode>& binary, const std::vector<FbxNode>& ascii,
+                         const std::string& path) {
+  ASSERT_EQ(binary.size(), ascii.size()) << path;
+  for (size_t i = 0; i < binary.size(); ++i) {
+    const FbxNode& b = binary[i];
+    const FbxNode& a = ascii[i];
+    const std::string at = path + "/" + b.name;
+    ASSERT_EQ(b.name, a.name) << at;
+    ASSERT_EQ(b.properties.size(), a.properties.size()) << at;
+    for (size_t k = 0; k < b.properties.size(); ++k) {
+      const FbxNode::Property& pb = b.properties[k];
+      const FbxNode::Property& pa = a.properties[k];
+      if (pb.type == 'S') {
+        std::string want = pb.s;
+        const size_t sep = want.find(std::string("\0\1", 2));
+        if (sep != std::string::npos) want = want.substr(sep + 2) + "::" + want.substr(0, sep);
+        EXPECT_EQ(pa.s, want) << at << " property " << k;
+      } else if (pb.type != 'C' && pb.type != 'R') {
+        EXPECT_EQ(pa.d, pb.d) << at << " property " << k;
+        EXPECT_EQ(pa.type, pb.type == 'F' || pb.type == 'D' ? 'D' : 'L') << at << " property " << k;
+      }
+    }
+    expect_same_records(b.children, a.children, at);
+  }
+}
+
+// two_cameras.fbx as FBX ASCII (tests/data/blender/fbx_to_ascii.py wrote
+// it; Blender writes only binary FBX, other exporters ASCII too): its
+// records parse to the binary file's, so each camera is found by its name
+// and renders as it does from the binary file, the perspective one as its
+// glTF twin; from another exporter the orthographic one is refused by name
+// and the perspective one still renders (before, an ASCII file's cameras
+// could not be told apart, and both were refused). Broken text parses to
+// nothing.
+TEST(ForeignCameras, EachCameraOfAnAsciiFbxFileIsFoundByName) {
+  const std::string text = read_file_bytes(kBlender / "two_cameras_ascii.fbx");
+  const std::vector<FbxNode> ascii = parse_fbx_ascii(text);
+  ASSERT_FALSE(ascii.empty());
+  expect_same_records(parse_fbx_binary(read_file_bytes(kBlender / "two_cameras.fbx")), ascii, "");
+  EXPECT_TRUE(parse_fbx_binary(text).empty());
+  const ForeignCameras scan = scan_fbx_cameras(text);
+  ASSERT_EQ(scan.cameras.size(), 2u);
+  const ForeignCamera* persp = scan.find("Camera");
+  const ForeignCamera* ortho = scan.find("Top");
+  ASSERT_TRUE(persp && ortho);
+  EXPECT_FALSE(persp->orthographic);
+  EXPECT_TRUE(ortho->orthographic);
+  EXPECT_DOUBLE_EQ(ortho->ortho_zoom, 5.0);
+
+  const std::filesystem::path dir =
+      std::filesystem::temp_directory_path() / ("dofarm_fbxa_" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  std::string other = text;
+  for (size_t p = other.find("Blender"); p != std::string::npos; p = other.find("Blender", p))
+    other.replace(p, 7, "Modeler");
+  std::ofstream(dir / "other.fbx", std::ios::binary) << other;
+  std::filesystem::copy_file(kBlender / "two_cameras_ascii.fbx", dir / "blender.fbx");
+  for (const char* name : {"Camera", "Top"}) {
+    SCOPED_TRACE(name);
+    const SceneData binary = load_scene_data(kBlender / "two_cameras.fbx", name);
+    const SceneData from_ascii = load_scene_data(dir / "blender.fbx", name);
+    ASSERT_TRUE(from_ascii.camera_refused.empty()) << from_ascii.camera_refused;
+    ASSERT_TRUE(binary.scene_camera && from_ascii.scene_camera);
+    EXPECT_EQ(from_ascii.scene_camera->ymag, binary.scene_camera->ymag);
+    EXPECT_EQ(from_ascii.scene_camera->yfov_deg, binary.scene_camera->yfov_deg);
+    EXPECT_EQ(from_ascii.positions.size(), binary.positions.size());
+    expect_same_pose(camera_for_frame(scene_camera_spec(), binary, 0),
+                     camera_for_frame(scene_camera_spec(), from_ascii, 0), 1e-5f);
+  }
+  expect_same_depths(render_fixture("two_cameras.glb", 0.3f, "Camera"),
+                     render_fixture("two_cameras_ascii.fbx", 0.3f, "Camera"));
+  const SceneData top_cam = load_scene_data(dir / "other.fbx", "Top");
+  const SceneData main_cam = load_scene_data(dir / "other.fbx", "Camera");
+  std::filesystem::remove_all(dir);
+  EXPECT_NE(top_cam.camera_refused.find("\"Top\" is orthographic (FBX CameraProjectionType 1) "
+                                        "with OrthoZoom 5"),
+            std::string::npos)
+      << top_cam.camera_refused;
+  EXPECT_TRUE(main_cam.camera_refused.empty()) << main_cam.camera_refused;
+
+  for (size_t cut : {text.size() / 3, 2 * text.size() / 3, text.size() - 3})
+    EXPECT_TRUE(parse_fbx_ascii(text.substr(0, cut)).empty()) << cut;
+  EXPECT_TRUE(parse_fbx_ascii(std::string(100000, '{')).empty());
+  std::string deep;  // nested deeper than any file: refused, not recursed into
+  for (int i = 0; i < 100; ++i) deep += "A: {\n";
+  EXPECT_TRUE(parse_fbx_ascii(deep + std::string(100, '}')).empty());
+  EXPECT_EQ(parse_fbx_ascii("A: {\nA: {\n}\n}\n").size(), 1u);
+  EXPECT_TRUE(parse_fbx_ascii("A: 1 }\n").empty());
+  EXPECT_TRUE(parse_fbx_ascii("A: \"open\n").empty());
+  EXPECT_TRUE(parse_fbx_ascii("; only a comment\n").empty());
+  // Lists go on after a comma at a line's end; comments and flags; an
+  // empty first value; an array is skipped.
+  const std::vector<FbxNode> small = parse_fbx_ascii(
+      "; c\nN: 1, -2.5e-1, \"a&quot;b\", T ; note\nM: 7400,\n 8 {\n  a: *3 {\n   a: 1,2,3\n  }\n"
+      "  C: ,\"x\"\n }\n");
+  ASSERT_EQ(small.size(), 2u);
+  ASSERT_EQ(small[0].properties.size(), 4u);
+  EXPECT_EQ(small[0].properties[0].type, 'L');
+  EXPECT_EQ(small[0].properties[0].i, 1);
+  EXPECT_EQ(small[0].properties[1].type, 'D');
+  EXPECT_EQ(small[0].properties[1].d, -0.25);
+  EXPECT_EQ(small[0].properties[2].s, "a\"b");
+  EXPECT_EQ(small[0].properties[3].s, "T");
+  ASSERT_EQ(small[1].properties.size(), 2u);
+  EXPECT_EQ(small[1].properties[1].i, 8);
+  ASSERT_EQ(small[1].children.size(), 2u);
+  EXPECT_TRUE(small[1].children[0].properties.empty());
+  ASSERT_EQ(small[1].children[1].properties.size(), 1u);
+  EXPECT_EQ(small[1].children[1].properties[0].s, "x");
+}
+
 // Blender writes FBX in centimetres (UnitScaleFactor 1: one unit is 1 cm,
 // every node scaled by 100); the file's unit is applied on loading, so the
 // scene is the size it is in Blender and in its glTF export: the camera at

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cctype>
+#include <cerrno>
 #include <cmath>
 #include <cstdint>
 #include <cstdlib>
@@ -332,6 +333,137 @@ class FbxBinaryParser {
   bool wide_ = false;
 };
 
+// FBX ASCII, as the FBX SDK writes it: per node "Name:" then values
+// separated by commas (a comma at a line's end continues the list on the
+// next line), then "{" with nested nodes up to "}", or the line's end.
+// Values are quoted strings (no escapes; a quote is written &quot;),
+// numbers, and bare letters (T, F, Y, N: flags); an array is "*count"
+// with its numbers in a nested "a:" node, skipped here as the binary
+// parser skips arrays. ';' starts a comment to the line's end. Integers
+// come out as 'L' (i and d), reals as 'D', strings and letters as 'S'.
+class FbxAsciiParser {
+ public:
+  explicit FbxAsciiParser(const std::string& text) : t_(text) {}
+
+  bool parse(std::vector<FbxNode>* top) {
+    if (!nodes(0, top) || at_ != t_.size()) return false;
+    return !top->empty();
+  }
+
+ private:
+  // Nodes up to a closing '}' (depth > 0, left unconsumed) or the end.
+  bool nodes(int depth, std::vector<FbxNode>* out) {
+    if (depth > 64) return false;  // no file nests this deep
+    for (;;) {
+      skip_space(true);
+      if (at_ == t_.size()) return depth == 0;
+      if (t_[at_] == '}') return depth > 0;
+      FbxNode node;
+      const size_t name_at = at_;
+      while (at_ < t_.size() && (std::isalnum(static_cast<unsigned char>(t_[at_])) ||
+                                 t_[at_] == '_' || t_[at_] == '|'))
+        ++at_;
+      if (at_ == name_at || at_ == t_.size() || t_[at_] != ':') return false;
+      node.name = t_.substr(name_at, at_ - name_at);
+      ++at_;
+      bool array = false;
+      skip_space(false);
+      while (at_ < t_.size() && t_[at_] != '\n' && t_[at_] != '\r' && t_[at_] != '{' &&
+             t_[at_] != '}' && t_[at_] != ';') {
+        if (t_[at_] == ',') {  // an empty first value ("Content: ,\"...\"")
+          ++at_;
+          skip_space(true);
+          continue;
+        }
+        if (!value(&node.properties, &array)) return false;
+        skip_space(false);
+        if (at_ < t_.size() && t_[at_] == ',') {
+          ++at_;
+          skip_space(true);  // the list goes on, on this line or the next
+        }
+      }
+      if (at_ < t_.size() && t_[at_] == '{') {
+        ++at_;
+        if (array) {  // "*count { a: numbers }": skipped
+          const size_t close = t_.find('}', at_);
+          if (close == std::string::npos) return false;
+          at_ = close + 1;
+        } else {
+          if (!nodes(depth + 1, &node.children)) return false;
+          ++at_;  // the '}'
+        }
+      }
+      out->push_back(std::move(node));
+    }
+  }
+
+  bool value(std::vector<FbxNode::Property>* out, bool* array) {
+    FbxNode::Property prop;
+    const char c = t_[at_];
+    if (c == '"') {
+      const size_t close = t_.find('"', at_ + 1);
+      if (close == std::string::npos) return false;
+      prop.type = 'S';
+      for (size_t q = at_ + 1; q < close;) {
+        if (t_.compare(q, 6, "&quot;") == 0) {
+          prop.s += '"';
+          q += 6;
+        } else {
+          prop.s += t_[q++];
+        }
+      }
+      at_ = close + 1;
+    } else if (c == '*') {  // an array's count
+      ++at_;
+      while (at_ < t_.size() && std::isdigit(static_cast<unsigned char>(t_[at_]))) ++at_;
+      *array = true;
+      return true;
+    } else if (std::isalpha(static_cast<unsigned char>(c))) {
+      const size_t from = at_;
+      while (at_ < t_.size() && std::isalnum(static_cast<unsigned char>(t_[at_]))) ++at_;
+      prop.type = 'S';
+      prop.s = t_.substr(from, at_ - from);
+    } else {
+      const char* start = t_.c_str() + at_;
+      char* end = nullptr;
+      errno = 0;
+      const long long i = std::strtoll(start, &end, 10);
+      char* end_d = nullptr;
+      const double d = std::strtod(start, &end_d);
+      if (end_d == start) return false;
+      if (end == end_d && errno == 0) {
+        prop.type = 'L';
+        prop.i = i;
+        prop.d = double(i);
+      } else {
+        prop.type = 'D';
+        prop.d = d;
+      }
+      at_ += size_t(end_d - start);
+    }
+    out->push_back(std::move(prop));
+    return true;
+  }
+
+  // Blanks and comments; line ends too where `lines`.
+  void skip_space(bool lines) {
+    while (at_ < t_.size()) {
+      const char c = t_[at_];
+      if (c == ' ' || c == '\t' || (lines && (c == '\n' || c == '\r'))) {
+        ++at_;
+      } else if (c == ';') {
+        const size_t eol = t_.find('\n', at_);
+        at_ = eol == std::string::npos ? t_.size() : eol;
+      } else {
+        return;
+      }
+    }
+  }
+
+  const std::string& t_;
+  size_t at_ = 0;
+};
+
 const FbxNode* child(const FbxNode& n, const std::string& name) {
   for (const FbxNode& c : n.children)
     if (c.name == name) return &c;
@@ -351,11 +483,12 @@ void camera_properties(const FbxNode* props70, bool* ortho, double* zoom) {
   }
 }
 
-// Every camera of a parsed binary FBX file, named by the Model that its
+// Every camera of a parsed FBX file, named by the Model that its
 // NodeAttribute is connected to ("C", "OO", attribute id, model id). A
-// Model's name is "Name\0\1Model" in binary files; assimp names the camera
-// after the node, "Name". Empty when the file has no such structure.
-std::vector<ForeignCamera> fbx_binary_cameras(const std::vector<FbxNode>& top) {
+// Model's name is "Name\0\1Model" in binary files and "Model::Name" in
+// ASCII ones; assimp names the camera after the node, "Name". Empty when
+// the file has no such structure.
+std::vector<ForeignCamera> fbx_file_cameras(const std::vector<FbxNode>& top) {
   bool default_ortho = false;
   double default_zoom = 1;  // FBX SDK default, which the template restates
   std::map<int64_t, std::pair<bool, double>> attributes;  // id -> (ortho, zoom)
@@ -387,7 +520,10 @@ std::vector<ForeignCamera> fbx_binary_cameras(const std::vector<FbxNode>& top) {
       } else if (o.name == "Model") {
         const std::string& full = o.properties[1].s;
         const size_t sep = full.find(std::string("\0\1", 2));
-        models[o.properties[0].i] = full.substr(0, sep);
+        const size_t ascii = full.find("::");
+        models[o.properties[0].i] = sep != std::string::npos     ? full.substr(0, sep)
+                                    : ascii != std::string::npos ? full.substr(ascii + 2)
+                                                                 : full;
       }
     }
   }
@@ -417,6 +553,13 @@ std::vector<FbxNode> parse_fbx_binary(const std::string& bytes) {
   return top;
 }
 
+std::vector<FbxNode> parse_fbx_ascii(const std::string& text) {
+  std::vector<FbxNode> top;
+  FbxAsciiParser parser(text);
+  if (!parser.parse(&top)) top.clear();
+  return top;
+}
+
 // FBX keeps a camera's projection in its NodeAttribute's Properties70:
 // CameraProjectionType 0 (perspective) or 1 (orthographic), and an
 // orthographic camera's OrthoZoom. The Definitions' template, which comes
@@ -425,11 +568,13 @@ std::vector<FbxNode> parse_fbx_binary(const std::string& bytes) {
 ForeignCameras scan_fbx_cameras(const std::string& bytes) {
   ForeignCameras out;
   out.format = ForeignCameras::Format::kFbx;
-  // A binary file names each camera by its Model; an ASCII one (which
-  // Blender does not write) is only scanned for its properties.
-  const std::vector<FbxNode> top = parse_fbx_binary(bytes);
+  // Each camera by its Model's name, from the binary or ASCII records;
+  // failing those (a file cut short, or one that is neither), the file's
+  // properties alone.
+  std::vector<FbxNode> top = parse_fbx_binary(bytes);
+  if (top.empty()) top = parse_fbx_ascii(bytes);
   if (!top.empty()) {
-    out.cameras = fbx_binary_cameras(top);
+    out.cameras = fbx_file_cameras(top);
     if (!out.cameras.empty()) return out;
   }
   for (double v : fbx_property_values(bytes, "CameraProjectionType")) {

@@ -18,21 +18,22 @@ namespace dofarm::render {
 
 struct ForeignCamera {
   // Collada's camera element; binary FBX: empty id, the name of the camera's
-  // Model (the node assimp names the camera after); ASCII FBX: both empty.
+  // Model (the node assimp names the camera after), in binary and ASCII
+  // files alike.
   std::string id, name;
   bool orthographic = false;
   // Collada <orthographic>: half the film's width and height in scene units
   // (0 where the file gives neither it nor the aspect ratio to derive it).
   double xmag = 0, ymag = 0;
   std::string node;  // Collada: the name of the node that instantiates it
-  double ortho_zoom = 0;  // binary FBX: the camera's OrthoZoom (template default: 1)
+  double ortho_zoom = 0;  // FBX: the camera's OrthoZoom (template default: 1)
 };
 
 struct ForeignCameras {
   enum class Format { kOther, kCollada, kFbx };
   Format format = Format::kOther;
-  // Binary FBX: every camera, by its Model's name. ASCII FBX: one unnamed
-  // entry per orthographic camera only.
+  // FBX: every camera, by its Model's name; where the records cannot be
+  // read, one unnamed entry per orthographic camera only.
   std::vector<ForeignCamera> cameras;
   // FBX: the file's last OrthoZoom, which is its only camera's (the
   // template's default, 1, when the camera keeps it); 0 without any.
@@ -69,6 +70,11 @@ struct FbxNode {
   std::vector<FbxNode> children;
 };
 std::vector<FbxNode> parse_fbx_binary(const std::string& bytes);
+// The same records from an FBX ASCII file (FbxAsciiParser in the .cpp has
+// the grammar): integers as 'L', reals as 'D', strings and flag letters
+// as 'S', a Model's name as written ("Model::Name"), arrays skipped.
+// Empty when the text is not a well-formed ASCII FBX file.
+std::vector<FbxNode> parse_fbx_ascii(const std::string& text);
 
 // The numeric values of every FBX property `name` (P: "name", type, label,
 // flags, value) in a binary or ASCII file, in file order.

@@ -72,9 +72,10 @@ void Loader::camera_track(const std::string& wanted) {
   // is. Collada's is rendered from its <orthographic> size. Blender's FBX
   // holds the Orthographic Scale as OrthoZoom, in Blender units, spanning
   // the film's longer side (sensor fit auto, as the glTF exporter's xmag
-  // and ymag say), and is rendered from it: in a binary file (which Blender
-  // writes) each camera is found by its Model's name, in an ASCII one only
-  // when it is the file's only camera. Other FBX files' OrthoZoom has no
+  // and ymag say), and is rendered from it: each camera is found by its
+  // Model's name in the file's records (binary, which Blender writes, or
+  // ASCII), or, where they cannot be read, only when it is the file's only
+  // camera. Other FBX files' OrthoZoom has no
   // agreed unit, and a camera the scan cannot match to assimp's is unknown:
   // those are refused.
   const std::string ext = lower_extension(path_);
