@@ -260,14 +260,9 @@ TEST(ForeignCameras, AnFbxOrthographicCameraNotFromBlenderIsRefused) {
 // orthographic one from its own OrthoZoom. The same file from another
 // exporter still has its perspective camera and refuses the orthographic
 // one by name. A truncated file parses to nothing, out of bounds nowhere.
-TEST(ForeignCameras, EachCameraOfABlenderFbxFileIsFoundByName) {
-  const std::string bytes = read_file_bytes(kBlender / "two_cameras.fbx");
-  const std::vector<FbxNode> top = parse_fbx_binary(bytes);
-  std::set<std::string> names;
-  for (const FbxNode& n : top) names.insert(n.name);
-  for (const char* want : {"FBXHeaderExtension", "Definitions", "Objects", "Connections"})
-    EXPECT_TRUE(names.count(want)) << want;
-  const ForeignCameras scan = scan_fbx_cameras(bytes);
+// two_cameras.fbx's cameras as a scan of it finds them, binary or ASCII:
+// "Camera" perspective, "Top" orthographic with Orthographic Scale 5.
+void expect_two_cameras(const ForeignCameras& scan) {
   ASSERT_EQ(scan.cameras.size(), 2u);
   const ForeignCamera* persp = scan.find("Camera");
   const ForeignCamera* ortho = scan.find("Top");
@@ -275,6 +270,36 @@ TEST(ForeignCameras, EachCameraOfABlenderFbxFileIsFoundByName) {
   EXPECT_FALSE(persp->orthographic);
   EXPECT_TRUE(ortho->orthographic);
   EXPECT_DOUBLE_EQ(ortho->ortho_zoom, 5.0);
+}
+
+// The bytes of two_cameras.fbx (binary or ASCII) as another exporter's,
+// its creator renamed: "Top" is refused by name (its OrthoZoom has no
+// agreed unit), "Camera" loads.
+void expect_other_exporters_two_cameras(std::string bytes) {
+  for (size_t p = bytes.find("Blender"); p != std::string::npos; p = bytes.find("Blender", p))
+    bytes.replace(p, 7, "Modeler");
+  const std::filesystem::path dir =
+      std::filesystem::temp_directory_path() / ("dofarm_fbx2_" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  std::ofstream(dir / "other.fbx", std::ios::binary) << bytes;
+  const SceneData top_cam = load_scene_data(dir / "other.fbx", "Top");
+  const SceneData main_cam = load_scene_data(dir / "other.fbx", "Camera");
+  std::filesystem::remove_all(dir);
+  EXPECT_NE(top_cam.camera_refused.find("\"Top\" is orthographic (FBX CameraProjectionType 1) "
+                                        "with OrthoZoom 5"),
+            std::string::npos)
+      << top_cam.camera_refused;
+  EXPECT_TRUE(main_cam.camera_refused.empty()) << main_cam.camera_refused;
+}
+
+TEST(ForeignCameras, EachCameraOfABlenderFbxFileIsFoundByName) {
+  const std::string bytes = read_file_bytes(kBlender / "two_cameras.fbx");
+  const std::vector<FbxNode> top = parse_fbx_binary(bytes);
+  std::set<std::string> names;
+  for (const FbxNode& n : top) names.insert(n.name);
+  for (const char* want : {"FBXHeaderExtension", "Definitions", "Objects", "Connections"})
+    EXPECT_TRUE(names.count(want)) << want;
+  expect_two_cameras(scan_fbx_cameras(bytes));
   for (size_t cut : {size_t(30), bytes.size() / 3, 2 * bytes.size() / 3})
     EXPECT_TRUE(parse_fbx_binary(bytes.substr(0, cut)).empty()) << cut;
 
@@ -299,22 +324,7 @@ TEST(ForeignCameras, EachCameraOfABlenderFbxFileIsFoundByName) {
   }
   EXPECT_GT(load_scene_data(kBlender / "two_cameras.fbx", "Top").scene_camera->ymag, 0.0f);
   EXPECT_EQ(load_scene_data(kBlender / "two_cameras.fbx", "Camera").scene_camera->ymag, 0.0f);
-
-  const std::filesystem::path dir =
-      std::filesystem::temp_directory_path() / ("dofarm_fbx2_" + std::to_string(::getpid()));
-  std::filesystem::create_directories(dir);
-  std::string other = bytes;
-  for (size_t p = other.find("Blender"); p != std::string::npos; p = other.find("Blender", p))
-    other.replace(p, 7, "Modeler");
-  std::ofstream(dir / "other.fbx", std::ios::binary) << other;
-  const SceneData top_cam = load_scene_data(dir / "other.fbx", "Top");
-  const SceneData main_cam = load_scene_data(dir / "other.fbx", "Camera");
-  std::filesystem::remove_all(dir);
-  EXPECT_NE(top_cam.camera_refused.find("\"Top\" is orthographic (FBX CameraProjectionType 1) "
-                                        "with OrthoZoom 5"),
-            std::string::npos)
-      << top_cam.camera_refused;
-  EXPECT_TRUE(main_cam.camera_refused.empty()) << main_cam.camera_refused;
+  expect_other_exporters_two_cameras(bytes);
 }
 
 // The records of two parsed FBX files agree: the same names and nesting,
@@ -361,27 +371,11 @@ TEST(ForeignCameras, EachCameraOfAnAsciiFbxFileIsFoundByName) {
   ASSERT_FALSE(ascii.empty());
   expect_same_records(parse_fbx_binary(read_file_bytes(kBlender / "two_cameras.fbx")), ascii, "");
   EXPECT_TRUE(parse_fbx_binary(text).empty());
-  const ForeignCameras scan = scan_fbx_cameras(text);
-  ASSERT_EQ(scan.cameras.size(), 2u);
-  const ForeignCamera* persp = scan.find("Camera");
-  const ForeignCamera* ortho = scan.find("Top");
-  ASSERT_TRUE(persp && ortho);
-  EXPECT_FALSE(persp->orthographic);
-  EXPECT_TRUE(ortho->orthographic);
-  EXPECT_DOUBLE_EQ(ortho->ortho_zoom, 5.0);
-
-  const std::filesystem::path dir =
-      std::filesystem::temp_directory_path() / ("dofarm_fbxa_" + std::to_string(::getpid()));
-  std::filesystem::create_directories(dir);
-  std::string other = text;
-  for (size_t p = other.find("Blender"); p != std::string::npos; p = other.find("Blender", p))
-    other.replace(p, 7, "Modeler");
-  std::ofstream(dir / "other.fbx", std::ios::binary) << other;
-  std::filesystem::copy_file(kBlender / "two_cameras_ascii.fbx", dir / "blender.fbx");
+  expect_two_cameras(scan_fbx_cameras(text));
   for (const char* name : {"Camera", "Top"}) {
     SCOPED_TRACE(name);
     const SceneData binary = load_scene_data(kBlender / "two_cameras.fbx", name);
-    const SceneData from_ascii = load_scene_data(dir / "blender.fbx", name);
+    const SceneData from_ascii = load_scene_data(kBlender / "two_cameras_ascii.fbx", name);
     ASSERT_TRUE(from_ascii.camera_refused.empty()) << from_ascii.camera_refused;
     ASSERT_TRUE(binary.scene_camera && from_ascii.scene_camera);
     EXPECT_EQ(from_ascii.scene_camera->ymag, binary.scene_camera->ymag);
@@ -392,14 +386,7 @@ TEST(ForeignCameras, EachCameraOfAnAsciiFbxFileIsFoundByName) {
   }
   expect_same_depths(render_fixture("two_cameras.glb", 0.3f, "Camera"),
                      render_fixture("two_cameras_ascii.fbx", 0.3f, "Camera"));
-  const SceneData top_cam = load_scene_data(dir / "other.fbx", "Top");
-  const SceneData main_cam = load_scene_data(dir / "other.fbx", "Camera");
-  std::filesystem::remove_all(dir);
-  EXPECT_NE(top_cam.camera_refused.find("\"Top\" is orthographic (FBX CameraProjectionType 1) "
-                                        "with OrthoZoom 5"),
-            std::string::npos)
-      << top_cam.camera_refused;
-  EXPECT_TRUE(main_cam.camera_refused.empty()) << main_cam.camera_refused;
+  expect_other_exporters_two_cameras(text);
 
   for (size_t cut : {text.size() / 3, 2 * text.size() / 3, text.size() - 3})
     EXPECT_TRUE(parse_fbx_ascii(text.substr(0, cut)).empty()) << cut;
