@@ -316,9 +316,8 @@ EvalSummary evaluate(const EvalOptions& o) {
       double sec = 0;
       std::vector<float> out;
       if (std::isfinite(o.coc_override)) {
-        FrameBuffers probe = fb;
-        std::fill(probe.coc.begin(), probe.coc.end(), o.coc_override);
-        out = den.denoise(probe, o.version, &sec);
+        const std::vector<float> probe(n, o.coc_override);
+        out = den.denoise(fb, o.version, &sec, probe.data());
       } else {
         out = den.denoise(fb, o.version, &sec);
       }

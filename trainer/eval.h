@@ -45,8 +45,9 @@ struct EvalOptions {
   // A probe of whether the model uses its CoC input: when finite, the
   // network is fed this circle of confusion (pixels) at every pixel instead
   // of the frame's own (0: everything in focus). The regions scored
-  // (kFocusRegions) still come from the frame's own CoC. Recorded in the
-  // report ("coc_override"). NaN = off.
+  // (kFocusRegions) and the albedo prefilter (data.albedo_prefilter) still
+  // read the frame's own CoC. Recorded in the report ("coc_override").
+  // NaN = off.
   float coc_override = NAN;
 };
 

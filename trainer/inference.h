@@ -35,7 +35,11 @@ class FrameDenoiser {
   // `seconds` receives the time of network + remodulation (no IO, no input
   // preparation; with data.albedo_prefilter the prefilter too), synchronised
   // with the device.
-  std::vector<float> denoise(const FrameBuffers& frame, int version, double* seconds = nullptr);
+  // `coc_input` (optional, one value per pixel): the circle of confusion
+  // the network's inputs read in place of the frame's own (the CoC probe,
+  // eval --coc-override); the albedo prefilter still reads the frame's.
+  std::vector<float> denoise(const FrameBuffers& frame, int version, double* seconds = nullptr,
+                             const float* coc_input = nullptr);
   void reset_sequence() { state_.clear(); }
   const TrainConfig& config() const { return run_.config; }
   const LoadedRun& run() const { return run_; }
@@ -55,7 +59,8 @@ class FrameDenoiser {
 // Throws RuntimeError when the network's output is not finite.
 std::vector<float> denoise_frame(Denoiser& model, const TrainConfig& cfg, torch::Device device,
                                  Precision precision, std::vector<torch::Tensor>& state,
-                                 const FrameBuffers& frame, int version, double* seconds = nullptr);
+                                 const FrameBuffers& frame, int version, double* seconds = nullptr,
+                                 const float* coc_input = nullptr);
 
 // The trainer's full-frame validation (train.val_frames): `count` whole
 // validation frames, spread evenly over the validation frames of `splits`

@@ -247,6 +247,17 @@ TEST(Eval, CocOverrideMovesOnlyAModelThatReadsTheCoc) {
   const nlohmann::json a = scores(nococ, "probe_nococ_own", NAN),
                        b = scores(nococ, "probe_nococ_big", 50.0f);
   EXPECT_EQ(a["summary"]["denoised"], b["summary"]["denoised"]);
+  // The same with the CoC-sized albedo prefilter: the probe feeds the false
+  // CoC to the network's inputs only, and the prefilter keeps blurring by
+  // the frame's own, so a network without the CoC input is still unmoved.
+  fs::path prefiltered = fresh_dir("run_nococ_prefilter");
+  TrainOptions p{shared_data(), prefiltered, o.config};
+  p.config.data.albedo_prefilter = AlbedoPrefilter::kCoc;
+  train(p);
+  const nlohmann::json c = scores(prefiltered, "probe_prefilter_own", NAN),
+                       d = scores(prefiltered, "probe_prefilter_big", 50.0f);
+  EXPECT_EQ(c["summary"]["denoised"], d["summary"]["denoised"]);
+  EXPECT_NE(c["summary"]["denoised"], a["summary"]["denoised"]);  // the prefilter did act
 
   // The command refuses a CoC that is not a finite number of pixels >= 0
   // (NaN would silently mean "no probe"), before writing anything.
