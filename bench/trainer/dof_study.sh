@@ -23,6 +23,10 @@
 # and the CoC ablation of the project's default (the thesis presets' eq. 4.5
 # schedule starves on a small data set, so (a) against (b) can be mute):
 #   default_nococ     (c) without the CoC input (--configs coc: default default_nococ)
+#   default_nococ_wide   (c) without the CoC input at the CoC network's widths
+#                        (36..113), which separates the CoC's information from width
+#   thesis_prefilter_nococ  (d) prefilter without the CoC input, at (a)'s widths:
+#                        what the CoC input adds once the albedo is blurred by it
 # and the same pair with a depth input that carries no focus information
 # (depth:focal is 0.5 on the focal plane, so with it the CoC is known up to
 # one factor per frame; --configs sdepth: default_sdepth default_sdepth_nococ):
@@ -176,6 +180,10 @@ done
 [ "$CONFIGS" = sdepth ] && CONFIGS="default_sdepth default_sdepth_nococ"
 # The thesis's inputs without the CoC (thesis 4.3.2 no-DOF network).
 NOCOC='["radiance:linear", "albedo", "normal:remap01", "depth:scene", "roughness"]'
+# The encoder widths of the thesis's DOF network (thesis 4.3.2), which the
+# CoC input's networks have: a no-CoC network at these widths differs from
+# its CoC twin only by the first convolution's CoC column.
+DOF_WIDTHS='[36, 48, 64, 85, 113]'
 # The project default's inputs without the CoC.
 DEFAULT_NOCOC='["radiance:log1p", "albedo:as_stored", "normal:as_stored", "depth:focal", "roughness:as_stored"]'
 # The project default's inputs with the thesis's scene depth, with and without the CoC.
@@ -191,9 +199,10 @@ args_of() {
   case $1 in
     thesis) echo "--preset thesis" ;;
     thesis_nococ) echo "--preset thesis" ;;
-    default|default_nococ|default_sdepth|default_sdepth_nococ) echo "--preset default" ;;
+    default|default_nococ|default_nococ_wide|default_sdepth|default_sdepth_nococ)
+      echo "--preset default" ;;
     thesis_focus) echo "--preset thesis --set loss.focus_weight=4 --set loss.focus_coc_px=1" ;;
-    thesis_prefilter) echo "--preset thesis --set data.albedo_prefilter=coc" ;;
+    thesis_prefilter|thesis_prefilter_nococ) echo "--preset thesis --set data.albedo_prefilter=coc" ;;
     # RAE: recurrent blocks, temporal weight 0.1 (Chaitanya 2017, sec. 5: 0.8 / 0.1 / 0.1).
     thesis_recurrent) echo "--preset thesis --set model.recurrent=true --set loss.temporal=0.1" ;;
     abl_*) echo "--preset thesis" ;;  # its one changed key: extra_of
@@ -205,6 +214,10 @@ extra_of() {
     thesis_nococ) echo "model.inputs=$NOCOC" ;;
     default) echo "train.warmup_steps=$WARMUP" ;;
     default_nococ) printf '%s\n' "train.warmup_steps=$WARMUP" "model.inputs=$DEFAULT_NOCOC" ;;
+    default_nococ_wide)
+      printf '%s\n' "train.warmup_steps=$WARMUP" "model.inputs=$DEFAULT_NOCOC" "model.channels=$DOF_WIDTHS"
+      ;;
+    thesis_prefilter_nococ) printf '%s\n' "model.inputs=$NOCOC" "model.channels=$DOF_WIDTHS" ;;
     default_sdepth) printf '%s\n' "train.warmup_steps=$WARMUP" "model.inputs=$SDEPTH" ;;
     default_sdepth_nococ) printf '%s\n' "train.warmup_steps=$WARMUP" "model.inputs=$SDEPTH_NOCOC" ;;
     abl_radiance) inputs_with radiance radiance:log1p ;;
@@ -223,6 +236,8 @@ describe() {
     thesis_nococ) echo "(b) thesis-exact without CoC input" ;;
     default) echo "(c) project default" ;;
     default_nococ) echo "(c) without CoC input" ;;
+    default_nococ_wide) echo "(c) without CoC input, the CoC network's widths" ;;
+    thesis_prefilter_nococ) echo "(d) prefilter without CoC input, (a)'s widths" ;;
     default_sdepth) echo "(c) with depth:scene" ;;
     default_sdepth_nococ) echo "(c) with depth:scene, without CoC input" ;;
     thesis_focus) echo "(d) (a) + focus-weighted loss" ;;
@@ -362,7 +377,7 @@ for c in $CONFIGS; do
   # The CoC probe (eval --coc-override 0): the same weights fed "everything
   # is sharp"; how much each band loses says how much the model uses its CoC.
   probe=$OUT/reports/$c-coc0
-  case $c in *_nococ) continue ;; esac
+  case $c in *_nococ | *_nococ_wide) continue ;; esac
   if [ -f "$probe/report.json" ] && [ "$probe/report.json" -nt "$report/report.json" ]; then
     echo "dof_study.sh: $c: CoC probe done, not made again"
   else
