@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "synthetic.h"
+#include "trainer/config.h"
 
 namespace dofarm::trainer {
 namespace {
@@ -38,9 +39,11 @@ std::vector<std::string> split(const std::string& line, char sep) {
   return out;
 }
 
+// `widths`: the encoder widths every configuration is shrunk to (tiny and
+// fast); empty: each keeps its own.
 int run_study(const fs::path& data, const fs::path& out, const fs::path& log,
               const std::string& configs = "", const std::string& extra = "",
-              const std::string& last = "") {
+              const std::string& last = "", const std::string& widths = "[8, 8, 8, 8, 8]") {
   const std::string cmd =
       std::string("DOFARM_TRAIN=") + DOFARM_TRAIN_EXE +
 #ifdef DOFARM_EXE
@@ -49,7 +52,8 @@ int run_study(const fs::path& data, const fs::path& out, const fs::path& log,
       " bash " + DOFARM_SOURCE_DIR +
       "/bench/trainer/dof_study.sh --steps 2 --epochs 1 --time-size 64 --out " + out.string() +
       (configs.empty() ? "" : " --configs '" + configs + "'") + extra +
-      " --set 'model.channels=[8, 8, 8, 8, 8]' --set data.crop=32 --set data.sequence=3"
+      (widths.empty() ? "" : " --set 'model.channels=" + widths + "'") +
+      " --set data.crop=32 --set data.sequence=3"
       " --set data.val_fraction=0.25 --set data.readers=1 --set data.queue=4"
       " --set train.batch=2 --set train.val_sequences=1 --set train.device=cpu " +
       last + " " + data.string() + " > " + log.string() + " 2>&1";
@@ -378,6 +382,54 @@ TEST(Study, SceneDepthPairDiffersFromTheDefaultOnlyInItsInputs) {
               std::string::npos)
         << again;
   EXPECT_EQ(again.find("default_nococ:"), std::string::npos) << again;
+}
+
+// The width-matched CoC ablations: each no-CoC twin has the inputs of its
+// CoC network less the CoC and, unlike (b), the CoC network's widths, so
+// that the pair differs by the first convolution's CoC column alone; the
+// prefiltered twin still blurs its albedo by the CoC. Run at their own
+// widths (not shrunk), on small frames.
+TEST(Study, WidthMatchedNoCocTwinsDifferFromTheirCocNetworksByTheCocInputAlone) {
+  const fs::path dir = testing::scratch_dir("study_wide");
+  fs::create_directories(dir / "data");
+  testing::write_synthetic_shard(dir / "data" / "shard-00000.h5", 12, 64, 64, 2, 5);
+  const fs::path out = dir / "out";
+  ASSERT_EQ(run_study(dir / "data", out, dir / "log",
+                      "default default_nococ_wide thesis_prefilter thesis_prefilter_nococ",
+                      " --crops 0", "", ""),
+            0)
+      << read_all(dir / "log");
+  auto config = [&](const char* name) {
+    return load_train_config(out / "runs" / name / "config.toml");
+  };
+  for (const auto& [with, without] : {std::pair{"default", "default_nococ_wide"},
+                                      std::pair{"thesis_prefilter", "thesis_prefilter_nococ"}}) {
+    SCOPED_TRACE(without);
+    const TrainConfig a = config(with), b = config(without);
+    EXPECT_EQ(b.model.effective_channels(), (std::vector<int>{36, 48, 64, 85, 113}));
+    EXPECT_EQ(a.model.effective_channels(), b.model.effective_channels());
+    EXPECT_EQ(a.model.input_channels(), b.model.input_channels() + 1);
+    std::vector<std::string> coc_less;
+    for (const std::string& in : a.model.inputs)
+      if (in.rfind("coc:", 0) != 0) coc_less.push_back(in);
+    EXPECT_EQ(coc_less, b.model.inputs);
+    EXPECT_EQ(a.data.albedo_prefilter, b.data.albedo_prefilter);
+    // Every other key alike, as the run folders store them.
+    std::vector<std::string> differ;
+    for (const std::string& change : config_changes(a, b))
+      if (change.rfind("model.inputs:", 0) != 0 && change.rfind("model.channels:", 0) != 0)
+        differ.push_back(change);
+    EXPECT_EQ(differ, std::vector<std::string>{});
+  }
+  EXPECT_EQ(config("thesis_prefilter_nococ").data.albedo_prefilter, AlbedoPrefilter::kCoc);
+  const std::string md = read_all(out / "results.md");
+  EXPECT_NE(md.find("| CoC input: `thesis_prefilter` − `thesis_prefilter_nococ` | "),
+            std::string::npos)
+      << md;
+  // No CoC probe for a network without the CoC input.
+  EXPECT_FALSE(fs::exists(out / "reports" / "default_nococ_wide-coc0"));
+  EXPECT_FALSE(fs::exists(out / "reports" / "thesis_prefilter_nococ-coc0"));
+  EXPECT_TRUE(fs::exists(out / "reports" / "thesis_prefilter-coc0"));
 }
 
 }  // namespace
