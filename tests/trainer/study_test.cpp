@@ -39,6 +39,15 @@ std::vector<std::string> split(const std::string& line, char sep) {
   return out;
 }
 
+// A scratch folder `name` whose data/ holds one synthetic shard: 12 frames
+// of 64 x 64, 2 noisy versions.
+fs::path study_dir(const char* name) {
+  const fs::path dir = testing::scratch_dir(name);
+  fs::create_directories(dir / "data");
+  testing::write_synthetic_shard(dir / "data" / "shard-00000.h5", 12, 64, 64, 2, 5);
+  return dir;
+}
+
 // `widths`: the encoder widths every configuration is shrunk to (tiny and
 // fast); empty: each keeps its own.
 int run_study(const fs::path& data, const fs::path& out, const fs::path& log,
@@ -244,9 +253,7 @@ TEST(Study, HeldOutFramesAreScoredApartAndMayNotOverlapTheTrainingFrames) {
 // tables across seeds: every configuration's mean and range, the CoC input's
 // gain per band seed by seed, the probe; bad seed lists are refused.
 TEST(Study, SeedsRunOneStudyEachAndTabulateAcrossThem) {
-  const fs::path dir = testing::scratch_dir("study_seeds");
-  fs::create_directories(dir / "data");
-  testing::write_synthetic_shard(dir / "data" / "shard-00000.h5", 12, 64, 64, 2, 5);
+  const fs::path dir = study_dir("study_seeds");
   const fs::path out = dir / "out";
   const std::string configs = "default default_nococ";
   ASSERT_EQ(run_study(dir / "data", out, dir / "seeds.log", configs, " --crops 0 --seeds '3 4'"), 0)
@@ -306,9 +313,7 @@ std::map<std::string, std::string> config_keys(const fs::path& toml) {
 // project default; each ablation's config differs from the thesis run's in
 // exactly the keys its name says.
 TEST(Study, AblationChangesOnlyItsKeyOfTheThesisPreset) {
-  const fs::path dir = testing::scratch_dir("study_ablation");
-  fs::create_directories(dir / "data");
-  testing::write_synthetic_shard(dir / "data" / "shard-00000.h5", 12, 64, 64, 2, 5);
+  const fs::path dir = study_dir("study_ablation");
   const fs::path out = dir / "out";
   ASSERT_EQ(run_study(dir / "data", out, dir / "log", "ablation"), 0) << read_all(dir / "log");
   const auto thesis = config_keys(out / "runs" / "thesis" / "config.toml");
@@ -343,9 +348,7 @@ TEST(Study, AblationChangesOnlyItsKeyOfTheThesisPreset) {
 // which hold depth:scene in place of depth:focal and, for the _nococ twin, no
 // CoC; the table has the CoC input's gain for both pairs.
 TEST(Study, SceneDepthPairDiffersFromTheDefaultOnlyInItsInputs) {
-  const fs::path dir = testing::scratch_dir("study_sdepth");
-  fs::create_directories(dir / "data");
-  testing::write_synthetic_shard(dir / "data" / "shard-00000.h5", 12, 64, 64, 2, 5);
+  const fs::path dir = study_dir("study_sdepth");
   const fs::path out = dir / "out";
   ASSERT_EQ(run_study(dir / "data", out, dir / "log",
                       "default default_nococ default_sdepth default_sdepth_nococ", " --crops 0"),
@@ -390,9 +393,7 @@ TEST(Study, SceneDepthPairDiffersFromTheDefaultOnlyInItsInputs) {
 // prefiltered twin still blurs its albedo by the CoC. Run at their own
 // widths (not shrunk), on small frames.
 TEST(Study, WidthMatchedNoCocTwinsDifferFromTheirCocNetworksByTheCocInputAlone) {
-  const fs::path dir = testing::scratch_dir("study_wide");
-  fs::create_directories(dir / "data");
-  testing::write_synthetic_shard(dir / "data" / "shard-00000.h5", 12, 64, 64, 2, 5);
+  const fs::path dir = study_dir("study_wide");
   const fs::path out = dir / "out";
   ASSERT_EQ(run_study(dir / "data", out, dir / "log",
                       "default default_nococ_wide thesis_prefilter thesis_prefilter_nococ",
