@@ -250,13 +250,13 @@ void run_scene(const char* name, const char* job, int frame, const Args& args) {
                 SurfaceHit hit;
                 return scene->intersect(Ray{r.o, r.d, r.t_min, r.t_max}, &hit);
               }));
-    keep_best(&bare, trace_all(own, threads, 1, [&](const TracedRay& r) {
-                RTCIntersectContext ctx;
-                rtcInitIntersectContext(&ctx);
+    keep_best(&bare,
+              trace_all(own, threads, 1, [&](const TracedRay& r) {
+                Scene::EmbreeContext ctx = scene->embree_context();
                 if (r.shadow) {
                   RTCRay ray{r.o.x, r.o.y, r.o.z, 0.0f, r.d.x, r.d.y, r.d.z, 0.0f,
                              r.t_max, 0xffffffffu, 0, 0};
-                  rtcOccluded1(rtc, &ctx, &ray);
+                  rtcOccluded1(rtc, &ctx.rtc, &ray);
                   return ray.tfar < 0;
                 }
                 RTCRayHit rh;
@@ -264,7 +264,7 @@ void run_scene(const char* name, const char* job, int frame, const Args& args) {
                           r.d.z, 0.0f,  r.t_max, 0xffffffffu, 0,     0};
                 rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
                 rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-                rtcIntersect1(rtc, &ctx, &rh);
+                rtcIntersect1(rtc, &ctx.rtc, &rh);
                 return rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
               }));
     // (c) random rays, the old reference

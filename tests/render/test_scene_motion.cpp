@@ -293,19 +293,35 @@ TEST(SceneMotion, APoseThatMovesOnlyLampsTracesThroughTheLoadedBvh) {
     ASSERT_TRUE(posed->intersect(down, &hit));
     EXPECT_NEAR(hit.t, 2.0f, 1e-5f);
   }
-  {  // Alpha masks: Embree's filter asks the scene that built the BVH, so
-     // a lamp-only pose of a cut-out quad builds its own, which cuts out.
+  {  // Alpha masks: the quad is cut out where x < 0.5 (u = x; a 2 x 1 RGBA
+     // texture, alpha 0 then 1). The pose shares the BVH, and Embree's
+     // filter asks the pose, the scene that traces, so it still cuts out
+     // when the scene that built the BVH is gone.
     GltfQuad q = gltf_fixture::gltf_quad();
     rig(&q);
+    const unsigned char px[] = {200, 10, 10, 0, 10, 200, 10, 255};
+    gltf_fixture::write_bytes(dir.path / "leaf.png", gltf_fixture::encode_png(px, 2, 1, 4));
+    gltf_fixture::use_base_color_image(&q, {{"uri", "leaf.png"}});
     q.doc["materials"][0]["alphaMode"] = "MASK";
-    q.doc["materials"][0]["pbrMetallicRoughness"]["baseColorFactor"] = {1, 1, 1, 0.2};
     auto loaded = std::make_shared<Scene>(load(dir, "masked.gltf", q), nullptr);
     const std::shared_ptr<const Scene> posed = loaded->at_time(0.5f);
-    EXPECT_FALSE(posed->shares_bvh_with(*loaded));
+    EXPECT_TRUE(posed->shares_bvh_with(*loaded));
     loaded.reset();
+    const Ray kept{Vec3(0.75f, 3, 0.5f), Vec3(0, -1, 0)};
     SurfaceHit hit;
-    EXPECT_FALSE(posed->intersect(down, &hit));
+    EXPECT_FALSE(posed->intersect(down, &hit));  // x = 0.25: cut out
     EXPECT_FALSE(posed->occluded(down.o, down.d, 4.0f));
+    ASSERT_TRUE(posed->intersect(kept, &hit));
+    EXPECT_NEAR(hit.t, 3.0f, 1e-5f);
+    EXPECT_TRUE(posed->occluded(kept.o, kept.d, 4.0f));
+    // Bare queries with the pose's context (as render_throughput makes them).
+    Scene::EmbreeContext ctx = posed->embree_context();
+    RTCRay r{0.25f, 3, 0.5f, 0, 0, -1, 0, 0, 4.0f, 0xffffffffu, 0, 0};
+    rtcOccluded1(posed->embree_scene(), &ctx.rtc, &r);
+    EXPECT_FALSE(r.tfar < 0);
+    RTCRay r2{0.75f, 3, 0.5f, 0, 0, -1, 0, 0, 4.0f, 0xffffffffu, 0, 0};
+    rtcOccluded1(posed->embree_scene(), &ctx.rtc, &r2);
+    EXPECT_TRUE(r2.tfar < 0);
   }
 }
 

@@ -59,8 +59,12 @@ Vec3 texture_mean(const Texture& t) {
 // closest-hit and shadow queries alike (it is set only when a material has
 // an alpha mask); a hit on a cut-out point is rejected, so the ray goes on
 // as if the surface were not there.
+// The scene it asks is the one tracing, read from the query's context
+// (Embree hands the filter the context the query was given), not the one
+// that built the BVH: a pose that moves only lamps traces through the
+// loaded scene's BVH and may outlive that scene.
 void alpha_mask_filter(const RTCFilterFunctionNArguments* args) {
-  const auto* scene = static_cast<const Scene*>(args->geometryUserPtr);
+  const Scene* scene = reinterpret_cast<const Scene::EmbreeContext*>(args->context)->scene;
   for (unsigned i = 0; i < args->N; ++i) {
     if (args->valid[i] != -1) continue;
     // The ray's origin and direction, bit for bit: its key for BLEND.
@@ -140,12 +144,11 @@ std::shared_ptr<const Scene> Scene::at_time(float time) const {
     if (t == time) return scene;
   // Built under the lock: whoever else asks wants the same pose or waits
   // for its BVH in any case. Where only lamps move, every triangle stays
-  // where it was loaded and the pose traces through this scene's BVH. Not
-  // with alpha masks: Embree's filter asks the scene that built the BVH,
-  // which a pose may outlive.
-  auto scene = std::shared_ptr<const Scene>(
-      new Scene(pose(data_, time), textures_, environment_, time,
-                data_.motion->parts.empty() && !has_alpha_masks(data_) ? bvh_ : nullptr));
+  // where it was loaded and the pose traces through this scene's BVH (with
+  // alpha masks too: the filter asks the tracing scene, embree_context()).
+  auto scene =
+      std::shared_ptr<const Scene>(new Scene(pose(data_, time), textures_, environment_, time,
+                                             data_.motion->parts.empty() ? bvh_ : nullptr));
   if (posed_.size() >= 2) posed_.erase(posed_.begin());
   posed_.emplace_back(time, scene);
   return scene;
@@ -289,7 +292,6 @@ void Scene::build_bvh() {
   }
   std::copy(data_.indices.begin(), data_.indices.end(), indices);
   if (has_alpha_masks(data_)) {
-    rtcSetGeometryUserData(geom, this);
     rtcSetGeometryIntersectFilterFunction(geom, alpha_mask_filter);
     rtcSetGeometryOccludedFilterFunction(geom, alpha_mask_filter);
   }
@@ -381,13 +383,12 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
   ++t_rays.closest;
   if (ray_sink_) [[unlikely]]
     ray_sink_->record({ray.o, ray.d, ray.t_max, false, ray.t_min});
-  RTCIntersectContext ctx;
-  rtcInitIntersectContext(&ctx);
+  EmbreeContext ctx = embree_context();
   RTCRayHit rh;
   rh.ray = embree_ray(ray.o, ray.d, ray.t_max, ray.t_min);
   rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
   rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-  rtcIntersect1(rtc_scene_, &ctx, &rh);
+  rtcIntersect1(rtc_scene_, &ctx.rtc, &rh);
   if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
 
   const uint32_t prim = rh.hit.primID;
@@ -470,10 +471,9 @@ bool Scene::occluded(Vec3 origin, Vec3 dir, float t_max) const {
   ++t_rays.shadow;
   if (ray_sink_) [[unlikely]]
     ray_sink_->record({origin, dir, t_max, true});
-  RTCIntersectContext ctx;
-  rtcInitIntersectContext(&ctx);
+  EmbreeContext ctx = embree_context();
   RTCRay r = embree_ray(origin, dir, t_max);
-  rtcOccluded1(rtc_scene_, &ctx, &r);
+  rtcOccluded1(rtc_scene_, &ctx.rtc, &r);
   return r.tfar < 0;  // Embree sets tfar to -inf on a hit
 }
 

@@ -167,6 +167,19 @@ class Scene {
   void set_ray_sink(RaySink* sink) { ray_sink_ = sink; }
   // The Embree scene, for benchmarks that trace with bare rtcIntersect1.
   RTCScene embree_scene() const { return rtc_scene_; }
+  // The context every query of embree_scene() passes (&ctx.rtc), bare
+  // queries too: the alpha-mask filter reads from it the scene that traces,
+  // which need not be the one that built the BVH (a pose shares it).
+  struct EmbreeContext {
+    RTCIntersectContext rtc;  // first: what Embree is handed and hands back
+    const Scene* scene = nullptr;
+  };
+  EmbreeContext embree_context() const {
+    EmbreeContext ctx;
+    rtcInitIntersectContext(&ctx.rtc);
+    ctx.scene = this;
+    return ctx;
+  }
   // Whether this scene traces through `other`'s BVH (a pose that moves only
   // lamps shares the loaded scene's: at_time()).
   bool shares_bvh_with(const Scene& other) const { return bvh_ == other.bvh_; }
