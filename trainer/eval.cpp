@@ -41,20 +41,33 @@ struct Scores {
 // display encoding) over every region: masks[r] (null: all pixels) holding
 // pixels[r] pixels. The image is encoded once and SSIM's windows filtered
 // once for all regions; a region without a pixel has no score (not 0).
+// With `tiles`, also the regions' SSIM sums per tile of kSsimTile pixels
+// (report.json frames[].denoised_tiles; regions without pixels left out).
+constexpr int kSsimTile = 32;
 std::array<Scores, kRegionCount> score_regions(const std::vector<float>& img,
                                                const std::vector<float>& ref,
                                                const std::vector<float>& display_ref, int w, int h,
-                                               const uint8_t* const* masks, const size_t* pixels) {
+                                               const uint8_t* const* masks, const size_t* pixels,
+                                               json* tiles = nullptr) {
   ImageView vi{img.data(), 3, h, w}, vr{ref.data(), 3, h, w};
   const std::vector<float> di = display_encode(vi);
   ImageView ddi{di.data(), 3, h, w}, ddr{display_ref.data(), 3, h, w};
   std::vector<const uint8_t*> scored;
   for (int r = 0; r < kRegionCount; ++r)
     if (pixels[r] > 0) scored.push_back(masks[r]);
-  const std::vector<double> s = ssim_per_mask(ddi, ddr, scored);
+  TiledSsim tiled;
+  const std::vector<double> s =
+      ssim_per_mask(ddi, ddr, scored, kSsimTile, tiles ? &tiled : nullptr);
   std::array<Scores, kRegionCount> out;
+  if (tiles)
+    *tiles = {{"tile", tiled.tile}, {"tiles_x", tiled.tiles_x}, {"tiles_y", tiled.tiles_y}};
   for (int r = 0, i = 0; r < kRegionCount; ++r)
-    if (pixels[r] > 0) out[r] = {s[i++], psnr(ddi, ddr, masks[r]), relative_mse(vi, vr, masks[r])};
+    if (pixels[r] > 0) {
+      if (tiles)
+        (*tiles)["regions"][kFocusRegions[r].name] = {{"ssim_sum", tiled.sum[i]},
+                                                      {"count", tiled.count[i]}};
+      out[r] = {s[i++], psnr(ddi, ddr, masks[r]), relative_mse(vi, vr, masks[r])};
+    }
   return out;
 }
 
@@ -351,10 +364,12 @@ EvalSummary evaluate(const EvalOptions& o) {
       if (pair && want_val && prev_val) to_flicker.insert(to_flicker.end(), {&all, &scene});
       if (pair && want_every) to_flicker.insert(to_flicker.end(), {&every, &scene_every});
       const std::vector<float> display_ref = display_encode({fb.reference.data(), 3, h, w});
+      json tiles;  // the denoised frame's SSIM per tile, validation frames only
       for (int k = 0; k < 2; ++k) {
         const std::vector<float>& img = k == 0 ? noisy : out;
         const std::array<Scores, kRegionCount> scores =
-            score_regions(img, fb.reference, display_ref, w, h, masks, region_pixels);
+            score_regions(img, fb.reference, display_ref, w, h, masks, region_pixels,
+                          k == 1 && want_val ? &tiles : nullptr);
         for (int r = 0; r < kRegionCount; ++r) {
           Scores s = scores[r];
           if (pair && region_pixels[r] > 0) {
@@ -391,6 +406,7 @@ EvalSummary evaluate(const EvalOptions& o) {
       const double c = ceiling.add(fb, file, reader.info().frame_start + f);
       row["reference_ceiling_ssim"] = std::isfinite(c) ? json(c) : json();
       row["exact_denoiser_ssim"] = std::isfinite(c) ? json(ceiling.last_exact()) : json();
+      row["denoised_tiles"] = std::move(tiles);
       frames.push_back(row);
       if (crop_picker.wanted())
         crop_picker.offer(file, focus_crops_of(o.crop_side, fb, noisy, out,

@@ -88,13 +88,24 @@ constexpr double kC1 = 0.01 * 0.01, kC2 = 0.03 * 0.03;  // SSIM's (K L)^2 with L
 // For each mask (null: every window), the mean over channels and valid
 // windows whose centre the mask keeps of term(mx, my, vx, vy, cxy): the
 // Gaussian-weighted means, variances and covariance of a and b in the
-// window, filtered once for all masks. NaN where no window counts.
+// window, filtered once for all masks. NaN where no window counts. With
+// `tiled`, also the sums and counts per tile of `tile` pixels.
 template <class Term>
 std::vector<double> mean_over_windows(ImageView a, ImageView b,
-                                      const std::vector<const uint8_t*>& masks, Term term) {
+                                      const std::vector<const uint8_t*>& masks, Term term,
+                                      int tile = 0, TiledSsim* tiled = nullptr) {
   check_same_shape(a, b);
   const int h = a.height, w = a.width;
   const double nan = std::numeric_limits<double>::quiet_NaN();
+  if (tiled) {
+    DOFARM_CHECK(tile >= 1);
+    tiled->tile = tile;
+    tiled->tiles_x = (w + tile - 1) / tile;
+    tiled->tiles_y = (h + tile - 1) / tile;
+    const size_t n = size_t(tiled->tiles_x) * tiled->tiles_y;
+    tiled->sum.assign(masks.size(), std::vector<double>(n, 0.0));
+    tiled->count.assign(masks.size(), std::vector<uint32_t>(n, 0));
+  }
   if (h <= 2 * kRadius || w <= 2 * kRadius) return std::vector<double>(masks.size(), nan);
   const int vh = h - 2 * kRadius, vw = w - 2 * kRadius;
   std::vector<double> total(masks.size(), 0.0);
@@ -128,6 +139,11 @@ std::vector<double> mean_over_windows(ImageView a, ImageView b,
           }
           total[m] += value;
           ++count[m];
+          if (tiled) {
+            const size_t t = size_t((j + kRadius) / tile) * tiled->tiles_x + (i + kRadius) / tile;
+            tiled->sum[m][t] += value;
+            ++tiled->count[m][t];
+          }
         }
       }
   }
@@ -139,10 +155,20 @@ std::vector<double> mean_over_windows(ImageView a, ImageView b,
 }  // namespace
 
 std::vector<double> ssim_per_mask(ImageView a, ImageView b,
+                                  const std::vector<const uint8_t*>& masks, int tile,
+                                  TiledSsim* tiled) {
+  return mean_over_windows(
+      a, b, masks,
+      [](double mx, double my, double vx, double vy, double cxy) {
+        return (2 * mx * my + kC1) * (2 * cxy + kC2) /
+               ((mx * mx + my * my + kC1) * (vx + vy + kC2));
+      },
+      tile, tiled);
+}
+
+std::vector<double> ssim_per_mask(ImageView a, ImageView b,
                                   const std::vector<const uint8_t*>& masks) {
-  return mean_over_windows(a, b, masks, [](double mx, double my, double vx, double vy, double cxy) {
-    return (2 * mx * my + kC1) * (2 * cxy + kC2) / ((mx * mx + my * my + kC1) * (vx + vy + kC2));
-  });
+  return ssim_per_mask(a, b, masks, 0, nullptr);
 }
 
 double ssim(ImageView a, ImageView b, const uint8_t* mask) {

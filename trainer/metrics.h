@@ -38,6 +38,21 @@ double ssim(ImageView a, ImageView b, const uint8_t* mask = nullptr);
 // bit, at the cost of one ssim() (the evaluation scores several regions).
 std::vector<double> ssim_per_mask(ImageView a, ImageView b,
                                   const std::vector<const uint8_t*>& masks);
+// What ssim_per_mask() divides, kept per square tile of `tile` pixels
+// (tiles_x x tiles_y, row-major; a window counts in the tile of its
+// centre): for mask m, sum[m][t] of the SSIM map (summed over channels) and
+// count[m][t] of its values. The mask's SSIM is the sum of sum[m] over the
+// sum of count[m], so scores of two images over the same tiles can be
+// compared tile by tile (a paired bootstrap: bench/trainer/study_tables.py).
+struct TiledSsim {
+  int tile = 0, tiles_x = 0, tiles_y = 0;
+  std::vector<std::vector<double>> sum;
+  std::vector<std::vector<uint32_t>> count;
+};
+// ssim_per_mask(), and with `tiled` non-null its tiles' sums (tile >= 1).
+std::vector<double> ssim_per_mask(ImageView a, ImageView b,
+                                  const std::vector<const uint8_t*>& masks, int tile,
+                                  TiledSsim* tiled);
 // ssim() of the display encodings of two linear images.
 double display_ssim(ImageView linear_a, ImageView linear_b);
 

@@ -345,9 +345,10 @@ for c in $CONFIGS; do
     held_separately=0
   fi
   # A report is made again when its run has trained since, or when it is from
-  # before the scores by circle of confusion (no "pixel_share").
+  # before the scores by circle of confusion (no "pixel_share") or before the
+  # SSIM per tile that the CoC input's interval needs (no "denoised_tiles").
   if [ -f "$report/report.json" ] && [ "$report/report.json" -nt "$run/checkpoints/last.pt" ] &&
-    grep -q '"pixel_share"' "$report/report.json"; then
+    grep -q '"pixel_share"' "$report/report.json" && grep -q '"denoised_tiles"' "$report/report.json"; then
     echo "dof_study.sh: $c: evaluated, not evaluated again"
   else
     echo "dof_study.sh: $c: evaluating -> $report"

@@ -12,7 +12,10 @@
   study_tables.py seeds OUT SIDE "S1 S2 ..." NAME=DESCRIPTION...
       the tables across the seeds' studies OUT/seed-S: per configuration the
       mean and the range over the seeds, SSIM by CoC band, the CoC input's
-      gain and the CoC probe seed by seed.
+      gain and the CoC probe seed by seed;
+  study_tables.py paired A/report.json B/report.json
+      SSIM of A − SSIM of B by region on the frames both scored, with a 95%
+      interval from a paired bootstrap over 32-pixel tiles (paired_ssim()).
 
 SIDE is the frame side the denoise was timed at. Every file is written
 whole and then renamed over the old one. Prints the tables; asserts nothing.
@@ -57,6 +60,62 @@ def shard_infos(dofarm, folder):
                                       capture_output=True, text=True).stdout)
         out.append((path, j["attributes"]))
     return out
+
+
+def paired_ssim(rep_a, rep_b, region, resamples=1000, seed=1):
+    """(A − B, low, high, tiles): the difference of two reports' mean denoised
+    SSIM over `region` on the frames both scored (matched by shard and frame),
+    and its 95% percentile interval from a paired bootstrap. Each report
+    frame keeps its SSIM map summed per 32-pixel tile (frames[].denoised_tiles,
+    trainer/eval.cpp); a resample draws each frame's tiles with replacement,
+    the same tiles for A and B, and averages the frames' differences as the
+    reports' summaries average frames. It measures how much the difference
+    depends on which parts of these frames were scored, not the spread over
+    training seeds (the seeds table). Nones where no frame has tiles."""
+    import random
+
+    def tiles(rep):
+        out = {}
+        for f in rep.get("frames", []):
+            t = (f.get("denoised_tiles") or {}).get("regions", {}).get(region)
+            if t:
+                out[(f["shard"], f["frame"])] = t
+        return out
+    ta, tb = tiles(rep_a), tiles(rep_b)
+    frames = []  # per frame: [(sum A, sum B, count)] over tiles with windows in the region
+    for key in sorted(set(ta) & set(tb)):
+        a, b = ta[key], tb[key]
+        if a["count"] != b["count"]:
+            raise ValueError(f"frame {key}: the two reports' {region} tiles differ (other data?)")
+        frames.append([(x, y, n) for x, y, n in zip(a["ssim_sum"], b["ssim_sum"], a["count"]) if n])
+    frames = [f for f in frames if f]
+    if not frames:
+        return None, None, None, 0
+
+    def diff(draw):
+        total = 0.0
+        for units in draw:
+            sa = sb = n = 0.0
+            for x, y, c in units:
+                sa += x
+                sb += y
+                n += c
+            total += (sa - sb) / n
+        return total / len(draw)
+    rng = random.Random(seed)
+    boot = sorted(diff([rng.choices(u, k=len(u)) for u in frames]) for _ in range(resamples))
+    return (diff(frames), boot[int(0.025 * resamples)], boot[int(0.975 * resamples) - 1],
+            sum(len(u) for u in frames))
+
+
+def paired_rows(rep_a, rep_b, regions):
+    """One markdown cell per region: "A − B [low, high]", "–" for a region
+    without pixels; None when the reports have no tiles."""
+    cells = []
+    for r in regions:
+        d, lo, hi, n = paired_ssim(rep_a, rep_b, r)
+        cells.append(f"{d:+.4f} [{lo:+.4f}, {hi:+.4f}]" if n else "–")
+    return cells if any(c != "–" for c in cells) else None
 
 
 def held_out_check(dofarm, held, train_dirs):
@@ -227,12 +286,28 @@ def one_study(out, side, label):
         probe_rows.append(f"| `{r['config']}` fed CoC 0 | " +
                           " | ".join(fmt(probe_ssim(region) - band_ssim(r, region), "+.4f")
                                      for region, _ in bands) + " |")
+    paired_md = []
+    regions = [("all", "all"), ("out_of_focus", "out of focus")] + list(bands)
+    for c in configs:
+        if c + "_nococ" in by:
+            ra = json.load(open(os.path.join(out, "reports", c, "report.json")))
+            rb = json.load(open(os.path.join(out, "reports", c + "_nococ", "report.json")))
+            cells = paired_rows(ra, rb, [r for r, _ in regions])
+            if cells:
+                paired_md.append(f"| `{c}` − `{c}_nococ` | " + " | ".join(cells) + " |")
+    def table(intro, first, columns, body):
+        return ["", intro, "", f"| {first} | " + " | ".join(name for _, name in columns) + " |",
+                "| --- " * (len(columns) + 1) + "|"] + body
+    if paired_md:
+        coc_md += table("The CoC input's gain with a 95% interval (`study_tables.py paired`: a "
+                        "paired bootstrap over 32-pixel tiles of these frames; it says how much the "
+                        "gain depends on which parts of the frames were scored, not how it varies "
+                        "over training seeds):", "pair", regions, paired_md)
     if probe_rows:
-        coc_md += ["", "The CoC probe (`eval --coc-override 0`): SSIM when the network is fed a CoC of "
-                   "0 px everywhere (\"all sharp\"), minus SSIM with the frame's own CoC, by the "
-                   "frame's own CoC band (a model that ignores its CoC input scores +0 everywhere):", "",
-                   "| configuration | " + " | ".join(name for _, name in bands) + " |",
-                   "| --- " * (len(bands) + 1) + "|"] + probe_rows
+        coc_md += table("The CoC probe (`eval --coc-override 0`): SSIM when the network is fed a "
+                        "CoC of 0 px everywhere (\"all sharp\"), minus SSIM with the frame's own "
+                        "CoC, by the frame's own CoC band (a model that ignores its CoC input scores "
+                        "+0 everywhere):", "configuration", bands, probe_rows)
     # Side-by-side crops: the windows eval chose from the data's CoC (the same
     # for every configuration), copied to OUT/crops/ so that results.md and its
     # pictures can be published together.
@@ -396,11 +471,19 @@ def across_seeds(out, side, seeds, label):
 def main(argv):
     usage = ("usage: study_tables.py study OUT SIDE NAME=DESCRIPTION... | "
              "held-out-check DOFARM HELD_DIR TRAIN_DIR... | "
-             "seeds OUT SIDE \"S1 S2 ...\" NAME=DESCRIPTION...")
+             "seeds OUT SIDE \"S1 S2 ...\" NAME=DESCRIPTION... | "
+             "paired A/report.json B/report.json")
     if len(argv) >= 4 and argv[1] == "study":
         one_study(argv[2], int(argv[3]), dict(arg.split("=", 1) for arg in argv[4:]))
     elif len(argv) >= 5 and argv[1] == "held-out-check":
         return held_out_check(argv[2], argv[3], argv[4:])
+    elif len(argv) == 4 and argv[1] == "paired":
+        a, b = json.load(open(argv[2])), json.load(open(argv[3]))
+        print(f"A = {argv[2]}\nB = {argv[3]}\n")
+        print("| region | A − B | 95% interval | tiles |\n| --- | --- | --- | --- |")
+        for r in ["all", "out_of_focus"] + [b_ for b_, _ in BANDS]:
+            d, lo, hi, n = paired_ssim(a, b, r)
+            print(f"| {r} | " + (f"{d:+.4f} | [{lo:+.4f}, {hi:+.4f}] | {n}" if n else "– | – | 0") + " |")
     elif len(argv) >= 5 and argv[1] == "seeds":
         across_seeds(argv[2], int(argv[3]), argv[4].split(),
                      dict(arg.split("=", 1) for arg in argv[5:]))

@@ -58,6 +58,27 @@ TEST(Eval, ReportHasEveryFrameAndBeatsTheNoisyInput) {
   EXPECT_GT(fl_noisy, fl_den);
   EXPECT_NEAR(s.flicker, fl_den, 1e-12);
   EXPECT_TRUE(j["denoise_ms_at_size"].is_null());  // not asked for
+  // Each frame's denoised SSIM per tile of 32 px, for paired comparisons of
+  // two models (bench/trainer/study_tables.py): per region, the tiles'
+  // sums over their counts give the frame's score.
+  for (const auto& row : j["frames"]) {
+    const auto& t = row["denoised_tiles"];
+    ASSERT_EQ(t["tile"], 32);
+    int regions = 0;
+    for (const auto& [name, r] : t["regions"].items()) {
+      const auto& sum = r["ssim_sum"];
+      const auto& count = r["count"];
+      ASSERT_EQ(sum.size(), size_t(t["tiles_x"].get<int>() * t["tiles_y"].get<int>()));
+      ASSERT_EQ(count.size(), sum.size());
+      double a = 0, n = 0;
+      for (size_t i = 0; i < sum.size(); ++i)
+        a += sum[i].get<double>(), n += count[i].get<double>();
+      EXPECT_NEAR(a / n, row["denoised"][name]["ssim"].get<double>(), 1e-12) << name;
+      ++regions;
+    }
+    EXPECT_GE(regions, 2);  // "all" and at least one CoC band
+    EXPECT_TRUE(t["regions"].contains("all"));
+  }
 }
 
 // --held-out: every frame of a folder the run did not train on is scored as

@@ -95,6 +95,48 @@ TEST(Ssim, PerMaskEqualsOneCallPerMask) {
   EXPECT_NE(s[0], s[3]);
 }
 
+// Per tile (report.json's denoised_tiles): each tile's sum over its count
+// is the SSIM of a mask that keeps the tile's pixels and the region's, and
+// the tiles add up to the region's SSIM; tiles that do not divide the image
+// are cut at its edges.
+TEST(Ssim, TilesAddUpToTheMaskAndEachIsItsOwnMask) {
+  Fixture f;
+  std::vector<uint8_t> left(kH * kW, 0);
+  for (int y = 0; y < kH; ++y)
+    for (int x = 0; x < kW; ++x) left[y * kW + x] = x < kW / 2;
+  const std::vector<const uint8_t*> masks = {nullptr, left.data()};
+  const int tile = 7;
+  TiledSsim t;
+  const std::vector<double> s = ssim_per_mask(f.view(f.a), f.view(f.b), masks, tile, &t);
+  EXPECT_EQ(s, ssim_per_mask(f.view(f.a), f.view(f.b), masks));  // bit for bit
+  ASSERT_EQ(t.tiles_x, (kW + tile - 1) / tile);
+  ASSERT_EQ(t.tiles_y, (kH + tile - 1) / tile);
+  ASSERT_EQ(t.sum.size(), 2u);
+  for (size_t m = 0; m < masks.size(); ++m) {
+    double total = 0, count = 0;
+    for (size_t i = 0; i < t.sum[m].size(); ++i) total += t.sum[m][i], count += t.count[m][i];
+    EXPECT_NEAR(total / count, s[m], 1e-12);
+  }
+  int checked = 0;
+  for (int ty = 0; ty < t.tiles_y; ++ty)
+    for (int tx = 0; tx < t.tiles_x; ++tx) {
+      std::vector<uint8_t> in_tile(kH * kW, 0);
+      for (int y = ty * tile; y < std::min(kH, (ty + 1) * tile); ++y)
+        for (int x = tx * tile; x < std::min(kW, (tx + 1) * tile); ++x)
+          in_tile[y * kW + x] = left[y * kW + x];
+      const size_t i = size_t(ty) * t.tiles_x + tx;
+      const double own = ssim(f.view(f.a), f.view(f.b), in_tile.data());
+      if (t.count[1][i] == 0) {
+        EXPECT_TRUE(std::isnan(own));  // no window centre of the region there
+        continue;
+      }
+      // Three channels: the count is per channel value.
+      EXPECT_NEAR(t.sum[1][i] / t.count[1][i], own, 1e-12) << tx << "," << ty;
+      ++checked;
+    }
+  EXPECT_GT(checked, 2);
+}
+
 TEST(Psnr, KnownValueAndCapForIdenticalImages) {
   std::vector<float> a(3 * 4 * 4, 0.5f), b(a.size(), 0.6f);
   ImageView va{a.data(), 3, 4, 4}, vb{b.data(), 3, 4, 4};

@@ -7,7 +7,9 @@
 #include <sys/stat.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -127,6 +129,13 @@ TEST(Study, OneCommandScoresEveryConfigurationAndResumes) {
   EXPECT_NE(md.find("SSIM by circle of confusion"), std::string::npos) << md;
   EXPECT_NE(md.find("| CoC input: `thesis` − `thesis_nococ` | "), std::string::npos) << md;
   EXPECT_EQ(md.find("CoC input: `default`"), std::string::npos) << md;  // no default_nococ run
+  // Its 95% interval from the paired tile bootstrap: one cell per region.
+  const size_t boot = md.find("| `thesis` − `thesis_nococ` | ");
+  ASSERT_NE(boot, std::string::npos) << md;
+  const std::string boot_row = md.substr(boot, md.find('\n', boot) - boot);
+  // All, out of focus and the bands but >= 16 px, where no synthetic pixel falls.
+  EXPECT_EQ(split(boot_row, '[').size(), 6u) << boot_row;
+  EXPECT_NE(boot_row.find("| – |"), std::string::npos) << boot_row;
   // The CoC probe: every configuration with a CoC input, fed CoC 0.
   EXPECT_NE(md.find("The CoC probe"), std::string::npos) << md;
   for (const std::string& c : configs) {
@@ -166,6 +175,70 @@ TEST(Study, OneCommandScoresEveryConfigurationAndResumes) {
     EXPECT_EQ(fs::last_write_time(out / "runs" / c / "checkpoints" / "last.pt"), before[c]) << c;
   }
   EXPECT_EQ(read_all(out / "results.md"), md);  // the same table again
+}
+
+// `study_tables.py paired`, on two reports written here: where every tile of
+// every frame differs by the same SSIM per window value, the difference is
+// that value and the interval shrinks to it; where the tiles differ
+// unevenly, the point is the reports' own difference (the mean over frames
+// of count-weighted tile means) and the interval holds it and has a width.
+// Frames are matched by shard and frame; one only A scored is left out.
+TEST(Study, PairedBootstrapOverTilesKnownAnswers) {
+  const fs::path dir = testing::scratch_dir("study_paired");
+  // frames[f] = per tile (sum A, sum B, count) of region "all"
+  auto write = [&](const char* name, const std::vector<std::vector<std::array<double, 3>>>& frames,
+                   int which, bool extra) {
+    std::ofstream f(dir / name);
+    f << "{\"frames\": [";
+    for (size_t k = 0; k < frames.size() + (extra ? 1 : 0); ++k) {
+      if (k) f << ",";
+      f << "{\"shard\": \"s.h5\", \"frame\": " << k
+        << ", \"denoised_tiles\": {\"tile\": 32, \"regions\": {\"all\": {\"ssim_sum\": [";
+      const auto& tiles = frames[std::min(k, frames.size() - 1)];
+      for (size_t t = 0; t < tiles.size(); ++t) f << (t ? "," : "") << tiles[t][which];
+      f << "], \"count\": [";
+      for (size_t t = 0; t < tiles.size(); ++t) f << (t ? "," : "") << tiles[t][2];
+      f << "]}}}}";
+    }
+    f << "]}";
+  };
+  auto paired_all = [&](const char* a, const char* b) {
+    const std::string cmd = std::string("python3 ") + DOFARM_SOURCE_DIR +
+                            "/bench/trainer/study_tables.py paired " + (dir / a).string() + " " +
+                            (dir / b).string() + " > " + (dir / "paired.log").string() + " 2>&1";
+    EXPECT_EQ(std::system(cmd.c_str()), 0) << read_all(dir / "paired.log");
+    const std::string log = read_all(dir / "paired.log");
+    const size_t at = log.find("| all | ");
+    EXPECT_NE(at, std::string::npos) << log;
+    // "| all | D | [LO, HI] | N |"
+    double d = NAN, lo = NAN, hi = NAN;
+    int n = 0;
+    std::sscanf(log.c_str() + at, "| all | %lf | [%lf, %lf] | %d |", &d, &lo, &hi, &n);
+    return std::array<double, 4>{d, lo, hi, double(n)};
+  };
+  // Even: every value of B is 0.01 below A's (sum difference 0.01 x count).
+  const std::vector<std::vector<std::array<double, 3>>> even = {
+      {{90, 89, 100}, {45, 44.5, 50}, {0, 0, 0}}, {{80, 79, 100}, {7, 6.9, 10}}};
+  write("even_a.json", even, 0, true);  // A has a third frame B lacks
+  write("even_b.json", even, 1, false);
+  auto e = paired_all("even_a.json", "even_b.json");
+  EXPECT_NEAR(e[0], 0.01, 1e-4);
+  EXPECT_NEAR(e[1], 0.01, 1e-4);
+  EXPECT_NEAR(e[2], 0.01, 1e-4);
+  EXPECT_EQ(e[3], 4);  // tiles with windows in the region, on matched frames
+  // Uneven: frame 0 differs by +0.1 in one tile and -0.02 in the other,
+  // frame 1 by 0 and +0.04 (count-weighted), so the point is
+  // ((0.1 * 100 - 0.02 * 100) / 200 + (0 + 0.04 * 300) / 400) / 2 = 0.035.
+  const std::vector<std::vector<std::array<double, 3>>> uneven = {{{90, 80, 100}, {50, 52, 100}},
+                                                                  {{60, 60, 100}, {240, 228, 300}}};
+  write("uneven_a.json", uneven, 0, false);
+  write("uneven_b.json", uneven, 1, false);
+  auto u = paired_all("uneven_a.json", "uneven_b.json");
+  EXPECT_NEAR(u[0], 0.035, 1e-4);
+  EXPECT_LT(u[1], u[0]);
+  EXPECT_GT(u[2], u[0]);
+  EXPECT_LE(u[1], u[2]);
+  EXPECT_GT(u[2] - u[1], 0.01);
 }
 
 // --held-out: every configuration is also scored on all frames of a folder
