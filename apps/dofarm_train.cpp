@@ -144,6 +144,7 @@ Command add_eval(CLI::App& app) {
     bool validation_only = false;
     bool held_out = false;
     float coc_override = NAN;
+    std::vector<std::string> flatten_inputs;
   };
   auto o = std::make_shared<Opts>();
   cmd->add_option("--run", o->run, "run folder")->required()->check(CLI::ExistingDirectory);
@@ -201,9 +202,14 @@ Command add_eval(CLI::App& app) {
           },
           "PX"))
       ->check(CLI::Range(0.0f, 1e4f));
+  cmd->add_option("--flatten-input", o->flatten_inputs,
+                  "probe which inputs the network uses: feed it this buffer (e.g. depth, coc, "
+                  "normal) as the frame's mean, channel by channel, instead of its own; may be "
+                  "given several times");
   return {cmd, [o] {
             EvalOptions e{o->run, o->data, o->out, o->frames, o->images, o->version, o->checkpoint};
             e.coc_override = o->coc_override;
+            e.flatten_inputs = o->flatten_inputs;
             e.all_frames = !o->validation_only;
             e.held_out = o->held_out;
             e.time_side = o->time_size;

@@ -254,6 +254,19 @@ EvalSummary evaluate(const EvalOptions& o) {
   FrameDenoiser den(o.run_dir, device, o.checkpoint, o.precision, o.weights);
   const LoadedRun& used = den.run();
   const TrainConfig& cfg = den.config();
+  // --flatten-input: only buffers some input of the network reads.
+  {
+    std::vector<std::string> read;
+    for (const ResolvedInput& in : resolve_inputs(cfg.model, cfg.data)) read.push_back(in.buffer);
+    for (const std::string& name : o.flatten_inputs)
+      if (std::find(read.begin(), read.end(), name) == read.end()) {
+        std::string list;
+        for (const std::string& r : read) list += (list.empty() ? "" : ", ") + r;
+        throw SpecError(
+            FileLoc{(o.run_dir / "config.toml").string()}, "--flatten-input",
+            "the network reads no input from buffer \"" + name + "\" (it reads: " + list + ")");
+      }
+  }
   fs::create_directories(o.out_dir);
 
   // Validation frames: the run's own split (split.json), so eval never
@@ -327,13 +340,33 @@ EvalSummary evaluate(const EvalOptions& o) {
       const int w = fb.width, h = fb.height;
       const size_t n = fb.plane();
       double sec = 0;
-      std::vector<float> out;
+      // The probes: what the network's inputs read in place of the frame's own.
+      InputOverrides overrides;
+      std::vector<std::vector<float>> probes;
+      probes.reserve(o.flatten_inputs.size() + 1);
       if (std::isfinite(o.coc_override)) {
-        const std::vector<float> probe(n, o.coc_override);
-        out = den.denoise(fb, o.version, &sec, probe.data());
-      } else {
-        out = den.denoise(fb, o.version, &sec);
+        probes.emplace_back(n, o.coc_override);
+        overrides["coc"] = probes.back().data();
       }
+      for (const std::string& name : o.flatten_inputs) {
+        const BufferInfo& b = buffer_info(name);
+        const std::vector<float>& data = buffer_data(fb, name);
+        const size_t count = size_t(b.channels) * n,
+                     begin = b.per_version ? size_t(o.version) * count : 0;
+        if (data.size() < begin + count)
+          throw SpecError(FileLoc{(o.data_dir / file).string()}, "--flatten-input",
+                          "frame " + std::to_string(f) + " has no buffer \"" + name + "\"");
+        std::vector<float>& flat = probes.emplace_back(count);
+        for (int c = 0; c < b.channels; ++c) {
+          const float* plane = data.data() + begin + size_t(c) * n;
+          double sum = 0;
+          for (size_t p = 0; p < n; ++p) sum += plane[p];
+          std::fill_n(flat.begin() + size_t(c) * n, n, float(sum / double(n)));
+        }
+        overrides[name] = flat.data();
+      }
+      const std::vector<float> out =
+          den.denoise(fb, o.version, &sec, overrides.empty() ? nullptr : &overrides);
       std::vector<float> noisy(fb.noisy.begin() + size_t(o.version) * 3 * n,
                                fb.noisy.begin() + size_t(o.version + 1) * 3 * n);
       // One mask per region (kFocusRegions; "all" needs none).
@@ -521,6 +554,7 @@ EvalSummary evaluate(const EvalOptions& o) {
        "(null on a sequence's first frame); in focus = CoC < 1 px"},
       {"summary", summary},
       {"coc_override", std::isfinite(o.coc_override) ? json(o.coc_override) : json()},
+      {"flattened_inputs", o.flatten_inputs},
       {"denoise_ms_at_size", at_size},
       {"reference_ceiling", ceiling.to_json()},
       {"crops", crops},
@@ -564,6 +598,15 @@ EvalSummary evaluate(const EvalOptions& o) {
                    " px at every pixel instead of the frame's own; the regions are still those "
                    "of the frame's own CoC.\n\n"
              : std::string())
+     << (o.flatten_inputs.empty()
+             ? std::string()
+             : "**Input probe** (`--flatten-input`): the network was fed " +
+                   [&] {
+                     std::string l;
+                     for (const std::string& b : o.flatten_inputs) l += (l.empty() ? "" : ", ") + b;
+                     return l;
+                   }() +
+                   " as each frame's mean, channel by channel, instead of the frame's own.\n\n")
      << md_header;
   // The tables' cells, one row per (scene, input), for report.md and report.html.
   using Rows = std::vector<std::vector<std::string>>;

@@ -49,6 +49,13 @@ struct EvalOptions {
   // read the frame's own CoC. Recorded in the report ("coc_override").
   // NaN = off.
   float coc_override = NAN;
+  // A probe of which inputs the model uses: each named buffer (buffer_infos()
+  // name, e.g. "depth", "coc", "normal") reaches the network's inputs as its
+  // frame mean, channel by channel, so the input keeps its level and loses
+  // every spatial detail. Only the inputs: demodulation, the prefilter and
+  // the regions scored read the frame's own buffers. A buffer no input of
+  // the model reads is refused. Recorded in the report ("flattened_inputs").
+  std::vector<std::string> flatten_inputs;
 };
 
 struct EvalSummary {

@@ -54,10 +54,10 @@ std::vector<std::pair<std::string, size_t>> non_finite_inputs(FrameBuffers& f, i
 }
 
 std::vector<float> FrameDenoiser::denoise(const FrameBuffers& f, int version, double* seconds,
-                                          const float* coc_input) {
+                                          const InputOverrides* overrides) {
   try {
     return denoise_frame(run_.model, run_.config, device_, precision_, state_, f, version, seconds,
-                         coc_input);
+                         overrides);
   } catch (const RuntimeError& e) {
     throw RuntimeError(std::string(e.what()) + " (checkpoint " + run_.checkpoint.string() + ")");
   }
@@ -66,7 +66,7 @@ std::vector<float> FrameDenoiser::denoise(const FrameBuffers& f, int version, do
 std::vector<float> denoise_frame(Denoiser& model, const TrainConfig& cfg, torch::Device device,
                                  Precision precision, std::vector<torch::Tensor>& state,
                                  const FrameBuffers& f, int version, double* seconds,
-                                 const float* coc_input) {
+                                 const InputOverrides* overrides) {
   if (version < 0 || version >= f.versions)
     throw SpecError(FileLoc{}, "version",
                     "the frame has " + std::to_string(f.versions) + " noisy versions");
@@ -91,7 +91,9 @@ std::vector<float> denoise_frame(Denoiser& model, const TrainConfig& cfg, torch:
           ? std::chrono::duration<double>(std::chrono::steady_clock::now() - p0).count()
           : 0.0;
   const float* albedo = view.albedo;
-  if (coc_input) view.buffers["coc"] = coc_input;  // after the prefilter read the frame's own
+  // After the prefilter and the demodulation albedo read the frame's own.
+  if (overrides)
+    for (const auto& [name, planes] : *overrides) view.buffers[name] = planes;
   const int c = cfg.model.input_channels();
   std::vector<float> input(size_t(c) * n);
   make_input(view, cfg.data, resolve_inputs(cfg.model, cfg.data), input.data());

@@ -8,6 +8,7 @@
 #include <cmath>
 #include <filesystem>
 #include <functional>
+#include <map>
 #include <string>
 #include <utility>
 #include <vector>
@@ -22,6 +23,13 @@ namespace dofarm::trainer {
 
 // Denoises full frames of any size with a trained run. Frames of one
 // sequence must come in order: the recurrent model carries its state.
+// Buffers (by buffer_infos() name) that the network's inputs read in place
+// of the frame's own, each with the buffer's channels x pixels values at
+// the version being denoised. Only the inputs: the demodulation albedo,
+// its CoC-sized prefilter and the remodulation still read the frame's own
+// buffers, so a probe changes what the network is told and nothing else.
+using InputOverrides = std::map<std::string, const float*>;
+
 class FrameDenoiser {
  public:
   // `checkpoint`: "best", "last" or a checkpoint file (load_run).
@@ -35,11 +43,11 @@ class FrameDenoiser {
   // `seconds` receives the time of network + remodulation (no IO, no input
   // preparation; with data.albedo_prefilter the prefilter too), synchronised
   // with the device.
-  // `coc_input` (optional, one value per pixel): the circle of confusion
-  // the network's inputs read in place of the frame's own (the CoC probe,
-  // eval --coc-override); the albedo prefilter still reads the frame's.
+  // `overrides` (optional): buffers the network's inputs read in place of
+  // the frame's own (InputOverrides; the CoC probe, eval --coc-override;
+  // eval --flatten-input).
   std::vector<float> denoise(const FrameBuffers& frame, int version, double* seconds = nullptr,
-                             const float* coc_input = nullptr);
+                             const InputOverrides* overrides = nullptr);
   void reset_sequence() { state_.clear(); }
   const TrainConfig& config() const { return run_.config; }
   const LoadedRun& run() const { return run_; }
@@ -60,7 +68,7 @@ class FrameDenoiser {
 std::vector<float> denoise_frame(Denoiser& model, const TrainConfig& cfg, torch::Device device,
                                  Precision precision, std::vector<torch::Tensor>& state,
                                  const FrameBuffers& frame, int version, double* seconds = nullptr,
-                                 const float* coc_input = nullptr);
+                                 const InputOverrides* overrides = nullptr);
 
 // The trainer's full-frame validation (train.val_frames): `count` whole
 // validation frames, spread evenly over the validation frames of `splits`

@@ -294,6 +294,66 @@ TEST(Eval, CocOverrideMovesOnlyAModelThatReadsTheCoc) {
   }
 }
 
+// The input probe (--flatten-input): the named buffer reaches the
+// network's inputs as its frame mean, channel by channel. Denoising with
+// the override equals denoising a frame whose buffer holds that mean (the
+// depth feeds the inputs only); the report records the probe and its
+// denoised scores move while the noisy row and the regions stay; a buffer
+// no input reads is refused before anything is written.
+TEST(Eval, FlattenInputFeedsTheFrameMeanToTheInputsOnly) {
+  ShardReader reader(shared_data() / list_shards(shared_data())[0]);
+  const FrameBuffers fb = reader.read_frame(10);
+  const size_t n = fb.plane();
+  double sum = 0;
+  for (size_t p = 0; p < n; ++p) sum += fb.depth[p];
+  const std::vector<float> flat(n, float(sum / double(n)));
+  FrameDenoiser den(trained_run(), torch::kCPU);
+  const InputOverrides overrides = {{"depth", flat.data()}};
+  const std::vector<float> via_override = den.denoise(fb, 1, nullptr, &overrides);
+  den.reset_sequence();
+  FrameBuffers g = fb;
+  g.depth = flat;
+  const std::vector<float> via_frame = den.denoise(g, 1);
+  den.reset_sequence();
+  EXPECT_EQ(via_override, via_frame);  // bit for bit
+  EXPECT_NE(via_override, den.denoise(fb, 1));
+
+  auto report = [](const char* name, std::vector<std::string> flatten) {
+    fs::path out = fresh_dir(name);
+    EvalOptions e{trained_run(), shared_data(), out, 0, 0, 0};
+    e.all_frames = false;
+    e.flatten_inputs = std::move(flatten);
+    evaluate(e);
+    std::ifstream in(out / "report.json");
+    return nlohmann::json::parse(in);
+  };
+  const nlohmann::json own = report("flatten_own", {}), depth = report("flatten_depth", {"depth"}),
+                       both = report("flatten_both", {"depth", "coc"});
+  EXPECT_TRUE(own["flattened_inputs"].empty());
+  EXPECT_EQ(depth["flattened_inputs"], nlohmann::json({"depth"}));
+  EXPECT_EQ(depth["summary"]["noisy"], own["summary"]["noisy"]);
+  EXPECT_EQ(depth["summary"]["pixel_share"], own["summary"]["pixel_share"]);
+  EXPECT_NE(depth["summary"]["denoised"]["all"]["ssim"].get<double>(),
+            own["summary"]["denoised"]["all"]["ssim"].get<double>());
+  EXPECT_NE(both["summary"]["denoised"]["all"]["ssim"].get<double>(),
+            depth["summary"]["denoised"]["all"]["ssim"].get<double>());
+
+  for (const char* bad : {"reference", "nonsense"}) {
+    const fs::path refused = fresh_dir("flatten_refused") / "report";
+    const std::string cmd = std::string(DOFARM_TRAIN_EXE) + " eval --run " +
+                            trained_run().string() + " --data " + shared_data().string() +
+                            " --out " + refused.string() + " --flatten-input " + bad + " > " +
+                            (refused.parent_path() / "log").string() + " 2>&1";
+    const int rc = std::system(cmd.c_str());
+    EXPECT_TRUE(WIFEXITED(rc) && WEXITSTATUS(rc) == 2) << bad;
+    EXPECT_FALSE(fs::exists(refused)) << bad;
+    std::ifstream log(refused.parent_path() / "log");
+    const std::string text((std::istreambuf_iterator<char>(log)), std::istreambuf_iterator<char>());
+    EXPECT_NE(text.find("--flatten-input"), std::string::npos) << text;
+    EXPECT_NE(text.find(std::string("no input from buffer \"") + bad), std::string::npos) << text;
+  }
+}
+
 // Crops where the lens matters (report.h): on a CoC map with one sharp
 // square and one blurred square, the windows found are those squares.
 TEST(Crops, WindowsOfTheSmallestAndLargestCircleOfConfusion) {
