@@ -71,6 +71,13 @@ std::array<Scores, kRegionCount> score_regions(const std::vector<float>& img,
   return out;
 }
 
+// "a, b, c": the names of a refusal or a report line.
+std::string comma_list(const std::vector<std::string>& names) {
+  std::string list;
+  for (const std::string& n : names) list += (list.empty() ? "" : ", ") + n;
+  return list;
+}
+
 json to_json(const Scores& s) {
   auto j = [](double v) { return std::isfinite(v) ? json(v) : json(nullptr); };
   return {{"ssim", j(s.ssim)},
@@ -259,13 +266,10 @@ EvalSummary evaluate(const EvalOptions& o) {
     std::vector<std::string> read;
     for (const ResolvedInput& in : resolve_inputs(cfg.model, cfg.data)) read.push_back(in.buffer);
     for (const std::string& name : o.flatten_inputs)
-      if (std::find(read.begin(), read.end(), name) == read.end()) {
-        std::string list;
-        for (const std::string& r : read) list += (list.empty() ? "" : ", ") + r;
-        throw SpecError(
-            FileLoc{(o.run_dir / "config.toml").string()}, "--flatten-input",
-            "the network reads no input from buffer \"" + name + "\" (it reads: " + list + ")");
-      }
+      if (std::find(read.begin(), read.end(), name) == read.end())
+        throw SpecError(FileLoc{(o.run_dir / "config.toml").string()}, "--flatten-input",
+                        "the network reads no input from buffer \"" + name +
+                            "\" (it reads: " + comma_list(read) + ")");
   }
   fs::create_directories(o.out_dir);
 
@@ -601,11 +605,7 @@ EvalSummary evaluate(const EvalOptions& o) {
      << (o.flatten_inputs.empty()
              ? std::string()
              : "**Input probe** (`--flatten-input`): the network was fed " +
-                   [&] {
-                     std::string l;
-                     for (const std::string& b : o.flatten_inputs) l += (l.empty() ? "" : ", ") + b;
-                     return l;
-                   }() +
+                   comma_list(o.flatten_inputs) +
                    " as each frame's mean, channel by channel, instead of the frame's own.\n\n")
      << md_header;
   // The tables' cells, one row per (scene, input), for report.md and report.html.

@@ -21,8 +21,6 @@
 
 namespace dofarm::trainer {
 
-// Denoises full frames of any size with a trained run. Frames of one
-// sequence must come in order: the recurrent model carries its state.
 // Buffers (by buffer_infos() name) that the network's inputs read in place
 // of the frame's own, each with the buffer's channels x pixels values at
 // the version being denoised. Only the inputs: the demodulation albedo,
@@ -30,6 +28,8 @@ namespace dofarm::trainer {
 // buffers, so a probe changes what the network is told and nothing else.
 using InputOverrides = std::map<std::string, const float*>;
 
+// Denoises full frames of any size with a trained run. Frames of one
+// sequence must come in order: the recurrent model carries its state.
 class FrameDenoiser {
  public:
   // `checkpoint`: "best", "last" or a checkpoint file (load_run).
