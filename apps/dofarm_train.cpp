@@ -373,16 +373,29 @@ Command add_denoise(CLI::App& app) {
 }
 
 Command add_export(CLI::App& app) {
-  auto* cmd = app.add_subcommand("export", "write the trained model as TorchScript");
+  auto* cmd = app.add_subcommand(
+      "export", "write the trained model as TorchScript, or its weights alone as a checkpoint");
   struct Opts {
-    std::string run, out, checkpoint = "best", weights = "auto";
+    std::string run, out, checkpoint = "best", weights = "auto", format = "torchscript";
   };
   auto o = std::make_shared<Opts>();
   cmd->add_option("--run", o->run, "run folder")->required()->check(CLI::ExistingDirectory);
-  cmd->add_option("--out", o->out, "TorchScript file (torch.jit.load)")->required();
+  cmd->add_option("--out", o->out, "the file to write")->required();
+  cmd->add_option("--format", o->format,
+                  "torchscript (torch.jit.load, with its contract) or checkpoint (the chosen "
+                  "weights without the optimizer state, for eval/denoise --checkpoint FILE on "
+                  "another machine; training cannot resume from it)")
+      ->check(CLI::IsMember({"torchscript", "checkpoint"}));
   add_checkpoint_option(cmd, &o->checkpoint, &o->weights);
   return {cmd, [o] {
             LoadedRun r = load_run(o->run, torch::kCPU, o->checkpoint, parse_weights(o->weights));
+            if (o->format == "checkpoint") {
+              save_weights_checkpoint(o->out, r);
+              spdlog::info("wrote the {} weights of {} (step {}) to {}",
+                           r.averaged ? "averaged" : "trained", r.checkpoint.string(), r.state.step,
+                           o->out);
+              return kExitOk;
+            }
             r.model->export_torchscript(o->out, {{kContractFile, denoiser_contract(r)}});
             spdlog::info("exported {}{} ({} parameters{}) to {}", r.checkpoint.string(),
                          r.averaged ? " (moving average)" : "", parameter_count(*r.model),

@@ -4,6 +4,7 @@
 #include <spdlog/spdlog.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -55,6 +56,23 @@ void replace_file(const fs::path& path, std::string_view bytes) {
                      "a checkpoints/step-*.pt file)");
 }
 
+// The run state and config into `ar`, then header + archive to `path`, atomically.
+void write_state_and_save(const fs::path& path, torch::serialize::OutputArchive& ar,
+                          const RunState& st, const TrainConfig& cfg) {
+  ar.write("state", torch::tensor({st.epoch, st.step, st.sample_index}, torch::kInt64));
+  ar.write("state_f", torch::tensor({st.lr_scale, st.best}, torch::kFloat64));
+  ar.write("config", c10::IValue(to_toml(cfg)));
+  std::string payload;
+  ar.save_to([&payload](const void* data, size_t n) {
+    payload.append(static_cast<const char*>(data), n);
+    return n;
+  });
+  std::string file =
+      fmt::format("{} {} {} {}\n", kMagic, kVersion, content_hash(payload), payload.size());
+  file += payload;
+  replace_file(path, file);
+}
+
 }  // namespace
 
 void write_text_atomic(const fs::path& p, const std::string& text) { replace_file(p, text); }
@@ -73,18 +91,16 @@ void save_checkpoint(const fs::path& path, Denoiser& model, torch::optim::Adam& 
     (*average)->save(a);
     ar.write("average", a);
   }
-  ar.write("state", torch::tensor({st.epoch, st.step, st.sample_index}, torch::kInt64));
-  ar.write("state_f", torch::tensor({st.lr_scale, st.best}, torch::kFloat64));
-  ar.write("config", c10::IValue(to_toml(cfg)));
-  std::string payload;
-  ar.save_to([&payload](const void* data, size_t n) {
-    payload.append(static_cast<const char*>(data), n);
-    return n;
-  });
-  std::string file = fmt::format("{} {} {} {}\n", kMagic, kVersion, content_hash(payload),
-                                 payload.size());
-  file += payload;
-  replace_file(path, file);
+  write_state_and_save(path, ar, st, cfg);
+}
+
+void save_weights_checkpoint(const fs::path& path, LoadedRun& run) {
+  if (!all_finite(*run.model)) throw RuntimeError("refusing to checkpoint non-finite weights");
+  torch::serialize::OutputArchive ar, w;
+  run.model->save(w);
+  // Under the key they were read from, so that --weights means the same.
+  ar.write(run.averaged ? "average" : "model", w);
+  write_state_and_save(path, ar, run.state, run.config);
 }
 
 namespace {
@@ -186,6 +202,13 @@ RunState load_checkpoint(const fs::path& path, Denoiser& model, torch::optim::Ad
                          torch::Device device, Denoiser* average, bool* had_average) {
   torch::serialize::InputArchive ar;
   open_archive(path, device, ar);
+  if (opt) {
+    const auto keys = ar.keys();
+    if (std::find(keys.begin(), keys.end(), "optimizer") == keys.end())
+      throw RuntimeError(path.string() +
+                         ": holds weights only (export --format checkpoint, for evaluation): "
+                         "training cannot resume from it");
+  }
   if (!read_weights(ar, "model", model, path)) damaged(path, "no model weights");
   if (opt) {
     try {
@@ -254,8 +277,14 @@ LoadedRun load_run(const fs::path& run_dir, torch::Device device, const std::str
     throw SpecError(FileLoc{r.checkpoint.string()}, "",
                     "the checkpoint holds no moving average of the weights (the run trained "
                     "with train.ema = 0); use --weights raw or auto");
-  if (!r.averaged && !read_weights(ar, "model", r.model, r.checkpoint))
+  if (!r.averaged && !read_weights(ar, "model", r.model, r.checkpoint)) {
+    const auto keys = ar.keys();
+    if (std::find(keys.begin(), keys.end(), "average") != keys.end())
+      throw SpecError(FileLoc{r.checkpoint.string()}, "",
+                      "holds only the moving average of the weights (export --format "
+                      "checkpoint); use --weights auto or averaged");
     damaged(r.checkpoint, "no model weights");
+  }
   r.state = read_state(ar, r.checkpoint);
   r.model->eval();
   return r;

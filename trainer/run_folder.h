@@ -89,6 +89,13 @@ struct LoadedRun {
   // contract record.
   const char* weights_label() const { return averaged ? "moving average" : "trained"; }
 };
+// A checkpoint of `run`'s weights alone (the ones load_run chose, under the
+// key they came from: "average" or "model"), its state and config, without
+// the optimizer state: a quarter to a third of a training checkpoint, for
+// evaluation and denoising on another machine (`eval --checkpoint FILE`).
+// Training refuses to resume from it.
+void save_weights_checkpoint(const std::filesystem::path& path, LoadedRun& run);
+
 LoadedRun load_run(const std::filesystem::path& run_dir, torch::Device device,
                    const std::string& which = "best", Weights weights = Weights::kAuto);
 

@@ -10,6 +10,28 @@
 #       .debs into DIR/debs, DATA's shards and manifest into DIR/data
 #   bench/trainer/cuda_node.sh run DIR OUT        # on the CUDA machine
 #
+# The study's networks on such a machine, when its shards are too large to
+# carry there (the study's 40 training frames are about 0.8 GB):
+#
+#   bench/trainer/cuda_node.sh prepare-study DIR  # on a Debian 12 machine, after
+#       scripts/build.sh: .debs into DIR/debs, and DIR/render-kit.tar.xz: the
+#       built dofarm and the shared objects it needs beyond the C and C++
+#       runtimes, so that it renders there without a Debian archive
+#   bench/trainer/cuda_node.sh study DIR OUT      # on the CUDA machine
+#       renders the training frames there (all its cores), builds dofarm-train
+#       meanwhile, trains RUNS side by side on the GPU with
+#       `dof_study.sh --train-only`, and packs each run (its files and a
+#       weights-only checkpoint, `export --format checkpoint`, as
+#       checkpoints/eval.pt) into OUT/run-CONFIG-SEED.tar, small enough to
+#       bring back. Score them where the held-out frames are:
+#       `dofarm-train eval --run RUN --checkpoint RUN/checkpoints/eval.pt ...`.
+#     env: RUNS (default "thesis_prefilter:2 thesis_prefilter_nococ:2",
+#       CONFIG:SEED words of dof_study.sh's configurations), STEPS (4000),
+#       EPOCHS (40), FRAMES (8-47), REF_CAP (512, buffers.reference_max_spp),
+#       DEADLINE (seconds after the start at which every training still
+#       running is stopped with SIGINT, writing its checkpoint; default 510),
+#       THREADS_PER_RUN (3, OMP_NUM_THREADS of each training)
+#
 # Figures of one H200 run are in docs/trainer.md ("Training on a GPU node").
 set -uo pipefail
 cd "$(dirname "$0")/../.."
@@ -17,13 +39,12 @@ mode=${1:?usage: cuda_node.sh prepare DIR DATA | run DIR OUT}
 dir=${2:?the carried folder}
 dir=$(cd "$dir" 2>/dev/null && pwd || echo "$dir")
 
-if [ "$mode" = prepare ]; then
-  data=${3:?the farm output folder whose shards to train on}
-  mkdir -p "$dir/debs" "$dir/data"
+# download_debs DEST: the trainer's libraries as .deb files.
+download_debs() {
   # The trainer's libraries (dofarm_common: OpenEXR, HDF5, spdlog, fmt,
   # toml++, JSON, ZeroMQ, libsodium, stb; the tests: GoogleTest) and what
   # their shared objects need beyond libc, libstdc++ and zlib.
-  (cd "$dir/debs" && apt-get download \
+  (cd "$1" && apt-get download \
     libhdf5-dev libhdf5-103-1 libhdf5-hl-100 libsz2 libaec0 libaec-dev \
     libopenexr-dev libopenexr-3-1-30 libimath-dev libimath-3-1-29 \
     libspdlog-dev libspdlog1.10 libfmt-dev libfmt9 libcli11-dev nlohmann-json3-dev \
@@ -33,12 +54,44 @@ if [ "$mode" = prepare ]; then
     libgssapi-krb5-2 libhogweed6 libidn2-0 libk5crypto3 libkeyutils1 libkrb5-3 \
     libkrb5support0 libldap-2.5-0 libmd0 libnettle8 libnghttp2-14 libnorm1 libp11-kit0 \
     libpgm-5.3-0 libpsl5 librtmp1 libsasl2-2 libsasl2-modules-db libssh2-1 libssl3 \
-    libtasn1-6 libunistring2 libzstd1) || exit 1
+    libtasn1-6 libunistring2 libzstd1)
+}
+
+if [ "$mode" = prepare ]; then
+  data=${3:?the farm output folder whose shards to train on}
+  mkdir -p "$dir/debs" "$dir/data"
+  download_debs "$dir/debs" || exit 1
   cp "$data"/shard-*.h5 "$data"/manifest.json "$dir/data/" || exit 1
   du -sh "$dir"
   exit 0
 fi
-[ "$mode" = run ] || { echo "usage: cuda_node.sh prepare DIR DATA | run DIR OUT" >&2; exit 2; }
+if [ "$mode" = prepare-study ]; then
+  bin=${DOFARM:-build/dofarm}
+  [ -x "$bin" ] || { echo "cuda_node.sh: $bin not found; build first (scripts/build.sh)" >&2; exit 2; }
+  mkdir -p "$dir/debs"
+  download_debs "$dir/debs" || exit 1
+  kit=$(mktemp -d)
+  mkdir "$kit/libs"
+  cp "$bin" "$kit/dofarm" && strip "$kit/dofarm"
+  # Every shared object ldd resolves but the C and C++ runtimes, which the
+  # GPU machine has in newer versions.
+  ldd "$bin" | awk '$3 ~ /^\// {print $3}' | while read -r so; do
+    case $(basename "$so") in
+      libc.so.* | libm.so.* | libpthread.so.* | libdl.so.* | librt.so.* | libresolv.so.* | \
+        libstdc++.so.* | libgcc_s.so.*) ;;
+      *) cp -L "$so" "$kit/libs/" ;;
+    esac
+  done
+  tar -C "$kit" -cf - dofarm libs | xz -T0 -6 > "$dir/render-kit.tar.xz" || exit 1
+  rm -rf "$kit"
+  du -sh "$dir"
+  exit 0
+fi
+case $mode in run | study) ;; *)
+  echo "usage: cuda_node.sh prepare DIR DATA | run DIR OUT | prepare-study DIR | study DIR OUT" >&2
+  exit 2
+  ;;
+esac
 OUT=${3:?the folder for logs and figures}
 mkdir -p "$OUT"
 T=$SECONDS
@@ -46,6 +99,17 @@ stamp() { echo "== [$((SECONDS - T)) s] $*"; }
 stamp start
 nvidia-smi -L
 head -1 /etc/os-release
+if [ "$mode" = study ]; then
+  # The render starts first, on every core, and the build runs beside it.
+  RUNS=${RUNS:-thesis_prefilter:2 thesis_prefilter_nococ:2}
+  FRAMES=${FRAMES:-8-47}
+  K=$(mktemp -d /tmp/dofarm-kit.XXXXXX) S=$(mktemp -d /tmp/dofarm-study.XXXXXX)
+  xz -dc "$dir/render-kit.tar.xz" | tar -C "$K" -xf - || exit 1
+  (LD_LIBRARY_PATH=$K/libs DOFARM=$K/dofarm OUT=$S JOBS=cornell bench/trainer/render_study.sh \
+    --set "frames.start=${FRAMES%-*}" --set "frames.end=${FRAMES#*-}" \
+    --set "buffers.reference_max_spp=${REF_CAP:-512}" >"$OUT/render.txt" 2>&1) &
+  render_pid=$!
+fi
 P=$(mktemp -d /tmp/dofarm-prefix.XXXXXX) L=$(mktemp -d /tmp/dofarm-libs.XXXXXX)
 for f in "$dir"/debs/*.deb; do dpkg -x "$f" "$P"; done
 # Only the shared objects the machine lacks are put on the library path, so
@@ -72,9 +136,53 @@ cmake -S . -B "$B" -G Ninja -DCMAKE_BUILD_TYPE=Release -DDOFARM_TRAINER_ONLY=ON 
   "-DCMAKE_PREFIX_PATH=$P/usr;$torch_prefix" -DHDF5_ROOT="$P/usr/lib/x86_64-linux-gnu/hdf5/serial" \
   "-DCMAKE_EXE_LINKER_FLAGS=-Wl,--as-needed -Wl,-rpath-link,$L" >"$OUT/cmake.txt" 2>&1 ||
   { tail -40 "$OUT/cmake.txt"; exit 1; }
-ninja -C "$B" dofarm-train trainer_speed test_trainer >"$OUT/build.txt" 2>&1 ||
+targets=(dofarm-train trainer_speed test_trainer)
+[ "$mode" = study ] && targets=(dofarm-train)
+ninja -C "$B" "${targets[@]}" >"$OUT/build.txt" 2>&1 ||
   { grep -m20 -A6 "error\|undefined" "$OUT/build.txt"; exit 1; }
 stamp built
+if [ "$mode" = study ]; then
+  wait "$render_pid" || { tail -20 "$OUT/render.txt"; exit 1; }
+  stamp "rendered: $(ls "$S"/cornell/shard-*.h5 | wc -l) shards, $(du -sh "$S/cornell" | cut -f1)"
+  # dof_study.sh runs dofarm-train through this wrapper, which stops it with
+  # SIGINT at the deadline: it writes its checkpoint and exits 3, and
+  # dof_study.sh leaves the run unfinished (no study.done).
+  stop_at=$((EPOCHSECONDS + ${DEADLINE:-510} - (SECONDS - T)))
+  cat >"$P/train-deadline" <<EOF
+#!/bin/sh
+left=\$(( $stop_at - \$(date +%s) ))
+[ "\$left" -gt 0 ] || left=1
+exec timeout -s INT "\$left" "$B/dofarm-train" "\$@"
+EOF
+  chmod +x "$P/train-deadline"
+  W=$P/study
+  pids=()
+  for r in $RUNS; do
+    c=${r%:*} seed=${r#*:}
+    OMP_NUM_THREADS=${THREADS_PER_RUN:-3} DOFARM_TRAIN=$P/train-deadline bash bench/trainer/dof_study.sh \
+      --train-only --steps "${STEPS:-4000}" --epochs "${EPOCHS:-40}" --configs "$c" \
+      --set "train.seed=$seed" --set data.val_fraction=0 --set train.warmup_steps=40 \
+      --out "$W/seed-$seed" "$S/cornell" >"$W-$c-$seed.txt" 2>&1 &
+    pids+=($!)
+  done
+  stamp "training: $RUNS"
+  for p in "${pids[@]}"; do wait "$p"; done
+  stamp "trained"
+  for r in $RUNS; do
+    c=${r%:*} seed=${r#*:}
+    run=$W/seed-$seed/runs/$c
+    step=$(tail -1 "$run/steps.csv" 2>/dev/null | cut -d, -f1)
+    echo "$c seed $seed: $( [ -f "$run/study.done" ] && cat "$run/study.done" || echo "unfinished"), last step ${step:-?}"
+    cp "$W-$c-$seed.txt" "$run/train-log.txt" 2>/dev/null
+    "$B/dofarm-train" --log-level warn export --run "$run" --checkpoint last --format checkpoint \
+      --out "$run/checkpoints/eval.pt" || continue
+    tar -C "$W/seed-$seed/runs" --exclude 'last.pt' --exclude 'best.pt' --exclude 'step-*.pt' \
+      -cf "$OUT/run-$c-$seed.tar" "$c"
+  done
+  ls -la "$OUT"
+  stamp done
+  exit 0
+fi
 D=$dir/data
 stamp "inference and training-step speed"
 timeout 200 "$B/bench/trainer/trainer_speed" --reps 10 --models dof --formats nchw,nhwc \

@@ -40,8 +40,13 @@
 # configuration: the split is drawn from the shards' content).
 #
 #   bench/trainer/dof_study.sh [--steps N] [--out DIR] [--epochs E] [--time-size S] [--crops K]
-#                              [--configs "thesis default ..."] [--seeds "1 2 3"]
+#                              [--configs "thesis default ..."] [--seeds "1 2 3"] [--train-only]
 #                              [--held-out DIR]... [--set KEY=VALUE]... [DATA_DIR...]
+#
+# --train-only: train every configuration (resumably, as always) and stop:
+# no evaluation, no table. For a machine that trains (a GPU node) while the
+# frames the networks are judged on are elsewhere; the same command without
+# it, where those frames are, then scores the runs it finds trained.
 #
 # --seeds: run the whole study once per training seed, each a study of its
 # own in OUT/seed-S (with --set train.seed=S; its own table), and write the
@@ -98,11 +103,12 @@ CONFIGS="thesis thesis_nococ default thesis_focus thesis_prefilter thesis_recurr
 SETS=()
 DATA=()
 SEEDS=""
+TRAIN_ONLY=0
 HELD_OUT=""
 HELD_DIRS=()
 DOFARM=${DOFARM:-$ROOT/build/dofarm}
 PASS=()  # the arguments each seed's study gets (all but --seeds and --out)
-usage() { sed -n '2,54p' "$0" | sed 's/^# \{0,1\}//'; }
+usage() { sed -n '2,59p' "$0" | sed 's/^# \{0,1\}//'; }
 die() { echo "dof_study.sh: $*" >&2; exit 2; }
 while [ $# -gt 0 ]; do
   case $1 in
@@ -113,6 +119,7 @@ while [ $# -gt 0 ]; do
     --crops) CROPS=${2:?}; PASS+=("$1" "$2"); shift 2 ;;
     --configs) CONFIGS=${2:?}; PASS+=("$1" "$2"); shift 2 ;;
     --seeds) SEEDS=${2?}; shift 2 ;;
+    --train-only) TRAIN_ONLY=1; PASS+=("$1"); shift ;;
     --held-out) HELD_DIRS+=("${2:?}"); PASS+=("$1" "$2"); shift 2 ;;
     --set) SETS+=(--set "${2:?}"); PASS+=("$1" "$2"); shift 2 ;;
     -h|--help) usage; exit 0 ;;
@@ -263,6 +270,7 @@ if [ -n "$SEEDS" ]; then
     echo "dof_study.sh: seed $s -> $OUT/seed-$s"
     bash "${BASH_SOURCE[0]}" "${PASS[@]}" --out "$OUT/seed-$s" --set "train.seed=$s"
   done
+  [ "$TRAIN_ONLY" = 1 ] && exit 0
   described=()
   for c in $CONFIGS; do described+=("$c=$(describe "$c")"); done
   python3 "$ROOT/bench/trainer/study_tables.py" seeds "$OUT" "$TIME_SIZE" "$SEEDS" "${described[@]}"
@@ -332,6 +340,7 @@ for c in $CONFIGS; do
     echo "steps $TOTAL" > "$run/study.done.tmp"
     mv "$run/study.done.tmp" "$run/study.done"
   fi
+  [ "$TRAIN_ONLY" = 1 ] && continue
   # What the main table scores: the run's validation frames, or, for a run
   # without any (data.val_fraction = 0, to train on every rendered frame),
   # the held-out frames.
@@ -391,6 +400,7 @@ for c in $CONFIGS; do
   fi
 done
 
+[ "$TRAIN_ONLY" = 1 ] && { echo "dof_study.sh: trained; --train-only: not scored"; exit 0; }
 # The table and the plot.
 described=()
 for c in $CONFIGS; do described+=("$c=$(describe "$c")"); done

@@ -265,6 +265,51 @@ TEST(Export, CarriesItsContractAndTakesAnySize) {
   }
 }
 
+// export --format checkpoint: the weights eval chose, without the optimizer
+// state, read back by eval as the run's own checkpoint; training cannot
+// resume from it, and --weights raw says why the trained weights are absent.
+TEST(Export, AWeightsOnlyCheckpointLoadsAsTheRunAndCannotResume) {
+  const fs::path run = trained();
+  const fs::path last = run / "checkpoints" / "last.pt";
+  const fs::path dir = testing::scratch_dir("rf_export_ckpt");
+  for (Weights w : {Weights::kAuto, Weights::kRaw}) {
+    LoadedRun r = load_run(run, torch::kCPU, "last", w);
+    const fs::path file = dir / (w == Weights::kRaw ? "raw.pt" : "auto.pt");
+    save_weights_checkpoint(file, r);
+    // Weights, no Adam moments: under half a training checkpoint.
+    EXPECT_LT(fs::file_size(file) * 2, fs::file_size(last));
+    LoadedRun back = load_run(run, torch::kCPU, file.string());
+    EXPECT_EQ(back.checkpoint, file);
+    EXPECT_EQ(back.averaged, r.averaged);
+    EXPECT_EQ(back.state.step, 6);
+    EXPECT_EQ(back.state.epoch, r.state.epoch);
+    const auto a = r.model->parameters(), b = back.model->parameters();
+    ASSERT_EQ(a.size(), b.size());
+    for (size_t i = 0; i < a.size(); ++i) EXPECT_TRUE(torch::equal(a[i], b[i])) << i;
+    // Resuming training from it is refused with the file named.
+    Denoiser m(r.config.model);
+    torch::optim::Adam opt(m->parameters());
+    try {
+      load_checkpoint(file, m, &opt, torch::kCPU);
+      ADD_FAILURE() << "resumed from a weights-only checkpoint";
+    } catch (const RuntimeError& e) {
+      EXPECT_NE(std::string(e.what()).find(file.string()), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("cannot resume"), std::string::npos) << e.what();
+    }
+  }
+  // The run averages its weights (train.ema), so the default export holds
+  // the average alone: asking it for the trained weights is an error that
+  // says so, not "damaged".
+  ASSERT_TRUE(load_run(run, torch::kCPU, "last").averaged);
+  try {
+    load_run(run, torch::kCPU, (dir / "auto.pt").string(), Weights::kRaw);
+    ADD_FAILURE() << "raw weights from an average-only checkpoint";
+  } catch (const SpecError& e) {
+    EXPECT_NE(std::string(e.what()).find("moving average"), std::string::npos) << e.what();
+  }
+  EXPECT_FALSE(load_run(run, torch::kCPU, (dir / "raw.pt").string()).averaged);
+}
+
 // The contract is written from the input table: one entry per channel, in
 // model.inputs order, with its input, encoding, layer and transform.
 TEST(Export, ContractListsTheInputTableChannels) {

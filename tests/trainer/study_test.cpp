@@ -329,8 +329,25 @@ TEST(Study, SeedsRunOneStudyEachAndTabulateAcrossThem) {
   const fs::path dir = study_dir("study_seeds");
   const fs::path out = dir / "out";
   const std::string configs = "default default_nococ";
+  // --train-only trains every seed's configurations and scores nothing; the
+  // same command without it then scores those runs without training again.
+  ASSERT_EQ(run_study(dir / "data", out, dir / "train.log", configs,
+                      " --crops 0 --seeds '3 4' --train-only"),
+            0)
+      << read_all(dir / "train.log");
+  for (const char* s : {"seed-3", "seed-4"})
+    for (const char* c : {"default", "default_nococ"}) {
+      EXPECT_EQ(read_all(out / s / "runs" / c / "study.done"), "steps 2\n") << s << " " << c;
+      EXPECT_FALSE(fs::exists(out / s / "reports" / c)) << s << " " << c;
+    }
+  EXPECT_FALSE(fs::exists(out / "seed-3" / "results.md"));
+  EXPECT_FALSE(fs::exists(out / "results.md"));
   ASSERT_EQ(run_study(dir / "data", out, dir / "seeds.log", configs, " --crops 0 --seeds '3 4'"), 0)
       << read_all(dir / "seeds.log");
+  const std::string log = read_all(dir / "seeds.log");
+  EXPECT_NE(log.find("default_nococ: trained (2 steps), not trained again"), std::string::npos)
+      << log;
+  EXPECT_EQ(log.find(": training ("), std::string::npos) << log;
   for (const char* s : {"3", "4"}) {
     const fs::path one = out / (std::string("seed-") + s);
     EXPECT_TRUE(fs::exists(one / "results.md")) << s;

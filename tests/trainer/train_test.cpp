@@ -646,6 +646,16 @@ TEST(Cli, ExitCodesSayWhatWentWrong) {
       run_cli("export --run " + trained_run().string() + " --out " + (run / "model.pt").string()),
       0);
   EXPECT_TRUE(fs::exists(run / "model.pt"));
+  // The weights alone, then scored through --checkpoint FILE.
+  const std::string ckpt = (run / "weights.pt").string();
+  EXPECT_EQ(run_cli("export --run " + trained_run().string() +
+                    " --format checkpoint --checkpoint last --out " + ckpt),
+            0);
+  EXPECT_EQ(run_cli("export --run " + trained_run().string() + " --format onnx --out " + ckpt), 2);
+  EXPECT_EQ(run_cli("eval --run " + trained_run().string() + " --data " + data + " --checkpoint " +
+                    ckpt + " --images 0 --crops 0 --out " + (run / "eval").string()),
+            0);
+  EXPECT_TRUE(fs::exists(run / "eval" / "report.json"));
 }
 
 // The preset by its one name, as a user runs it: the run's config.toml holds
