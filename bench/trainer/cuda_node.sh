@@ -30,7 +30,10 @@
 #       EPOCHS (40), FRAMES (8-47), REF_CAP (512, buffers.reference_max_spp),
 #       DEADLINE (seconds after the start at which every training still
 #       running is stopped with SIGINT, writing its checkpoint; default 510),
-#       THREADS_PER_RUN (3, OMP_NUM_THREADS of each training)
+#       THREADS_PER_RUN (3, OMP_NUM_THREADS of each training), STUDY_DIR
+#       (/tmp/dofarm-gpu-study: shards, build and runs). Run the same
+#       command again while the machine is still up and it goes on: the
+#       render and the build are found done and the runs resume.
 #
 # Figures of one H200 run are in docs/trainer.md ("Training on a GPU node").
 set -uo pipefail
@@ -103,15 +106,28 @@ if [ "$mode" = study ]; then
   # The render starts first, on every core, and the build runs beside it.
   RUNS=${RUNS:-thesis_prefilter:2 thesis_prefilter_nococ:2}
   FRAMES=${FRAMES:-8-47}
-  K=$(mktemp -d /tmp/dofarm-kit.XXXXXX) S=$(mktemp -d /tmp/dofarm-study.XXXXXX)
-  xz -dc "$dir/render-kit.tar.xz" | tar -C "$K" -xf - || exit 1
+  # Fixed folders, so that the same command again on a machine that is
+  # still up goes on where the last one stopped: the render finds its job
+  # done, ninja has nothing to build, and dof_study.sh resumes the runs.
+  G=${STUDY_DIR:-/tmp/dofarm-gpu-study}
+  K=$G/kit S=$G/data
+  mkdir -p "$K" "$S"
+  [ -x "$K/dofarm" ] || xz -dc "$dir/render-kit.tar.xz" | tar -C "$K" -xf - || exit 1
   (LD_LIBRARY_PATH=$K/libs DOFARM=$K/dofarm OUT=$S JOBS=cornell bench/trainer/render_study.sh \
     --set "frames.start=${FRAMES%-*}" --set "frames.end=${FRAMES#*-}" \
     --set "buffers.reference_max_spp=${REF_CAP:-512}" >"$OUT/render.txt" 2>&1) &
   render_pid=$!
 fi
-P=$(mktemp -d /tmp/dofarm-prefix.XXXXXX) L=$(mktemp -d /tmp/dofarm-libs.XXXXXX)
-for f in "$dir"/debs/*.deb; do dpkg -x "$f" "$P"; done
+if [ "$mode" = study ]; then
+  P=$G/prefix L=$G/libs
+  mkdir -p "$P" "$L"
+else
+  P=$(mktemp -d /tmp/dofarm-prefix.XXXXXX) L=$(mktemp -d /tmp/dofarm-libs.XXXXXX)
+fi
+if [ ! -f "$P/.unpacked" ]; then
+  for f in "$dir"/debs/*.deb; do dpkg -x "$f" "$P"; done
+  touch "$P/.unpacked"
+fi
 # Only the shared objects the machine lacks are put on the library path, so
 # its own (newer) libssl, libcurl and the like stay in use.
 for d in "$P/usr/lib/x86_64-linux-gnu" "$P/lib/x86_64-linux-gnu"; do
@@ -162,7 +178,7 @@ EOF
     OMP_NUM_THREADS=${THREADS_PER_RUN:-3} DOFARM_TRAIN=$P/train-deadline bash bench/trainer/dof_study.sh \
       --train-only --steps "${STEPS:-4000}" --epochs "${EPOCHS:-40}" --configs "$c" \
       --set "train.seed=$seed" --set data.val_fraction=0 --set train.warmup_steps=40 \
-      --out "$W/seed-$seed" "$S/cornell" >"$W-$c-$seed.txt" 2>&1 &
+      --out "$W/seed-$seed" "$S/cornell" >>"$W-$c-$seed.txt" 2>&1 &
     pids+=($!)
   done
   stamp "training: $RUNS"
