@@ -141,6 +141,12 @@ void open_archive(const fs::path& path, torch::Device device, torch::serialize::
   }
 }
 
+// Whether the archive has an entry `key` (weights, optimizer state, ...).
+bool has_entry(torch::serialize::InputArchive& ar, const std::string& key) {
+  const std::vector<std::string> keys = ar.keys();
+  return std::find(keys.begin(), keys.end(), key) != keys.end();
+}
+
 // The archive's weights `key` into `model`; false when it has no such entry.
 bool read_weights(torch::serialize::InputArchive& ar, const std::string& key, Denoiser& model,
                   const fs::path& path) {
@@ -202,13 +208,10 @@ RunState load_checkpoint(const fs::path& path, Denoiser& model, torch::optim::Ad
                          torch::Device device, Denoiser* average, bool* had_average) {
   torch::serialize::InputArchive ar;
   open_archive(path, device, ar);
-  if (opt) {
-    const auto keys = ar.keys();
-    if (std::find(keys.begin(), keys.end(), "optimizer") == keys.end())
-      throw RuntimeError(path.string() +
-                         ": holds weights only (export --format checkpoint, for evaluation): "
-                         "training cannot resume from it");
-  }
+  if (opt && !has_entry(ar, "optimizer"))
+    throw RuntimeError(path.string() +
+                       ": holds weights only (export --format checkpoint, for evaluation): "
+                       "training cannot resume from it");
   if (!read_weights(ar, "model", model, path)) damaged(path, "no model weights");
   if (opt) {
     try {
@@ -278,8 +281,7 @@ LoadedRun load_run(const fs::path& run_dir, torch::Device device, const std::str
                     "the checkpoint holds no moving average of the weights (the run trained "
                     "with train.ema = 0); use --weights raw or auto");
   if (!r.averaged && !read_weights(ar, "model", r.model, r.checkpoint)) {
-    const auto keys = ar.keys();
-    if (std::find(keys.begin(), keys.end(), "average") != keys.end())
+    if (has_entry(ar, "average"))
       throw SpecError(FileLoc{r.checkpoint.string()}, "",
                       "holds only the moving average of the weights (export --format "
                       "checkpoint); use --weights auto or averaged");
