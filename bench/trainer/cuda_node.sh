@@ -117,8 +117,6 @@ if [ "$mode" = study ]; then
     --set "frames.start=${FRAMES%-*}" --set "frames.end=${FRAMES#*-}" \
     --set "buffers.reference_max_spp=${REF_CAP:-512}" >"$OUT/render.txt" 2>&1) &
   render_pid=$!
-fi
-if [ "$mode" = study ]; then
   P=$G/prefix L=$G/libs
   mkdir -p "$P" "$L"
 else
