@@ -62,6 +62,14 @@ def shard_infos(dofarm, folder):
     return out
 
 
+def coc_pairs(configs, present):
+    """(CoC network, no-CoC twin) for every twin in present: `_nococ` (for
+    the project default, at the thesis's no-DOF widths) and `_nococ_wide`
+    (at the CoC network's own widths)."""
+    return [(c, c + t) for c in configs for t in ("_nococ", "_nococ_wide")
+            if c in present and c + t in present]
+
+
 def paired_ssim(rep_a, rep_b, region, resamples=1000, seed=1):
     """(A − B, low, high, tiles): the difference of two reports' mean denoised
     SSIM over `region` on the frames both scored (matched by shard and frame),
@@ -168,16 +176,15 @@ def held_out_table(out, label):
             [fmt(num(d[r]["psnr"]), ".2f") for r in ("all", "in_focus", "out_of_focus")] +
             [fmt(num(d[r]["rel_mse"]), ".4f") for r in ("all", "in_focus", "out_of_focus")] +
             [fmt(num(d.get(r, {}).get("ssim")), ".4f") for r, _ in BANDS[1:]]) + " |")
-    for c in label:
-        if c in by and c + "_nococ" in by:
-            a, b = by[c], by[c + "_nococ"]
-            diff = lambda r, k: num(a.get(r, {}).get(k)) - num(b.get(r, {}).get(k))
-            md.append("| " + " | ".join(
-                [f"CoC input: `{c}` − `{c}_nococ`"] +
-                [fmt(diff(r, "ssim"), "+.4f") for r in ("all", "in_focus", "out_of_focus")] +
-                [fmt(diff(r, "psnr"), "+.2f") for r in ("all", "in_focus", "out_of_focus")] +
-                [fmt(diff(r, "rel_mse"), "+.4f") for r in ("all", "in_focus", "out_of_focus")] +
-                [fmt(diff(r, "ssim"), "+.4f") for r, _ in BANDS[1:]]) + " |")
+    for c, t in coc_pairs(label, by):
+        a, b = by[c], by[t]
+        diff = lambda r, k: num(a.get(r, {}).get(k)) - num(b.get(r, {}).get(k))
+        md.append("| " + " | ".join(
+            [f"CoC input: `{c}` − `{t}`"] +
+            [fmt(diff(r, "ssim"), "+.4f") for r in ("all", "in_focus", "out_of_focus")] +
+            [fmt(diff(r, "psnr"), "+.2f") for r in ("all", "in_focus", "out_of_focus")] +
+            [fmt(diff(r, "rel_mse"), "+.4f") for r in ("all", "in_focus", "out_of_focus")] +
+            [fmt(diff(r, "ssim"), "+.4f") for r, _ in BANDS[1:]]) + " |")
     return md
 
 
@@ -268,12 +275,12 @@ def one_study(out, side, label):
     for r in rows:
         coc_md.append(f"| `{r['config']}` | " +
                       " | ".join(fmt(band_ssim(r, region), ".4f") for region, _ in bands) + " |")
-    for c in configs:
-        if c + "_nococ" in by:
-            a, b = by[c], by[c + "_nococ"]
-            coc_md.append(f"| CoC input: `{c}` − `{c}_nococ` | " +
-                          " | ".join(fmt(band_ssim(a, region) - band_ssim(b, region), "+.4f")
-                                     for region, _ in bands) + " |")
+    pairs = coc_pairs(configs, by)
+    for c, t in pairs:
+        a, b = by[c], by[t]
+        coc_md.append(f"| CoC input: `{c}` − `{t}` | " +
+                      " | ".join(fmt(band_ssim(a, region) - band_ssim(b, region), "+.4f")
+                                 for region, _ in bands) + " |")
     # The CoC probe: SSIM when fed CoC 0 everywhere, minus SSIM with the frame's own.
     probe_rows = []
     for r in rows:
@@ -288,13 +295,12 @@ def one_study(out, side, label):
                                      for region, _ in bands) + " |")
     paired_md = []
     regions = [("all", "all"), ("out_of_focus", "out of focus")] + list(bands)
-    for c in configs:
-        if c + "_nococ" in by:
-            ra = json.load(open(os.path.join(out, "reports", c, "report.json")))
-            rb = json.load(open(os.path.join(out, "reports", c + "_nococ", "report.json")))
-            cells = paired_rows(ra, rb, [r for r, _ in regions])
-            if cells:
-                paired_md.append(f"| `{c}` − `{c}_nococ` | " + " | ".join(cells) + " |")
+    for c, t in pairs:
+        ra = json.load(open(os.path.join(out, "reports", c, "report.json")))
+        rb = json.load(open(os.path.join(out, "reports", t, "report.json")))
+        cells = paired_rows(ra, rb, [r for r, _ in regions])
+        if cells:
+            paired_md.append(f"| `{c}` − `{t}` | " + " | ".join(cells) + " |")
     def table(intro, first, columns, body):
         return ["", intro, "", f"| {first} | " + " | ".join(name for _, name in columns) + " |",
                 "| --- " * (len(columns) + 1) + "|"] + body
@@ -427,19 +433,19 @@ def across_seeds(out, side, seeds, label):
     for c in configs:
         md.append(f"| `{c}` | " + " | ".join(
             mean_range([ssim(per[(c, s)]["denoised"], r) for s in seeds], ".4f") for r, _ in bands) + " |")
-    pairs = [c for c in configs if c + "_nococ" in label]
+    pairs = coc_pairs(configs, label)
     if pairs:
         md += ["", "The CoC input's gain (SSIM with it − without it), by CoC band: the mean, then "
                "seed by seed (" + ", ".join(seeds) + "):", "",
                "| pair | " + " | ".join(name for _, name in bands) + " |",
                "| --- " * (len(bands) + 1) + "|"]
-        for c in pairs:
+        for c, t in pairs:
             cells = []
             for r, _ in bands:
-                g = [ssim(per[(c, s)]["denoised"], r) - ssim(per[(c + "_nococ", s)]["denoised"], r)
+                g = [ssim(per[(c, s)]["denoised"], r) - ssim(per[(t, s)]["denoised"], r)
                      for s in seeds]
                 cells.append(format(mean(g), "+.4f") + " (" + ", ".join(format(x, "+.4f") for x in g) + ")")
-            md.append(f"| `{c}` − `{c}_nococ` | " + " | ".join(cells) + " |")
+            md.append(f"| `{c}` − `{t}` | " + " | ".join(cells) + " |")
     probed = [c for c in configs if all(per[(c, s)]["probe"] for s in seeds)]
     if probed:
         md += ["", "The CoC probe (`eval --coc-override 0`, the network told that everything is "

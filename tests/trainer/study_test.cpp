@@ -513,10 +513,13 @@ TEST(Study, WidthMatchedNoCocTwinsDifferFromTheirCocNetworksByTheCocInputAlone) 
     EXPECT_EQ(differ, std::vector<std::string>{});
   }
   EXPECT_EQ(config("thesis_prefilter_nococ").data.albedo_prefilter, AlbedoPrefilter::kCoc);
+  // Both pairs in the CoC table and in the table of paired intervals.
   const std::string md = read_all(out / "results.md");
-  EXPECT_NE(md.find("| CoC input: `thesis_prefilter` − `thesis_prefilter_nococ` | "),
-            std::string::npos)
-      << md;
+  for (const char* pair : {"`thesis_prefilter` − `thesis_prefilter_nococ` | ",
+                           "`default` − `default_nococ_wide` | "}) {
+    EXPECT_NE(md.find(std::string("| CoC input: ") + pair), std::string::npos) << pair << md;
+    EXPECT_NE(md.find(std::string("\n| ") + pair), std::string::npos) << pair << md;
+  }
   // No CoC probe for a network without the CoC input.
   EXPECT_FALSE(fs::exists(out / "reports" / "default_nococ_wide-coc0"));
   EXPECT_FALSE(fs::exists(out / "reports" / "thesis_prefilter_nococ-coc0"));
