@@ -175,7 +175,7 @@ struct FrameCrops {
 FrameCrops focus_crops_of(int side, const FrameBuffers& fb, const std::vector<float>& noisy,
                           const std::vector<float>& denoised, const json& where) {
   FrameCrops fc_out;
-  const FocusCrops fc = choose_focus_crops(fb.coc, fb.width, fb.height, side);
+  const FocusCrops fc = choose_focus_crops(fb.coc, fb.width, fb.height, side, &fb.reference);
   if (!fc.out_of_focus.found) return fc_out;
   constexpr double kShowsBoth = 1e6;
   fc_out.blur = fc.out_of_focus.mean_coc + (fc.in_focus.found ? kShowsBoth : 0.0);

@@ -86,40 +86,60 @@ std::string comparison_png_bytes(const std::vector<float>& noisy, const std::vec
   return png_bytes(comparison_rgb(noisy, denoised, reference, w, h), 4 * w, h);
 }
 
-FocusCrops choose_focus_crops(const std::vector<float>& coc, int w, int h, int side) {
+FocusCrops choose_focus_crops(const std::vector<float>& coc, int w, int h, int side,
+                              const std::vector<float>* reference) {
   FocusCrops out;
   side = std::min({side, w, h});
   if (side <= 0 || coc.size() < size_t(w) * h) return out;
-  // Summed-area table, (w + 1) x (h + 1), in double (no drift over a frame).
-  std::vector<double> sat(size_t(w + 1) * (h + 1), 0.0);
+  const size_t n = size_t(w) * h;
+  const bool judge = reference && reference->size() >= 3 * n;
+  // Summed-area tables, (w + 1) x (h + 1), in double (no drift over a
+  // frame): of the CoC, and of the reference's display-white pixels.
+  std::vector<double> sat(size_t(w + 1) * (h + 1), 0.0), white(judge ? sat.size() : 0, 0.0);
   for (int y = 0; y < h; ++y) {
-    double row = 0;
+    double row = 0, row_white = 0;
     for (int x = 0; x < w; ++x) {
-      const float c = coc[size_t(y) * w + x];
+      const size_t p = size_t(y) * w + x;
+      const float c = coc[p];
       row += std::isfinite(c) ? double(c) : 0.0;
-      sat[size_t(y + 1) * (w + 1) + x + 1] = sat[size_t(y) * (w + 1) + x + 1] + row;
+      const size_t at = size_t(y + 1) * (w + 1) + x + 1, above = size_t(y) * (w + 1) + x + 1;
+      sat[at] = sat[above] + row;
+      if (judge) {
+        const auto& r = *reference;
+        row_white += (r[p] >= 1.0f && r[n + p] >= 1.0f && r[2 * n + p] >= 1.0f) ? 1.0 : 0.0;
+        white[at] = white[above] + row_white;
+      }
     }
   }
   const int stride = std::max(1, side / 4);
   const double area = double(side) * side;
-  double lo = INFINITY, hi = -INFINITY;
-  CropWindow lo_w, hi_w;
+  // [0]: any window; [1]: windows whose reference is at most half white.
+  double lo[2] = {INFINITY, INFINITY}, hi[2] = {-INFINITY, -INFINITY};
+  CropWindow lo_w[2], hi_w[2];
   for (int y = 0; y + side <= h; y += stride)
     for (int x = 0; x + side <= w; x += stride) {
-      auto at = [&](int xx, int yy) { return sat[size_t(yy) * (w + 1) + xx]; };
-      const double mean =
-          (at(x + side, y + side) - at(x, y + side) - at(x + side, y) + at(x, y)) / area;
-      if (mean < lo) {
-        lo = mean;
-        lo_w = {x, y, side, mean, true};
-      }
-      if (mean > hi) {
-        hi = mean;
-        hi_w = {x, y, side, mean, true};
+      auto box = [&](const std::vector<double>& t) {
+        auto at = [&](int xx, int yy) { return t[size_t(yy) * (w + 1) + xx]; };
+        return at(x + side, y + side) - at(x, y + side) - at(x + side, y) + at(x, y);
+      };
+      const double mean = box(sat) / area;
+      const bool shows = !judge || box(white) <= 0.5 * area;
+      for (int k = 0; k < (shows ? 2 : 1); ++k) {
+        if (mean < lo[k]) {
+          lo[k] = mean;
+          lo_w[k] = {x, y, side, mean, true};
+        }
+        if (mean > hi[k]) {
+          hi[k] = mean;
+          hi_w[k] = {x, y, side, mean, true};
+        }
       }
     }
-  if (lo_w.found && lo < 1.0) out.in_focus = lo_w;
-  if (hi_w.found && hi >= 2.0) out.out_of_focus = hi_w;
+  // A window that shows something if one qualifies, else any.
+  for (int k : {1, 0}) {
+    if (!out.in_focus.found && lo_w[k].found && lo[k] < 1.0) out.in_focus = lo_w[k];
+    if (!out.out_of_focus.found && hi_w[k].found && hi[k] >= 2.0) out.out_of_focus = hi_w[k];
+  }
   return out;
 }
 

@@ -23,7 +23,11 @@ std::string comparison_png_bytes(const std::vector<float>& noisy, const std::vec
 // mean CoC, kept when that mean is below 1 px ("acceptably sharp",
 // DESIGN.md); out_of_focus: the window of the largest mean CoC, kept when it
 // is at least 2 px. Ties go to the first window in row order, so every
-// model evaluated on the same data gets the same windows.
+// model evaluated on the same data gets the same windows. With `reference`
+// (linear, (3, H, W)), a window whose reference is more than half display
+// white (every channel >= 1, which the sRGB crops clamp to a flat white: a
+// sky behind the focus, a lamp) is passed over when another window
+// qualifies, so that a crop shows something the models could get wrong.
 struct CropWindow {
   int x = 0, y = 0, side = 0;
   double mean_coc = 0;
@@ -32,7 +36,8 @@ struct CropWindow {
 struct FocusCrops {
   CropWindow in_focus, out_of_focus;
 };
-FocusCrops choose_focus_crops(const std::vector<float>& coc, int width, int height, int side);
+FocusCrops choose_focus_crops(const std::vector<float>& coc, int width, int height, int side,
+                              const std::vector<float>* reference = nullptr);
 // Which frames `eval --crops` shows: given each shard's candidate frames
 // ranked by blur (the out-of-focus window's mean CoC, descending), up to `k`
 // (shard, rank) picks: every shard's most blurred frame first, the most

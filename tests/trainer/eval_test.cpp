@@ -376,6 +376,27 @@ TEST(Crops, WindowsOfTheSmallestAndLargestCircleOfConfusion) {
   EXPECT_FALSE(
       choose_focus_crops(std::vector<float>(size_t(w) * h, 0.0f), w, h, 8).out_of_focus.found);
   EXPECT_FALSE(choose_focus_crops(std::vector<float>(size_t(w) * h, 9.0f), w, h, 8).in_focus.found);
+  // Where the reference is display white over the blurred square (a sky
+  // behind the focus), the out-of-focus window moves to the most blurred one
+  // that is at most half white: (30, 10) overlaps the square by 4 of its 8
+  // rows, mean (32 * 20 + 32 * 1.5) / 64; (28, 12) would be 36/64 white.
+  // The sharp window is not white and stays. All white: the windows as before.
+  std::vector<float> ref(size_t(3) * w * h, 0.5f);
+  for (int ch = 0; ch < 3; ++ch)
+    for (int y = 14; y < 22; ++y)
+      for (int x = 30; x < 38; ++x) ref[size_t(ch) * w * h + size_t(y) * w + x] = 1.0f;
+  const FocusCrops shown = choose_focus_crops(coc, w, h, 8, &ref);
+  ASSERT_TRUE(shown.in_focus.found && shown.out_of_focus.found);
+  EXPECT_EQ(shown.in_focus.x, 6);
+  EXPECT_EQ(shown.in_focus.y, 4);
+  EXPECT_EQ(shown.out_of_focus.x, 30);
+  EXPECT_EQ(shown.out_of_focus.y, 10);
+  EXPECT_DOUBLE_EQ(shown.out_of_focus.mean_coc, 10.75);
+  const std::vector<float> all_white(size_t(3) * w * h, 2.0f);
+  const FocusCrops fallback = choose_focus_crops(coc, w, h, 8, &all_white);
+  EXPECT_EQ(fallback.out_of_focus.x, 30);
+  EXPECT_EQ(fallback.out_of_focus.y, 14);
+  EXPECT_EQ(fallback.in_focus.x, 6);
 
   // The crop PNG holds the window's pixels, sRGB-encoded, each drawn 2 x 2.
   std::vector<float> img(size_t(3) * w * h);
