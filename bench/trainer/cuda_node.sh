@@ -27,7 +27,10 @@
 #       `dofarm-train eval --run RUN --checkpoint RUN/checkpoints/eval.pt ...`.
 #     env: RUNS (default "thesis_prefilter:2 thesis_prefilter_nococ:2",
 #       CONFIG:SEED words of dof_study.sh's configurations), STEPS (4000),
-#       EPOCHS (40), FRAMES (8-47), REF_CAP (512, buffers.reference_max_spp),
+#       EPOCHS (40), JOB (cornell: the study job of jobs/study/ to render),
+#       FRAMES (8-47; ranges joined by commas, e.g. 0-19,29-47, each
+#       rendered as a farm output of its own and all trained on together),
+#       REF_CAP (512, buffers.reference_max_spp),
 #       DEADLINE (seconds after the start at which every training still
 #       running is stopped with SIGINT, writing its checkpoint; default 510),
 #       THREADS_PER_RUN (3, OMP_NUM_THREADS of each training), STUDY_DIR
@@ -105,7 +108,7 @@ head -1 /etc/os-release
 if [ "$mode" = study ]; then
   # The render starts first, on every core, and the build runs beside it.
   RUNS=${RUNS:-thesis_prefilter:2 thesis_prefilter_nococ:2}
-  FRAMES=${FRAMES:-8-47}
+  FRAMES=${FRAMES:-8-47} JOB=${JOB:-cornell}
   # Fixed folders, so that the same command again on a machine that is
   # still up goes on where the last one stopped: the render finds its job
   # done, ninja has nothing to build, and dof_study.sh resumes the runs.
@@ -113,9 +116,17 @@ if [ "$mode" = study ]; then
   K=$G/kit S=$G/data
   mkdir -p "$K" "$S"
   [ -x "$K/dofarm" ] || xz -dc "$dir/render-kit.tar.xz" | tar -C "$K" -xf - || exit 1
-  (LD_LIBRARY_PATH=$K/libs DOFARM=$K/dofarm OUT=$S JOBS=cornell bench/trainer/render_study.sh \
-    --set "frames.start=${FRAMES%-*}" --set "frames.end=${FRAMES#*-}" \
-    --set "buffers.reference_max_spp=${REF_CAP:-512}" >"$OUT/render.txt" 2>&1) &
+  IFS=, read -ra ranges <<<"$FRAMES"
+  data=()
+  for f in "${ranges[@]}"; do
+    [[ $f =~ ^[0-9]+-[0-9]+$ ]] || { echo "cuda_node.sh: FRAMES: expected ranges like 0-19,29-47, got '$FRAMES'" >&2; exit 2; }
+    data+=("$S/$JOB-$f/$JOB")
+  done
+  (for f in "${ranges[@]}"; do
+    LD_LIBRARY_PATH=$K/libs DOFARM=$K/dofarm OUT=$S/$JOB-$f JOBS=$JOB bench/trainer/render_study.sh \
+      --set "frames.start=${f%-*}" --set "frames.end=${f#*-}" \
+      --set "buffers.reference_max_spp=${REF_CAP:-512}" || exit 1
+  done >"$OUT/render.txt" 2>&1) &
   render_pid=$!
   P=$G/prefix L=$G/libs
   mkdir -p "$P" "$L"
@@ -157,7 +168,7 @@ ninja -C "$B" "${targets[@]}" >"$OUT/build.txt" 2>&1 ||
 stamp built
 if [ "$mode" = study ]; then
   wait "$render_pid" || { tail -20 "$OUT/render.txt"; exit 1; }
-  stamp "rendered: $(ls "$S"/cornell/shard-*.h5 | wc -l) shards, $(du -sh "$S/cornell" | cut -f1)"
+  stamp "rendered: $(ls "${data[@]/%//shard-00000.h5}" | wc -l) farm outputs, $(du -sch "${data[@]}" | tail -1 | cut -f1)"
   # dof_study.sh runs dofarm-train through this wrapper, which stops it with
   # SIGINT at the deadline: it writes its checkpoint and exits 3, and
   # dof_study.sh leaves the run unfinished (no study.done).
@@ -176,7 +187,7 @@ EOF
     OMP_NUM_THREADS=${THREADS_PER_RUN:-3} DOFARM_TRAIN=$P/train-deadline bash bench/trainer/dof_study.sh \
       --train-only --steps "${STEPS:-4000}" --epochs "${EPOCHS:-40}" --configs "$c" \
       --set "train.seed=$seed" --set data.val_fraction=0 --set train.warmup_steps=40 \
-      --out "$W/seed-$seed" "$S/cornell" >>"$W-$c-$seed.txt" 2>&1 &
+      --out "$W/seed-$seed" "${data[@]}" >>"$W-$c-$seed.txt" 2>&1 &
     pids+=($!)
   done
   stamp "training: $RUNS"

@@ -27,6 +27,8 @@
 #                        (36..113), which separates the CoC's information from width
 #   thesis_prefilter_nococ  (d) prefilter without the CoC input, at (a)'s widths:
 #                        what the CoC input adds once the albedo is blurred by it
+#   default_prefilter    (c) + CoC-sized albedo prefilter (the courtyard's best)
+#   default_prefilter_nococ_wide  the same without the CoC input, (c)'s CoC widths
 # and the same pair with a depth input that carries no focus information
 # (depth:focal is 0.5 on the focal plane, so with it the CoC is known up to
 # one factor per frame; --configs sdepth: default_sdepth default_sdepth_nococ):
@@ -208,6 +210,7 @@ args_of() {
     thesis_nococ) echo "--preset thesis" ;;
     default|default_nococ|default_nococ_wide|default_sdepth|default_sdepth_nococ)
       echo "--preset default" ;;
+    default_prefilter|default_prefilter_nococ_wide) echo "--preset default --set data.albedo_prefilter=coc" ;;
     thesis_focus) echo "--preset thesis --set loss.focus_weight=4 --set loss.focus_coc_px=1" ;;
     thesis_prefilter|thesis_prefilter_nococ) echo "--preset thesis --set data.albedo_prefilter=coc" ;;
     # RAE: recurrent blocks, temporal weight 0.1 (Chaitanya 2017, sec. 5: 0.8 / 0.1 / 0.1).
@@ -219,9 +222,9 @@ args_of() {
 extra_of() {
   case $1 in
     thesis_nococ) echo "model.inputs=$NOCOC" ;;
-    default) echo "train.warmup_steps=$WARMUP" ;;
+    default|default_prefilter) echo "train.warmup_steps=$WARMUP" ;;
     default_nococ) printf '%s\n' "train.warmup_steps=$WARMUP" "model.inputs=$DEFAULT_NOCOC" ;;
-    default_nococ_wide)
+    default_nococ_wide|default_prefilter_nococ_wide)
       printf '%s\n' "train.warmup_steps=$WARMUP" "model.inputs=$DEFAULT_NOCOC" "model.channels=$DOF_WIDTHS"
       ;;
     thesis_prefilter_nococ) printf '%s\n' "model.inputs=$NOCOC" "model.channels=$DOF_WIDTHS" ;;
@@ -245,6 +248,8 @@ describe() {
     default_nococ) echo "(c) without CoC input" ;;
     default_nococ_wide) echo "(c) without CoC input, the CoC network's widths" ;;
     thesis_prefilter_nococ) echo "(d) prefilter without CoC input, (a)'s widths" ;;
+    default_prefilter) echo "(c) + CoC albedo prefilter" ;;
+    default_prefilter_nococ_wide) echo "(c) + prefilter, without CoC input, the CoC network's widths" ;;
     default_sdepth) echo "(c) with depth:scene" ;;
     default_sdepth_nococ) echo "(c) with depth:scene, without CoC input" ;;
     thesis_focus) echo "(d) (a) + focus-weighted loss" ;;
