@@ -312,12 +312,29 @@ TOTAL=$(( EPOCHS * PER_EPOCH ))
 mkdir -p "$OUT/runs" "$OUT/reports"
 
 # One data folder for train and eval: the given one, or links to every shard
-# of several (named by folder, so that shard-00000.h5 of two jobs do not collide).
+# of several, named by folder so that shard-00000.h5 of two jobs do not
+# collide, and numbered as well when two folders share a name (two frame
+# ranges of one job, each rendered as a farm output of its own: out/a/courtyard
+# and out/b/courtyard). It holds the folders given now and nothing else:
+# the links are made in a folder of their own and renamed into place one by
+# one (each rename atomic, so that studies started side by side on one OUT,
+# as cuda_node.sh does, never see a link missing), then links of an earlier
+# call that are not among them go.
 if [ ${#DATA[@]} -eq 1 ]; then
   DATA_DIR=$(cd "${DATA[0]}" && pwd)
 else
   DATA_DIR=$OUT/data
-  join_shards "$DATA_DIR" named "${DATA[@]}"
+  how=named
+  [ -n "$(for d in "${DATA[@]}"; do basename "$(cd "$d" && pwd)"; done | sort | uniq -d)" ] && how=numbered
+  fresh=$(mktemp -d "$OUT/.data.XXXXXX")
+  join_shards "$fresh" "$how" "${DATA[@]}"
+  mkdir -p "$DATA_DIR"
+  for l in "$DATA_DIR"/*; do
+    [ -e "$l" ] || [ -L "$l" ] || continue
+    [ -L "$fresh/$(basename "$l")" ] || rm -f "$l"
+  done
+  for l in "$fresh"/*; do mv -f "$l" "$DATA_DIR/"; done
+  rmdir "$fresh"
 fi
 
 

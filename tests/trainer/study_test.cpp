@@ -480,21 +480,25 @@ TEST(Study, SceneDepthPairDiffersFromTheDefaultOnlyInItsInputs) {
 // The width-matched CoC ablations: each no-CoC twin has the inputs of its
 // CoC network less the CoC and, unlike (b), the CoC network's widths, so
 // that the pair differs by the first convolution's CoC column alone; the
-// prefiltered twin still blurs its albedo by the CoC. Run at their own
+// prefiltered twins still blur their albedo by the CoC, and the prefiltered
+// default differs from the default by the prefilter alone. Run at their own
 // widths (not shrunk), on small frames.
 TEST(Study, WidthMatchedNoCocTwinsDifferFromTheirCocNetworksByTheCocInputAlone) {
   const fs::path dir = study_dir("study_wide");
   const fs::path out = dir / "out";
   ASSERT_EQ(run_study(dir / "data", out, dir / "log",
-                      "default default_nococ_wide thesis_prefilter thesis_prefilter_nococ",
+                      "default default_nococ_wide default_prefilter default_prefilter_nococ_wide "
+                      "thesis_prefilter thesis_prefilter_nococ",
                       " --crops 0", "", ""),
             0)
       << read_all(dir / "log");
   auto config = [&](const char* name) {
     return load_train_config(out / "runs" / name / "config.toml");
   };
-  for (const auto& [with, without] : {std::pair{"default", "default_nococ_wide"},
-                                      std::pair{"thesis_prefilter", "thesis_prefilter_nococ"}}) {
+  for (const auto& [with, without] :
+       {std::pair{"default", "default_nococ_wide"},
+        std::pair{"default_prefilter", "default_prefilter_nococ_wide"},
+        std::pair{"thesis_prefilter", "thesis_prefilter_nococ"}}) {
     SCOPED_TRACE(without);
     const TrainConfig a = config(with), b = config(without);
     EXPECT_EQ(b.model.effective_channels(), (std::vector<int>{36, 48, 64, 85, 113}));
@@ -513,9 +517,15 @@ TEST(Study, WidthMatchedNoCocTwinsDifferFromTheirCocNetworksByTheCocInputAlone) 
     EXPECT_EQ(differ, std::vector<std::string>{});
   }
   EXPECT_EQ(config("thesis_prefilter_nococ").data.albedo_prefilter, AlbedoPrefilter::kCoc);
-  // Both pairs in the CoC table and in the table of paired intervals.
+  EXPECT_EQ(config("default_prefilter_nococ_wide").data.albedo_prefilter, AlbedoPrefilter::kCoc);
+  EXPECT_EQ(config("default").data.albedo_prefilter, AlbedoPrefilter::kNone);
+  const auto prefilter_only = config_changes(config("default"), config("default_prefilter"));
+  ASSERT_EQ(prefilter_only.size(), 1u);
+  EXPECT_EQ(prefilter_only[0].rfind("data.albedo_prefilter:", 0), 0u) << prefilter_only[0];
+  // Every pair in the CoC table and in the table of paired intervals.
   const std::string md = read_all(out / "results.md");
   for (const char* pair : {"`thesis_prefilter` − `thesis_prefilter_nococ` | ",
+                           "`default_prefilter` − `default_prefilter_nococ_wide` | ",
                            "`default` − `default_nococ_wide` | "}) {
     EXPECT_NE(md.find(std::string("| CoC input: ") + pair), std::string::npos) << pair << md;
     EXPECT_NE(md.find(std::string("\n| ") + pair), std::string::npos) << pair << md;
@@ -523,7 +533,47 @@ TEST(Study, WidthMatchedNoCocTwinsDifferFromTheirCocNetworksByTheCocInputAlone) 
   // No CoC probe for a network without the CoC input.
   EXPECT_FALSE(fs::exists(out / "reports" / "default_nococ_wide-coc0"));
   EXPECT_FALSE(fs::exists(out / "reports" / "thesis_prefilter_nococ-coc0"));
+  EXPECT_FALSE(fs::exists(out / "reports" / "default_prefilter_nococ_wide-coc0"));
   EXPECT_TRUE(fs::exists(out / "reports" / "thesis_prefilter-coc0"));
+}
+
+// Two frame ranges of one job rendered as two farm outputs share their
+// folder's name (a/courtyard, b/courtyard) and their shards' names: the
+// study trains on both (its data folder links every shard, numbered by the
+// folder's place in the list). A later call links the folders it is given
+// and nothing else (by name again, when the names differ).
+TEST(Study, TwoFarmOutputsOfOneNameAreBothTrainedOn) {
+  const fs::path dir = testing::scratch_dir("study_same_name");
+  const fs::path a = dir / "a" / "courtyard", b = dir / "b" / "courtyard",
+                 c = dir / "c" / "cornell";
+  for (const fs::path& d : {a, b, c}) fs::create_directories(d);
+  testing::write_synthetic_shard(a / "shard-00000.h5", 12, 64, 64, 2, 5);
+  testing::write_synthetic_shard(b / "shard-00000.h5", 12, 64, 64, 2, 6, 12);
+  testing::write_synthetic_shard(c / "shard-00000.h5", 12, 64, 64, 2, 7);
+  const fs::path out = dir / "out";
+  auto links = [&] {
+    std::map<std::string, fs::path> found;
+    for (const auto& e : fs::directory_iterator(out / "data"))
+      found[e.path().filename().string()] = fs::read_symlink(e.path());
+    return found;
+  };
+  ASSERT_EQ(run_study(a.string() + " " + b.string(), out, dir / "log", "default", " --train-only"),
+            0)
+      << read_all(dir / "log");
+  EXPECT_EQ(links(), (std::map<std::string, fs::path>{
+                         {"0-courtyard-shard-00000.h5", a / "shard-00000.h5"},
+                         {"1-courtyard-shard-00000.h5", b / "shard-00000.h5"}}));
+  const std::string split_json = read_all(out / "runs" / "default" / "split.json");
+  for (const char* file : {"\"0-courtyard-shard-00000.h5\"", "\"1-courtyard-shard-00000.h5\""})
+    EXPECT_NE(split_json.find(file), std::string::npos) << split_json;
+
+  ASSERT_EQ(
+      run_study(a.string() + " " + c.string(), out, dir / "again.log", "default", " --train-only"),
+      0)
+      << read_all(dir / "again.log");
+  EXPECT_EQ(links(),
+            (std::map<std::string, fs::path>{{"courtyard-shard-00000.h5", a / "shard-00000.h5"},
+                                             {"cornell-shard-00000.h5", c / "shard-00000.h5"}}));
 }
 
 }  // namespace
