@@ -142,32 +142,47 @@ done
 for d in "${HELD_DIRS[@]}"; do
   [ -d "$d" ] || die "--held-out: no data folder $d"
 done
-# join_shards DEST named|numbered DIR...: links in DEST to every shard of
-# the DIRs, named FOLDER-SHARD (numbered: I-FOLDER-SHARD, I the DIR's place
-# in the list, for folders that share a name).
+# join_shards DEST named|numbered DIR...: DEST holds links to every shard of
+# the DIRs and nothing else, named FOLDER-SHARD (numbered: I-FOLDER-SHARD, I
+# the DIR's place in the list; named turns to numbered when two DIRs share
+# a folder name, such as two frame ranges of one job rendered as farm
+# outputs of their own, out/a/courtyard and out/b/courtyard). The links are
+# made in a folder of their own and renamed into place one by one (each
+# rename atomic, so that studies started side by side on one OUT, as
+# cuda_node.sh does, never see a link missing); links of an earlier call
+# that are not among them go.
 join_shards() {
-  local dest=$1 how=$2 i=0 d abs s name
+  local dest=$1 how=$2 i=0 d abs s name fresh l
   shift 2
+  [ -n "$(for d in "$@"; do basename "$(cd "$d" && pwd)"; done | sort | uniq -d)" ] && how=numbered
   mkdir -p "$dest"
+  fresh=$(mktemp -d "$(dirname "$dest")/.links.XXXXXX")
   for d in "$@"; do
     abs=$(cd "$d" && pwd)
     for s in "$abs"/*.h5; do
       [ -e "$s" ] || continue
       name=$(basename "$abs")-$(basename "$s")
       [ "$how" = numbered ] && name=$i-$name
-      ln -sfn "$s" "$dest/$name"
+      ln -sfn "$s" "$fresh/$name"
     done
     i=$((i + 1))
   done
+  for l in "$dest"/*; do
+    [ -e "$l" ] || [ -L "$l" ] || continue
+    [ -L "$fresh/$(basename "$l")" ] || rm -f "$l"
+  done
+  for l in "$fresh"/*; do
+    [ -L "$l" ] && mv -f "$l" "$dest/"
+  done
+  rmdir "$fresh"
 }
 if [ ${#HELD_DIRS[@]} -eq 1 ] && [ -z "$SEEDS" ]; then
   HELD_OUT=$(cd "${HELD_DIRS[0]}" && pwd)
 elif [ ${#HELD_DIRS[@]} -gt 0 ] && [ -z "$SEEDS" ]; then
-  # Several folders: one folder of links, made afresh so that a folder left
-  # out this time is not scored. Each link is named by the folder's place
-  # in the argument list, as held-out folders often share a name (cornell).
+  # Several folders: one folder of links to them alone, so that a folder
+  # left out this time is not scored. Each link is named by the folder's
+  # place in the argument list, as held-out folders often share a name (cornell).
   HELD_OUT=$OUT/held-out-data
-  rm -rf "$HELD_OUT"
   join_shards "$HELD_OUT" numbered "${HELD_DIRS[@]}"
 fi
 if [ -n "$HELD_OUT" ]; then
@@ -312,29 +327,13 @@ TOTAL=$(( EPOCHS * PER_EPOCH ))
 mkdir -p "$OUT/runs" "$OUT/reports"
 
 # One data folder for train and eval: the given one, or links to every shard
-# of several, named by folder so that shard-00000.h5 of two jobs do not
-# collide, and numbered as well when two folders share a name (two frame
-# ranges of one job, each rendered as a farm output of its own: out/a/courtyard
-# and out/b/courtyard). It holds the folders given now and nothing else:
-# the links are made in a folder of their own and renamed into place one by
-# one (each rename atomic, so that studies started side by side on one OUT,
-# as cuda_node.sh does, never see a link missing), then links of an earlier
-# call that are not among them go.
+# of several (named by folder, so that shard-00000.h5 of two jobs do not
+# collide; numbered when folders share a name: join_shards).
 if [ ${#DATA[@]} -eq 1 ]; then
   DATA_DIR=$(cd "${DATA[0]}" && pwd)
 else
   DATA_DIR=$OUT/data
-  how=named
-  [ -n "$(for d in "${DATA[@]}"; do basename "$(cd "$d" && pwd)"; done | sort | uniq -d)" ] && how=numbered
-  fresh=$(mktemp -d "$OUT/.data.XXXXXX")
-  join_shards "$fresh" "$how" "${DATA[@]}"
-  mkdir -p "$DATA_DIR"
-  for l in "$DATA_DIR"/*; do
-    [ -e "$l" ] || [ -L "$l" ] || continue
-    [ -L "$fresh/$(basename "$l")" ] || rm -f "$l"
-  done
-  for l in "$fresh"/*; do mv -f "$l" "$DATA_DIR/"; done
-  rmdir "$fresh"
+  join_shards "$DATA_DIR" named "${DATA[@]}"
 fi
 
 
