@@ -9,13 +9,18 @@
 //     shadow query in the order the renderer made it (camera rays, bounces,
 //     NEE shadow rays with their t_max, albedo and aux rays). Those rays are
 //     then traced again, on the same number of threads, in chunks of 4096
-//     consecutive rays from a shared counter: once through Scene::intersect /
-//     Scene::occluded (the calls the renderer makes, hit record included) and
-//     once through bare rtcIntersect1 / rtcOccluded1.
+//     consecutive queries from a shared counter: once through
+//     Scene::intersect / Scene::occluded / Scene::intersect_packet (the calls
+//     the renderer makes, hit record included; camera rays in the packets
+//     the renderer traced them in) and once through bare rtcIntersect1 /
+//     rtcOccluded1 / rtcIntersect8.
 // (c) Random rays (the old reference, kept for comparison): N incoherent rays,
 //     origins uniform in the scene's bounding sphere, directions uniform on
 //     the sphere, through Scene::intersect and Scene::occluded, weighted by the
 //     renderer's closest/shadow mix.
+// (a) is also timed with Scene::set_packet_tracing(false): the renderer as
+// it is, but each camera ray traced alone (rtcIntersect1) instead of in the
+// per-pixel packets of 8 (rtcIntersect8); the same rays, the same image.
 // renderer rays/s / replayed rays/s says how much of the time the renderer
 // spends outside ray queries (sampling, BSDFs, lights, buffers) on exactly
 // its own workload.
@@ -127,6 +132,11 @@ std::vector<Ray> random_rays(const Scene& scene, int64_t n, uint64_t seed) {
   return rays;
 }
 
+// One query of the replay: a ray alone, or a packet of n rays from own[first].
+struct Unit {
+  uint32_t first = 0, n = 1;
+};
+
 struct RawFigures {
   double seconds = 0;
   int64_t hits = 0;
@@ -147,7 +157,7 @@ RawFigures trace_all(const std::vector<R>& rays, int threads, int repeats, Trace
       int64_t local = 0;
       for (int64_t begin = next.fetch_add(kChunk); begin < n; begin = next.fetch_add(kChunk)) {
         const int64_t end = std::min(n, begin + kChunk);
-        for (int64_t i = begin; i < end; ++i) local += trace(rays[size_t(i)]) ? 1 : 0;
+        for (int64_t i = begin; i < end; ++i) local += int64_t(trace(rays[size_t(i)]));
       }
       hits += local;
     };
@@ -221,6 +231,17 @@ void run_scene(const char* name, const char* job, int frame, const Args& args) {
   int64_t own_shadow = 0;
   for (const TracedRay& r : own) own_shadow += r.shadow ? 1 : 0;
   const double own_n = double(own.size());
+  // Replayed as traced: a ray alone, or the camera rays of one packet
+  // together (intersect_packet; rtcIntersect8 in the bare replay).
+  std::vector<Unit> units;
+  int64_t in_packets = 0;
+  for (size_t i = 0; i < own.size();) {
+    const uint32_t n =
+        own[i].packet > 1 ? std::min<uint32_t>(own[i].packet, uint32_t(own.size() - i)) : 1;
+    units.push_back({uint32_t(i), n});
+    in_packets += n > 1 ? n : 0;
+    i += n;
+  }
   const std::vector<Ray> rays = random_rays(*scene, args.rays, 0x0dfa'2b00'7ea5'5eedULL);
   const float t_max = 2.0f * scene->radius();  // across the whole bounding sphere
   const RTCScene rtc = scene->embree_scene();
@@ -229,12 +250,13 @@ void run_scene(const char* name, const char* job, int frame, const Args& args) {
   // shared machine hits all figures alike; the best of each is kept.
   RendererFigures rf;
   rf.seconds = 1e300;
+  double single_seconds = 1e300;
   RawFigures replay{1e300, 0}, bare{1e300, 0}, closest{1e300, 0}, shadow{1e300, 0};
   auto keep_best = [](RawFigures* best, RawFigures now) {
     if (now.seconds < best->seconds) *best = now;
   };
   for (int rep = 0; rep < args.repeats; ++rep) {
-    {  // (a) the renderer
+    {  // (a) the renderer, then the same with camera rays traced one at a time
       RenderStats stats;
       RenderOptions options;
       options.threads = args.threads;
@@ -243,16 +265,62 @@ void run_scene(const char* name, const char* job, int frame, const Args& args) {
       rf.paths = stats.paths;
       rf.rays = stats.rays;
       rf.seconds = std::min(rf.seconds, stats.seconds);
+      RenderStats single;
+      options.stats = &single;
+      scene->set_packet_tracing(false);
+      dofarm::render::render_frame(*scene, spec, frame, std::nullopt, options);
+      scene->set_packet_tracing(true);
+      single_seconds = std::min(single_seconds, single.seconds);
     }
     // (b) its own rays through the calls the renderer makes, then bare Embree
-    keep_best(&replay, trace_all(own, threads, 1, [&](const TracedRay& r) {
-                if (r.shadow) return scene->occluded(r.o, r.d, r.t_max);
-                SurfaceHit hit;
-                return scene->intersect(Ray{r.o, r.d, r.t_min, r.t_max}, &hit);
-              }));
+    keep_best(&replay, trace_all(units, threads, 1, [&](const Unit& u) -> int64_t {
+      const TracedRay& r = own[u.first];
+      if (u.n > 1) {
+        Ray packet[Scene::kPacket];
+        SurfaceHit hits[Scene::kPacket];
+        bool found[Scene::kPacket];
+        for (uint32_t k = 0; k < u.n; ++k) {
+          const TracedRay& q = own[u.first + k];
+          packet[k] = Ray{q.o, q.d, q.t_min, q.t_max};
+        }
+        scene->intersect_packet(packet, int(u.n), hits, found);
+        return std::count(found, found + u.n, true);
+      }
+      if (r.shadow) return scene->occluded(r.o, r.d, r.t_max);
+      SurfaceHit hit;
+      return scene->intersect(Ray{r.o, r.d, r.t_min, r.t_max}, &hit);
+    }));
     keep_best(&bare,
-              trace_all(own, threads, 1, [&](const TracedRay& r) {
+              trace_all(units, threads, 1, [&](const Unit& u) -> int64_t {
+                const TracedRay& r = own[u.first];
                 Scene::EmbreeContext ctx = scene->embree_context();
+                if (u.n > 1) {
+                  alignas(32) int valid[8];
+                  alignas(32) RTCRayHit8 rh;
+                  for (uint32_t k = 0; k < 8; ++k) {
+                    const TracedRay& q = own[u.first + std::min(k, u.n - 1)];
+                    valid[k] = k < u.n ? -1 : 0;
+                    rh.ray.org_x[k] = q.o.x;
+                    rh.ray.org_y[k] = q.o.y;
+                    rh.ray.org_z[k] = q.o.z;
+                    rh.ray.tnear[k] = q.t_min;
+                    rh.ray.dir_x[k] = q.d.x;
+                    rh.ray.dir_y[k] = q.d.y;
+                    rh.ray.dir_z[k] = q.d.z;
+                    rh.ray.time[k] = 0;
+                    rh.ray.tfar[k] = q.t_max;
+                    rh.ray.mask[k] = 0xffffffffu;
+                    rh.ray.id[k] = 0;
+                    rh.ray.flags[k] = 0;
+                    rh.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
+                    rh.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
+                  }
+                  rtcIntersect8(valid, rtc, &ctx.rtc, &rh);
+                  int64_t hits = 0;
+                  for (uint32_t k = 0; k < u.n; ++k)
+                    hits += rh.hit.geomID[k] != RTC_INVALID_GEOMETRY_ID ? 1 : 0;
+                  return hits;
+                }
                 if (r.shadow) {
                   RTCRay ray{r.o.x, r.o.y, r.o.z, 0.0f, r.d.x, r.d.y, r.d.z, 0.0f,
                              r.t_max, 0xffffffffu, 0, 0};
@@ -286,6 +354,10 @@ void run_scene(const char* name, const char* job, int frame, const Args& args) {
   std::printf("  paths %llu  rays %llu  (%.2f rays/path)\n", (unsigned long long)rf.paths,
               (unsigned long long)rf.rays, rays_per_path);
   std::printf("  %.3f Mpaths/s  %.3f Mrays/s\n", paths_per_s * 1e-6, rays_per_s * 1e-6);
+  std::printf(
+      "  camera rays one at a time instead of in packets (Scene::set_packet_tracing): "
+      "%.3f s, %.3f Mrays/s (packets %.2fx as fast)\n",
+      single_seconds, rf.rays / single_seconds * 1e-6, single_seconds / rf.seconds);
 
   const double replay_rate = own_n / replay.seconds;
   const double bare_rate = own_n / bare.seconds;
@@ -294,6 +366,8 @@ void run_scene(const char* name, const char* job, int frame, const Args& args) {
               own.size(), own.size() == rf.rays ? ", = rays above" : ", != rays above!",
               100.0 * double(own_shadow) / own_n, 100.0 * double(replay.hits) / own_n,
               args.repeats);
+  std::printf("  (%.1f%% of them camera rays in packets of up to %d, replayed as packets)\n",
+              100.0 * double(in_packets) / own_n, Scene::kPacket);
   std::printf("  Scene::intersect/occluded (as the renderer):  %.3f Mrays/s\n",
               replay_rate * 1e-6);
   std::printf("  bare rtcIntersect1/rtcOccluded1:              %.3f Mrays/s\n", bare_rate * 1e-6);

@@ -565,6 +565,22 @@ TEST(SobolBits, RecurrenceGivesDimension1AndTheJoeKuoDimensions2And3) {
   }
 }
 
+// The byte tables get4d() reads give what the columns give, bit for bit:
+// every index below 2^16, every single bit and all ones, and hashed ones.
+TEST(SobolBits, ByteTablesAreTheColumns) {
+  std::vector<uint32_t> indices;
+  for (uint32_t k = 0; k < 65536; ++k) indices.push_back(k);
+  for (int b = 0; b < 32; ++b) indices.push_back(1u << b);
+  indices.push_back(0xffffffffu);
+  for (uint32_t k = 0; k < 100000; ++k) indices.push_back(uint32_t(mix64(k + 7) >> 32));
+  for (uint32_t i : indices) {
+    ASSERT_EQ(sobol_apply(kSobolDim2Bytes, i), sobol_apply(kSobolDim2Reversed, i)) << i;
+    ASSERT_EQ(sobol_apply(kSobolDim3Bytes, i), sobol_apply(kSobolDim3Reversed, i)) << i;
+  }
+  static_assert(sobol_apply(kSobolDim2Bytes, 0x80000001u) ==
+                (kSobolDim2Reversed.v[31] ^ kSobolDim2Reversed.v[0]));
+}
+
 TEST(Sampler, Get4dFirstPairIsGet2dAndEachPairIsANet) {
   for (auto [px, py] : {std::pair{0, 0}, {17, 5}}) {
     PixelSampler a(SamplerKind::kSobol, kSeed, 0, px, py, Stream::kTest);

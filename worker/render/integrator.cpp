@@ -23,7 +23,7 @@ Vec3 primary_albedo(const SurfaceHit* hit) {
 }
 
 Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler,
-                const IntegratorSettings& settings, Vec3* albedo) {
+                const IntegratorSettings& settings, Vec3* albedo, const PrimaryHit* primary) {
   const bool use_nee = settings.strategy != LightStrategy::kBsdfOnly;
   const bool use_bsdf_hits = settings.strategy != LightStrategy::kNeeOnly;
   const bool use_mis = settings.strategy == LightStrategy::kMis;
@@ -59,7 +59,13 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
     Environment::Located escape;
     if (env && depth > 0) escape = env->locate(ray.d);
     SurfaceHit hit;
-    bool found = scene.intersect(ray, &hit);
+    bool found;
+    if (depth == 0 && primary) {
+      found = primary->found;
+      if (found) hit = *primary->hit;
+    } else {
+      found = scene.intersect(ray, &hit);
+    }
     if (found && depth == 0 && use_nee && depth < settings.max_depth)
       light_choice = scene.choose_light(u_select, u_light);
     if (depth == 0 && albedo) *albedo = primary_albedo(found ? &hit : nullptr);

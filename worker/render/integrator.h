@@ -57,7 +57,15 @@ Vec3 primary_albedo(const SurfaceHit* hit);
 // Radiance along `ray`. Always finite and non-negative: a sample whose
 // estimate is NaN or infinite (it should never happen) contributes 0.
 // `albedo` (optional) receives primary_albedo() of the first hit.
+// `primary` (optional): `ray`'s closest hit, already traced (a packet of
+// camera rays, Scene::intersect_packet); the path goes on from it as if it
+// had traced the ray itself, with the same numbers.
+struct PrimaryHit {
+  bool found = false;
+  const SurfaceHit* hit = nullptr;  // when found
+};
 Vec3 trace_path(const Scene& scene, const Ray& ray, PixelSampler& sampler,
-                const IntegratorSettings& settings, Vec3* albedo = nullptr);
+                const IntegratorSettings& settings, Vec3* albedo = nullptr,
+                const PrimaryHit* primary = nullptr);
 
 }  // namespace dofarm::render

@@ -145,23 +145,27 @@ class PixelRenderer {
 
     // Noisy versions: one path each, with the albedo of the same primary ray.
     PixelSampler noisy(spec_.sampler, spec_.seed, frame_, x, y, Stream::kNoisy);
-    for (int v = 0; v < spec_.versions; ++v) {
-      noisy.start_sample(uint32_t(v));
-      Vec3 albedo;
-      Vec3 L = trace_path(scene_, lens_ray(noisy, x, y), noisy, settings_, &albedo);
-      size_t base = size_t(v) * 3 * px.plane;
-      px.put3(out.noisy, base, L);
-      px.put3(out.albedo, base, albedo);
+    CameraPacket cp;
+    for (int v0 = 0; v0 < spec_.versions; v0 += Scene::kPacket) {
+      camera_packet(noisy, x, y, v0, std::min(Scene::kPacket, spec_.versions - v0), &cp);
+      for (int k = 0; k < cp.n; ++k) {
+        const int v = v0 + k;
+        Vec3 albedo;
+        const PrimaryHit primary = cp.resume(noisy, k);
+        Vec3 L = trace_path(scene_, cp.rays[k], noisy, settings_, &albedo, &primary);
+        size_t base = size_t(v) * 3 * px.plane;
+        px.put3(out.noisy, base, L);
+        px.put3(out.albedo, base, albedo);
+      }
     }
 
     // Albedo at N samples through the lens: the primary hit only.
     PixelSampler alb(spec_.sampler, spec_.seed, frame_, x, y, Stream::kAlbedoRef);
     Vec3 albedo_sum(0);
-    for (int s = 0; s < spec_.albedo_ref_spp; ++s) {
-      alb.start_sample(uint32_t(s));
-      SurfaceHit h;
-      bool found = scene_.intersect(lens_ray(alb, x, y), &h);
-      albedo_sum += primary_albedo(found ? &h : nullptr);
+    for (int s0 = 0; s0 < spec_.albedo_ref_spp; s0 += Scene::kPacket) {
+      camera_packet(alb, x, y, s0, std::min(Scene::kPacket, spec_.albedo_ref_spp - s0), &cp);
+      for (int k = 0; k < cp.n; ++k)
+        albedo_sum += primary_albedo(cp.found[k] ? &cp.hits[k] : nullptr);
     }
     const float n_alb = float(spec_.albedo_ref_spp);
     px.put3(out.albedo_ref, 0,
@@ -200,12 +204,25 @@ class PixelRenderer {
     std::array<double, 3> half_sum{};
     std::vector<std::array<double, 3>> sums_at_32;
     if (adaptive) sums_at_32.reserve(size_t(target / 32));
-    for (int s = 0; s < target; ++s) {
-      ref.start_sample(uint32_t(s));
-      acc.add(trace_path(scene_, lens_ray(ref, x, y), ref, reference_settings_));
-      if (s + 1 == half_of_target) half_sum = {acc.sum[0], acc.sum[1], acc.sum[2]};
-      if (adaptive && (s + 1) % 32 == 0) sums_at_32.push_back({acc.sum[0], acc.sum[1], acc.sum[2]});
-      if (adaptive && (s + 1) % batch == 0 && converged(acc)) break;
+    // Camera rays a packet at a time (a divisor of the batch: the stopping
+    // rule never leaves a traced camera ray unused).
+    static_assert(batch % Scene::kPacket == 0);
+    CameraPacket cp;
+    bool stop = false;
+    for (int s0 = 0; s0 < target && !stop; s0 += Scene::kPacket) {
+      camera_packet(ref, x, y, s0, std::min(Scene::kPacket, target - s0), &cp);
+      for (int k = 0; k < cp.n; ++k) {
+        const int s = s0 + k;
+        const PrimaryHit primary = cp.resume(ref, k);
+        acc.add(trace_path(scene_, cp.rays[k], ref, reference_settings_, nullptr, &primary));
+        if (s + 1 == half_of_target) half_sum = {acc.sum[0], acc.sum[1], acc.sum[2]};
+        if (adaptive && (s + 1) % 32 == 0)
+          sums_at_32.push_back({acc.sum[0], acc.sum[1], acc.sum[2]});
+        if (adaptive && (s + 1) % batch == 0 && converged(acc)) {
+          stop = true;
+          break;
+        }
+      }
     }
     int half_n = half_of_target;
     if (acc.n < target) {  // stopped early: after a whole batch, so acc.n = 64k
@@ -228,6 +245,38 @@ class PixelRenderer {
     if (acc.relative_error() <= spec_.reference_error) return true;
     return spec_.reference_display_error > 0 && acc.n >= kReferenceDisplayMinSpp &&
            acc.display_error() <= spec_.reference_display_error;
+  }
+
+  // The camera rays of samples [first, first + n) of a pixel (n at most
+  // Scene::kPacket) and their closest hits, traced as one packet: the rays
+  // of one pixel through the lens nearly share an origin and a direction,
+  // so Embree's packet traversal visits the nodes they pass once for all of
+  // them (bench/README.md, "Camera rays as packets").
+  struct CameraPacket {
+    int n = 0;
+    uint32_t first = 0;
+    uint32_t slots = 0;  // sampler slots each camera ray consumed
+    Ray rays[Scene::kPacket];
+    SurfaceHit hits[Scene::kPacket];
+    bool found[Scene::kPacket];
+    // Restarts `s` at sample first + k, past the camera's slots, for the
+    // path that continues from camera ray k: the numbers it draws are those
+    // it would draw had it traced its camera ray itself.
+    PrimaryHit resume(PixelSampler& s, int k) const {
+      s.start_sample(first + uint32_t(k));
+      s.skip(slots);
+      return {found[k], &hits[k]};
+    }
+  };
+  void camera_packet(PixelSampler& s, int x, int y, int first, int n, CameraPacket* cp) const {
+    cp->n = n;
+    cp->first = uint32_t(first);
+    for (int k = 0; k < n; ++k) {
+      s.start_sample(uint32_t(first + k));
+      cp->rays[k] = lens_ray(s, x, y);
+      cp->slots = s.slots_used();  // the same for every sample (lens_ray draws a fixed count)
+    }
+    scene_.intersect_packet(cp->rays, n, cp->hits, cp->found);
   }
 
   // Pixel jitter (box filter), then the lens only when there is one. With a

@@ -124,6 +124,7 @@ Scene::Scene(SceneData posed, std::shared_ptr<const std::vector<Texture>> textur
 struct Scene::Bvh {
   RTCDevice device = nullptr;
   RTCScene scene = nullptr;
+  bool packets = false;  // the Embree build traces rtcIntersect8 as 8-wide packets
   Bvh() = default;
   Bvh(const Bvh&) = delete;
   Bvh& operator=(const Bvh&) = delete;
@@ -269,6 +270,7 @@ void Scene::build_bvh() {
   if (!bvh->device) throw RuntimeError("Embree: cannot create a device");
   std::string err;
   rtcSetDeviceErrorFunction(bvh->device, embree_error, &err);
+  bvh->packets = rtcGetDeviceProperty(bvh->device, RTC_DEVICE_PROPERTY_NATIVE_RAY8_SUPPORTED) != 0;
   bvh->scene = rtcNewScene(bvh->device);
   rtcSetSceneFlags(bvh->scene, RTC_SCENE_FLAG_ROBUST);
   rtcSetSceneBuildQuality(bvh->scene, RTC_BUILD_QUALITY_HIGH);
@@ -390,12 +392,61 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
   rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
   rtcIntersect1(rtc_scene_, &ctx.rtc, &rh);
   if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
+  complete_hit(ray, rh.hit.primID, rh.hit.u, rh.hit.v, rh.ray.tfar, hit);
+  return true;
+}
 
-  const uint32_t prim = rh.hit.primID;
+void Scene::intersect_packet(const Ray* rays, int n, SurfaceHit* hits, bool* found) const {
+  if (!bvh_->packets || !packet_tracing_ || n == 1) {
+    for (int k = 0; k < n; ++k) found[k] = intersect(rays[k], &hits[k]);
+    return;
+  }
+  for (int first = 0; first < n; first += kPacket) {
+    const int m = std::min(kPacket, n - first);
+    t_rays.closest += uint64_t(m);
+    alignas(32) int valid[kPacket];
+    alignas(32) RTCRayHit8 rh;
+    for (int k = 0; k < kPacket; ++k) {
+      // Unused lanes are invalid; Embree neither reads nor writes them.
+      const Ray& r = rays[first + std::min(k, m - 1)];
+      if (k < m && ray_sink_) [[unlikely]]
+        ray_sink_->record({r.o, r.d, r.t_max, false, r.t_min, uint8_t(k == 0 ? m : 0)});
+      valid[k] = k < m ? -1 : 0;
+      rh.ray.org_x[k] = r.o.x;
+      rh.ray.org_y[k] = r.o.y;
+      rh.ray.org_z[k] = r.o.z;
+      rh.ray.tnear[k] = r.t_min;
+      rh.ray.dir_x[k] = r.d.x;
+      rh.ray.dir_y[k] = r.d.y;
+      rh.ray.dir_z[k] = r.d.z;
+      rh.ray.time[k] = 0;
+      rh.ray.tfar[k] = r.t_max;
+      rh.ray.mask[k] = 0xffffffffu;
+      rh.ray.id[k] = 0;
+      rh.ray.flags[k] = 0;
+      rh.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
+      rh.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
+    }
+    // The default (incoherent) flag: RTC_INTERSECT_CONTEXT_FLAG_COHERENT's
+    // traversal missed the nearer of two walls for parallel rays along an
+    // axis (an orthographic camera; OrthoCamera.AFrameShows...).
+    EmbreeContext ctx = embree_context();
+    rtcIntersect8(valid, rtc_scene_, &ctx.rtc, &rh);
+    for (int k = 0; k < m; ++k) {
+      found[first + k] = rh.hit.geomID[k] != RTC_INVALID_GEOMETRY_ID;
+      if (found[first + k])
+        complete_hit(rays[first + k], rh.hit.primID[k], rh.hit.u[k], rh.hit.v[k], rh.ray.tfar[k],
+                     &hits[first + k]);
+    }
+  }
+}
+
+void Scene::complete_hit(const Ray& ray, uint32_t prim, float b1, float b2, float t,
+                         SurfaceHit* hit) const {
   const uint32_t* idx = &data_.indices[size_t(prim) * 3];
-  const float b1 = rh.hit.u, b2 = rh.hit.v, b0 = 1.0f - b1 - b2;
+  const float b0 = 1.0f - b1 - b2;
   Vec3 p0 = data_.positions[idx[0]], p1 = data_.positions[idx[1]], p2 = data_.positions[idx[2]];
-  hit->t = rh.ray.tfar;
+  hit->t = t;
   hit->prim = prim;
   // Barycentric position: more accurate than o + t d far from the origin.
   hit->p = p0 * b0 + p1 * b1 + p2 * b2;
@@ -464,7 +515,6 @@ bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
     hit->sheen_roughness *=
         textures()[m.sheen_rough_tex.index].alpha_lookup(hit->uv_of(m.sheen_rough_tex.uv));
   hit->emission = material_emission(m, m.emission_tex.uv.set == 1 ? hit->uv1 : hit->uv);
-  return true;
 }
 
 bool Scene::occluded(Vec3 origin, Vec3 dir, float t_max) const {

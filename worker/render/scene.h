@@ -51,6 +51,10 @@ struct TracedRay {
   float t_max = 0;
   bool shadow = false;
   float t_min = 0;
+  // Closest-hit rays traced together as one Embree packet
+  // (intersect_packet): the packet's size on its first ray, 0 on the others
+  // and on every ray traced alone.
+  uint8_t packet = 0;
 };
 
 // Receives every ray Scene traces while it is set (benchmarks replay a
@@ -85,6 +89,23 @@ class Scene {
   Scene& operator=(const Scene&) = delete;
 
   bool intersect(const Ray& ray, SurfaceHit* hit) const;
+  // intersect() of n rays at once: found[k] and hits[k] as intersect(rays[k],
+  // &hits[k]) gives them (CameraPackets.HitsAreSingleRayHits: bit for bit,
+  // but where a ray meets two triangles at exactly one distance, when either
+  // may be reported). Traced kPacket at a time as one Embree packet
+  // (rtcIntersect8), which for rays that nearly share an origin and a
+  // direction, such as one pixel's camera rays through the lens, visits
+  // each BVH node once for all of them (bench/README.md, "Camera rays as
+  // packets"). Not marked coherent: Embree's coherent traversal returned
+  // wrong hits for an orthographic camera's parallel rays. Counted and
+  // recorded (a RaySink) one ray at a time, in order. Single rays where the
+  // Embree build has no native 8-wide packets.
+  static constexpr int kPacket = 8;
+  void intersect_packet(const Ray* rays, int n, SurfaceHit* hits, bool* found) const;
+  // Off: intersect_packet() traces one ray at a time (the same hits), for
+  // tests and benchmarks that compare the two. Not to be changed while a
+  // render uses the scene.
+  void set_packet_tracing(bool on) { packet_tracing_ = on; }
   bool occluded(Vec3 origin, Vec3 dir, float t_max) const;
   // Origin for a ray leaving `hit` in direction `dir`, pushed off the surface
   // by an amount that scales with the coordinates (works from 1e-4 to 1e5).
@@ -194,6 +215,10 @@ class Scene {
   bool cut_out(uint32_t prim, float b1, float b2, const float (&ray)[6]) const;
 
  private:
+  // The hit record of `ray`'s closest hit: triangle `prim` at barycentrics
+  // (b1, b2), distance t, as Embree reported it.
+  void complete_hit(const Ray& ray, uint32_t prim, float b1, float b2, float t,
+                    SurfaceHit* hit) const;
   // m's emission where its emission texture reads `uv` (coordinates of the
   // texture's set, untransformed).
   Vec3 material_emission(const Material& m, Vec2 uv) const;
@@ -253,6 +278,7 @@ class Scene {
   mutable std::vector<std::pair<float, std::shared_ptr<const Scene>>> posed_;
   std::shared_ptr<const Bvh> bvh_;
   RTCScene rtc_scene_ = nullptr;  // bvh_'s
+  bool packet_tracing_ = true;
   // Unit geometric normal of each triangle, cross(p1 - p0, p2 - p0); zero for
   // a degenerate one (a hit on it faces the ray instead).
   std::vector<Vec3> tri_normal_;
