@@ -99,6 +99,26 @@ case $mode in run | study) ;; *)
   ;;
 esac
 OUT=${3:?the folder for logs and figures}
+if [ "$mode" = study ]; then
+  # The settings are checked before anything is written or started: a
+  # mistyped range or run must not cost a GPU machine's render and build.
+  RUNS=${RUNS:-thesis_prefilter:2 thesis_prefilter_nococ:2}
+  FRAMES=${FRAMES:-8-47} JOB=${JOB:-cornell}
+  bad() { echo "cuda_node.sh: $1" >&2; exit 2; }
+  [ -f "jobs/study/$JOB.toml" ] || bad "JOB: no study job jobs/study/$JOB.toml (JOB='$JOB')"
+  IFS=, read -ra ranges <<<"$FRAMES"
+  [ ${#ranges[@]} -gt 0 ] || bad "FRAMES: expected ranges like 0-19,29-47, got '$FRAMES'"
+  for f in "${ranges[@]}"; do
+    [[ $f =~ ^[0-9]+-[0-9]+$ ]] || bad "FRAMES: expected ranges like 0-19,29-47, got '$FRAMES'"
+    ((10#${f%-*} <= 10#${f#*-})) || bad "FRAMES: range '$f' ends before it starts"
+  done
+  [ -n "${RUNS// /}" ] || bad "RUNS: expected CONFIG:SEED words, got nothing"
+  for r in $RUNS; do
+    [[ $r =~ ^[a-z0-9_]+:[0-9]+$ ]] || bad "RUNS: expected CONFIG:SEED words like default:1, got '$r'"
+  done
+  [ -f "$dir/render-kit.tar.xz" ] || [ -x "${STUDY_DIR:-/tmp/dofarm-gpu-study}/kit/dofarm" ] ||
+    bad "$dir/render-kit.tar.xz not found (cuda_node.sh prepare-study makes it)"
+fi
 mkdir -p "$OUT"
 T=$SECONDS
 stamp() { echo "== [$((SECONDS - T)) s] $*"; }
@@ -107,8 +127,6 @@ nvidia-smi -L
 head -1 /etc/os-release
 if [ "$mode" = study ]; then
   # The render starts first, on every core, and the build runs beside it.
-  RUNS=${RUNS:-thesis_prefilter:2 thesis_prefilter_nococ:2}
-  FRAMES=${FRAMES:-8-47} JOB=${JOB:-cornell}
   # Fixed folders, so that the same command again on a machine that is
   # still up goes on where the last one stopped: the render finds its job
   # done, ninja has nothing to build, and dof_study.sh resumes the runs.
@@ -116,12 +134,8 @@ if [ "$mode" = study ]; then
   K=$G/kit S=$G/data
   mkdir -p "$K" "$S"
   [ -x "$K/dofarm" ] || xz -dc "$dir/render-kit.tar.xz" | tar -C "$K" -xf - || exit 1
-  IFS=, read -ra ranges <<<"$FRAMES"
   data=()
-  for f in "${ranges[@]}"; do
-    [[ $f =~ ^[0-9]+-[0-9]+$ ]] || { echo "cuda_node.sh: FRAMES: expected ranges like 0-19,29-47, got '$FRAMES'" >&2; exit 2; }
-    data+=("$S/$JOB-$f/$JOB")
-  done
+  for f in "${ranges[@]}"; do data+=("$S/$JOB-$f/$JOB"); done
   (for f in "${ranges[@]}"; do
     LD_LIBRARY_PATH=$K/libs DOFARM=$K/dofarm OUT=$S/$JOB-$f JOBS=$JOB bench/trainer/render_study.sh \
       --set "frames.start=${f%-*}" --set "frames.end=${f#*-}" \

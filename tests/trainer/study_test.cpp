@@ -576,5 +576,40 @@ TEST(Study, TwoFarmOutputsOfOneNameAreBothTrainedOn) {
                                              {"cornell-shard-00000.h5", c / "shard-00000.h5"}}));
 }
 
+// cuda_node.sh study checks its settings before it writes or starts
+// anything (a GPU machine's minutes are scarce): a bad frame range, a run
+// word without its seed, an unknown study job and a missing render kit each
+// end with exit 2 and a message naming the setting; neither the output
+// folder nor the study folder is made.
+TEST(Study, GpuStudyRefusesBadSettingsBeforeWritingAnything) {
+  const fs::path dir = testing::scratch_dir("study_cuda_node_settings");
+  const fs::path kit = dir / "kit";
+  fs::create_directories(kit);
+  struct Case {
+    std::string env, says;
+  };
+  const std::vector<Case> cases = {
+      {"FRAMES=0-19,x", "FRAMES: expected ranges"},
+      {"FRAMES=20-5", "FRAMES: range '20-5' ends before it starts"},
+      {"FRAMES=,", "FRAMES: expected ranges"},
+      {"RUNS=default", "RUNS: expected CONFIG:SEED words"},
+      {"'RUNS=default:1 x:'", "RUNS: expected CONFIG:SEED words like default:1, got 'x:'"},
+      {"JOB=nosuch", "JOB: no study job jobs/study/nosuch.toml"},
+      {"JOB=courtyard", "render-kit.tar.xz not found"},
+  };
+  for (const Case& c : cases) {
+    const fs::path out = dir / "out", study = dir / "study", log = dir / "log";
+    const std::string cmd = "env STUDY_DIR=" + study.string() + " " + c.env + " bash " +
+                            DOFARM_SOURCE_DIR + "/bench/trainer/cuda_node.sh study " +
+                            kit.string() + " " + out.string() + " > " + log.string() + " 2>&1";
+    const int rc = std::system(cmd.c_str());
+    ASSERT_TRUE(WIFEXITED(rc)) << c.env;
+    EXPECT_EQ(WEXITSTATUS(rc), 2) << c.env << ": " << read_all(log);
+    EXPECT_NE(read_all(log).find(c.says), std::string::npos) << c.env << ": " << read_all(log);
+    EXPECT_FALSE(fs::exists(out)) << c.env;
+    EXPECT_FALSE(fs::exists(study)) << c.env;
+  }
+}
+
 }  // namespace
 }  // namespace dofarm::trainer
