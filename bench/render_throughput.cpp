@@ -295,26 +295,14 @@ void run_scene(const char* name, const char* job, int frame, const Args& args) {
                 const TracedRay& r = own[u.first];
                 Scene::EmbreeContext ctx = scene->embree_context();
                 if (u.n > 1) {
-                  alignas(32) int valid[8];
-                  alignas(32) RTCRayHit8 rh;
-                  for (uint32_t k = 0; k < 8; ++k) {
-                    const TracedRay& q = own[u.first + std::min(k, u.n - 1)];
-                    valid[k] = k < u.n ? -1 : 0;
-                    rh.ray.org_x[k] = q.o.x;
-                    rh.ray.org_y[k] = q.o.y;
-                    rh.ray.org_z[k] = q.o.z;
-                    rh.ray.tnear[k] = q.t_min;
-                    rh.ray.dir_x[k] = q.d.x;
-                    rh.ray.dir_y[k] = q.d.y;
-                    rh.ray.dir_z[k] = q.d.z;
-                    rh.ray.time[k] = 0;
-                    rh.ray.tfar[k] = q.t_max;
-                    rh.ray.mask[k] = 0xffffffffu;
-                    rh.ray.id[k] = 0;
-                    rh.ray.flags[k] = 0;
-                    rh.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
-                    rh.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
+                  Ray packet[Scene::kPacket];
+                  for (uint32_t k = 0; k < u.n; ++k) {
+                    const TracedRay& q = own[u.first + k];
+                    packet[k] = Ray{q.o, q.d, q.t_min, q.t_max};
                   }
+                  alignas(32) int valid[Scene::kPacket];
+                  alignas(32) RTCRayHit8 rh;
+                  Scene::embree_packet(packet, int(u.n), &rh, valid);
                   rtcIntersect8(valid, rtc, &ctx.rtc, &rh);
                   int64_t hits = 0;
                   for (uint32_t k = 0; k < u.n; ++k)

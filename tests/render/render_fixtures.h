@@ -4,7 +4,9 @@
 #include <cmath>
 #include <cstring>
 #include <memory>
+#include <mutex>
 #include <optional>
+#include <vector>
 
 #include "common/error.h"
 #include "common/image.h"
@@ -112,6 +114,35 @@ inline CameraState posed_camera(Vec3 from, Vec3 to) {
   s.rotation[3] = q.z;
   return s;
 }
+
+// An opaque unit floor quad at y = 0 (default material) under an
+// alphaMode BLEND quad of alpha `alpha` at y = 1, both over [0, 1] in x and z.
+inline SceneData blend_over_floor(float alpha) {
+  SceneData d;
+  const std::vector<Vec2> uv = {{0, 0}, {0, 1}, {1, 1}, {1, 0}};
+  const std::vector<uint32_t> idx = {0, 1, 2, 0, 2, 3};
+  auto quad = [](float y) { return std::vector<Vec3>{{0, y, 0}, {0, y, 1}, {1, y, 1}, {1, y, 0}}; };
+  Material floor, veil;
+  veil.alpha_mask = veil.alpha_blend = true;
+  veil.base_alpha = alpha;
+  d.add_mesh(quad(0.0f), {}, uv, idx, floor);
+  d.add_mesh(quad(1.0f), {}, uv, idx, veil);
+  return d;
+}
+
+// Keeps every ray a Scene traces while set (Scene::set_ray_sink), in the
+// order they arrive.
+class RayRecorder : public RaySink {
+ public:
+  void record(const TracedRay& ray) override {
+    std::lock_guard<std::mutex> lock(mutex_);
+    rays.push_back(ray);
+  }
+  std::vector<TracedRay> rays;
+
+ private:
+  std::mutex mutex_;
+};
 
 inline bool same_bytes(const FrameBuffers& a, const FrameBuffers& b) {
   for (const BufferInfo& info : buffer_infos()) {

@@ -3,6 +3,7 @@
 // alphaMode MASK and BLEND, and normal maps with computed and given
 // tangents; the files are written by the tests.
 #include "tests/render/gltf_fixture.h"
+#include "tests/render/render_fixtures.h"
 
 namespace dofarm::render {
 namespace {
@@ -124,16 +125,7 @@ TEST(GltfAlphaMask, CutOutPointsLetEveryRayThrough) {
 // down onto a BLEND plane of alpha 0.3 over an opaque floor, 30% stop at the
 // plane (within 4 standard deviations), and shadow rays pass as often.
 TEST(GltfAlphaMask, BlendStopsAShareAlphaOfTheRays) {
-  SceneData d;
-  const std::vector<Vec2> uv = {{0, 0}, {0, 1}, {1, 1}, {1, 0}};
-  const std::vector<uint32_t> idx = {0, 1, 2, 0, 2, 3};
-  auto quad = [](float y) { return std::vector<Vec3>{{0, y, 0}, {0, y, 1}, {1, y, 1}, {1, y, 0}}; };
-  Material floor, glass;
-  glass.alpha_mask = glass.alpha_blend = true;
-  glass.base_alpha = 0.3f;
-  d.add_mesh(quad(0.0f), {}, uv, idx, floor);
-  d.add_mesh(quad(1.0f), {}, uv, idx, glass);
-  Scene scene(std::move(d), std::make_unique<Environment>(Vec3(1.0f)));
+  Scene scene(testing::blend_over_floor(0.3f), std::make_unique<Environment>(Vec3(1.0f)));
   const int n = 4000;
   int stopped = 0, blocked = 0;
   for (int i = 0; i < n; ++i) {

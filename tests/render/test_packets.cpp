@@ -7,7 +7,6 @@
 
 #include <cmath>
 #include <cstring>
-#include <mutex>
 #include <random>
 #include <string>
 #include <vector>
@@ -68,18 +67,6 @@ std::shared_ptr<Scene> job_scene(const JobSpec& spec) {
   if (spec.environment) env = Environment::from_spec(*spec.environment);
   return std::make_shared<Scene>(load_job_scene_data(spec), std::move(env));
 }
-
-class Recorder : public RaySink {
- public:
-  void record(const TracedRay& ray) override {
-    std::lock_guard<std::mutex> lock(mutex_);
-    rays.push_back(ray);
-  }
-  std::vector<TracedRay> rays;
-
- private:
-  std::mutex mutex_;
-};
 
 // Packets of every fill (1 to 8 rays, and more than one packet) against
 // single rays; `rays` cycles through the given list.
@@ -152,16 +139,7 @@ TEST(CameraPackets, HitsAreSingleRayHits) {
 // An alpha-blended plane: the filter function decides each lane of a
 // packet as it decides a single ray (by a hash of the ray).
 TEST(CameraPackets, AlphaBlendDecidesEachLaneAsASingleRay) {
-  SceneData d;
-  const std::vector<Vec2> uv = {{0, 0}, {0, 1}, {1, 1}, {1, 0}};
-  const std::vector<uint32_t> idx = {0, 1, 2, 0, 2, 3};
-  auto quad = [](float y) { return std::vector<Vec3>{{0, y, 0}, {0, y, 1}, {1, y, 1}, {1, y, 0}}; };
-  Material floor, veil;
-  veil.alpha_mask = veil.alpha_blend = true;
-  veil.base_alpha = 0.5f;
-  d.add_mesh(quad(0.0f), {}, uv, idx, floor);
-  d.add_mesh(quad(1.0f), {}, uv, idx, veil);
-  Scene scene(std::move(d), std::make_unique<Environment>(Vec3(1.0f)));
+  Scene scene(testing::blend_over_floor(0.5f), std::make_unique<Environment>(Vec3(1.0f)));
   std::vector<Ray> rays;
   for (int i = 0; i < 800; ++i)
     rays.push_back(
@@ -181,7 +159,7 @@ TEST(CameraPackets, AlphaBlendDecidesEachLaneAsASingleRay) {
 TEST(CameraPackets, CountedAndRecordedRayByRay) {
   auto scene = testing::make_scene(testing::small_room(), testing::constant_env(0.3f));
   std::vector<Ray> rays = scattered_rays(*scene, 11);
-  Recorder recorder;
+  testing::RayRecorder recorder;
   scene->set_ray_sink(&recorder);
   const RayCount before = thread_ray_count();
   std::vector<SurfaceHit> hits(rays.size());

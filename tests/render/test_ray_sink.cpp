@@ -3,25 +3,12 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
-#include <mutex>
 #include <vector>
 
 #include "tests/render/render_fixtures.h"
 
 namespace dofarm::render {
 namespace {
-
-class Recorder : public RaySink {
- public:
-  void record(const TracedRay& ray) override {
-    std::lock_guard<std::mutex> lock(mutex_);
-    rays.push_back(ray);
-  }
-  std::vector<TracedRay> rays;
-
- private:
-  std::mutex mutex_;
-};
 
 TEST(RaySink, SeesEveryCountedRayAndChangesNoPixel) {
   auto scene = testing::make_scene(testing::small_room(), testing::constant_env(0.3f));
@@ -32,7 +19,7 @@ TEST(RaySink, SeesEveryCountedRayAndChangesNoPixel) {
   options.block_size = 4;
   const FrameBuffers plain = render_frame(*scene, spec, 0, std::nullopt, options);
 
-  Recorder recorder;
+  testing::RayRecorder recorder;
   RenderStats stats;
   options.stats = &stats;
   scene->set_ray_sink(&recorder);

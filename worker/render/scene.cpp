@@ -404,29 +404,14 @@ void Scene::intersect_packet(const Ray* rays, int n, SurfaceHit* hits, bool* fou
   for (int first = 0; first < n; first += kPacket) {
     const int m = std::min(kPacket, n - first);
     t_rays.closest += uint64_t(m);
+    if (ray_sink_) [[unlikely]]
+      for (int k = 0; k < m; ++k) {
+        const Ray& r = rays[first + k];
+        ray_sink_->record({r.o, r.d, r.t_max, false, r.t_min, uint8_t(k == 0 ? m : 0)});
+      }
     alignas(32) int valid[kPacket];
     alignas(32) RTCRayHit8 rh;
-    for (int k = 0; k < kPacket; ++k) {
-      // Unused lanes are invalid; Embree neither reads nor writes them.
-      const Ray& r = rays[first + std::min(k, m - 1)];
-      if (k < m && ray_sink_) [[unlikely]]
-        ray_sink_->record({r.o, r.d, r.t_max, false, r.t_min, uint8_t(k == 0 ? m : 0)});
-      valid[k] = k < m ? -1 : 0;
-      rh.ray.org_x[k] = r.o.x;
-      rh.ray.org_y[k] = r.o.y;
-      rh.ray.org_z[k] = r.o.z;
-      rh.ray.tnear[k] = r.t_min;
-      rh.ray.dir_x[k] = r.d.x;
-      rh.ray.dir_y[k] = r.d.y;
-      rh.ray.dir_z[k] = r.d.z;
-      rh.ray.time[k] = 0;
-      rh.ray.tfar[k] = r.t_max;
-      rh.ray.mask[k] = 0xffffffffu;
-      rh.ray.id[k] = 0;
-      rh.ray.flags[k] = 0;
-      rh.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
-      rh.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
-    }
+    embree_packet(rays + first, m, &rh, valid);
     // The default (incoherent) flag: RTC_INTERSECT_CONTEXT_FLAG_COHERENT's
     // traversal missed the nearer of two walls for parallel rays along an
     // axis (an orthographic camera; OrthoCamera.AFrameShows...).
@@ -438,6 +423,29 @@ void Scene::intersect_packet(const Ray* rays, int n, SurfaceHit* hits, bool* fou
         complete_hit(rays[first + k], rh.hit.primID[k], rh.hit.u[k], rh.hit.v[k], rh.ray.tfar[k],
                      &hits[first + k]);
     }
+  }
+}
+
+void Scene::embree_packet(const Ray* rays, int n, RTCRayHit8* rh, int* valid) {
+  for (int k = 0; k < kPacket; ++k) {
+    // Lanes past n are invalid (Embree neither reads nor writes them); they
+    // repeat the last ray all the same.
+    const Ray& r = rays[std::min(k, n - 1)];
+    valid[k] = k < n ? -1 : 0;
+    rh->ray.org_x[k] = r.o.x;
+    rh->ray.org_y[k] = r.o.y;
+    rh->ray.org_z[k] = r.o.z;
+    rh->ray.tnear[k] = r.t_min;
+    rh->ray.dir_x[k] = r.d.x;
+    rh->ray.dir_y[k] = r.d.y;
+    rh->ray.dir_z[k] = r.d.z;
+    rh->ray.time[k] = 0;
+    rh->ray.tfar[k] = r.t_max;
+    rh->ray.mask[k] = 0xffffffffu;
+    rh->ray.id[k] = 0;
+    rh->ray.flags[k] = 0;
+    rh->hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
+    rh->hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
   }
 }
 

@@ -106,6 +106,10 @@ class Scene {
   // tests and benchmarks that compare the two. Not to be changed while a
   // render uses the scene.
   void set_packet_tracing(bool on) { packet_tracing_ = on; }
+  // The Embree packet intersect_packet() traces for rays[0, n), n <= kPacket
+  // (lanes past n invalid), for benchmarks that trace bare Embree;
+  // `valid` has kPacket entries. Both 32-byte aligned.
+  static void embree_packet(const Ray* rays, int n, RTCRayHit8* rh, int* valid);
   bool occluded(Vec3 origin, Vec3 dir, float t_max) const;
   // Origin for a ray leaving `hit` in direction `dir`, pushed off the surface
   // by an amount that scales with the coordinates (works from 1e-4 to 1e5).
