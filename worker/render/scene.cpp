@@ -413,8 +413,9 @@ void Scene::intersect_packet(const Ray* rays, int n, SurfaceHit* hits, bool* fou
     alignas(32) RTCRayHit8 rh;
     embree_packet(rays + first, m, &rh, valid);
     // The default (incoherent) flag: RTC_INTERSECT_CONTEXT_FLAG_COHERENT's
-    // traversal missed the nearer of two walls for parallel rays along an
-    // axis (an orthographic camera; OrthoCamera.AFrameShows...).
+    // traversal reported the wrong one of two walls side by side for
+    // parallel rays along an axis (an orthographic camera;
+    // OrthoCamera.AFrameShowsTheViewsRectangleWithItsDepthAndCoc).
     EmbreeContext ctx = embree_context();
     rtcIntersect8(valid, rtc_scene_, &ctx.rtc, &rh);
     for (int k = 0; k < m; ++k) {

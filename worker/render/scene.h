@@ -104,7 +104,8 @@ class Scene {
   void intersect_packet(const Ray* rays, int n, SurfaceHit* hits, bool* found) const;
   // Off: intersect_packet() traces one ray at a time (the same hits), for
   // tests and benchmarks that compare the two. Not to be changed while a
-  // render uses the scene.
+  // render uses the scene; a pose (at_time()) is a scene of its own and
+  // traces packets.
   void set_packet_tracing(bool on) { packet_tracing_ = on; }
   // The Embree packet intersect_packet() traces for rays[0, n), n <= kPacket
   // (lanes past n invalid), for benchmarks that trace bare Embree;
