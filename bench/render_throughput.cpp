@@ -234,6 +234,9 @@ void run_scene(const char* name, const char* job, int frame, const Args& args) {
   // Replayed as traced: a ray alone, or the camera rays of one packet
   // together (intersect_packet; rtcIntersect8 in the bare replay).
   std::vector<Unit> units;
+  std::vector<Ray> own_rays;  // the closest-hit queries as Rays, for the packets
+  own_rays.reserve(own.size());
+  for (const TracedRay& r : own) own_rays.push_back(Ray{r.o, r.d, r.t_min, r.t_max});
   int64_t in_packets = 0;
   for (size_t i = 0; i < own.size();) {
     const uint32_t n =
@@ -276,14 +279,9 @@ void run_scene(const char* name, const char* job, int frame, const Args& args) {
     keep_best(&replay, trace_all(units, threads, 1, [&](const Unit& u) -> int64_t {
       const TracedRay& r = own[u.first];
       if (u.n > 1) {
-        Ray packet[Scene::kPacket];
         SurfaceHit hits[Scene::kPacket];
         bool found[Scene::kPacket];
-        for (uint32_t k = 0; k < u.n; ++k) {
-          const TracedRay& q = own[u.first + k];
-          packet[k] = Ray{q.o, q.d, q.t_min, q.t_max};
-        }
-        scene->intersect_packet(packet, int(u.n), hits, found);
+        scene->intersect_packet(&own_rays[u.first], int(u.n), hits, found);
         return std::count(found, found + u.n, true);
       }
       if (r.shadow) return scene->occluded(r.o, r.d, r.t_max);
@@ -295,14 +293,9 @@ void run_scene(const char* name, const char* job, int frame, const Args& args) {
                 const TracedRay& r = own[u.first];
                 Scene::EmbreeContext ctx = scene->embree_context();
                 if (u.n > 1) {
-                  Ray packet[Scene::kPacket];
-                  for (uint32_t k = 0; k < u.n; ++k) {
-                    const TracedRay& q = own[u.first + k];
-                    packet[k] = Ray{q.o, q.d, q.t_min, q.t_max};
-                  }
                   alignas(32) int valid[Scene::kPacket];
                   alignas(32) RTCRayHit8 rh;
-                  Scene::embree_packet(packet, int(u.n), &rh, valid);
+                  Scene::embree_packet(&own_rays[u.first], int(u.n), &rh, valid);
                   rtcIntersect8(valid, rtc, &ctx.rtc, &rh);
                   int64_t hits = 0;
                   for (uint32_t k = 0; k < u.n; ++k)

@@ -116,7 +116,12 @@ if [ "$mode" = study ]; then
   for r in $RUNS; do
     [[ $r =~ ^[a-z0-9_]+:[0-9]+$ ]] || bad "RUNS: expected CONFIG:SEED words like default:1, got '$r'"
   done
-  [ -f "$dir/render-kit.tar.xz" ] || [ -x "${STUDY_DIR:-/tmp/dofarm-gpu-study}/kit/dofarm" ] ||
+  # Fixed folders, so that the same command again on a machine that is
+  # still up goes on where the last one stopped: the render finds its job
+  # done, ninja has nothing to build, and dof_study.sh resumes the runs.
+  G=${STUDY_DIR:-/tmp/dofarm-gpu-study}
+  K=$G/kit S=$G/data
+  [ -f "$dir/render-kit.tar.xz" ] || [ -x "$K/dofarm" ] ||
     bad "$dir/render-kit.tar.xz not found (cuda_node.sh prepare-study makes it)"
 fi
 mkdir -p "$OUT"
@@ -127,11 +132,6 @@ nvidia-smi -L
 head -1 /etc/os-release
 if [ "$mode" = study ]; then
   # The render starts first, on every core, and the build runs beside it.
-  # Fixed folders, so that the same command again on a machine that is
-  # still up goes on where the last one stopped: the render finds its job
-  # done, ninja has nothing to build, and dof_study.sh resumes the runs.
-  G=${STUDY_DIR:-/tmp/dofarm-gpu-study}
-  K=$G/kit S=$G/data
   mkdir -p "$K" "$S"
   [ -x "$K/dofarm" ] || xz -dc "$dir/render-kit.tar.xz" | tar -C "$K" -xf - || exit 1
   data=()

@@ -130,6 +130,16 @@ inline SceneData blend_over_floor(float alpha) {
   return d;
 }
 
+// Two walls side by side in the plane z = 0, facing +z: diffuse 0.2 for
+// x < 0.55 and 0.8 beyond, their shared edge at x = 0.55, both 100 units
+// tall (y from -50).
+inline SceneData walls_side_by_side() {
+  SceneData d;
+  add_quad(d, Vec3(-50, -50, 0), Vec3(50.55f, 0, 0), Vec3(0, 100, 0), diffuse(Vec3(0.2f)));
+  add_quad(d, Vec3(0.55f, -50, 0), Vec3(50, 0, 0), Vec3(0, 100, 0), diffuse(Vec3(0.8f)));
+  return d;
+}
+
 // Keeps every ray a Scene traces while set (Scene::set_ray_sink), in the
 // order they arrive.
 class RayRecorder : public RaySink {

@@ -169,10 +169,7 @@ TEST(OrthoCamera, FilmFitsTheImageAsBlendersAutoFit) {
 // same in every pixel.
 TEST(OrthoCamera, AFrameShowsTheViewsRectangleWithItsDepthAndCoc) {
   for (const float dist : {2.0f, 6.0f}) {
-    SceneData d;
-    add_quad(d, Vec3(-50, -50, 0), Vec3(50.55f, 0, 0), Vec3(0, 100, 0),
-             testing::diffuse(Vec3(0.2f)));
-    add_quad(d, Vec3(0.55f, -50, 0), Vec3(50, 0, 0), Vec3(0, 100, 0), testing::diffuse(Vec3(0.8f)));
+    SceneData d = testing::walls_side_by_side();
     CameraTrackKey key;
     key.position = Vec3(0, 0, dist);
     key.yfov_deg = 0;

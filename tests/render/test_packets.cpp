@@ -17,7 +17,6 @@
 #include "worker/render/integrator.h"
 #include "worker/render/render_job.h"
 #include "worker/render/sampler.h"
-#include "worker/render/shapes.h"
 
 namespace dofarm::render {
 namespace {
@@ -311,11 +310,7 @@ TEST(CameraPackets, FrameIsEverySampleTracedAloneInOrder) {
 // rays as packets"); this keeps it out.
 TEST(CameraPackets, RaysOfMixedOrZeroDirectionSignsHitAsSingleRays) {
   for (const float dist : {2.0f, 6.0f}) {
-    SceneData d;
-    add_quad(d, Vec3(-50, -50, 0), Vec3(50.55f, 0, 0), Vec3(0, 100, 0),
-             testing::diffuse(Vec3(0.2f)));
-    add_quad(d, Vec3(0.55f, -50, 0), Vec3(50, 0, 0), Vec3(0, 100, 0), testing::diffuse(Vec3(0.8f)));
-    Scene scene(std::move(d), std::make_unique<Environment>(Vec3(1.0f)));
+    Scene scene(testing::walls_side_by_side(), std::make_unique<Environment>(Vec3(1.0f)));
     std::mt19937 rng(3);
     std::uniform_real_distribution<float> jitter(-0.01f, 0.01f);
     std::vector<Ray> rays;
