@@ -25,7 +25,13 @@
 // spends outside ray queries (sampling, BSDFs, lights, buffers) on exactly
 // its own workload.
 //
+// Each timed part runs inside a function of its own, never inlined
+// (renderer_pass, replay_scene_pass, replay_bare_pass), so that
+// bench/instruction_budget.sh can count the instructions of each exactly
+// under callgrind (--toggle-collect).
+//
 // Usage: render_throughput [--size W] [--rays N] [--threads T] [--repeats R] [--area-lights]
+//                          [--scene cornell|courtyard]
 // Prints figures; asserts nothing.
 #include <algorithm>
 #include <atomic>
@@ -66,6 +72,7 @@ struct Args {
   int threads = 0;  // 0 = all hardware threads, as the renderer's default
   int repeats = 2;  // the best of R timings is reported (shared machines)
   bool area_lights = false;  // every triangle light by area (Scene::set_solid_angle_lights)
+  std::string scene;         // empty: both scenes
 };
 
 Args parse_args(int argc, char** argv) {
@@ -88,10 +95,17 @@ Args parse_args(int argc, char** argv) {
       a.area_lights = true;
     } else if (!std::strcmp(argv[i], "--repeats")) {
       a.repeats = int(value("--repeats"));
+    } else if (!std::strcmp(argv[i], "--scene") && i + 1 < argc) {
+      a.scene = argv[++i];
+      if (a.scene != "cornell" && a.scene != "courtyard") {
+        std::fprintf(stderr, "render_throughput: --scene: \"%s\" is not cornell or courtyard\n",
+                     a.scene.c_str());
+        std::exit(2);
+      }
     } else {
       std::fprintf(stderr,
                    "usage: render_throughput [--size 256] [--rays 2000000] [--threads 0] "
-                   "[--repeats 2] [--area-lights]\n");
+                   "[--repeats 2] [--area-lights] [--scene cornell|courtyard]\n");
       std::exit(2);
     }
   }
@@ -170,6 +184,30 @@ RawFigures trace_all(const std::vector<R>& rays, int threads, int repeats, Trace
     if (s < best.seconds) best = {s, hits.load()};
   }
   return best;
+}
+
+// The timed parts, each in a function of its own that is never inlined
+// (bench/instruction_budget.sh counts their instructions by name).
+[[gnu::noinline]] RenderStats renderer_pass(const Scene& scene, const JobSpec& spec, int frame,
+                                            int threads) {
+  RenderStats stats;
+  RenderOptions options;
+  options.threads = threads;
+  options.stats = &stats;
+  dofarm::render::render_frame(scene, spec, frame, std::nullopt, options);
+  return stats;
+}
+
+template <class Trace>
+[[gnu::noinline]] RawFigures replay_scene_pass(const std::vector<Unit>& units, int threads,
+                                               Trace&& trace) {
+  return trace_all(units, threads, 1, trace);
+}
+
+template <class Trace>
+[[gnu::noinline]] RawFigures replay_bare_pass(const std::vector<Unit>& units, int threads,
+                                              Trace&& trace) {
+  return trace_all(units, threads, 1, trace);
 }
 
 // Keeps every ray in the order it arrives; the capture render runs on one
@@ -260,15 +298,13 @@ void run_scene(const char* name, const char* job, int frame, const Args& args) {
   };
   for (int rep = 0; rep < args.repeats; ++rep) {
     {  // (a) the renderer, then the same with camera rays traced one at a time
-      RenderStats stats;
-      RenderOptions options;
-      options.threads = args.threads;
-      options.stats = &stats;
-      dofarm::render::render_frame(*scene, spec, frame, std::nullopt, options);
+      const RenderStats stats = renderer_pass(*scene, spec, frame, args.threads);
       rf.paths = stats.paths;
       rf.rays = stats.rays;
       rf.seconds = std::min(rf.seconds, stats.seconds);
       RenderStats single;
+      RenderOptions options;
+      options.threads = args.threads;
       options.stats = &single;
       scene->set_packet_tracing(false);
       dofarm::render::render_frame(*scene, spec, frame, std::nullopt, options);
@@ -276,7 +312,7 @@ void run_scene(const char* name, const char* job, int frame, const Args& args) {
       single_seconds = std::min(single_seconds, single.seconds);
     }
     // (b) its own rays through the calls the renderer makes, then bare Embree
-    keep_best(&replay, trace_all(units, threads, 1, [&](const Unit& u) -> int64_t {
+    keep_best(&replay, replay_scene_pass(units, threads, [&](const Unit& u) -> int64_t {
       const TracedRay& r = own[u.first];
       if (u.n > 1) {
         SurfaceHit hits[Scene::kPacket];
@@ -289,7 +325,7 @@ void run_scene(const char* name, const char* job, int frame, const Args& args) {
       return scene->intersect(Ray{r.o, r.d, r.t_min, r.t_max}, &hit);
     }));
     keep_best(&bare,
-              trace_all(units, threads, 1, [&](const Unit& u) -> int64_t {
+              replay_bare_pass(units, threads, [&](const Unit& u) -> int64_t {
                 const TracedRay& r = own[u.first];
                 Scene::EmbreeContext ctx = scene->embree_context();
                 if (u.n > 1) {
@@ -389,8 +425,10 @@ int main(int argc, char** argv) {
       args.size, (long long)args.rays, args.threads, dofarm::cpus_available());
   try {
     // Frames in the middle of each sequence: the lens is open (aperture > 0).
-    run_scene("cornell", "cornell.toml", 48, args);
-    run_scene("courtyard", "courtyard.toml", 24, args);
+    if (args.scene.empty() || args.scene == "cornell")
+      run_scene("cornell", "cornell.toml", 48, args);
+    if (args.scene.empty() || args.scene == "courtyard")
+      run_scene("courtyard", "courtyard.toml", 24, args);
     std::printf("\n| scene | renderer Mrays/s | own rays replayed (Scene) Mrays/s | ratio | "
                 "own rays bare Embree Mrays/s | ratio | random rays at mix Mrays/s | ratio |\n");
     std::printf("| --- | --- | --- | --- | --- | --- | --- | --- |\n");
