@@ -48,24 +48,35 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
     // courtyard 5% more rays a second, Cornell, where every camera ray hits,
     // unchanged: bench/README.md, "Where the courtyard's 50% would have to
     // come from").
+    // A camera ray already traced (a packet) that escaped ends the path
+    // here: its vertex's numbers are skipped, not computed (the slots stay
+    // where they were; nothing is drawn after them).
+    const bool known_escape = depth == 0 && primary && !primary->found;
     Scene::LightChoice light_choice;
     float u_select = 0;
     Vec2 u_light;
     if (depth < settings.max_depth) {
-      u_select = sampler.get1d();
-      u_light = sampler.get2d();
+      if (known_escape) {
+        sampler.skip(2);
+      } else {
+        u_select = sampler.get1d();
+        u_light = sampler.get2d();
+      }
       if (use_nee && depth > 0) light_choice = scene.choose_light(u_select, u_light);
     }
     Environment::Located escape;
     if (env && depth > 0) escape = env->locate(ray.d);
-    SurfaceHit hit;
+    // The camera ray's hit is read where the packet left it, not copied.
+    SurfaceHit traced;
+    const SurfaceHit* at = &traced;
     bool found;
     if (depth == 0 && primary) {
       found = primary->found;
-      if (found) hit = *primary->hit;
+      if (found) at = primary->hit;
     } else {
-      found = scene.intersect(ray, &hit);
+      found = scene.intersect(ray, &traced);
     }
+    const SurfaceHit& hit = *at;
     if (found && depth == 0 && use_nee && depth < settings.max_depth)
       light_choice = scene.choose_light(u_select, u_light);
     if (depth == 0 && albedo) *albedo = primary_albedo(found ? &hit : nullptr);
