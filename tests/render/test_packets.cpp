@@ -298,7 +298,9 @@ TEST(CameraPackets, FrameIsEverySampleTracedAloneInOrder) {
           break;
         }
     EXPECT_LE(differ, int(plane / 50)) << c.name;
-    if (differ == 0) EXPECT_TRUE(testing::same_bytes(out, packets)) << c.name;
+    if (differ == 0) {
+      EXPECT_TRUE(testing::same_bytes(out, packets)) << c.name;
+    }
   }
 }
 

@@ -654,5 +654,84 @@ TEST(Sampler, Get4dStratifiesAPixelAndLensEdgeJointly) {
   }
 }
 
+// The batched draws (get_vertex: five slots of a path vertex;
+// get4d_samples: the camera's 4D point of up to eight samples) give the
+// numbers the single draws give, bit for bit, and leave the sampler where
+// the single draws leave it: on this CPU's AVX2 lanes where it has them,
+// and with them switched off. Sample indices near 2^32 wrap as the single
+// draws do; slots from 0 past the cached 32; samplers fresh and reused
+// (the seed cache filled in a different order).
+TEST(Sampler, BatchedDrawsAreTheSingleDraws) {
+  struct SimdSwitch {
+    ~SimdSwitch() { allow_sampler_simd(true); }
+  } restore;
+  auto same = [](Vec2 a, Vec2 b) { return a.x == b.x && a.y == b.y; };
+  std::vector<bool> modes = {false};
+  if (sampler_simd_available()) modes.push_back(true);
+  for (bool simd : modes) {
+    allow_sampler_simd(simd);
+    for (SamplerKind kind : {SamplerKind::kSobol, SamplerKind::kIndependent}) {
+      PixelSampler reused(kind, kSeed, 3, 11, 2, Stream::kNoisy);
+      for (uint32_t index : {0u, 1u, 7u, 1000u, 12345u, 0xfffffffeu}) {
+        for (uint32_t dim : {0u, 2u, 4u, 26u, 27u, 28u, 30u, 31u, 40u}) {
+          SCOPED_TRACE(testing::Message() << "simd " << simd << ", kind " << int(kind)
+                                          << ", sample " << index << ", first slot " << dim);
+          PixelSampler fresh(kind, kSeed, 3, 11, 2, Stream::kNoisy);
+          PixelSampler single(kind, kSeed, 3, 11, 2, Stream::kNoisy);
+          single.start_sample(index);
+          single.skip(dim);
+          const float select = single.get1d();
+          const Vec2 light = single.get2d();
+          const float lobe = single.get1d();
+          const Vec2 bsdf = single.get2d();
+          const float roulette = single.get1d();
+          const Vec2 next = single.get2d();
+          for (PixelSampler* batched : {&fresh, &reused}) {
+            batched->start_sample(index);
+            batched->skip(dim);
+            PixelSampler::VertexNumbers v;
+            batched->get_vertex(&v);
+            EXPECT_EQ(v.select, select);
+            EXPECT_TRUE(same(v.light, light));
+            EXPECT_EQ(v.lobe, lobe);
+            EXPECT_TRUE(same(v.bsdf, bsdf));
+            EXPECT_EQ(v.roulette, roulette);
+            EXPECT_EQ(batched->slots_used(), dim + 5);
+            EXPECT_TRUE(same(batched->get2d(), next));
+          }
+        }
+      }
+      PixelSampler reused_camera(kind, kSeed, 8, 1, 30, Stream::kReference);
+      reused_camera.start_sample(3);
+      reused_camera.skip(12);
+      (void)reused_camera.get2d();  // its cache filled past the camera's slots
+      for (uint32_t first : {0u, 5u, 64u, 0xfffffffau}) {
+        for (int n = 1; n <= 8; ++n) {
+          SCOPED_TRACE(testing::Message() << "simd " << simd << ", kind " << int(kind)
+                                          << ", samples " << first << " + " << n);
+          PixelSampler fresh(kind, kSeed, 8, 1, 30, Stream::kReference);
+          PixelSampler single(kind, kSeed, 8, 1, 30, Stream::kReference);
+          Vec2 want_a[8], want_b[8];
+          for (int k = 0; k < n; ++k) {
+            single.start_sample(first + uint32_t(k));
+            single.get4d(&want_a[k], &want_b[k]);
+          }
+          const Vec2 next = single.get2d();
+          for (PixelSampler* batched : {&fresh, &reused_camera}) {
+            Vec2 a[8], b[8];
+            batched->get4d_samples(first, n, a, b);
+            for (int k = 0; k < n; ++k) {
+              EXPECT_TRUE(same(a[k], want_a[k])) << "sample " << k;
+              EXPECT_TRUE(same(b[k], want_b[k])) << "sample " << k;
+            }
+            EXPECT_EQ(batched->slots_used(), 2u);
+            EXPECT_TRUE(same(batched->get2d(), next));
+          }
+        }
+      }
+    }
+  }
+}
+
 }  // namespace
 }  // namespace dofarm::render

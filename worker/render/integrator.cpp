@@ -37,32 +37,32 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
   const Environment* env = scene.environment();
 
   for (int depth = 0;; ++depth) {
-    // This vertex's light-sample numbers, drawn before its ray is traced (the
-    // slots are the same as if drawn after the hit: nothing between consumes
-    // any), and for a bounce ray the light and environment block chosen from
-    // them, so that what sampling an environment map reads, which is larger
-    // than the caches, loads during the traversal; likewise the texel an
-    // escaping bounce ray would read. A camera ray's vertex chooses only once
-    // the ray has hit: in an open scene many camera rays escape to the sky,
-    // and their choice would be thrown away (the same choice either way;
-    // courtyard 5% more rays a second, Cornell, where every camera ray hits,
-    // unchanged: bench/README.md, "Where the courtyard's 50% would have to
-    // come from").
-    // A camera ray already traced (a packet) that escaped ends the path
-    // here: its vertex's numbers are skipped, not computed (the slots stay
-    // where they were; nothing is drawn after them).
+    // This vertex's five numbers (light choice, light point, lobe, BSDF
+    // direction, roulette) from its five slots at once, before its ray is
+    // traced (PixelSampler::get_vertex: one batch, the numbers the single
+    // draws give; nothing between consumes a slot). A fixed number of slots
+    // per bounce keeps the sample streams of different paths aligned (better
+    // stratification with Sobol'). For a bounce ray the light and the
+    // environment block are chosen from them at once, so that what sampling
+    // an environment map reads, which is larger than the caches, loads
+    // during the traversal; likewise the texel an escaping bounce ray would
+    // read. A camera ray's vertex chooses only once the ray has hit: in an
+    // open scene many camera rays escape to the sky, and their choice would
+    // be thrown away (the same choice either way; courtyard 5% more rays a
+    // second, Cornell, where every camera ray hits, unchanged:
+    // bench/README.md, "Where the courtyard's 50% would have to come
+    // from"). A camera ray already traced (a packet) that escaped ends the
+    // path here: its numbers are skipped, not computed.
     const bool known_escape = depth == 0 && primary && !primary->found;
     Scene::LightChoice light_choice;
-    float u_select = 0;
-    Vec2 u_light;
+    PixelSampler::VertexNumbers u{};
     if (depth < settings.max_depth) {
       if (known_escape) {
-        sampler.skip(2);
+        sampler.skip(5);
       } else {
-        u_select = sampler.get1d();
-        u_light = sampler.get2d();
+        sampler.get_vertex(&u);
       }
-      if (use_nee && depth > 0) light_choice = scene.choose_light(u_select, u_light);
+      if (use_nee && depth > 0) light_choice = scene.choose_light(u.select, u.light);
     }
     Environment::Located escape;
     if (env && depth > 0) escape = env->locate(ray.d);
@@ -78,7 +78,7 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
     }
     const SurfaceHit& hit = *at;
     if (found && depth == 0 && use_nee && depth < settings.max_depth)
-      light_choice = scene.choose_light(u_select, u_light);
+      light_choice = scene.choose_light(u.select, u.light);
     if (depth == 0 && albedo) *albedo = primary_albedo(found ? &hit : nullptr);
     // Lamps with a size that this bounce ray passes (not the camera ray:
     // Cycles does not show lamps to the camera either), weighed like an
@@ -135,17 +135,7 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
     }
     if (depth >= settings.max_depth) break;
 
-    // A fixed number of dimensions per bounce keeps the sample streams of
-    // different paths aligned (better stratification with Sobol').
-    const float u_lobe = sampler.get1d();
-    const Vec2 u_bsdf = sampler.get2d();
     const bool roulette = depth + 1 >= settings.rr_start_depth;
-    float u_rr = 0;
-    if (roulette) {
-      u_rr = sampler.get1d();
-    } else {
-      sampler.skip(1);
-    }
 
     Bsdf bsdf(hit.ns, hit.ng, hit.base_color, hit.metallic, hit.roughness, hit.ior,
               {hit.specular, hit.specular_color}, {hit.transmission, hit.front},
@@ -186,7 +176,7 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
       }
     }
 
-    BsdfSample bs = bsdf.sample(out, u_lobe, u_bsdf);
+    BsdfSample bs = bsdf.sample(out, u.lobe, u.bsdf);
     if (!bs.valid) break;
     beta *= bs.weight;
     if (!(max_component(beta) > 0) || !is_finite(beta)) break;
@@ -202,8 +192,8 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
       // threshold, so the expectation is unchanged (E[beta'] = q beta / q).
       const float survive = std::min(1.0f, max_component(beta) / settings.rr_threshold);
       if (settings.observer && survive < 1)
-        settings.observer->roulette(depth, survive, u_rr < survive);
-      if (u_rr >= survive) break;
+        settings.observer->roulette(depth, survive, u.roulette < survive);
+      if (u.roulette >= survive) break;
       beta = beta / survive;
     }
     ray = {scene.offset_origin(hit, bs.wi), bs.wi};

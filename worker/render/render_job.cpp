@@ -271,10 +271,20 @@ class PixelRenderer {
   void camera_packet(PixelSampler& s, int x, int y, int first, int n, CameraPacket* cp) const {
     cp->n = n;
     cp->first = uint32_t(first);
-    for (int k = 0; k < n; ++k) {
-      s.start_sample(uint32_t(first + k));
-      cp->rays[k] = lens_ray(s, x, y);
-      cp->slots = s.slots_used();  // the same for every sample (lens_ray draws a fixed count)
+    if (camera_.has_lens()) {
+      // lens_ray()'s numbers for the whole packet in one batch (the same
+      // numbers: PixelSampler::get4d_samples).
+      Vec2 jitter[Scene::kPacket], lens[Scene::kPacket];
+      s.get4d_samples(uint32_t(first), n, jitter, lens);
+      const Vec2 pixel{float(x), float(y)};
+      for (int k = 0; k < n; ++k) cp->rays[k] = camera_.generate_ray(pixel + jitter[k], lens[k]);
+      cp->slots = s.slots_used();
+    } else {
+      for (int k = 0; k < n; ++k) {
+        s.start_sample(uint32_t(first + k));
+        cp->rays[k] = lens_ray(s, x, y);
+        cp->slots = s.slots_used();  // the same for every sample (lens_ray draws a fixed count)
+      }
     }
     scene_.intersect_packet(cp->rays, n, cp->hits, cp->found);
   }

@@ -187,6 +187,13 @@ constexpr uint32_t sobol_dim3(uint32_t index) {
 
 // ---------------------------------------------------------------------------
 
+// Whether this CPU has AVX2, which PixelSampler's batched draws
+// (get_vertex, get4d_samples) then use; and a switch to turn that off
+// process-wide for samplers made after it (tests compare both ways). The
+// numbers are the same either way.
+bool sampler_simd_available();
+void allow_sampler_simd(bool allowed);
+
 class PixelSampler {
  public:
   PixelSampler(SamplerKind kind, uint64_t seed, int frame, int px, int py, Stream stream);
@@ -207,6 +214,26 @@ class PixelSampler {
   // the same either way.
   void skip(uint32_t slots) { dim_ += slots; }
 
+  // The five numbers a path vertex draws (integrator.cpp), from five
+  // consecutive slots: exactly get1d(), get2d(), get1d(), get2d(), get1d()
+  // in that order, computed together. kSobol on a CPU with AVX2 scrambles
+  // the slots in 8-wide integer lanes (sampler.cpp); the arithmetic is
+  // integer and the conversion to float exact, so the numbers are
+  // bit-identical on every CPU (Sampler.BatchedDrawsAreTheSingleDraws).
+  struct VertexNumbers {
+    float select;    // which light
+    Vec2 light;      // the point on it
+    float lobe;      // which BSDF lobe
+    Vec2 bsdf;       // the direction within it
+    float roulette;  // Russian roulette
+  };
+  void get_vertex(VertexNumbers* out);
+  // get4d() of samples first, ..., first + n - 1 (1 <= n <= 8), each
+  // drawn as the first thing of its sample: start_sample(first + k) then
+  // get4d(). Afterwards the sampler stands where the last of those left it
+  // (sample first + n - 1, past its two slots).
+  void get4d_samples(uint32_t first, int n, Vec2* firsts, Vec2* seconds);
+
   uint64_t pixel_seed() const { return pixel_seed_; }
   // Slots the present sample has consumed so far.
   uint32_t slots_used() const { return dim_; }
@@ -221,17 +248,26 @@ class PixelSampler {
   // on the pixel and the slot only, not on the sample, so the first
   // kCachedSlots slots' are computed once per PixelSampler, on first use,
   // and every further sample of the pixel reads them (the same numbers,
-  // without their two hashes per slot).
-  struct SlotSeeds {  // no initialisers: the cache is written before it is read
+  // without their two hashes per slot). The cache keeps the three 32-bit
+  // seeds of a slot in three arrays (index shuffle, first and second
+  // coordinate), so that the batched draws load eight slots' seeds at once.
+  struct SlotSeeds {
     uint64_t first;
     uint32_t second;
   };
   SlotSeeds slot_seeds(uint32_t slot) {
-    if (slot < cached_) return cache_[slot];
     if (slot >= kCachedSlots) return {slot_hash(slot, 0), uint32_t(slot_hash(slot, 1))};
-    for (; cached_ <= slot; ++cached_)
-      cache_[cached_] = {slot_hash(cached_, 0), uint32_t(slot_hash(cached_, 1))};
-    return cache_[slot];
+    cache_through(slot + 1);
+    return {(uint64_t(seed_x_[slot]) << 32) | seed_index_[slot], seed_y_[slot]};
+  }
+  // Fills the cache for slots [cached_, end) (end <= kCachedSlots).
+  void cache_through(uint32_t end) {
+    for (; cached_ < end; ++cached_) {
+      const uint64_t h = slot_hash(cached_, 0);
+      seed_index_[cached_] = uint32_t(h);
+      seed_x_[cached_] = uint32_t(h >> 32);
+      seed_y_[cached_] = uint32_t(slot_hash(cached_, 1));
+    }
   }
   // i' = nested_uniform_scramble(index, seed), from the bit-reversed index
   // that start_sample() keeps, so a slot pays for one reversal, not two.
@@ -244,6 +280,7 @@ class PixelSampler {
   Vec2 sobol_pair(uint32_t slot, uint32_t* shuffled);
 
   SamplerKind kind_;
+  bool simd_ = false;    // kSobol, and the batched draws may use AVX2 (decided at construction)
   uint64_t pixel_seed_;  // hash of (seed, frame, pixel, stream)
   uint32_t index_ = 0;
   uint32_t dim_ = 0;
@@ -253,9 +290,13 @@ class PixelSampler {
   uint64_t sample_seed_ = 0;
   // kSobol: slot_seeds() of slots [0, cached_); a path uses about five
   // slots per bounce after the camera's four.
+  // Each array has 8 entries more than it caches, zero: a batch of five
+  // slots loads eight lanes.
   static constexpr uint32_t kCachedSlots = 32;
   uint32_t cached_ = 0;
-  SlotSeeds cache_[kCachedSlots];
+  uint32_t seed_index_[kCachedSlots + 8];  // written by cache_through before read
+  uint32_t seed_x_[kCachedSlots + 8];
+  uint32_t seed_y_[kCachedSlots + 8];
 };
 
 // ---------------------------------------------------------------------------
