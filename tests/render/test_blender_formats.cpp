@@ -313,8 +313,9 @@ TEST(ForeignCameras, EachCameraOfABlenderFbxFileIsFoundByName) {
     EXPECT_NEAR(fbx.scene_camera->yfov_deg, gltf.scene_camera->yfov_deg, 1e-3f);
     // Clip Start (the orthographic lens's plane; other formats' perspective
     // cameras are not clipped).
-    if (gltf.scene_camera->ymag > 0)
+    if (gltf.scene_camera->ymag > 0) {
       EXPECT_NEAR(fbx.scene_camera->znear, gltf.scene_camera->znear, 1e-5f);
+    }
     const CameraState a = camera_for_frame(scene_camera_spec(), gltf, 0);
     const CameraState b = camera_for_frame(scene_camera_spec(), fbx, 0);
     EXPECT_NEAR(b.ortho_height, a.ortho_height, 1e-5f);
@@ -480,8 +481,9 @@ TEST(BlenderFormats, ColladaAndFbxMaterialsCarryTheGltfOnesMetallic) {
       EXPECT_NEAR(b->base_color.y, a->base_color.y, 1e-5f) << file << " " << name;
       EXPECT_NEAR(b->base_color.z, a->base_color.z, 1e-5f) << file << " " << name;
       EXPECT_EQ(b->metallic, a->metallic) << file << " " << name;
-      if (std::string(file) == "materials.fbx")
+      if (std::string(file) == "materials.fbx") {
         EXPECT_NEAR(b->roughness, a->roughness, 1e-5f) << name;
+      }
     }
   }
   EXPECT_EQ(find(gltf, "Metal")->metallic, 1.0f);

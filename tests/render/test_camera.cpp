@@ -9,6 +9,7 @@
 #include "tests/render/render_fixtures.h"
 #include "worker/render/camera.h"
 #include "worker/render/render_job.h"
+#include "worker/render/simd.h"
 
 namespace dofarm::render {
 namespace {
@@ -415,6 +416,79 @@ TEST(Focus, FocusPointRecordedInTheFrameIsTheOneTheCocUses) {
   FrameBuffers fb = render_frame(*scene, spec, 0);
   EXPECT_NEAR(fb.camera.focal_distance, S, 1e-5);
   for (float c : fb.coc) EXPECT_NEAR(c, analytic_coc(A, S, dist, fov, H), 1e-3);
+}
+
+// Camera::generate_rays (a packet's camera rays at once, in AVX2 lanes
+// where the CPU has them) gives generate_ray()'s rays bit for bit: origin,
+// direction and clipping range, for turned cameras with and without
+// clipping planes, lens points at the disk's centre, on its diagonals and
+// axes, and focal distances whose direction under- or overflows a float
+// (generate_ray()'s double fallback, redone lane by lane).
+TEST(Camera, BatchedRaysAreTheSingleRays) {
+  struct SimdSwitch {
+    ~SimdSwitch() { allow_simd(true); }
+  } restore;
+  auto same = [](float a, float b) { return std::memcmp(&a, &b, sizeof a) == 0; };
+  auto same_ray = [&](const Ray& a, const Ray& b) {
+    return same(a.o.x, b.o.x) && same(a.o.y, b.o.y) && same(a.o.z, b.o.z) && same(a.d.x, b.d.x) &&
+           same(a.d.y, b.d.y) && same(a.d.z, b.d.z) && same(a.t_min, b.t_min) &&
+           same(a.t_max, b.t_max);
+  };
+  std::vector<Vec2> lens = {{0.5f, 0.5f},  {0.0f, 0.0f}, {0.9f, 0.9f},    {0.1f, 0.9f},
+                            {0.5f, 0.0f},  {0.0f, 0.5f}, {0.99f, 0.5f},   {0.5f, 0.25f},
+                            {0.75f, 0.5f}, {0.3f, 0.7f}, {0.999f, 0.001f}};
+  std::vector<Vec2> film = {{0.0f, 0.0f}, {320.0f, 180.0f}, {639.99f, 359.99f}, {17.25f, 301.5f}};
+  uint32_t h = 12345;
+  for (int i = 0; i < 40; ++i) {  // and scattered points
+    auto next = [&h] {
+      h = h * 1664525u + 1013904223u;
+      return float(h >> 8) * 0x1p-24f;
+    };
+    lens.push_back({next(), next()});
+    film.push_back({next() * 640.0f, next() * 360.0f});
+  }
+  struct Case {
+    const char* name;
+    float focal, aperture;
+    CameraClip clip;
+  };
+  const Case cases[] = {{"plain", 3.4f, 0.08f, {}},
+                        {"near and far", 9.0f, 0.03f, {0.1f, 100.0f}},
+                        {"near only", 2.0f, 0.5f, {0.5f, std::numeric_limits<float>::infinity()}},
+                        {"far only", 4.0f, 0.2f, {0.0f, 7.0f}},
+                        {"focus 1e-38", 1e-38f, 1e-30f, {}},
+                        {"focus 3e38", 3e38f, 0.1f, {0.1f, 1e30f}}};
+  std::vector<bool> modes = {false};
+  if (simd_available()) modes.push_back(true);
+  for (bool simd : modes) {
+    allow_simd(simd);
+    for (const Case& c : cases) {
+      for (const CameraState& pose :
+           {CameraState{}, testing::posed_camera(Vec3(1, 2, 3), Vec3(4, 0, -2)),
+            testing::posed_camera(Vec3(-5, 1, 0.5f), Vec3(0, 1.5f, 0))}) {
+        CameraState state = pose;
+        state.fov_deg = 39.6f;
+        state.focal_distance = c.focal;
+        state.aperture = c.aperture;
+        const Camera camera(state, 640, 360, c.clip);
+        for (size_t start = 0; start < lens.size(); start += 3) {
+          for (int n = 1; n <= 8; ++n) {
+            Vec2 f[8], l[8];
+            for (int k = 0; k < n; ++k) {
+              f[k] = film[(start + size_t(k)) % film.size()];
+              l[k] = lens[(start + size_t(k)) % lens.size()];
+            }
+            Ray batch[8];
+            camera.generate_rays(f, l, n, batch);
+            for (int k = 0; k < n; ++k)
+              ASSERT_TRUE(same_ray(batch[k], camera.generate_ray(f[k], l[k])))
+                  << c.name << ", simd " << simd << ", film (" << f[k].x << ", " << f[k].y
+                  << "), lens (" << l[k].x << ", " << l[k].y << ")";
+          }
+        }
+      }
+    }
+  }
 }
 
 }  // namespace

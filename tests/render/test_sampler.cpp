@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "worker/render/sampler.h"
+#include "worker/render/simd.h"
 
 namespace dofarm::render {
 namespace {
@@ -663,13 +664,13 @@ TEST(Sampler, Get4dStratifiesAPixelAndLensEdgeJointly) {
 // (the seed cache filled in a different order).
 TEST(Sampler, BatchedDrawsAreTheSingleDraws) {
   struct SimdSwitch {
-    ~SimdSwitch() { allow_sampler_simd(true); }
+    ~SimdSwitch() { allow_simd(true); }
   } restore;
   auto same = [](Vec2 a, Vec2 b) { return a.x == b.x && a.y == b.y; };
   std::vector<bool> modes = {false};
-  if (sampler_simd_available()) modes.push_back(true);
+  if (simd_available()) modes.push_back(true);
   for (bool simd : modes) {
-    allow_sampler_simd(simd);
+    allow_simd(simd);
     for (SamplerKind kind : {SamplerKind::kSobol, SamplerKind::kIndependent}) {
       PixelSampler reused(kind, kSeed, 3, 11, 2, Stream::kNoisy);
       for (uint32_t index : {0u, 1u, 7u, 1000u, 12345u, 0xfffffffeu}) {

@@ -9,6 +9,7 @@
 #include "common/error.h"
 #include "common/thin_lens.h"
 #include "worker/render/scene_motion.h"
+#include "worker/render/simd.h"
 #include "worker/render/trig.h"
 
 namespace dofarm::render {
@@ -111,6 +112,205 @@ Ray Camera::generate_ray(Vec2 film, Vec2 lens) const {
   }
   // A rotation keeps lengths: one normalisation, after it, is enough.
   return clipped({position_ + rotation_.rotate(origin), normalize(rotation_.rotate(dir))}, dir);
+}
+
+namespace {
+
+#ifdef DOFARM_HAVE_AVX2_KERNELS
+// A perspective camera with a lens, as generate_rays() needs it.
+struct LensCamera {
+  float width, height, tan_half_fov, aspect, focal_distance, aperture;
+  Quat rotation;
+  Vec3 position;
+  bool clip;
+  float near, far;
+};
+
+// Eight-lane Vec3 arithmetic, each operation the scalar one of common/math.h
+// in the same order.
+struct V3x8 {
+  __m256 x, y, z;
+};
+DOFARM_AVX2 inline V3x8 cross8(V3x8 a, V3x8 b) {
+  return {_mm256_sub_ps(_mm256_mul_ps(a.y, b.z), _mm256_mul_ps(a.z, b.y)),
+          _mm256_sub_ps(_mm256_mul_ps(a.z, b.x), _mm256_mul_ps(a.x, b.z)),
+          _mm256_sub_ps(_mm256_mul_ps(a.x, b.y), _mm256_mul_ps(a.y, b.x))};
+}
+DOFARM_AVX2 inline __m256 dot8(V3x8 a, V3x8 b) {
+  return _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(a.x, b.x), _mm256_mul_ps(a.y, b.y)),
+                       _mm256_mul_ps(a.z, b.z));
+}
+// Quat::rotate: v + t w + cross(u, t), t = 2 cross(u, v).
+DOFARM_AVX2 inline V3x8 rotate8(const Quat& q, V3x8 v) {
+  const V3x8 u{_mm256_set1_ps(q.x), _mm256_set1_ps(q.y), _mm256_set1_ps(q.z)};
+  const __m256 two = _mm256_set1_ps(2.0f), w = _mm256_set1_ps(q.w);
+  V3x8 t = cross8(u, v);
+  t = {_mm256_mul_ps(t.x, two), _mm256_mul_ps(t.y, two), _mm256_mul_ps(t.z, two)};
+  const V3x8 c = cross8(u, t);
+  return {_mm256_add_ps(_mm256_add_ps(v.x, _mm256_mul_ps(t.x, w)), c.x),
+          _mm256_add_ps(_mm256_add_ps(v.y, _mm256_mul_ps(t.y, w)), c.y),
+          _mm256_add_ps(_mm256_add_ps(v.z, _mm256_mul_ps(t.z, w)), c.z)};
+}
+DOFARM_AVX2 inline __m256 is_finite8(__m256 v) {  // |v| <= FLT_MAX: false for Inf and NaN
+  const __m256 abs = _mm256_andnot_ps(_mm256_set1_ps(-0.0f), v);
+  return _mm256_cmp_ps(abs, _mm256_set1_ps(FLT_MAX), _CMP_LE_OQ);
+}
+DOFARM_AVX2 inline __m128 remainder4(__m128 a, __m128 q) {  // float(double(a) - double(q) pi/2)
+  return _mm256_cvtpd_ps(_mm256_sub_pd(
+      _mm256_cvtps_pd(a), _mm256_mul_pd(_mm256_cvtps_pd(q), _mm256_set1_pd(1.5707963267948966))));
+}
+DOFARM_AVX2 inline __m256 k8(float v) { return _mm256_set1_ps(v); }
+DOFARM_AVX2 inline __m256 mul8(__m256 x, __m256 y) { return _mm256_mul_ps(x, y); }
+DOFARM_AVX2 inline __m256 add8(__m256 x, __m256 y) { return _mm256_add_ps(x, y); }
+
+// precise_sincos (trig.h): the quadrant rounded as round_to_integer does,
+// the remainder in double, sincos_quarter's polynomials, the quadrant's
+// swap and signs.
+DOFARM_AVX2 inline void sincos8(__m256 a, __m256* s, __m256* c) {
+  const __m256 shift = _mm256_set1_ps(12582912.0f);
+  const __m256 q =
+      _mm256_sub_ps(_mm256_add_ps(_mm256_mul_ps(a, _mm256_set1_ps(2.0f / kPi)), shift), shift);
+  const __m256 r =
+      _mm256_set_m128(remainder4(_mm256_extractf128_ps(a, 1), _mm256_extractf128_ps(q, 1)),
+                      remainder4(_mm256_castps256_ps128(a), _mm256_castps256_ps128(q)));
+  const __m256 r2 = _mm256_mul_ps(r, r);
+  const __m256 sr =
+      mul8(r, add8(k8(1.0f),
+                   mul8(r2, add8(k8(-1.0f / 6.0f),
+                                 mul8(r2, add8(k8(1.0f / 120.0f),
+                                               mul8(r2, add8(k8(-1.0f / 5040.0f),
+                                                             mul8(r2, k8(1.0f / 362880.0f))))))))));
+  const __m256 cr = add8(
+      k8(1.0f),
+      mul8(r2,
+           add8(k8(-0.5f),
+                mul8(r2, add8(k8(1.0f / 24.0f),
+                              mul8(r2, add8(k8(-1.0f / 720.0f),
+                                            mul8(r2, add8(k8(1.0f / 40320.0f),
+                                                          mul8(r2, k8(-1.0f / 3628800.0f)))))))))));
+  const __m256i quadrant = _mm256_and_si256(_mm256_cvttps_epi32(q), _mm256_set1_epi32(3));
+  const __m256 q1 = _mm256_castsi256_ps(_mm256_cmpeq_epi32(quadrant, _mm256_set1_epi32(1)));
+  const __m256 q2 = _mm256_castsi256_ps(_mm256_cmpeq_epi32(quadrant, _mm256_set1_epi32(2)));
+  const __m256 q3 = _mm256_castsi256_ps(_mm256_cmpeq_epi32(quadrant, _mm256_set1_epi32(3)));
+  const __m256 odd = _mm256_or_ps(q1, q3);
+  const __m256 sign = _mm256_set1_ps(-0.0f);
+  // 0: (sr, cr); 1: (cr, -sr); 2: (-sr, -cr); 3: (-cr, sr).
+  *s = _mm256_xor_ps(_mm256_blendv_ps(sr, cr, odd), _mm256_and_ps(_mm256_or_ps(q2, q3), sign));
+  *c = _mm256_xor_ps(_mm256_blendv_ps(cr, sr, odd), _mm256_and_ps(_mm256_or_ps(q1, q2), sign));
+}
+
+// generate_ray() of a perspective lens camera in eight lanes; returns the
+// lanes whose rays are complete (bit k set), the others need
+// generate_ray()'s fallbacks (a direction that under- or overflows).
+DOFARM_AVX2 int lens_rays_avx2(const LensCamera& cam, const float* in, float* out) {
+  const __m256 fx = _mm256_load_ps(in), fy = _mm256_load_ps(in + 8), ux = _mm256_load_ps(in + 16),
+               uy = _mm256_load_ps(in + 24);
+  const __m256 one = _mm256_set1_ps(1.0f), two = _mm256_set1_ps(2.0f);
+  const __m256 zero = _mm256_setzero_ps(), S = _mm256_set1_ps(cam.focal_distance);
+  // film_direction(), times the focal distance.
+  const __m256 tan = _mm256_set1_ps(cam.tan_half_fov);
+  const __m256 sx = _mm256_mul_ps(
+      _mm256_mul_ps(
+          _mm256_sub_ps(_mm256_div_ps(_mm256_mul_ps(two, fx), _mm256_set1_ps(cam.width)), one),
+          tan),
+      _mm256_set1_ps(cam.aspect));
+  const __m256 sy = _mm256_mul_ps(
+      _mm256_sub_ps(one, _mm256_div_ps(_mm256_mul_ps(two, fy), _mm256_set1_ps(cam.height))), tan);
+  const V3x8 focus{_mm256_mul_ps(sx, S), _mm256_mul_ps(sy, S),
+                   _mm256_mul_ps(_mm256_set1_ps(-1.0f), S)};
+  // sample_concentric_disk(), times the aperture.
+  const __m256 ox = _mm256_sub_ps(_mm256_mul_ps(two, ux), one);
+  const __m256 oy = _mm256_sub_ps(_mm256_mul_ps(two, uy), one);
+  const __m256 centre =
+      _mm256_and_ps(_mm256_cmp_ps(ox, zero, _CMP_EQ_OQ), _mm256_cmp_ps(oy, zero, _CMP_EQ_OQ));
+  const __m256 abs_mask = _mm256_set1_ps(-0.0f);
+  const __m256 x_major =
+      _mm256_cmp_ps(_mm256_andnot_ps(abs_mask, ox), _mm256_andnot_ps(abs_mask, oy), _CMP_GT_OQ);
+  const __m256 r = _mm256_blendv_ps(oy, ox, x_major);
+  const __m256 quarter_pi = _mm256_set1_ps(kPi / 4.0f);
+  const __m256 theta = _mm256_blendv_ps(
+      _mm256_sub_ps(_mm256_set1_ps(kPi / 2.0f), _mm256_mul_ps(quarter_pi, _mm256_div_ps(ox, oy))),
+      _mm256_mul_ps(quarter_pi, _mm256_div_ps(oy, ox)), x_major);
+  __m256 s, c;
+  sincos8(theta, &s, &c);
+  const __m256 aperture = _mm256_set1_ps(cam.aperture);
+  const __m256 dx = _mm256_mul_ps(_mm256_blendv_ps(_mm256_mul_ps(r, c), zero, centre), aperture);
+  const __m256 dy = _mm256_mul_ps(_mm256_blendv_ps(_mm256_mul_ps(r, s), zero, centre), aperture);
+  // The ray from the lens point towards the focus point.
+  const V3x8 origin{dx, dy, zero};
+  const V3x8 dir{_mm256_sub_ps(focus.x, dx), _mm256_sub_ps(focus.y, dy),
+                 _mm256_sub_ps(focus.z, zero)};
+  const __m256 len2 = dot8(dir, dir);
+  __m256 ok = _mm256_and_ps(_mm256_cmp_ps(len2, _mm256_set1_ps(FLT_MIN), _CMP_GE_OQ),
+                            _mm256_cmp_ps(len2, _mm256_set1_ps(FLT_MAX), _CMP_LE_OQ));
+  const V3x8 o = rotate8(cam.rotation, origin);
+  const V3x8 d = rotate8(cam.rotation, dir);
+  const __m256 l2 = dot8(d, d);
+  ok = _mm256_and_ps(ok, _mm256_and_ps(_mm256_cmp_ps(l2, zero, _CMP_GT_OQ), is_finite8(l2)));
+  const __m256 len = _mm256_sqrt_ps(l2);
+  _mm256_store_ps(out, _mm256_add_ps(_mm256_set1_ps(cam.position.x), o.x));
+  _mm256_store_ps(out + 8, _mm256_add_ps(_mm256_set1_ps(cam.position.y), o.y));
+  _mm256_store_ps(out + 16, _mm256_add_ps(_mm256_set1_ps(cam.position.z), o.z));
+  _mm256_store_ps(out + 24, _mm256_div_ps(d.x, len));
+  _mm256_store_ps(out + 32, _mm256_div_ps(d.y, len));
+  _mm256_store_ps(out + 40, _mm256_div_ps(d.z, len));
+  // clipped(): the view depths between the planes.
+  __m256 t_min = zero, t_max = _mm256_set1_ps(std::numeric_limits<float>::infinity());
+  if (cam.clip) {
+    const __m256 cos_axis = _mm256_div_ps(_mm256_xor_ps(dir.z, abs_mask), _mm256_sqrt_ps(len2));
+    if (cam.near > 0) t_min = _mm256_div_ps(_mm256_set1_ps(cam.near), cos_axis);
+    t_max = _mm256_div_ps(_mm256_set1_ps(cam.far), cos_axis);
+    const __m256 keep_min =
+        _mm256_and_ps(_mm256_cmp_ps(t_min, zero, _CMP_GE_OQ), is_finite8(t_min));
+    t_min = _mm256_and_ps(t_min, keep_min);  // else 0
+    t_max = _mm256_blendv_ps(_mm256_set1_ps(std::numeric_limits<float>::infinity()), t_max,
+                             _mm256_cmp_ps(t_max, t_min, _CMP_GE_OQ));
+  }
+  _mm256_store_ps(out + 48, t_min);
+  _mm256_store_ps(out + 56, t_max);
+  return _mm256_movemask_ps(ok);
+}
+#endif
+
+}  // namespace
+
+void Camera::generate_rays(const Vec2* film, const Vec2* lens, int n, Ray* out) const {
+#ifdef DOFARM_HAVE_AVX2_KERNELS
+  if (n >= 1 && n <= 8 && has_lens() && !(ortho_half_height_ > 0) && use_simd()) {
+    const LensCamera cam{float(width_),
+                         float(height_),
+                         tan_half_fov_,
+                         aspect_,
+                         state_.focal_distance,
+                         state_.aperture,
+                         rotation_,
+                         position_,
+                         clip_.near > 0 || std::isfinite(clip_.far),
+                         clip_.near,
+                         clip_.far};
+    alignas(32) float in[32], rays[64];
+    for (int k = 0; k < 8; ++k) {  // lanes past n repeat the first point
+      const int j = k < n ? k : 0;
+      in[k] = film[j].x;
+      in[8 + k] = film[j].y;
+      in[16 + k] = lens[j].x;
+      in[24 + k] = lens[j].y;
+    }
+    const int complete = lens_rays_avx2(cam, in, rays);
+    for (int k = 0; k < n; ++k) {
+      if (!((complete >> k) & 1)) {
+        out[k] = generate_ray(film[k], lens[k]);
+        continue;
+      }
+      out[k].o = Vec3(rays[k], rays[8 + k], rays[16 + k]);
+      out[k].d = Vec3(rays[24 + k], rays[32 + k], rays[40 + k]);
+      out[k].t_min = rays[48 + k];
+      out[k].t_max = rays[56 + k];
+    }
+    return;
+  }
+#endif
+  for (int k = 0; k < n; ++k) out[k] = generate_ray(film[k], lens[k]);
 }
 
 float Camera::coc_pixels(float z) const {

@@ -51,6 +51,11 @@ class Camera {
   // [t_min, t_max] spans the view depths between the clipping planes
   // (the planes z = -near and z = -far of camera space, the lens at z = 0).
   Ray generate_ray(Vec2 film, Vec2 lens) const;
+  // generate_ray() of n points at once (n <= 8: a packet): the same rays,
+  // bit for bit. A perspective camera with a lens computes them in 8-wide
+  // AVX2 lanes where the CPU has them (simd.h; a lane that needs
+  // generate_ray()'s double-precision fallback is redone by it).
+  void generate_rays(const Vec2* film, const Vec2* lens, int n, Ray* out) const;
   // The pinhole ray through `film`, whatever the aperture (aux buffers).
   Ray pinhole_ray(Vec2 film) const;
   // Circle-of-confusion diameter in pixels of a point at view-space depth z

@@ -272,12 +272,15 @@ class PixelRenderer {
     cp->n = n;
     cp->first = uint32_t(first);
     if (camera_.has_lens()) {
-      // lens_ray()'s numbers for the whole packet in one batch (the same
-      // numbers: PixelSampler::get4d_samples).
+      // lens_ray() for the whole packet: its numbers in one batch
+      // (PixelSampler::get4d_samples), its rays in one batch
+      // (Camera::generate_rays); the same numbers and rays.
       Vec2 jitter[Scene::kPacket], lens[Scene::kPacket];
       s.get4d_samples(uint32_t(first), n, jitter, lens);
       const Vec2 pixel{float(x), float(y)};
-      for (int k = 0; k < n; ++k) cp->rays[k] = camera_.generate_ray(pixel + jitter[k], lens[k]);
+      Vec2 film[Scene::kPacket];
+      for (int k = 0; k < n; ++k) film[k] = pixel + jitter[k];
+      camera_.generate_rays(film, lens, n, cp->rays);
       cp->slots = s.slots_used();
     } else {
       for (int k = 0; k < n; ++k) {

@@ -1,39 +1,15 @@
 #include "worker/render/sampler.h"
 
 #include <algorithm>
-#include <atomic>
 
-#if defined(__x86_64__) && defined(__GNUC__)
-#include <immintrin.h>
-#define DOFARM_SAMPLER_AVX2 1
-#endif
+#include "worker/render/simd.h"
 
 namespace dofarm::render {
 
 namespace {
 
-std::atomic<bool> g_simd_allowed{true};
-
-bool cpu_has_avx2() {
-#ifdef DOFARM_SAMPLER_AVX2
-  static const bool yes = [] {
-    __builtin_cpu_init();
-    return __builtin_cpu_supports("avx2") != 0;
-  }();
-  return yes;
-#else
-  return false;
-#endif
-}
-
-bool use_simd() { return cpu_has_avx2() && g_simd_allowed.load(std::memory_order_relaxed); }
-
-#ifdef DOFARM_SAMPLER_AVX2
-// The scalar helpers of sampler.h, eight 32-bit lanes at a time. The build
-// targets the x86-64 baseline; these functions alone are compiled for AVX2
-// and run only where the CPU has it (use_simd()).
-#define DOFARM_AVX2 __attribute__((target("avx2")))
-
+#ifdef DOFARM_HAVE_AVX2_KERNELS
+// The scalar helpers of sampler.h, eight 32-bit lanes at a time (simd.h).
 // reverse_bits32: the bytes of each lane reversed (a byte shuffle), then
 // the bits of each byte, by two 16-entry nibble tables.
 DOFARM_AVX2 inline __m256i reverse_bits8x32(__m256i x) {
@@ -133,11 +109,8 @@ DOFARM_AVX2 void samples4d_avx2(uint32_t first, uint32_t shuffle_seed, uint32_t 
 
 }  // namespace
 
-bool sampler_simd_available() { return cpu_has_avx2(); }
-void allow_sampler_simd(bool allowed) { g_simd_allowed.store(allowed, std::memory_order_relaxed); }
-
 void PixelSampler::get_vertex(VertexNumbers* out) {
-#ifdef DOFARM_SAMPLER_AVX2
+#ifdef DOFARM_HAVE_AVX2_KERNELS
   if (simd_ && dim_ + 5 <= kCachedSlots) {
     cache_through(std::min(dim_ + 8, kCachedSlots));  // the lanes past 5 read cached or zero seeds
     alignas(32) float v[8];
@@ -155,7 +128,7 @@ void PixelSampler::get_vertex(VertexNumbers* out) {
 }
 
 void PixelSampler::get4d_samples(uint32_t first, int n, Vec2* firsts, Vec2* seconds) {
-#ifdef DOFARM_SAMPLER_AVX2
+#ifdef DOFARM_HAVE_AVX2_KERNELS
   if (simd_ && n >= 1 && n <= 8) {
     const SlotSeeds s0 = slot_seeds(0), s1 = slot_seeds(1);
     alignas(32) float x[8], y[8], z[8], w[8];

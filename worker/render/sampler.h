@@ -187,13 +187,6 @@ constexpr uint32_t sobol_dim3(uint32_t index) {
 
 // ---------------------------------------------------------------------------
 
-// Whether this CPU has AVX2, which PixelSampler's batched draws
-// (get_vertex, get4d_samples) then use; and a switch to turn that off
-// process-wide for samplers made after it (tests compare both ways). The
-// numbers are the same either way.
-bool sampler_simd_available();
-void allow_sampler_simd(bool allowed);
-
 class PixelSampler {
  public:
   PixelSampler(SamplerKind kind, uint64_t seed, int frame, int px, int py, Stream stream);
@@ -217,8 +210,8 @@ class PixelSampler {
   // The five numbers a path vertex draws (integrator.cpp), from five
   // consecutive slots: exactly get1d(), get2d(), get1d(), get2d(), get1d()
   // in that order, computed together. kSobol on a CPU with AVX2 scrambles
-  // the slots in 8-wide integer lanes (sampler.cpp); the arithmetic is
-  // integer and the conversion to float exact, so the numbers are
+  // the slots in 8-wide integer lanes (sampler.cpp, simd.h); the arithmetic
+  // is integer and the conversion to float exact, so the numbers are
   // bit-identical on every CPU (Sampler.BatchedDrawsAreTheSingleDraws).
   struct VertexNumbers {
     float select;    // which light
