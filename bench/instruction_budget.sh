@@ -89,8 +89,8 @@ awk -v r="$renderer" -v e="$embree" -v s="$replay" -v b="$bare" -v n="$rays" -v 
 }'
 echo
 echo "the renderer's functions by instructions per ray (self cost; top $top):"
-grep -v $'\tPROGRAM TOTALS' "$out/functions.tsv" | sort -t$'\t' -k1,1nr | head -n "$top" |
-  awk -F'\t' -v n="$rays" -v r="$renderer" '{
+grep -v $'\tPROGRAM TOTALS' "$out/functions.tsv" | sort -t$'\t' -k1,1nr |
+  awk -F'\t' -v n="$rays" -v r="$renderer" -v top="$top" 'NR <= top {
     name = $2; sub(/ \[.*\]$/, "", name); sub(/^\?\?\?:/, "", name)
     gsub(/\(anonymous namespace\)/, "{anon}", name); sub(/\(.*$/, "", name)
     obj = $2; sub(/^.*\[/, "", obj); sub(/\]$/, "", obj); sub(/^.*\//, "", obj)
