@@ -4,8 +4,8 @@
 // functions are also compiled for AVX2 and run where the CPU has it. Each
 // lane does the scalar code's operations in the scalar code's order, with
 // no fused multiply-add (IEEE single precision gives the same bits in an
-// SSE or AVX lane), so a job's bytes are the same on every CPU; the tests
-// compare both ways (allow_simd).
+// SSE or AVX lane), so they give the same numbers with and without AVX2;
+// the tests compare both ways (allow_simd).
 #pragma once
 
 namespace dofarm::render {
