@@ -186,16 +186,22 @@ RawFigures trace_all(const std::vector<R>& rays, int threads, int repeats, Trace
   return best;
 }
 
-// The timed parts, each in a function of its own that is never inlined
-// (bench/instruction_budget.sh counts their instructions by name).
-[[gnu::noinline]] RenderStats renderer_pass(const Scene& scene, const JobSpec& spec, int frame,
-                                            int threads) {
+// One render of the frame on `threads` threads, with its statistics.
+RenderStats render_once(const Scene& scene, const JobSpec& spec, int frame, int threads) {
   RenderStats stats;
   RenderOptions options;
   options.threads = threads;
   options.stats = &stats;
   dofarm::render::render_frame(scene, spec, frame, std::nullopt, options);
   return stats;
+}
+
+// The timed parts, each in a function of its own that is never inlined
+// (bench/instruction_budget.sh counts their instructions by name; the
+// render without packets below is not one of them).
+[[gnu::noinline]] RenderStats renderer_pass(const Scene& scene, const JobSpec& spec, int frame,
+                                            int threads) {
+  return render_once(scene, spec, frame, threads);
 }
 
 template <class Trace>
@@ -302,12 +308,8 @@ void run_scene(const char* name, const char* job, int frame, const Args& args) {
       rf.paths = stats.paths;
       rf.rays = stats.rays;
       rf.seconds = std::min(rf.seconds, stats.seconds);
-      RenderStats single;
-      RenderOptions options;
-      options.threads = args.threads;
-      options.stats = &single;
       scene->set_packet_tracing(false);
-      dofarm::render::render_frame(*scene, spec, frame, std::nullopt, options);
+      const RenderStats single = render_once(*scene, spec, frame, args.threads);
       scene->set_packet_tracing(true);
       single_seconds = std::min(single_seconds, single.seconds);
     }

@@ -53,7 +53,7 @@ Vec3 Camera::film_direction(Vec2 film) const {
 }
 
 Ray Camera::clipped(Ray ray, Vec3 view_dir) const {
-  if (clip_.near > 0 || std::isfinite(clip_.far)) {
+  if (clips()) {
     // View depth grows along the ray by cos_axis per unit of t.
     const float cos_axis = -view_dir.z / length(view_dir);
     ray.t_min = clip_.near > 0 ? clip_.near / cos_axis : 0.0f;
@@ -277,17 +277,10 @@ DOFARM_AVX2 int lens_rays_avx2(const LensCamera& cam, const float* in, float* ou
 void Camera::generate_rays(const Vec2* film, const Vec2* lens, int n, Ray* out) const {
 #ifdef DOFARM_HAVE_AVX2_KERNELS
   if (n >= 1 && n <= 8 && has_lens() && !(ortho_half_height_ > 0) && use_simd()) {
-    const LensCamera cam{float(width_),
-                         float(height_),
-                         tan_half_fov_,
-                         aspect_,
-                         state_.focal_distance,
-                         state_.aperture,
-                         rotation_,
-                         position_,
-                         clip_.near > 0 || std::isfinite(clip_.far),
-                         clip_.near,
-                         clip_.far};
+    const LensCamera cam{
+        float(width_),   float(height_), tan_half_fov_, aspect_, state_.focal_distance,
+        state_.aperture, rotation_,      position_,     clips(), clip_.near,
+        clip_.far};
     alignas(32) float in[32], rays[64];
     for (int k = 0; k < 8; ++k) {  // lanes past n repeat the first point
       const int j = k < n ? k : 0;

@@ -78,6 +78,8 @@ class Camera {
   // direction in camera space, any length (the cosine to the viewing axis
   // is computed only where a plane clips).
   Ray clipped(Ray ray, Vec3 view_dir) const;
+  // Whether a clipping plane narrows a perspective ray's [t_min, t_max].
+  bool clips() const { return clip_.near > 0 || std::isfinite(clip_.far); }
   CameraState state_;
   CameraClip clip_;
   Quat rotation_, inverse_rotation_;

@@ -268,42 +268,33 @@ class PixelRenderer {
       return {found[k], &hits[k]};
     }
   };
+  // Fills a CameraPacket. Each ray: pixel jitter (box filter), then the
+  // lens only when there is one. With a lens, the jitter and the lens point
+  // are one 4D Sobol' point (get4d()): whether a ray sees a defocused edge
+  // depends on both together, and one 4D point stratifies them jointly
+  // where two padded 2D points stratify each alone (bench/README.md, "Pixel
+  // and lens as one 4D point"). The jitter is the same either way. With a
+  // lens the packet's numbers are drawn in one batch
+  // (PixelSampler::get4d_samples) and its rays made in one batch
+  // (Camera::generate_rays): the numbers and rays of each sample drawn and
+  // made alone.
   void camera_packet(PixelSampler& s, int x, int y, int first, int n, CameraPacket* cp) const {
     cp->n = n;
     cp->first = uint32_t(first);
+    const Vec2 pixel{float(x), float(y)};
     if (camera_.has_lens()) {
-      // lens_ray() for the whole packet: its numbers in one batch
-      // (PixelSampler::get4d_samples), its rays in one batch
-      // (Camera::generate_rays); the same numbers and rays.
-      Vec2 jitter[Scene::kPacket], lens[Scene::kPacket];
-      s.get4d_samples(uint32_t(first), n, jitter, lens);
-      const Vec2 pixel{float(x), float(y)};
-      Vec2 film[Scene::kPacket];
-      for (int k = 0; k < n; ++k) film[k] = pixel + jitter[k];
+      Vec2 film[Scene::kPacket], lens[Scene::kPacket];
+      s.get4d_samples(uint32_t(first), n, film, lens);
+      for (int k = 0; k < n; ++k) film[k] = pixel + film[k];
       camera_.generate_rays(film, lens, n, cp->rays);
-      cp->slots = s.slots_used();
     } else {
       for (int k = 0; k < n; ++k) {
         s.start_sample(uint32_t(first + k));
-        cp->rays[k] = lens_ray(s, x, y);
-        cp->slots = s.slots_used();  // the same for every sample (lens_ray draws a fixed count)
+        cp->rays[k] = camera_.pinhole_ray(pixel + s.get2d());
       }
     }
+    cp->slots = s.slots_used();  // the same for every sample: a fixed count
     scene_.intersect_packet(cp->rays, n, cp->hits, cp->found);
-  }
-
-  // Pixel jitter (box filter), then the lens only when there is one. With a
-  // lens, the jitter and the lens point are one 4D Sobol' point (get4d()):
-  // whether a ray sees a defocused edge depends on both together, and one
-  // 4D point stratifies them jointly where two padded 2D points stratify
-  // each alone (bench/README.md, "Pixel and lens as one 4D point"). The
-  // jitter is the same either way.
-  Ray lens_ray(PixelSampler& s, int x, int y) const {
-    const Vec2 pixel{float(x), float(y)};
-    if (!camera_.has_lens()) return camera_.pinhole_ray(pixel + s.get2d());
-    Vec2 jitter, lens;
-    s.get4d(&jitter, &lens);
-    return camera_.generate_ray(pixel + jitter, lens);
   }
 
   const Scene& scene_;

@@ -130,10 +130,10 @@ void PixelSampler::get_vertex(VertexNumbers* out) {
 void PixelSampler::get4d_samples(uint32_t first, int n, Vec2* firsts, Vec2* seconds) {
 #ifdef DOFARM_HAVE_AVX2_KERNELS
   if (simd_ && n >= 1 && n <= 8) {
-    const SlotSeeds s0 = slot_seeds(0), s1 = slot_seeds(1);
+    cache_through(2);
     alignas(32) float x[8], y[8], z[8], w[8];
-    samples4d_avx2(first, uint32_t(s0.first), uint32_t(s0.first >> 32), s0.second,
-                   uint32_t(s1.first), uint32_t(s1.first >> 32), x, y, z, w);
+    samples4d_avx2(first, seed_index_[0], seed_x_[0], seed_y_[0], seed_index_[1], seed_x_[1], x, y,
+                   z, w);
     for (int k = 0; k < n; ++k) {
       firsts[k] = {x[k], y[k]};
       seconds[k] = {z[k], w[k]};
