@@ -189,7 +189,8 @@ float plane_at(const std::vector<float>& buf, size_t base, size_t i) { return bu
 
 // Every buffer the paths write, rebuilt pixel by pixel from the renderer's
 // public parts with each sample traced alone and in order (what the
-// renderer did before it traced camera rays in packets): the noisy
+// renderer did before it traced camera rays in packets and a packet's
+// paths together, trace_paths): the noisy
 // versions and their albedo, albedo_ref, the reference and its half. Counts
 // that do not fill whole packets (3 versions, 11 and 13 samples) and a job
 // with and without a lens.

@@ -1,5 +1,6 @@
 #include "worker/render/integrator.h"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 
@@ -22,134 +23,206 @@ Vec3 primary_albedo(const SurfaceHit* hit) {
   return hit->base_color;
 }
 
-Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler,
-                const IntegratorSettings& settings, Vec3* albedo, const PrimaryHit* primary) {
-  const bool use_nee = settings.strategy != LightStrategy::kBsdfOnly;
-  const bool use_bsdf_hits = settings.strategy != LightStrategy::kNeeOnly;
-  const bool use_mis = settings.strategy == LightStrategy::kMis;
+namespace {
 
-  Vec3 L(0), beta(1);
-  Vec3 seen(0);  // emission the camera ray itself reaches (never clamped)
-  Ray ray = camera_ray;
+// One path of a batch between its vertices, and what its present vertex
+// has found so far.
+struct PathLane {
+  uint32_t sample = 0, slot = 0;  // where its next numbers come from
+  Ray ray;
+  const PrimaryHit* primary = nullptr;  // its camera ray's hit, when already traced
+  Vec3* albedo = nullptr;
+  Vec3 L{0}, beta{1};
+  Vec3 seen{0};              // emission the camera ray itself reaches (never clamped)
   bool delta_bounce = true;  // the camera ray counts as one: nothing to weigh against
   float prev_bsdf_pdf = 0;
   Vec3 prev_p;
-  const Environment* env = scene.environment();
+  int depth = 0;
+  // The pass that takes the path on: PathBatch::trace, arrive, then escape
+  // or shade.
+  enum class Next { kTrace, kArrive, kEscape, kShade, kDone } next = Next::kTrace;
+  // The present vertex.
+  PixelSampler::VertexNumbers u{};
+  Scene::LightChoice light_choice;
+  Environment::Located escape;
+  SurfaceHit traced;
+  const SurfaceHit* hit = nullptr;  // `traced` or the camera packet's hit; null: escaped
+};
 
-  for (int depth = 0;; ++depth) {
-    // This vertex's five numbers (light choice, light point, lobe, BSDF
-    // direction, roulette) from its five slots at once, before its ray is
-    // traced (PixelSampler::get_vertex: one batch, the numbers the single
-    // draws give; nothing between consumes a slot). A fixed number of slots
-    // per bounce keeps the sample streams of different paths aligned (better
-    // stratification with Sobol'). For a bounce ray the light and the
-    // environment block are chosen from them at once, so that what sampling
-    // an environment map reads, which is larger than the caches, loads
-    // during the traversal; likewise the texel an escaping bounce ray would
-    // read. A camera ray's vertex chooses only once the ray has hit: in an
-    // open scene many camera rays escape to the sky, and their choice would
-    // be thrown away (the same choice either way; courtyard 5% more rays a
-    // second, Cornell, where every camera ray hits, unchanged:
-    // bench/README.md, "Where the courtyard's 50% would have to come
-    // from"). A camera ray already traced (a packet) that escaped ends the
-    // path here: its numbers are skipped, not computed.
-    const bool known_escape = depth == 0 && primary && !primary->found;
-    Scene::LightChoice light_choice;
-    PixelSampler::VertexNumbers u{};
-    if (depth < settings.max_depth) {
-      if (known_escape) {
-        sampler.skip(5);
-      } else {
-        sampler.get_vertex(&u);
+// Advances a batch of paths one vertex at a time, in three passes over the
+// batch per vertex: draw and trace; what the hit (or the escape) decides,
+// where each path chooses its light sample (and the environment's map
+// block) or locates its escape texel, starting those loads; then shading.
+// Between a path's choice and its use lie the other paths' passes, which
+// hide the loads the way a ray traversal did when each path chose before
+// tracing, without choosing for rays that escape. Each path draws its
+// numbers from its own sample and slots and does its own arithmetic in the
+// order a path traced alone would, so its estimate is the same bit for bit.
+class PathBatch {
+ public:
+  PathBatch(const Scene& scene, PixelSampler& sampler, const IntegratorSettings& settings)
+      : scene_(scene),
+        sampler_(sampler),
+        settings_(settings),
+        env_(scene.environment()),
+        use_nee_(settings.strategy != LightStrategy::kBsdfOnly),
+        use_bsdf_hits_(settings.strategy != LightStrategy::kNeeOnly),
+        use_mis_(settings.strategy == LightStrategy::kMis) {}
+
+  void run(PathLane* lanes, int n) const {
+    for (bool live = true; live;) {
+      live = false;
+      for (int k = 0; k < n; ++k)
+        if (lanes[k].next == PathLane::Next::kTrace) trace(lanes[k]);
+      for (int k = 0; k < n; ++k)
+        if (lanes[k].next == PathLane::Next::kArrive) arrive(lanes[k]);
+      for (int k = 0; k < n; ++k) {
+        PathLane& l = lanes[k];
+        if (l.next == PathLane::Next::kEscape) escape(l);
+        if (l.next == PathLane::Next::kShade) shade(l);
+        live = live || l.next == PathLane::Next::kTrace;
       }
-      if (use_nee && depth > 0) light_choice = scene.choose_light(u.select, u.light);
     }
-    Environment::Located escape;
-    if (env && depth > 0) escape = env->locate(ray.d);
-    // The camera ray's hit is read where the packet left it, not copied.
-    SurfaceHit traced;
-    const SurfaceHit* at = &traced;
-    bool found;
-    if (depth == 0 && primary) {
-      found = primary->found;
-      if (found) at = primary->hit;
+  }
+
+  // The finished path's estimate: finite and non-negative, clamped when
+  // the settings ask for it.
+  Vec3 result(const PathLane& l) const {
+    Vec3 L = l.L;
+    if (!is_finite(L) || L.x < 0 || L.y < 0 || L.z < 0) return Vec3(0);
+    if (settings_.sample_clamp > 0) [[unlikely]] {
+      // A sample clamp (biased; JobSpec::reference_clamp): the rest of the
+      // sample keeps its hue, its largest channel at most the bound.
+      const Vec3 rest(std::max(L.x - l.seen.x, 0.0f), std::max(L.y - l.seen.y, 0.0f),
+                      std::max(L.z - l.seen.z, 0.0f));
+      const float m = max_component(rest);
+      if (m > settings_.sample_clamp) L = l.seen + rest * (settings_.sample_clamp / m);
+    }
+    return L;
+  }
+
+ private:
+  // The vertex's five numbers (light choice, light point, lobe, BSDF
+  // direction, roulette) from its five slots at once
+  // (PixelSampler::get_vertex: one batch, the numbers the single draws
+  // give), then its ray. A fixed number of slots per bounce keeps the
+  // sample streams of different paths aligned (better stratification with
+  // Sobol'). A camera ray already traced (a packet) that escaped ends the
+  // path here: its numbers are skipped, not computed.
+  void trace(PathLane& l) const {
+    const int depth = l.depth;
+    if (depth < settings_.max_depth) {
+      if (!(depth == 0 && l.primary && !l.primary->found)) {
+        sampler_.seek(l.sample, l.slot);
+        sampler_.get_vertex(&l.u);
+      }
+      l.slot += 5;
+    }
+    if (depth == 0 && l.primary) {
+      // The camera ray's hit is read where the packet left it, not copied.
+      l.hit = l.primary->found ? l.primary->hit : nullptr;
     } else {
-      found = scene.intersect(ray, &traced);
+      l.traced = SurfaceHit();
+      l.hit = scene_.intersect(l.ray, &l.traced) ? &l.traced : nullptr;
     }
-    const SurfaceHit& hit = *at;
-    if (found && depth == 0 && use_nee && depth < settings.max_depth)
-      light_choice = scene.choose_light(u.select, u.light);
-    if (depth == 0 && albedo) *albedo = primary_albedo(found ? &hit : nullptr);
+    l.next = PathLane::Next::kArrive;
+  }
+
+  // What the vertex's ray found, up to shading: the light choice (which
+  // starts loading what sampling it will read), emission and lamps passed,
+  // or, for an escaping ray, its environment texel (loading it).
+  void arrive(PathLane& l) const {
+    const int depth = l.depth;
+    const bool found = l.hit != nullptr;
+    if (found && use_nee_ && depth < settings_.max_depth)
+      l.light_choice = scene_.choose_light(l.u.select, l.u.light);
+    if (depth == 0 && l.albedo) *l.albedo = primary_albedo(l.hit);
     // Lamps with a size that this bounce ray passes (not the camera ray:
     // Cycles does not show lamps to the camera either), weighed like an
     // emissive triangle's hit.
-    if (depth > 0 && scene.has_sized_lamps() && (delta_bounce || use_bsdf_hits)) [[unlikely]] {
-      const bool weigh = !delta_bounce && use_mis;
-      const Vec3 le =
-          scene.lamps_along(prev_p, ray.d, found ? hit.t : std::numeric_limits<float>::infinity(),
-                            [&](float light_pdf) {
-                              return weigh ? power_heuristic(prev_bsdf_pdf, light_pdf) : 1.0f;
-                            });
-      L += beta * le;
-      if (settings.observer && max_component(le) > 0)
-        settings.observer->contribution(PathObserver::Kind::kBsdfHit, depth, beta * le);
+    if (depth > 0 && scene_.has_sized_lamps() && (l.delta_bounce || use_bsdf_hits_)) [[unlikely]] {
+      const bool weigh = !l.delta_bounce && use_mis_;
+      const float prev_pdf = l.prev_bsdf_pdf;
+      const Vec3 le = scene_.lamps_along(
+          l.prev_p, l.ray.d, found ? l.hit->t : std::numeric_limits<float>::infinity(),
+          [&](float light_pdf) { return weigh ? power_heuristic(prev_pdf, light_pdf) : 1.0f; });
+      l.L += l.beta * le;
+      if (settings_.observer && max_component(le) > 0)
+        settings_.observer->contribution(PathObserver::Kind::kBsdfHit, depth, l.beta * le);
     }
+    if (!found) {
+      if (env_ && (l.delta_bounce || use_bsdf_hits_)) {
+        l.escape = env_->locate(l.ray.d);
+        l.next = PathLane::Next::kEscape;
+      } else {
+        l.next = PathLane::Next::kDone;
+      }
+      return;
+    }
+    const SurfaceHit& hit = *l.hit;
     // KHR_materials_volume: a segment that ends on the inside of a mesh
     // whose material absorbs ran through that medium (closed meshes that do
     // not overlap): Beer-Lambert, exp(-sigma_a t).
-    if (found && !hit.front && max_component(hit.attenuation) > 0) [[unlikely]] {
+    if (!hit.front && max_component(hit.attenuation) > 0) [[unlikely]] {
       const Vec3& s = hit.attenuation;
-      beta = beta * Vec3(std::exp(-s.x * hit.t), std::exp(-s.y * hit.t), std::exp(-s.z * hit.t));
+      l.beta =
+          l.beta * Vec3(std::exp(-s.x * hit.t), std::exp(-s.y * hit.t), std::exp(-s.z * hit.t));
     }
-    if (found && settings.observer) settings.observer->vertex(depth, hit);
-
-    if (!found) {
-      if (env && (delta_bounce || use_bsdf_hits)) {
-        float w = 1.0f;
-        Vec3 le;
-        if (depth == 0) escape = env->locate(ray.d);
-        if (!delta_bounce && use_mis) {
-          float light_pdf;
-          le = scene.environment_radiance(escape, ray.d, &light_pdf);
-          w = power_heuristic(prev_bsdf_pdf, light_pdf);
-        } else {
-          le = env->eval(escape);
-        }
-        L += beta * le * w;
-        if (depth == 0) seen = L;
-        if (settings.observer)
-          settings.observer->contribution(PathObserver::Kind::kEnvironment, depth, beta * le * w);
-      }
-      break;
-    }
-    if (max_component(hit.emission) > 0 && (delta_bounce || use_bsdf_hits)) {
+    if (settings_.observer) settings_.observer->vertex(depth, hit);
+    if (max_component(hit.emission) > 0 && (l.delta_bounce || use_bsdf_hits_)) {
       float w = 1.0f;
-      if (!delta_bounce && use_mis)
-        w = power_heuristic(prev_bsdf_pdf, scene.light_pdf(prev_p, hit));
-      L += beta * hit.emission * w;
-      if (depth == 0) seen = L;
-      if (settings.observer)
-        settings.observer->contribution(
-            delta_bounce ? PathObserver::Kind::kEmitted : PathObserver::Kind::kBsdfHit, depth,
-            beta * hit.emission * w);
+      if (!l.delta_bounce && use_mis_)
+        w = power_heuristic(l.prev_bsdf_pdf, scene_.light_pdf(l.prev_p, hit));
+      l.L += l.beta * hit.emission * w;
+      if (depth == 0) l.seen = l.L;
+      if (settings_.observer)
+        settings_.observer->contribution(
+            l.delta_bounce ? PathObserver::Kind::kEmitted : PathObserver::Kind::kBsdfHit, depth,
+            l.beta * hit.emission * w);
     }
-    if (depth >= settings.max_depth) break;
+    l.next = depth >= settings_.max_depth ? PathLane::Next::kDone : PathLane::Next::kShade;
+  }
 
-    const bool roulette = depth + 1 >= settings.rr_start_depth;
+  // The environment an escaping ray reaches, weighed against the light
+  // sample that could have found the same direction; the path ends.
+  void escape(PathLane& l) const {
+    float w = 1.0f;
+    Vec3 le;
+    if (!l.delta_bounce && use_mis_) {
+      float light_pdf;
+      le = scene_.environment_radiance(l.escape, l.ray.d, &light_pdf);
+      w = power_heuristic(l.prev_bsdf_pdf, light_pdf);
+    } else {
+      le = env_->eval(l.escape);
+    }
+    l.L += l.beta * le * w;
+    if (l.depth == 0) l.seen = l.L;
+    if (settings_.observer)
+      settings_.observer->contribution(PathObserver::Kind::kEnvironment, l.depth, l.beta * le * w);
+    l.next = PathLane::Next::kDone;
+  }
+
+  // The hit's BSDF: next-event estimation, then the bounce (or the end of
+  // the path by roulette or an invalid sample).
+  void shade(PathLane& l) const {
+    const SurfaceHit& hit = *l.hit;
+    const int depth = l.depth;
+    const bool roulette = depth + 1 >= settings_.rr_start_depth;
+    l.next = PathLane::Next::kDone;
 
     Bsdf bsdf(hit.ns, hit.ng, hit.base_color, hit.metallic, hit.roughness, hit.ior,
               {hit.specular, hit.specular_color}, {hit.transmission, hit.front},
               {hit.clearcoat, hit.clearcoat_roughness, hit.coat_ns},
               {hit.sheen_color, hit.sheen_roughness});
-    const Bsdf::Outgoing out = bsdf.outgoing(-ray.d);
+    const Bsdf::Outgoing out = bsdf.outgoing(-l.ray.d);
 
-    if (use_nee && bsdf.has_non_delta()) {
+    if (use_nee_ && bsdf.has_non_delta()) {
       LightSample ls;
-      if (scene.sample_light(hit.p, light_choice, &ls)) {
+      if (scene_.sample_light(hit.p, l.light_choice, &ls)) {
         float bsdf_pdf;
         Vec3 f = bsdf.evaluate(out, ls.wi, &bsdf_pdf);
         if (max_component(f) > 0) {
-          const Vec3 origin = scene.offset_origin(hit, ls.wi);
+          const Vec3 origin = scene_.offset_origin(hit, ls.wi);
           Vec3 dir = ls.wi;
           float t_max = ls.distance;
           if (!std::isinf(ls.distance)) {
@@ -165,24 +238,24 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
             if (len > 0) dir = to / len;
             t_max = len * (1.0f - 1e-4f);
           }
-          if (!scene.occluded(origin, dir, t_max)) {
-            float w = use_mis && !ls.is_delta ? power_heuristic(ls.pdf, bsdf_pdf) : 1.0f;
-            L += beta * f * ls.radiance * (w / ls.pdf);
-            if (settings.observer)
-              settings.observer->contribution(PathObserver::Kind::kLight, depth,
-                                              beta * f * ls.radiance * (w / ls.pdf));
+          if (!scene_.occluded(origin, dir, t_max)) {
+            float w = use_mis_ && !ls.is_delta ? power_heuristic(ls.pdf, bsdf_pdf) : 1.0f;
+            l.L += l.beta * f * ls.radiance * (w / ls.pdf);
+            if (settings_.observer)
+              settings_.observer->contribution(PathObserver::Kind::kLight, depth,
+                                               l.beta * f * ls.radiance * (w / ls.pdf));
           }
         }
       }
     }
 
-    BsdfSample bs = bsdf.sample(out, u.lobe, u.bsdf);
-    if (!bs.valid) break;
-    beta *= bs.weight;
-    if (!(max_component(beta) > 0) || !is_finite(beta)) break;
-    delta_bounce = bs.is_delta;
-    prev_bsdf_pdf = bs.pdf;
-    prev_p = hit.p;
+    BsdfSample bs = bsdf.sample(out, l.u.lobe, l.u.bsdf);
+    if (!bs.valid) return;
+    l.beta *= bs.weight;
+    if (!(max_component(l.beta) > 0) || !is_finite(l.beta)) return;
+    l.delta_bounce = bs.is_delta;
+    l.prev_bsdf_pdf = bs.pdf;
+    l.prev_p = hit.p;
 
     if (roulette) {
       // A weight window's lower bound (Vorba and Krivanek 2016, sec. 4, with
@@ -190,24 +263,60 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
       // least rr_threshold always continues; below it, it survives with
       // probability max(beta) / rr_threshold and is then weighted up to the
       // threshold, so the expectation is unchanged (E[beta'] = q beta / q).
-      const float survive = std::min(1.0f, max_component(beta) / settings.rr_threshold);
-      if (settings.observer && survive < 1)
-        settings.observer->roulette(depth, survive, u.roulette < survive);
-      if (u.roulette >= survive) break;
-      beta = beta / survive;
+      const float survive = std::min(1.0f, max_component(l.beta) / settings_.rr_threshold);
+      if (settings_.observer && survive < 1)
+        settings_.observer->roulette(depth, survive, l.u.roulette < survive);
+      if (l.u.roulette >= survive) return;
+      l.beta = l.beta / survive;
     }
-    ray = {scene.offset_origin(hit, bs.wi), bs.wi};
+    l.ray = {scene_.offset_origin(hit, bs.wi), bs.wi};
+    l.depth = depth + 1;
+    l.next = PathLane::Next::kTrace;
   }
-  if (!is_finite(L) || L.x < 0 || L.y < 0 || L.z < 0) return Vec3(0);
-  if (settings.sample_clamp > 0) [[unlikely]] {
-    // A sample clamp (biased; JobSpec::reference_clamp): the rest of the
-    // sample keeps its hue, its largest channel at most the bound.
-    const Vec3 rest(std::max(L.x - seen.x, 0.0f), std::max(L.y - seen.y, 0.0f),
-                    std::max(L.z - seen.z, 0.0f));
-    const float m = max_component(rest);
-    if (m > settings.sample_clamp) L = seen + rest * (settings.sample_clamp / m);
+
+  const Scene& scene_;
+  PixelSampler& sampler_;
+  const IntegratorSettings& settings_;
+  const Environment* env_;
+  const bool use_nee_, use_bsdf_hits_, use_mis_;
+};
+
+}  // namespace
+
+Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler,
+                const IntegratorSettings& settings, Vec3* albedo, const PrimaryHit* primary) {
+  PathLane lane;
+  lane.sample = sampler.sample_index();
+  lane.slot = sampler.slots_used();
+  lane.ray = camera_ray;
+  lane.primary = primary;
+  lane.albedo = albedo;
+  const PathBatch batch(scene, sampler, settings);
+  batch.run(&lane, 1);
+  sampler.seek(lane.sample, lane.slot);
+  return batch.result(lane);
+}
+
+void trace_paths(const Scene& scene, const Ray* camera_rays, const PrimaryHit* primaries, int n,
+                 PixelSampler& sampler, uint32_t first, uint32_t slots,
+                 const IntegratorSettings& settings, Vec3* radiance, Vec3* albedos) {
+  PathLane lanes[kMaxPaths];
+  n = std::clamp(n, 0, kMaxPaths);
+  for (int k = 0; k < n; ++k) {
+    lanes[k].sample = first + uint32_t(k);
+    lanes[k].slot = slots;
+    lanes[k].ray = camera_rays[k];
+    lanes[k].primary = primaries ? &primaries[k] : nullptr;
+    lanes[k].albedo = albedos ? &albedos[k] : nullptr;
   }
-  return L;
+  const PathBatch batch(scene, sampler, settings);
+  if (settings.observer) {
+    // An observer follows one path at a time.
+    for (int k = 0; k < n; ++k) batch.run(&lanes[k], 1);
+  } else {
+    batch.run(lanes, n);
+  }
+  for (int k = 0; k < n; ++k) radiance[k] = batch.result(lanes[k]);
 }
 
 }  // namespace dofarm::render

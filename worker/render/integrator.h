@@ -64,8 +64,25 @@ struct PrimaryHit {
   bool found = false;
   const SurfaceHit* hit = nullptr;  // when found
 };
+// The path continues `sampler`'s present sample from its present slot, and
+// leaves the sampler after the last slot it consumed.
 Vec3 trace_path(const Scene& scene, const Ray& ray, PixelSampler& sampler,
                 const IntegratorSettings& settings, Vec3* albedo = nullptr,
                 const PrimaryHit* primary = nullptr);
+
+// trace_path() for samples first, ..., first + n - 1 of `sampler`'s pixel
+// (n <= kMaxPaths) at once: path k continues camera ray camera_rays[k],
+// whose numbers took the sample's first `slots` slots, from
+// primaries[k] (its hit, already traced; optional) and writes its estimate
+// to radiance[k] and primary_albedo() to albedos[k] (optional). The paths
+// advance a vertex at a time together, so that what one path's light
+// choice or escape starts loading from memory arrives while the others
+// work (integrator.cpp, PathBatch); each estimate is trace_path()'s for its
+// sample bit for bit. With an observer the paths run one after another.
+// Afterwards the sampler's position is undefined: start_sample() it.
+constexpr int kMaxPaths = 8;
+void trace_paths(const Scene& scene, const Ray* camera_rays, const PrimaryHit* primaries, int n,
+                 PixelSampler& sampler, uint32_t first, uint32_t slots,
+                 const IntegratorSettings& settings, Vec3* radiance, Vec3* albedos = nullptr);
 
 }  // namespace dofarm::render

@@ -148,14 +148,13 @@ class PixelRenderer {
     CameraPacket cp;
     for (int v0 = 0; v0 < spec_.versions; v0 += Scene::kPacket) {
       camera_packet(noisy, x, y, v0, std::min(Scene::kPacket, spec_.versions - v0), &cp);
+      Vec3 L[Scene::kPacket], albedo[Scene::kPacket];
+      trace_paths(scene_, cp.rays, cp.primaries, cp.n, noisy, cp.first, cp.slots, settings_, L,
+                  albedo);
       for (int k = 0; k < cp.n; ++k) {
-        const int v = v0 + k;
-        Vec3 albedo;
-        const PrimaryHit primary = cp.resume(noisy, k);
-        Vec3 L = trace_path(scene_, cp.rays[k], noisy, settings_, &albedo, &primary);
-        size_t base = size_t(v) * 3 * px.plane;
-        px.put3(out.noisy, base, L);
-        px.put3(out.albedo, base, albedo);
+        size_t base = size_t(v0 + k) * 3 * px.plane;
+        px.put3(out.noisy, base, L[k]);
+        px.put3(out.albedo, base, albedo[k]);
       }
     }
 
@@ -207,14 +206,18 @@ class PixelRenderer {
     // Camera rays a packet at a time (a divisor of the batch: the stopping
     // rule never leaves a traced camera ray unused).
     static_assert(batch % Scene::kPacket == 0);
+    static_assert(Scene::kPacket <= kMaxPaths);
     CameraPacket cp;
     bool stop = false;
     for (int s0 = 0; s0 < target && !stop; s0 += Scene::kPacket) {
       camera_packet(ref, x, y, s0, std::min(Scene::kPacket, target - s0), &cp);
+      // The packet's paths traced together; a stop falls on a packet's end.
+      Vec3 L[Scene::kPacket];
+      trace_paths(scene_, cp.rays, cp.primaries, cp.n, ref, cp.first, cp.slots, reference_settings_,
+                  L);
       for (int k = 0; k < cp.n; ++k) {
         const int s = s0 + k;
-        const PrimaryHit primary = cp.resume(ref, k);
-        acc.add(trace_path(scene_, cp.rays[k], ref, reference_settings_, nullptr, &primary));
+        acc.add(L[k]);
         if (s + 1 == half_of_target) half_sum = {acc.sum[0], acc.sum[1], acc.sum[2]};
         if (adaptive && (s + 1) % 32 == 0)
           sums_at_32.push_back({acc.sum[0], acc.sum[1], acc.sum[2]});
@@ -259,14 +262,10 @@ class PixelRenderer {
     Ray rays[Scene::kPacket];
     SurfaceHit hits[Scene::kPacket];
     bool found[Scene::kPacket];
-    // Restarts `s` at sample first + k, past the camera's slots, for the
-    // path that continues from camera ray k: the numbers it draws are those
-    // it would draw had it traced its camera ray itself.
-    PrimaryHit resume(PixelSampler& s, int k) const {
-      s.start_sample(first + uint32_t(k));
-      s.skip(slots);
-      return {found[k], &hits[k]};
-    }
+    // What the path from camera ray k continues (trace_paths, which starts
+    // each path's numbers past the camera's slots: those it would draw had
+    // it traced its camera ray itself).
+    PrimaryHit primaries[Scene::kPacket];
   };
   // Fills a CameraPacket. Each ray: pixel jitter (box filter), then the
   // lens only when there is one. With a lens, the jitter and the lens point
@@ -295,6 +294,7 @@ class PixelRenderer {
     }
     cp->slots = s.slots_used();  // the same for every sample: a fixed count
     scene_.intersect_packet(cp->rays, n, cp->hits, cp->found);
+    for (int k = 0; k < n; ++k) cp->primaries[k] = {cp->found[k], &cp->hits[k]};
   }
 
   const Scene& scene_;

@@ -206,6 +206,14 @@ class PixelSampler {
   // values (for numbers a path turns out not to need): the later slots are
   // the same either way.
   void skip(uint32_t slots) { dim_ += slots; }
+  // Continues sample `index` at slot `slot`: start_sample(index), then
+  // skip(slot). Paths traced together (trace_paths) share one sampler and
+  // each returns to its own sample and slot before it draws.
+  void seek(uint32_t index, uint32_t slot) {
+    start_sample(index);
+    dim_ = slot;
+  }
+  uint32_t sample_index() const { return index_; }
 
   // The five numbers a path vertex draws (integrator.cpp), from five
   // consecutive slots: exactly get1d(), get2d(), get1d(), get2d(), get1d()
