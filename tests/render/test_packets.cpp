@@ -7,6 +7,7 @@
 
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <random>
 #include <string>
 #include <vector>
@@ -133,6 +134,57 @@ TEST(CameraPackets, HitsAreSingleRayHits) {
                          std::string(job) + ", camera rays");
     expect_packets_match(*scene, scattered_rays(*scene, 2000),
                          std::string(job) + ", scattered rays");
+  }
+}
+
+// Scene::intersect writes every field of a hit record: the integrator's
+// paths reuse theirs from vertex to vertex without resetting it
+// (integrator.cpp, PathLane). A record filled with NaN and odd values and a
+// default one must come out the same, field by field.
+TEST(CameraPackets, IntersectWritesEveryFieldOfAHit) {
+  static_assert(sizeof(SurfaceHit) == 168, "a new SurfaceHit field: compare it below");
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  const Vec3 nan3(nan);
+  SurfaceHit poisoned;
+  poisoned.t = nan;
+  poisoned.p = poisoned.ng = poisoned.ns = nan3;
+  poisoned.uv = poisoned.uv1 = Vec2(nan, nan);
+  poisoned.prim = 0xdeadbeefu;
+  poisoned.base_color = poisoned.specular_color = poisoned.attenuation = nan3;
+  poisoned.metallic = poisoned.roughness = poisoned.ior = poisoned.specular = nan;
+  poisoned.transmission = poisoned.clearcoat = poisoned.clearcoat_roughness = nan;
+  poisoned.coat_ns = poisoned.sheen_color = poisoned.emission = nan3;
+  poisoned.sheen_roughness = nan;
+  for (const char* job : {"cornell.toml", "courtyard.toml"}) {
+    const JobSpec spec = load_job_spec(std::string(DOFARM_SOURCE_DIR) + "/jobs/" + job);
+    const auto scene = job_scene(spec);
+    int hits = 0, differ = 0;
+    for (const Ray& ray : scattered_rays(*scene, 500)) {
+      for (bool front : {true, false}) {
+        SurfaceHit a, b = poisoned;
+        a.front = front;
+        b.front = !front;
+        const bool found = scene->intersect(ray, &a);
+        ASSERT_EQ(found, scene->intersect(ray, &b));
+        if (!found) continue;
+        ++hits;
+        differ +=
+            !(same_bits(a.t, b.t) && same_bits(a.p, b.p) && same_bits(a.ng, b.ng) &&
+              same_bits(a.ns, b.ns) && same_bits(a.uv, b.uv) && same_bits(a.uv1, b.uv1) &&
+              a.prim == b.prim && same_bits(a.base_color, b.base_color) &&
+              same_bits(a.metallic, b.metallic) && same_bits(a.roughness, b.roughness) &&
+              same_bits(a.ior, b.ior) && same_bits(a.specular, b.specular) &&
+              same_bits(a.specular_color, b.specular_color) &&
+              same_bits(a.transmission, b.transmission) &&
+              same_bits(a.attenuation, b.attenuation) && same_bits(a.clearcoat, b.clearcoat) &&
+              same_bits(a.clearcoat_roughness, b.clearcoat_roughness) &&
+              same_bits(a.coat_ns, b.coat_ns) && same_bits(a.sheen_color, b.sheen_color) &&
+              same_bits(a.sheen_roughness, b.sheen_roughness) && a.front == b.front &&
+              same_bits(a.emission, b.emission));
+      }
+    }
+    EXPECT_GT(hits, 200) << job;
+    EXPECT_EQ(differ, 0) << job;
   }
 }
 

@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <new>
+#include <type_traits>
 
 #include "worker/render/bsdf.h"
 
@@ -45,9 +47,16 @@ struct PathLane {
   PixelSampler::VertexNumbers u{};
   Scene::LightChoice light_choice;
   Environment::Located escape;
-  SurfaceHit traced;
   const SurfaceHit* hit = nullptr;  // `traced` or the camera packet's hit; null: escaped
+  // Left unconstructed: Scene::intersect writes every field of a hit (and
+  // nothing reads it after a miss), so a path pays for no default values
+  // it would overwrite.
+  union {
+    SurfaceHit traced;
+  };
+  PathLane() {}
 };
+static_assert(std::is_trivially_destructible_v<PathLane>);
 
 // Advances a batch of paths one vertex at a time, in three passes over the
 // batch per vertex: draw and trace; what the hit (or the escape) decides,
@@ -122,7 +131,6 @@ class PathBatch {
       // The camera ray's hit is read where the packet left it, not copied.
       l.hit = l.primary->found ? l.primary->hit : nullptr;
     } else {
-      l.traced = SurfaceHit();
       l.hit = scene_.intersect(l.ray, &l.traced) ? &l.traced : nullptr;
     }
     l.next = PathLane::Next::kArrive;
@@ -300,9 +308,15 @@ Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler
 void trace_paths(const Scene& scene, const Ray* camera_rays, const PrimaryHit* primaries, int n,
                  PixelSampler& sampler, uint32_t first, uint32_t slots,
                  const IntegratorSettings& settings, Vec3* radiance, Vec3* albedos) {
-  PathLane lanes[kMaxPaths];
+  // Only the n lanes in use are constructed.
+  union Lanes {
+    PathLane lane[kMaxPaths];
+    Lanes() {}
+  } storage;
+  PathLane* lanes = storage.lane;
   n = std::clamp(n, 0, kMaxPaths);
   for (int k = 0; k < n; ++k) {
+    new (&lanes[k]) PathLane();
     lanes[k].sample = first + uint32_t(k);
     lanes[k].slot = slots;
     lanes[k].ray = camera_rays[k];

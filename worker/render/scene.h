@@ -88,6 +88,9 @@ class Scene {
   Scene(const Scene&) = delete;
   Scene& operator=(const Scene&) = delete;
 
+  // The closest hit. On a hit every field of *hit is written (callers may
+  // reuse a record without resetting it; CameraPackets.IntersectWritesEveryFieldOfAHit);
+  // on a miss *hit is left as it was.
   bool intersect(const Ray& ray, SurfaceHit* hit) const;
   // intersect() of n rays at once: found[k] and hits[k] as intersect(rays[k],
   // &hits[k]) gives them (CameraPackets.HitsAreSingleRayHits: bit for bit,
