@@ -30,7 +30,7 @@ namespace {
 // One path of a batch between its vertices, and what its present vertex
 // has found so far.
 struct PathLane {
-  uint32_t sample = 0, slot = 0;  // where its next numbers come from
+  PixelSampler::Position numbers;  // where its next numbers come from
   Ray ray;
   const PrimaryHit* primary = nullptr;  // its camera ray's hit, when already traced
   Vec3* albedo = nullptr;
@@ -122,10 +122,10 @@ class PathBatch {
     const int depth = l.depth;
     if (depth < settings_.max_depth) {
       if (!(depth == 0 && l.primary && !l.primary->found)) {
-        sampler_.seek(l.sample, l.slot);
+        sampler_.seek(l.numbers);
         sampler_.get_vertex(&l.u);
       }
-      l.slot += 5;
+      l.numbers.slot += 5;
     }
     if (depth == 0 && l.primary) {
       // The camera ray's hit is read where the packet left it, not copied.
@@ -294,14 +294,13 @@ class PathBatch {
 Vec3 trace_path(const Scene& scene, const Ray& camera_ray, PixelSampler& sampler,
                 const IntegratorSettings& settings, Vec3* albedo, const PrimaryHit* primary) {
   PathLane lane;
-  lane.sample = sampler.sample_index();
-  lane.slot = sampler.slots_used();
+  lane.numbers = sampler.position();
   lane.ray = camera_ray;
   lane.primary = primary;
   lane.albedo = albedo;
   const PathBatch batch(scene, sampler, settings);
   batch.run(&lane, 1);
-  sampler.seek(lane.sample, lane.slot);
+  sampler.seek(lane.numbers);
   return batch.result(lane);
 }
 
@@ -317,8 +316,9 @@ void trace_paths(const Scene& scene, const Ray* camera_rays, const PrimaryHit* p
   n = std::clamp(n, 0, kMaxPaths);
   for (int k = 0; k < n; ++k) {
     new (&lanes[k]) PathLane();
-    lanes[k].sample = first + uint32_t(k);
-    lanes[k].slot = slots;
+    sampler.start_sample(first + uint32_t(k));
+    sampler.skip(slots);
+    lanes[k].numbers = sampler.position();
     lanes[k].ray = camera_rays[k];
     lanes[k].primary = primaries ? &primaries[k] : nullptr;
     lanes[k].albedo = albedos ? &albedos[k] : nullptr;

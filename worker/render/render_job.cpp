@@ -260,7 +260,12 @@ class PixelRenderer {
     uint32_t first = 0;
     uint32_t slots = 0;  // sampler slots each camera ray consumed
     Ray rays[Scene::kPacket];
-    SurfaceHit hits[Scene::kPacket];
+    // Left unconstructed: intersect_packet writes every field of a found
+    // hit, and nothing reads the others.
+    union {
+      SurfaceHit hits[Scene::kPacket];
+    };
+    CameraPacket() {}
     bool found[Scene::kPacket];
     // What the path from camera ray k continues (trace_paths, which starts
     // each path's numbers past the camera's slots: those it would draw had

@@ -206,14 +206,22 @@ class PixelSampler {
   // values (for numbers a path turns out not to need): the later slots are
   // the same either way.
   void skip(uint32_t slots) { dim_ += slots; }
-  // Continues sample `index` at slot `slot`: start_sample(index), then
-  // skip(slot). Paths traced together (trace_paths) share one sampler and
-  // each returns to its own sample and slot before it draws.
-  void seek(uint32_t index, uint32_t slot) {
-    start_sample(index);
-    dim_ = slot;
+  // Where the sampler stands: a sample, a slot, and what start_sample()
+  // derived from the sample's index. Paths traced together (trace_paths)
+  // share one sampler; each keeps its own Position and returns to it before
+  // it draws, without deriving anything again.
+  struct Position {
+    uint32_t index = 0, slot = 0;
+    uint32_t reversed_index = 0;  // kSobol
+    uint64_t sample_seed = 0;     // kIndependent
+  };
+  Position position() const { return {index_, dim_, reversed_index_, sample_seed_}; }
+  void seek(const Position& p) {
+    index_ = p.index;
+    dim_ = p.slot;
+    reversed_index_ = p.reversed_index;
+    sample_seed_ = p.sample_seed;
   }
-  uint32_t sample_index() const { return index_; }
 
   // The five numbers a path vertex draws (integrator.cpp), from five
   // consecutive slots: exactly get1d(), get2d(), get1d(), get2d(), get1d()
