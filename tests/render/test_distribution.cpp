@@ -10,6 +10,7 @@
 #include "chi2.h"
 #include "worker/render/distribution.h"
 #include "worker/render/environment.h"
+#include "worker/render/simd.h"
 
 namespace dofarm::render {
 namespace {
@@ -432,6 +433,50 @@ TEST(Environment, EveryDirectionFindsItsTexel) {
     ++checked;
   }
   EXPECT_GT(checked, 199000);
+}
+
+// Environment::locate of a batch (AVX2 lanes where the CPU has them) finds
+// each direction's texel as locate() of it alone, with and without AVX2, for
+// every batch size and for more than eight directions; directions on the
+// axes, the poles, the seam behind the map and both signs of zero included.
+TEST(Environment, BatchedLocateIsTheSingleLocate) {
+  constexpr int w = 96, h = 48;
+  RgbImage img;
+  img.width = w;
+  img.height = h;
+  img.rgb.assign(size_t(w) * h * 3, 1.0f);
+  struct SimdSwitch {
+    ~SimdSwitch() { allow_simd(true); }
+  } restore;
+  std::mt19937_64 rng(37);
+  std::normal_distribution<float> normal;
+  std::vector<Vec3> dirs = {{0, 1, 0},      {0, -1, 0},      {-0.0f, 1, -0.0f}, {1, 0, 0},
+                            {-1, 0, 0},     {0, 0, 1},       {0, 0, -1},        {-0.0f, 0, 1},
+                            {1e-30f, 0, 1}, {-1e-30f, 0, 1}, {0.6f, 0, 0.8f},   {0, 0.6f, -0.8f}};
+  while (dirs.size() < 77 * 60)
+    dirs.push_back(normalize(Vec3(normal(rng), normal(rng), normal(rng))));
+  for (float rotation : {0.0f, 30.0f, -250.0f}) {
+    const Environment env(img, 1.0f, rotation);
+    for (bool simd : {true, false}) {
+      allow_simd(simd);
+      int differ = 0;
+      size_t i = 0;
+      for (int n : {8, 1, 3, 8, 5, 13, 2, 7, 8, 16, 6})
+        for (int rep = 0; rep < 60 && i + size_t(n) <= dirs.size(); ++rep, i += size_t(n)) {
+          Environment::Located got[16];
+          env.locate(&dirs[i], n, got);
+          for (int k = 0; k < n; ++k)
+            differ += got[k].texel != env.locate(dirs[i + size_t(k)]).texel;
+        }
+      EXPECT_EQ(i, dirs.size());
+      EXPECT_EQ(differ, 0) << "rotation " << rotation << (simd ? ", AVX2" : ", scalar");
+    }
+  }
+  // A constant environment has no texels.
+  const Environment constant(Vec3(0.5f));
+  Environment::Located got[3];
+  constant.locate(dirs.data(), 3, got);
+  for (const Environment::Located& l : got) EXPECT_EQ(l.texel, nullptr);
 }
 
 TEST(Environment, SamplesFollowThePdfOnAMapNotMadeOfWholeBlocks) {

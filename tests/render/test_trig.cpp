@@ -4,10 +4,15 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
+#include <limits>
 #include <random>
+#include <vector>
 
 #include "worker/render/camera.h"
+#include "worker/render/simd.h"
 #include "worker/render/trig.h"
+#include "worker/render/trig8.h"
 
 namespace dofarm::render {
 namespace {
@@ -54,6 +59,75 @@ TEST(Trig, Atan2WithinFloatPrecision) {
   // Very unequal magnitudes: the small angle keeps its relative precision.
   EXPECT_NEAR(precise_atan2(1e-20f, 1.0f), 1e-20f, 1e-26f);
   EXPECT_NEAR(precise_atan2(1.0f, 1e-20f), kPi / 2, 1e-7f);
+}
+
+#ifdef DOFARM_HAVE_AVX2_KERNELS
+// atan2_8 and sincos8 (trig8.h) in eight lanes at once, run only on a CPU
+// with AVX2.
+DOFARM_AVX2 void lanes_atan2(const float* y, const float* x, float* out) {
+  _mm256_storeu_ps(out, atan2_8(_mm256_loadu_ps(y), _mm256_loadu_ps(x)));
+}
+DOFARM_AVX2 void lanes_sincos(const float* a, float* s, float* c) {
+  __m256 vs, vc;
+  sincos8(_mm256_loadu_ps(a), &vs, &vc);
+  _mm256_storeu_ps(s, vs);
+  _mm256_storeu_ps(c, vc);
+}
+#endif
+
+bool same_bits(float a, float b) { return std::memcmp(&a, &b, sizeof a) == 0; }
+
+// The lanes are the scalar functions bit for bit: every octant, the axes
+// and diagonals with both signs of zero, the reduction's threshold
+// tan(pi/12) on either side, tiny, huge, infinite and NaN arguments.
+TEST(Trig, LanesAreTheScalarFunctions) {
+#ifdef DOFARM_HAVE_AVX2_KERNELS
+  if (!simd_available()) GTEST_SKIP() << "this CPU has no AVX2";
+  const float inf = std::numeric_limits<float>::infinity(),
+              nan = std::numeric_limits<float>::quiet_NaN();
+  std::vector<float> special = {0.0f,        -0.0f,       1.0f,   -1.0f,   0.2679491924311227f,
+                                0.26794916f, 0.26794922f, 1e-30f, -1e-30f, 1e-45f,
+                                3e38f,       -3e38f,      inf,    -inf,    nan,
+                                0.5f,        2.0f,        -7.25f};
+  std::mt19937_64 rng(53);
+  std::normal_distribution<float> normal;
+  std::vector<float> ys, xs;
+  for (float y : special)
+    for (float x : special) {
+      ys.push_back(y);
+      xs.push_back(x);
+    }
+  for (int i = 0; i < 200000; ++i) {
+    ys.push_back(normal(rng));
+    xs.push_back(i % 2 ? normal(rng) : ys.back() * 3.7320508f);  // near tan(pi/12) too
+  }
+  while (ys.size() % 8) {
+    ys.push_back(1.0f);
+    xs.push_back(1.0f);
+  }
+  int differ = 0;
+  for (size_t i = 0; i < ys.size(); i += 8) {
+    float got[8];
+    lanes_atan2(&ys[i], &xs[i], got);
+    for (int k = 0; k < 8; ++k) differ += !same_bits(got[k], precise_atan2(ys[i + k], xs[i + k]));
+  }
+  EXPECT_EQ(differ, 0) << "atan2";
+  std::uniform_real_distribution<float> uni(-4.0f * kTwoPi, 4.0f * kTwoPi);
+  differ = 0;
+  for (int i = 0; i < 200000; i += 8) {
+    float a[8], s[8], c[8];
+    for (int k = 0; k < 8; ++k) a[k] = i < 64 ? float(i + k - 32) * (kPi / 4.0f) : uni(rng);
+    lanes_sincos(a, s, c);
+    for (int k = 0; k < 8; ++k) {
+      float es, ec;
+      precise_sincos(a[k], &es, &ec);
+      differ += !same_bits(s[k], es) || !same_bits(c[k], ec);
+    }
+  }
+  EXPECT_EQ(differ, 0) << "sincos";
+#else
+  GTEST_SKIP() << "no AVX2 kernels in this build";
+#endif
 }
 
 TEST(Trig, RoundToIntegerIsNearbyintTiesToEven) {

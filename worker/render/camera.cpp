@@ -11,6 +11,7 @@
 #include "worker/render/scene_motion.h"
 #include "worker/render/simd.h"
 #include "worker/render/trig.h"
+#include "worker/render/trig8.h"
 
 namespace dofarm::render {
 
@@ -155,50 +156,6 @@ DOFARM_AVX2 inline __m256 is_finite8(__m256 v) {  // |v| <= FLT_MAX: false for I
   const __m256 abs = _mm256_andnot_ps(_mm256_set1_ps(-0.0f), v);
   return _mm256_cmp_ps(abs, _mm256_set1_ps(FLT_MAX), _CMP_LE_OQ);
 }
-DOFARM_AVX2 inline __m128 remainder4(__m128 a, __m128 q) {  // float(double(a) - double(q) pi/2)
-  return _mm256_cvtpd_ps(_mm256_sub_pd(
-      _mm256_cvtps_pd(a), _mm256_mul_pd(_mm256_cvtps_pd(q), _mm256_set1_pd(1.5707963267948966))));
-}
-DOFARM_AVX2 inline __m256 k8(float v) { return _mm256_set1_ps(v); }
-DOFARM_AVX2 inline __m256 mul8(__m256 x, __m256 y) { return _mm256_mul_ps(x, y); }
-DOFARM_AVX2 inline __m256 add8(__m256 x, __m256 y) { return _mm256_add_ps(x, y); }
-
-// precise_sincos (trig.h): the quadrant rounded as round_to_integer does,
-// the remainder in double, sincos_quarter's polynomials, the quadrant's
-// swap and signs.
-DOFARM_AVX2 inline void sincos8(__m256 a, __m256* s, __m256* c) {
-  const __m256 shift = _mm256_set1_ps(12582912.0f);
-  const __m256 q =
-      _mm256_sub_ps(_mm256_add_ps(_mm256_mul_ps(a, _mm256_set1_ps(2.0f / kPi)), shift), shift);
-  const __m256 r =
-      _mm256_set_m128(remainder4(_mm256_extractf128_ps(a, 1), _mm256_extractf128_ps(q, 1)),
-                      remainder4(_mm256_castps256_ps128(a), _mm256_castps256_ps128(q)));
-  const __m256 r2 = _mm256_mul_ps(r, r);
-  const __m256 sr =
-      mul8(r, add8(k8(1.0f),
-                   mul8(r2, add8(k8(-1.0f / 6.0f),
-                                 mul8(r2, add8(k8(1.0f / 120.0f),
-                                               mul8(r2, add8(k8(-1.0f / 5040.0f),
-                                                             mul8(r2, k8(1.0f / 362880.0f))))))))));
-  const __m256 cr = add8(
-      k8(1.0f),
-      mul8(r2,
-           add8(k8(-0.5f),
-                mul8(r2, add8(k8(1.0f / 24.0f),
-                              mul8(r2, add8(k8(-1.0f / 720.0f),
-                                            mul8(r2, add8(k8(1.0f / 40320.0f),
-                                                          mul8(r2, k8(-1.0f / 3628800.0f)))))))))));
-  const __m256i quadrant = _mm256_and_si256(_mm256_cvttps_epi32(q), _mm256_set1_epi32(3));
-  const __m256 q1 = _mm256_castsi256_ps(_mm256_cmpeq_epi32(quadrant, _mm256_set1_epi32(1)));
-  const __m256 q2 = _mm256_castsi256_ps(_mm256_cmpeq_epi32(quadrant, _mm256_set1_epi32(2)));
-  const __m256 q3 = _mm256_castsi256_ps(_mm256_cmpeq_epi32(quadrant, _mm256_set1_epi32(3)));
-  const __m256 odd = _mm256_or_ps(q1, q3);
-  const __m256 sign = _mm256_set1_ps(-0.0f);
-  // 0: (sr, cr); 1: (cr, -sr); 2: (-sr, -cr); 3: (-cr, sr).
-  *s = _mm256_xor_ps(_mm256_blendv_ps(sr, cr, odd), _mm256_and_ps(_mm256_or_ps(q2, q3), sign));
-  *c = _mm256_xor_ps(_mm256_blendv_ps(cr, sr, odd), _mm256_and_ps(_mm256_or_ps(q1, q2), sign));
-}
-
 // generate_ray() of a perspective lens camera in eight lanes; returns the
 // lanes whose rays are complete (bit k set), the others need
 // generate_ray()'s fallbacks (a direction that under- or overflows).

@@ -6,7 +6,9 @@
 #include <cmath>
 
 #include "common/error.h"
+#include "worker/render/simd.h"
 #include "worker/render/trig.h"
+#include "worker/render/trig8.h"
 
 namespace dofarm::render {
 
@@ -151,6 +153,62 @@ Environment::Located Environment::locate(Vec3 dir) const {
   at.texel = &texel(x, y);
   __builtin_prefetch(at.texel);
   return at;
+}
+
+#ifdef DOFARM_HAVE_AVX2_KERNELS
+namespace {
+
+// std::clamp(int(c * n), 0, n - 1) in lanes.
+DOFARM_AVX2 inline __m256i texel_index8(__m256 c, int n) {
+  const __m256i i = _mm256_cvttps_epi32(mul8(c, k8(float(n))));
+  return _mm256_min_epi32(_mm256_max_epi32(i, _mm256_setzero_si256()), _mm256_set1_epi32(n - 1));
+}
+
+// locate()'s texel coordinates of eight directions (x, y, z in turn, eight
+// floats each): dir_to_uv() in lanes, then the scaling and clamping.
+DOFARM_AVX2 void texel_coords8(const float* d, float rotation, int width, int height, int32_t* xs,
+                               int32_t* ys) {
+  const __m256 x = _mm256_load_ps(d), y = _mm256_load_ps(d + 8), z = _mm256_load_ps(d + 16);
+  const __m256 theta = atan2_8(_mm256_sqrt_ps(add8(mul8(x, x), mul8(z, z))), y);
+  const __m256 phi =
+      _mm256_sub_ps(atan2_8(x, _mm256_xor_ps(z, _mm256_set1_ps(-0.0f))), k8(rotation));
+  __m256 u = add8(_mm256_div_ps(phi, k8(kTwoPi)), k8(0.5f));
+  u = _mm256_sub_ps(u, _mm256_floor_ps(u));
+  const __m256 v = mul8(theta, k8(kInvPi));
+  _mm256_store_si256(reinterpret_cast<__m256i*>(xs), texel_index8(u, width));
+  _mm256_store_si256(reinterpret_cast<__m256i*>(ys), texel_index8(v, height));
+}
+
+}  // namespace
+#endif
+
+void Environment::locate(const Vec3* dirs, int n, Located* out) const {
+  if (blocks_.empty()) {
+    for (int k = 0; k < n; ++k) out[k] = Located();
+    return;
+  }
+#ifdef DOFARM_HAVE_AVX2_KERNELS
+  if (n > 1 && use_simd()) {
+    for (int first = 0; first < n; first += 8) {
+      const int m = std::min(8, n - first);
+      alignas(32) float d[24];
+      for (int k = 0; k < 8; ++k) {  // lanes past m repeat the last direction
+        const Vec3 v = dirs[first + std::min(k, m - 1)];
+        d[k] = v.x;
+        d[8 + k] = v.y;
+        d[16 + k] = v.z;
+      }
+      alignas(32) int32_t xs[8], ys[8];
+      texel_coords8(d, rotation_, width_, height_, xs, ys);
+      for (int k = 0; k < m; ++k) {
+        out[first + k].texel = &texel(xs[k], ys[k]);
+        __builtin_prefetch(out[first + k].texel);
+      }
+    }
+    return;
+  }
+#endif
+  for (int k = 0; k < n; ++k) out[k] = locate(dirs[k]);
 }
 
 Vec2 Environment::dir_to_uv(Vec3 d) const {

@@ -71,6 +71,11 @@ class Environment {
     const Texel* texel = nullptr;  // null for a constant environment
   };
   Located locate(Vec3 dir) const;
+  // locate() of n directions at once (a batch of escaping paths): the same
+  // texels, the direction-to-texel maps computed in AVX2 lanes where the
+  // CPU has them (simd.h; bit for bit the scalar ones,
+  // Environment.BatchedLocateIsTheSingleLocate).
+  void locate(const Vec3* dirs, int n, Located* out) const;
   Vec3 eval(const Located& at) const;
   Vec3 eval(const Located& at, Vec3 dir, float* pdf) const;
   float pdf(Vec3 dir) const;

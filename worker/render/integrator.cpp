@@ -46,7 +46,6 @@ struct PathLane {
   // The present vertex.
   PixelSampler::VertexNumbers u{};
   Scene::LightChoice light_choice;
-  Environment::Located escape;
   const SurfaceHit* hit = nullptr;  // `traced` or the camera packet's hit; null: escaped
   // Left unconstructed: Scene::intersect writes every field of a hit (and
   // nothing reads it after a miss), so a path pays for no default values
@@ -58,13 +57,15 @@ struct PathLane {
 };
 static_assert(std::is_trivially_destructible_v<PathLane>);
 
-// Advances a batch of paths one vertex at a time, in three passes over the
-// batch per vertex: draw and trace; what the hit (or the escape) decides,
-// where each path chooses its light sample (and the environment's map
-// block) or locates its escape texel, starting those loads; then shading.
-// Between a path's choice and its use lie the other paths' passes, which
-// hide the loads the way a ray traversal did when each path chose before
-// tracing, without choosing for rays that escape. Each path draws its
+// Advances a batch of paths one vertex at a time, in passes over the batch
+// per vertex: draw and trace; what the hit decides, where each path that
+// hit chooses its light sample (and the environment's map block), starting
+// that load; the escaping paths' environment texels located together
+// (Environment::locate in lanes), starting those loads; shading; then the
+// escapes. Between a load's start and its use lie the other paths' passes,
+// which hide it the way a ray traversal did when each path chose and
+// located before tracing, without choosing for rays that escape or
+// locating for rays that hit. Each path draws its
 // numbers from its own sample and slots and does its own arithmetic in the
 // order a path traced alone would, so its estimate is the same bit for bit.
 class PathBatch {
@@ -85,12 +86,21 @@ class PathBatch {
         if (lanes[k].next == PathLane::Next::kTrace) trace(lanes[k]);
       for (int k = 0; k < n; ++k)
         if (lanes[k].next == PathLane::Next::kArrive) arrive(lanes[k]);
-      for (int k = 0; k < n; ++k) {
-        PathLane& l = lanes[k];
-        if (l.next == PathLane::Next::kEscape) escape(l);
-        if (l.next == PathLane::Next::kShade) shade(l);
-        live = live || l.next == PathLane::Next::kTrace;
-      }
+      // The escaping paths' texels, located together (and loading while
+      // the others shade).
+      Vec3 dirs[kMaxPaths];
+      Environment::Located located[kMaxPaths];
+      int escaping[kMaxPaths], m = 0;
+      for (int k = 0; k < n; ++k)
+        if (lanes[k].next == PathLane::Next::kEscape) {
+          dirs[m] = lanes[k].ray.d;
+          escaping[m++] = k;
+        }
+      if (m > 0) env_->locate(dirs, m, located);
+      for (int k = 0; k < n; ++k)
+        if (lanes[k].next == PathLane::Next::kShade) shade(lanes[k]);
+      for (int j = 0; j < m; ++j) escape(lanes[escaping[j]], located[j]);
+      for (int k = 0; k < n; ++k) live = live || lanes[k].next == PathLane::Next::kTrace;
     }
   }
 
@@ -137,8 +147,8 @@ class PathBatch {
   }
 
   // What the vertex's ray found, up to shading: the light choice (which
-  // starts loading what sampling it will read), emission and lamps passed,
-  // or, for an escaping ray, its environment texel (loading it).
+  // starts loading what sampling it will read), emission and lamps passed;
+  // or that it escaped to the environment.
   void arrive(PathLane& l) const {
     const int depth = l.depth;
     const bool found = l.hit != nullptr;
@@ -160,7 +170,6 @@ class PathBatch {
     }
     if (!found) {
       if (env_ && (l.delta_bounce || use_bsdf_hits_)) {
-        l.escape = env_->locate(l.ray.d);
         l.next = PathLane::Next::kEscape;
       } else {
         l.next = PathLane::Next::kDone;
@@ -193,15 +202,15 @@ class PathBatch {
 
   // The environment an escaping ray reaches, weighed against the light
   // sample that could have found the same direction; the path ends.
-  void escape(PathLane& l) const {
+  void escape(PathLane& l, const Environment::Located& at) const {
     float w = 1.0f;
     Vec3 le;
     if (!l.delta_bounce && use_mis_) {
       float light_pdf;
-      le = scene_.environment_radiance(l.escape, l.ray.d, &light_pdf);
+      le = scene_.environment_radiance(at, l.ray.d, &light_pdf);
       w = power_heuristic(l.prev_bsdf_pdf, light_pdf);
     } else {
-      le = env_->eval(l.escape);
+      le = env_->eval(at);
     }
     l.L += l.beta * le * w;
     if (l.depth == 0) l.seen = l.L;
