@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
 #include <random>
 #include <vector>
 
@@ -477,6 +478,62 @@ TEST(Environment, BatchedLocateIsTheSingleLocate) {
   Environment::Located got[3];
   constant.locate(dirs.data(), 3, got);
   for (const Environment::Located& l : got) EXPECT_EQ(l.texel, nullptr);
+}
+
+// Environment::sample of several choices (a batch's light samples, AVX2
+// lanes where the CPU has them) gives each choice's sample(choice) bit for
+// bit, with and without AVX2: a map with black texels and rows (samples of
+// pdf 0 among the others), a width that is no multiple of the blocks,
+// numbers at 0 and just below 1, every batch size.
+TEST(Environment, BatchedSamplesAreTheSingleSamples) {
+  constexpr int w = 90, h = 45;
+  RgbImage img;
+  img.width = w;
+  img.height = h;
+  img.rgb.resize(size_t(w) * h * 3);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      float* t = &img.rgb[(size_t(y) * w + x) * 3];
+      const float v = (y % 7 == 3 || (x + y) % 5 == 0) ? 0.0f : 0.1f + float((x * 13 + y * 7) % 17);
+      t[0] = v;
+      t[1] = 0.5f * v;
+      t[2] = 1.0f;
+    }
+  struct SimdSwitch {
+    ~SimdSwitch() { allow_simd(true); }
+  } restore;
+  auto same = [](float a, float b) { return std::memcmp(&a, &b, sizeof a) == 0; };
+  std::mt19937_64 rng(59);
+  std::uniform_real_distribution<float> uni(0.0f, 1.0f);
+  for (float rotation : {0.0f, 75.0f}) {
+    const Environment env(img, 1.0f, rotation);
+    std::vector<Environment::Choice> choices;
+    for (float a : {0.0f, 0x1.fffffep-1f, 0.5f})
+      for (float b : {0.0f, 0x1.fffffep-1f, 0.25f}) choices.push_back(env.choose(Vec2(a, b)));
+    while (choices.size() < 77 * 40) choices.push_back(env.choose(Vec2(uni(rng), uni(rng))));
+    for (bool simd : {true, false}) {
+      allow_simd(simd);
+      int differ = 0, zero = 0;
+      size_t i = 0;
+      for (int n : {8, 1, 3, 8, 5, 13, 2, 7, 8, 16, 6})
+        for (int rep = 0; rep < 40 && i + size_t(n) <= choices.size(); ++rep, i += size_t(n)) {
+          EnvSample got[16];
+          env.sample(&choices[i], n, got);
+          for (int k = 0; k < n; ++k) {
+            const EnvSample want = env.sample(choices[i + size_t(k)]);
+            zero += !(want.pdf > 0);
+            differ += !(same(got[k].pdf, want.pdf) && same(got[k].wi.x, want.wi.x) &&
+                        same(got[k].wi.y, want.wi.y) && same(got[k].wi.z, want.wi.z) &&
+                        same(got[k].radiance.x, want.radiance.x) &&
+                        same(got[k].radiance.y, want.radiance.y) &&
+                        same(got[k].radiance.z, want.radiance.z));
+          }
+        }
+      EXPECT_EQ(i, choices.size());
+      EXPECT_EQ(differ, 0) << "rotation " << rotation << (simd ? ", AVX2" : ", scalar");
+      RecordProperty("samples_of_pdf_0", zero);
+    }
+  }
 }
 
 TEST(Environment, SamplesFollowThePdfOnAMapNotMadeOfWholeBlocks) {

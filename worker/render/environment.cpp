@@ -251,41 +251,98 @@ Vec3 Environment::eval(const Located& at, Vec3 dir, float* pdf_out) const {
 }
 
 EnvSample Environment::sample(const Choice& choice) const {
-  EnvSample s;
   const Vec2 u = choice.u;
   if (blocks_.empty()) {  // uniform sphere
+    EnvSample s;
     float z = 1.0f - 2.0f * u.x, r = safe_sqrt(1.0f - z * z), phi = kTwoPi * u.y;
     s.wi = Vec3(r * std::cos(phi), z, r * std::sin(phi));
     s.radiance = constant_;
     s.pdf = 1.0f / (4.0f * kPi);
     return s;
   }
+  const Picked p = pick(choice);
+  if (!p.texel) return EnvSample();
+  return finish(p, uv_to_dir(p.uv));
+}
+
+Environment::Picked Environment::pick(const Choice& choice) const {
   // The block (choose()), then its row and column by inversion, each step
   // passing on its number rescaled to [0, 1) within the chosen entry.
   Vec2 r = choice.r;
   const size_t cell = choice.block;
   const Block& b = blocks_[cell];
-  auto pick = [](const float* cdf, float* v) {
+  auto pick_entry = [](const float* cdf, float* v) {
     // Entries of probability 0 have equal bounds and are never picked.
     const int k = int(*v >= cdf[0]) + int(*v >= cdf[1]) + int(*v >= cdf[2]);
     const float lo = k > 0 ? cdf[k - 1] : 0.0f, hi = k < kBlock - 1 ? cdf[k] : 1.0f;
     *v = hi > lo ? std::clamp((*v - lo) / (hi - lo), 0.0f, 0x1.fffffep-1f) : 0.5f;
     return k;
   };
-  const int row = pick(b.row_cdf, &r.y);
-  const int column = pick(b.column_cdf[row], &r.x);
+  const int row = pick_entry(b.row_cdf, &r.y);
+  const int column = pick_entry(b.column_cdf[row], &r.x);
   const Texel& t = b.texel[row * kBlock + column];
   const int x = int(cell % size_t(blocks_w_)) * kBlock + column;
   const int y = int(cell / size_t(blocks_w_)) * kBlock + row;
-  if (!(t.pdf_uv > 0) || x >= width_ || y >= height_) return s;  // pdf 0: the caller skips it
-  const Vec2 uv((float(x) + r.x) / float(width_), (float(y) + r.y) / float(height_));
-  s.wi = uv_to_dir(uv);
+  Picked p;
+  if (!(t.pdf_uv > 0) || x >= width_ || y >= height_) return p;  // pdf 0: the caller skips it
+  p.texel = &t;
+  p.uv = Vec2((float(x) + r.x) / float(width_), (float(y) + r.y) / float(height_));
+  return p;
+}
+
+EnvSample Environment::finish(const Picked& p, Vec3 wi) const {
+  EnvSample s;
+  s.wi = wi;
   // sin(theta) as uv_to_dir() has it: the length of the direction's xz part.
   const float sin_theta = std::sqrt(s.wi.x * s.wi.x + s.wi.z * s.wi.z);
   if (!(sin_theta > 0)) return s;
+  const Texel& t = *p.texel;
   s.radiance = Vec3(t.r, t.g, t.b);
   s.pdf = t.pdf_uv / (2.0f * kPi * kPi * sin_theta);
   return s;
+}
+
+#ifdef DOFARM_HAVE_AVX2_KERNELS
+namespace {
+
+// uv_to_dir() of eight points (u, then v, eight floats each) in lanes;
+// the directions' x, y, z in turn.
+DOFARM_AVX2 void directions8(const float* uv, float rotation, float* d) {
+  const __m256 u = _mm256_load_ps(uv), v = _mm256_load_ps(uv + 8);
+  const __m256 theta = mul8(v, k8(kPi));
+  const __m256 phi = add8(mul8(_mm256_sub_ps(u, k8(0.5f)), k8(kTwoPi)), k8(rotation));
+  __m256 st, ct, sp, cp;
+  sincos8(theta, &st, &ct);
+  sincos8(phi, &sp, &cp);
+  _mm256_store_ps(d, mul8(st, sp));
+  _mm256_store_ps(d + 8, ct);
+  _mm256_store_ps(d + 16, mul8(_mm256_xor_ps(st, _mm256_set1_ps(-0.0f)), cp));
+}
+
+}  // namespace
+#endif
+
+void Environment::sample(const Choice* choices, int n, EnvSample* out) const {
+#ifdef DOFARM_HAVE_AVX2_KERNELS
+  if (!blocks_.empty() && n > 1 && use_simd()) {
+    for (int first = 0; first < n; first += 8) {
+      const int m = std::min(8, n - first);
+      Picked picked[8];
+      alignas(32) float uv[16] = {}, d[24];
+      for (int k = 0; k < m; ++k) {
+        picked[k] = pick(choices[first + k]);
+        uv[k] = picked[k].uv.x;
+        uv[8 + k] = picked[k].uv.y;
+      }
+      directions8(uv, rotation_, d);
+      for (int k = 0; k < m; ++k)
+        out[first + k] =
+            picked[k].texel ? finish(picked[k], Vec3(d[k], d[8 + k], d[16 + k])) : EnvSample();
+    }
+    return;
+  }
+#endif
+  for (int k = 0; k < n; ++k) out[k] = sample(choices[k]);
 }
 
 float Environment::pdf(Vec3 dir) const {

@@ -59,6 +59,10 @@ class Environment {
   };
   Choice choose(Vec2 u) const;
   EnvSample sample(const Choice& choice) const;
+  // sample(choice) of n choices at once (the light samples of a batch of
+  // paths): the same samples, the texel-to-direction maps computed in AVX2
+  // lanes where the CPU has them (simd.h; Environment.BatchedSamplesAreTheSingleSamples).
+  void sample(const Choice* choices, int n, EnvSample* out) const;
   // eval() in two steps, for a ray that may escape: locate() maps the
   // direction to its texel and starts loading it (before the ray is
   // traced), eval(located, ...) reads it (after the ray escaped). Same values
@@ -89,11 +93,21 @@ class Environment {
  private:
   Vec2 dir_to_uv(Vec3 d) const;
   Vec3 uv_to_dir(Vec2 uv) const;
+  // sample()'s two halves around uv_to_dir(): the texel a choice picks and
+  // the point in it (texel null: a sample of pdf 0), then the sample in
+  // direction wi from it.
+  struct Picked;
+  Picked pick(const Choice& choice) const;
+  EnvSample finish(const Picked& picked, Vec3 wi) const;
   // Radiance and the sampling pdf over the unit square of one texel, side
   // by side: one cache line serves both.
   struct Texel {
     float r, g, b;
     float pdf_uv;
+  };
+  struct Picked {
+    const Texel* texel = nullptr;
+    Vec2 uv;
   };
   static constexpr int kBlock = 4;  // texels per block side
   struct alignas(64) Block {

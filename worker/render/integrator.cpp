@@ -53,8 +53,22 @@ struct PathLane {
   union {
     SurfaceHit traced;
   };
+  // Between PathBatch::prepare and shade: the hit's BSDF, what it computed
+  // for the outgoing direction, and the light sample (when `lit`).
+  // Left unconstructed until then.
+  union {
+    Bsdf bsdf;
+  };
+  union {
+    Bsdf::Outgoing out;
+  };
+  union {
+    LightSample light;
+  };
+  bool lit = false;
   PathLane() {}
 };
+static_assert(std::is_trivially_destructible_v<Bsdf>);
 static_assert(std::is_trivially_destructible_v<PathLane>);
 
 // Advances a batch of paths one vertex at a time, in passes over the batch
@@ -97,6 +111,9 @@ class PathBatch {
           escaping[m++] = k;
         }
       if (m > 0) env_->locate(dirs, m, located);
+      for (int k = 0; k < n; ++k)
+        if (lanes[k].next == PathLane::Next::kShade) prepare(lanes[k]);
+      sample_lights(lanes, n);
       for (int k = 0; k < n; ++k)
         if (lanes[k].next == PathLane::Next::kShade) shade(lanes[k]);
       for (int j = 0; j < m; ++j) escape(lanes[escaping[j]], located[j]);
@@ -219,23 +236,53 @@ class PathBatch {
     l.next = PathLane::Next::kDone;
   }
 
-  // The hit's BSDF: next-event estimation, then the bounce (or the end of
-  // the path by roulette or an invalid sample).
+  // The hit's BSDF, and whether it asks for a light sample.
+  void prepare(PathLane& l) const {
+    const SurfaceHit& hit = *l.hit;
+    new (&l.bsdf) Bsdf(hit.ns, hit.ng, hit.base_color, hit.metallic, hit.roughness, hit.ior,
+                       {hit.specular, hit.specular_color}, {hit.transmission, hit.front},
+                       {hit.clearcoat, hit.clearcoat_roughness, hit.coat_ns},
+                       {hit.sheen_color, hit.sheen_roughness});
+    new (&l.out) Bsdf::Outgoing(l.bsdf.outgoing(-l.ray.d));
+    l.lit = use_nee_ && l.bsdf.has_non_delta();
+    if (l.lit) new (&l.light) LightSample();
+  }
+
+  // The light samples of the paths that asked, taken together
+  // (Scene::sample_lights); they read what the light choices started
+  // loading. A path whose sample fails is not lit.
+  void sample_lights(PathLane* lanes, int n) const {
+    Vec3 from[kMaxPaths];
+    const Scene::LightChoice* choices[kMaxPaths];
+    LightSample* out[kMaxPaths];
+    bool ok[kMaxPaths];
+    int who[kMaxPaths], m = 0;
+    for (int k = 0; k < n; ++k) {
+      PathLane& l = lanes[k];
+      if (l.next != PathLane::Next::kShade || !l.lit) continue;
+      from[m] = l.hit->p;
+      choices[m] = &l.light_choice;
+      out[m] = &l.light;
+      who[m++] = k;
+    }
+    if (m == 0) return;
+    scene_.sample_lights(m, from, choices, out, ok);
+    for (int j = 0; j < m; ++j) lanes[who[j]].lit = ok[j];
+  }
+
+  // Next-event estimation with the light sample, then the bounce (or the
+  // end of the path by roulette or an invalid sample).
   void shade(PathLane& l) const {
     const SurfaceHit& hit = *l.hit;
     const int depth = l.depth;
     const bool roulette = depth + 1 >= settings_.rr_start_depth;
     l.next = PathLane::Next::kDone;
+    const Bsdf& bsdf = l.bsdf;
+    const Bsdf::Outgoing& out = l.out;
 
-    Bsdf bsdf(hit.ns, hit.ng, hit.base_color, hit.metallic, hit.roughness, hit.ior,
-              {hit.specular, hit.specular_color}, {hit.transmission, hit.front},
-              {hit.clearcoat, hit.clearcoat_roughness, hit.coat_ns},
-              {hit.sheen_color, hit.sheen_roughness});
-    const Bsdf::Outgoing out = bsdf.outgoing(-l.ray.d);
-
-    if (use_nee_ && bsdf.has_non_delta()) {
-      LightSample ls;
-      if (scene_.sample_light(hit.p, l.light_choice, &ls)) {
+    {
+      const LightSample& ls = l.light;
+      if (l.lit) {
         float bsdf_pdf;
         Vec3 f = bsdf.evaluate(out, ls.wi, &bsdf_pdf);
         if (max_component(f) > 0) {

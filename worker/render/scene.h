@@ -151,6 +151,11 @@ class Scene {
   };
   LightChoice choose_light(float u_select, Vec2 u) const;
   bool sample_light(Vec3 from, const LightChoice& choice, LightSample* out) const;
+  // sample_light(from[k], *choices[k], out[k]) for k < n at once, its
+  // result in ok[k]: the same samples, the environment's taken together
+  // (Environment::sample of several choices).
+  void sample_lights(int n, const Vec3* from, const LightChoice* const* choices,
+                     LightSample* const* out, bool* ok) const;
   // Solid-angle pdf that sample_light() would give to reaching `hit` (an
   // emissive triangle) from `from`.
   float light_pdf(Vec3 from, const SurfaceHit& hit) const;

@@ -5,6 +5,7 @@
 // builds the scene and traces its rays.
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include "worker/render/scene.h"
 #include "worker/render/spherical_triangle.h"
@@ -25,6 +26,38 @@ Scene::LightChoice Scene::choose_light(float u_select, Vec2 u) const {
   if (env_sampled_ && c.light >= light_tris_.size() + data_.lights.size())
     c.env = environment_->choose(u);
   return c;
+}
+
+void Scene::sample_lights(int n, const Vec3* from, const LightChoice* const* choices,
+                          LightSample* const* out, bool* ok) const {
+  // The environment's choices first (sample_light()'s environment branch
+  // for each), then every other light alone.
+  Environment::Choice env[kPacket];
+  int lane[kPacket], m = 0;
+  for (int k = 0; k < n; ++k) {
+    const LightChoice& c = *choices[k];
+    const bool is_env = c.light >= light_tris_.size() + data_.lights.size();
+    if (is_env && c.pmf > 0 && m < kPacket) {
+      env[m] = c.env;
+      lane[m++] = k;
+    } else {
+      ok[k] = sample_light(from[k], c, out[k]);
+    }
+  }
+  if (m == 0) return;
+  EnvSample es[kPacket];
+  environment_->sample(env, m, es);
+  for (int j = 0; j < m; ++j) {
+    const int k = lane[j];
+    LightSample* o = out[k];
+    ok[k] = es[j].pdf > 0;
+    if (!ok[k]) continue;
+    o->is_delta = false;
+    o->wi = es[j].wi;
+    o->distance = std::numeric_limits<float>::infinity();
+    o->radiance = es[j].radiance;
+    o->pdf = es[j].pdf * choices[k]->pmf;
+  }
 }
 
 bool Scene::sample_light(Vec3 from, const LightChoice& choice, LightSample* out) const {
