@@ -89,6 +89,9 @@ class Environment {
   // Mean radiance luminance over the sphere (for light selection by power).
   float mean_luminance() const { return mean_luminance_; }
   bool is_black() const { return mean_luminance_ <= 0; }
+  // An image, as opposed to a constant colour: sampling and lookups read
+  // tables larger than the caches.
+  bool has_map() const { return !blocks_.empty(); }
 
  private:
   Vec2 dir_to_uv(Vec3 d) const;

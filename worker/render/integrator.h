@@ -71,7 +71,7 @@ Vec3 trace_path(const Scene& scene, const Ray& ray, PixelSampler& sampler,
                 const PrimaryHit* primary = nullptr);
 
 // trace_path() for samples first, ..., first + n - 1 of `sampler`'s pixel
-// (n <= kMaxPaths) at once: path k continues camera ray camera_rays[k],
+// at once (kMaxPaths at a time): path k continues camera ray camera_rays[k],
 // whose numbers took the sample's first `slots` slots, from
 // primaries[k] (its hit, already traced; optional) and writes its estimate
 // to radiance[k] and primary_albedo() to albedos[k] (optional). The paths

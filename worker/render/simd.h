@@ -1,5 +1,7 @@
 // Where the renderer computes several lanes at once: the sampler's batched
-// draws (sampler.h) and a packet's camera rays (camera.h). dofarm builds for
+// draws (sampler.h), a packet's camera rays (camera.h), and the
+// environment's texel and direction maps of a batch of paths
+// (environment.h, with trig8.h's atan2, sine and cosine). dofarm builds for
 // the x86-64 baseline so that one binary runs on every worker; these few
 // functions are also compiled for AVX2 and run where the CPU has it. Each
 // lane does the scalar code's operations in the scalar code's order, with
