@@ -366,7 +366,9 @@ TEST(CameraPackets, FrameIsEverySampleTracedAloneInOrder) {
 // trace_paths() of any number of samples (more than one batch of
 // kMaxPaths, camera rays it traces itself, and with an observer, which
 // makes it trace the paths one after another) gives each sample's
-// trace_path() bit for bit, radiance and albedo.
+// trace_path() bit for bit, radiance and albedo: in the courtyard, whose
+// environment map makes it interleave the paths, and in a room under a
+// constant sky, where it runs them one after another.
 TEST(CameraPackets, PathsTracedTogetherAreEachPathTracedAlone) {
   struct CountingObserver : PathObserver {
     int events = 0;
@@ -374,45 +376,65 @@ TEST(CameraPackets, PathsTracedTogetherAreEachPathTracedAlone) {
     void contribution(Kind, int, Vec3) override { ++events; }
     void roulette(int, float, bool) override { ++events; }
   };
-  JobSpec spec = load_job_spec(std::string(DOFARM_SOURCE_DIR) + "/jobs/courtyard.toml");
-  spec.width = 16;
-  spec.height = 9;
-  const auto scene = job_scene(spec);
-  const int frame = spec.frame_start + 10;
-  const FrameBuffers probe = render_frame(*scene, spec, frame, Rect{0, 0, 1, 1});
-  const Camera camera(probe.camera, spec.width, spec.height, camera_clip(spec, scene->data()));
-  IntegratorSettings settings;
-  settings.max_depth = spec.max_depth;
-  settings.rr_start_depth = 1;  // roulette from the first bounce: paths of every length
-  for (bool observe : {false, true}) {
-    CountingObserver together, alone;
-    int mismatches = 0;
-    for (int y = 0; y < spec.height; y += 2)
-      for (int x = 0; x < spec.width; x += 3) {
-        constexpr int n = 2 * kMaxPaths + 3;
-        PixelSampler s(spec.sampler, spec.seed, frame, x, y, Stream::kReference);
-        std::vector<Ray> rays(n);
-        uint32_t slots = 0;
-        for (int k = 0; k < n; ++k) {
-          s.start_sample(uint32_t(5 + k));
-          rays[size_t(k)] = lens_ray(camera, s, x, y);
-          slots = s.slots_used();
+  struct Case {
+    const char* name;
+    std::shared_ptr<Scene> scene;
+    JobSpec spec;
+  };
+  std::vector<Case> cases;
+  {
+    JobSpec s = load_job_spec(std::string(DOFARM_SOURCE_DIR) + "/jobs/courtyard.toml");
+    s.width = 16;
+    s.height = 9;
+    s.frame_start += 10;
+    cases.push_back({"courtyard", job_scene(s), s});
+  }
+  {
+    const JobSpec s =
+        testing::make_spec(16, 9, Vec3(0.2f, 1, 3), Vec3(0, 0.9f, 0), 45, 3.0f, 0.08f);
+    cases.push_back(
+        {"room", testing::make_scene(testing::small_room(), testing::constant_env(0.3f)), s});
+  }
+  for (const Case& c : cases) {
+    const JobSpec& spec = c.spec;
+    const int frame = spec.frame_start;
+    const FrameBuffers probe = render_frame(*c.scene, spec, frame, Rect{0, 0, 1, 1});
+    const Camera camera(probe.camera, spec.width, spec.height, camera_clip(spec, c.scene->data()));
+    IntegratorSettings settings;
+    settings.max_depth = spec.max_depth;
+    settings.rr_start_depth = 1;  // roulette from the first bounce: paths of every length
+    for (bool observe : {false, true}) {
+      CountingObserver together, alone;
+      int mismatches = 0;
+      for (int y = 0; y < spec.height; y += 2)
+        for (int x = 0; x < spec.width; x += 3) {
+          constexpr int n = 2 * kMaxPaths + 3;
+          PixelSampler s(spec.sampler, spec.seed, frame, x, y, Stream::kReference);
+          std::vector<Ray> rays(n);
+          uint32_t slots = 0;
+          for (int k = 0; k < n; ++k) {
+            s.start_sample(uint32_t(5 + k));
+            rays[size_t(k)] = lens_ray(camera, s, x, y);
+            slots = s.slots_used();
+          }
+          std::vector<Vec3> L(n), albedo(n);
+          settings.observer = observe ? &together : nullptr;
+          trace_paths(*c.scene, rays.data(), nullptr, n, s, 5, slots, settings, L.data(),
+                      albedo.data());
+          settings.observer = observe ? &alone : nullptr;
+          for (int k = 0; k < n; ++k) {
+            s.start_sample(uint32_t(5 + k));
+            Vec3 a;
+            const Vec3 l = trace_path(*c.scene, lens_ray(camera, s, x, y), s, settings, &a);
+            mismatches += !same_bits(l, L[size_t(k)]) || !same_bits(a, albedo[size_t(k)]);
+          }
         }
-        std::vector<Vec3> L(n), albedo(n);
-        settings.observer = observe ? &together : nullptr;
-        trace_paths(*scene, rays.data(), nullptr, n, s, 5, slots, settings, L.data(),
-                    albedo.data());
-        settings.observer = observe ? &alone : nullptr;
-        for (int k = 0; k < n; ++k) {
-          s.start_sample(uint32_t(5 + k));
-          Vec3 a;
-          const Vec3 l = trace_path(*scene, lens_ray(camera, s, x, y), s, settings, &a);
-          mismatches += !same_bits(l, L[size_t(k)]) || !same_bits(a, albedo[size_t(k)]);
-        }
+      EXPECT_EQ(mismatches, 0) << c.name << (observe ? ", with an observer" : ", without");
+      EXPECT_EQ(together.events, alone.events) << c.name;
+      if (observe) {
+        EXPECT_GT(alone.events, 1000) << c.name;
       }
-    EXPECT_EQ(mismatches, 0) << (observe ? "with an observer" : "without");
-    EXPECT_EQ(together.events, alone.events);
-    if (observe) EXPECT_GT(alone.events, 1000);
+    }
   }
 }
 
