@@ -284,6 +284,29 @@ TEST(CompactDistribution2D, RowsThenColumnsFollowThePmf) {
   EXPECT_NEAR(pmf_sum, 1.0, 1e-9);
 }
 
+// A w x h map whose texel (x, y) has the radiance rgb(x, y).
+template <class Rgb>
+RgbImage map_of(int w, int h, Rgb rgb) {
+  RgbImage img;
+  img.width = w;
+  img.height = h;
+  img.rgb.resize(size_t(w) * h * 3);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      const Vec3 v = rgb(x, y);
+      float* t = &img.rgb[(size_t(y) * w + x) * 3];
+      t[0] = v.x;
+      t[1] = v.y;
+      t[2] = v.z;
+    }
+  return img;
+}
+
+// Turns the AVX2 kernels back on when a test that switched them ends.
+struct SimdRestore {
+  ~SimdRestore() { allow_simd(true); }
+};
+
 RgbImage sky_with_a_sun() {
   RgbImage img;
   img.width = 32;
@@ -393,17 +416,8 @@ TEST(Environment, BlockedTablesGiveEachTexelItsWeightOverTheTotal) {
 // texel's radiance names it: (x + 1, y + 1, 1).
 TEST(Environment, EveryDirectionFindsItsTexel) {
   constexpr int w = 96, h = 48;
-  RgbImage img;
-  img.width = w;
-  img.height = h;
-  img.rgb.resize(size_t(w) * h * 3);
-  for (int y = 0; y < h; ++y)
-    for (int x = 0; x < w; ++x) {
-      float* t = &img.rgb[(size_t(y) * w + x) * 3];
-      t[0] = float(x + 1);
-      t[1] = float(y + 1);
-      t[2] = 1.0f;
-    }
+  const RgbImage img =
+      map_of(w, h, [](int x, int y) { return Vec3(float(x + 1), float(y + 1), 1); });
   const double rotation = 30.0 * M_PI / 180.0;
   const Environment env(img, 1.0f, 30.0f);
   std::mt19937_64 rng(31);
@@ -441,14 +455,8 @@ TEST(Environment, EveryDirectionFindsItsTexel) {
 // every batch size and for more than eight directions; directions on the
 // axes, the poles, the seam behind the map and both signs of zero included.
 TEST(Environment, BatchedLocateIsTheSingleLocate) {
-  constexpr int w = 96, h = 48;
-  RgbImage img;
-  img.width = w;
-  img.height = h;
-  img.rgb.assign(size_t(w) * h * 3, 1.0f);
-  struct SimdSwitch {
-    ~SimdSwitch() { allow_simd(true); }
-  } restore;
+  const RgbImage img = map_of(96, 48, [](int, int) { return Vec3(1.0f); });
+  SimdRestore restore;
   std::mt19937_64 rng(37);
   std::normal_distribution<float> normal;
   std::vector<Vec3> dirs = {{0, 1, 0},      {0, -1, 0},      {-0.0f, 1, -0.0f}, {1, 0, 0},
@@ -486,22 +494,11 @@ TEST(Environment, BatchedLocateIsTheSingleLocate) {
 // pdf 0 among the others), a width that is no multiple of the blocks,
 // numbers at 0 and just below 1, every batch size.
 TEST(Environment, BatchedSamplesAreTheSingleSamples) {
-  constexpr int w = 90, h = 45;
-  RgbImage img;
-  img.width = w;
-  img.height = h;
-  img.rgb.resize(size_t(w) * h * 3);
-  for (int y = 0; y < h; ++y)
-    for (int x = 0; x < w; ++x) {
-      float* t = &img.rgb[(size_t(y) * w + x) * 3];
-      const float v = (y % 7 == 3 || (x + y) % 5 == 0) ? 0.0f : 0.1f + float((x * 13 + y * 7) % 17);
-      t[0] = v;
-      t[1] = 0.5f * v;
-      t[2] = 1.0f;
-    }
-  struct SimdSwitch {
-    ~SimdSwitch() { allow_simd(true); }
-  } restore;
+  const RgbImage img = map_of(90, 45, [](int x, int y) {
+    const float v = (y % 7 == 3 || (x + y) % 5 == 0) ? 0.0f : 0.1f + float((x * 13 + y * 7) % 17);
+    return Vec3(v, 0.5f * v, 1.0f);
+  });
+  SimdRestore restore;
   auto same = [](float a, float b) { return std::memcmp(&a, &b, sizeof a) == 0; };
   std::mt19937_64 rng(59);
   std::uniform_real_distribution<float> uni(0.0f, 1.0f);
