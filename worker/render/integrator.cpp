@@ -300,35 +300,33 @@ class PathBatch {
     const Bsdf& bsdf = l.bsdf;
     const Bsdf::Outgoing& out = l.out;
 
-    {
+    if (l.lit) {
       const LightSample& ls = l.light;
-      if (l.lit) {
-        float bsdf_pdf;
-        Vec3 f = bsdf.evaluate(out, ls.wi, &bsdf_pdf);
-        if (max_component(f) > 0) {
-          const Vec3 origin = scene_.offset_origin(hit, ls.wi);
-          Vec3 dir = ls.wi;
-          float t_max = ls.distance;
-          if (!std::isinf(ls.distance)) {
-            // Aimed from the offset origin at the light point itself. Along
-            // ls.wi from the moved origin the ray would reach the light's
-            // plane earlier by the offset over the cosine, which exceeds the
-            // 1e-4 margin below for a surface close to and parallel with the
-            // light (a ceiling 2 cm above a light's back face: the light
-            // itself occluded every sample, and NEE lost its share of that
-            // light; tests/render/test_integrator.cpp).
-            const Vec3 to = hit.p + ls.wi * ls.distance - origin;
-            const float len = length(to);
-            if (len > 0) dir = to / len;
-            t_max = len * (1.0f - 1e-4f);
-          }
-          if (!scene_.occluded(origin, dir, t_max)) {
-            float w = use_mis_ && !ls.is_delta ? power_heuristic(ls.pdf, bsdf_pdf) : 1.0f;
-            l.L += l.beta * f * ls.radiance * (w / ls.pdf);
-            if (settings_.observer)
-              settings_.observer->contribution(PathObserver::Kind::kLight, depth,
-                                               l.beta * f * ls.radiance * (w / ls.pdf));
-          }
+      float bsdf_pdf;
+      Vec3 f = bsdf.evaluate(out, ls.wi, &bsdf_pdf);
+      if (max_component(f) > 0) {
+        const Vec3 origin = scene_.offset_origin(hit, ls.wi);
+        Vec3 dir = ls.wi;
+        float t_max = ls.distance;
+        if (!std::isinf(ls.distance)) {
+          // Aimed from the offset origin at the light point itself. Along
+          // ls.wi from the moved origin the ray would reach the light's
+          // plane earlier by the offset over the cosine, which exceeds the
+          // 1e-4 margin below for a surface close to and parallel with the
+          // light (a ceiling 2 cm above a light's back face: the light
+          // itself occluded every sample, and NEE lost its share of that
+          // light; tests/render/test_integrator.cpp).
+          const Vec3 to = hit.p + ls.wi * ls.distance - origin;
+          const float len = length(to);
+          if (len > 0) dir = to / len;
+          t_max = len * (1.0f - 1e-4f);
+        }
+        if (!scene_.occluded(origin, dir, t_max)) {
+          float w = use_mis_ && !ls.is_delta ? power_heuristic(ls.pdf, bsdf_pdf) : 1.0f;
+          l.L += l.beta * f * ls.radiance * (w / ls.pdf);
+          if (settings_.observer)
+            settings_.observer->contribution(PathObserver::Kind::kLight, depth,
+                                             l.beta * f * ls.radiance * (w / ls.pdf));
         }
       }
     }

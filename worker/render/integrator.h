@@ -74,11 +74,12 @@ Vec3 trace_path(const Scene& scene, const Ray& ray, PixelSampler& sampler,
 // at once (kMaxPaths at a time): path k continues camera ray camera_rays[k],
 // whose numbers took the sample's first `slots` slots, from
 // primaries[k] (its hit, already traced; optional) and writes its estimate
-// to radiance[k] and primary_albedo() to albedos[k] (optional). The paths
-// advance a vertex at a time together, so that what one path's light
-// choice or escape starts loading from memory arrives while the others
-// work (integrator.cpp, PathBatch); each estimate is trace_path()'s for its
-// sample bit for bit. With an observer the paths run one after another.
+// to radiance[k] and primary_albedo() to albedos[k] (optional). In a scene
+// that samples an environment map the paths advance a vertex at a time
+// together, so that what one path's light choice or escape starts loading
+// from the map arrives while the others work (integrator.cpp, PathBatch);
+// elsewhere, and with an observer, they run one after another. Either way
+// each estimate is trace_path()'s for its sample bit for bit.
 // Afterwards the sampler's position is undefined: start_sample() it.
 constexpr int kMaxPaths = 8;
 void trace_paths(const Scene& scene, const Ray* camera_rays, const PrimaryHit* primaries, int n,

@@ -265,6 +265,14 @@ class Scene {
   // Sets *solid_angle when true (0 where the triangle is seen edge-on, and
   // for a point in its plane: then neither technique samples it there).
   bool by_solid_angle(size_t i, Vec3 from, double* solid_angle) const;
+  // Whether light i of the selection is the environment (after the
+  // triangles and the punctual lights).
+  bool is_environment_light(size_t i) const {
+    return i >= light_tris_.size() + data_.lights.size();
+  }
+  // sample_light()'s result for an environment sample of selection
+  // probability pmf (false: a sample of pdf 0).
+  static bool environment_light(const EnvSample& es, float pmf, LightSample* out);
   // Texture coordinates of set `set` (TEXCOORD_0 or _1; set 0 where the
   // scene has no TEXCOORD_1) at barycentrics (b0, b1, b2) of the triangle `idx`.
   Vec2 texcoord(const uint32_t* idx, float b0, float b1, float b2, unsigned set = 0) const;

@@ -36,8 +36,7 @@ void Scene::sample_lights(int n, const Vec3* from, const LightChoice* const* cho
   int lane[kPacket], m = 0;
   for (int k = 0; k < n; ++k) {
     const LightChoice& c = *choices[k];
-    const bool is_env = c.light >= light_tris_.size() + data_.lights.size();
-    if (is_env && c.pmf > 0 && m < kPacket) {
+    if (is_environment_light(c.light) && c.pmf > 0 && m < kPacket) {
       env[m] = c.env;
       lane[m++] = k;
     } else {
@@ -49,15 +48,18 @@ void Scene::sample_lights(int n, const Vec3* from, const LightChoice* const* cho
   environment_->sample(env, m, es);
   for (int j = 0; j < m; ++j) {
     const int k = lane[j];
-    LightSample* o = out[k];
-    ok[k] = es[j].pdf > 0;
-    if (!ok[k]) continue;
-    o->is_delta = false;
-    o->wi = es[j].wi;
-    o->distance = std::numeric_limits<float>::infinity();
-    o->radiance = es[j].radiance;
-    o->pdf = es[j].pdf * choices[k]->pmf;
+    ok[k] = environment_light(es[j], choices[k]->pmf, out[k]);
   }
+}
+
+bool Scene::environment_light(const EnvSample& es, float pmf, LightSample* out) {
+  out->is_delta = false;
+  if (!(es.pdf > 0)) return false;
+  out->wi = es.wi;
+  out->distance = std::numeric_limits<float>::infinity();
+  out->radiance = es.radiance;
+  out->pdf = es.pdf * pmf;
+  return true;
 }
 
 bool Scene::sample_light(Vec3 from, const LightChoice& choice, LightSample* out) const {
@@ -71,15 +73,7 @@ bool Scene::sample_light(Vec3 from, const LightChoice& choice, LightSample* out)
     out->pdf = out->is_delta ? pmf : out->pdf * pmf;
     return std::isfinite(out->pdf) && out->pdf > 0;
   }
-  if (i >= light_tris_.size()) {  // the environment
-    EnvSample es = environment_->sample(choice.env);
-    if (!(es.pdf > 0)) return false;
-    out->wi = es.wi;
-    out->distance = std::numeric_limits<float>::infinity();
-    out->radiance = es.radiance;
-    out->pdf = es.pdf * pmf;
-    return true;
-  }
+  if (is_environment_light(i)) return environment_light(environment_->sample(choice.env), pmf, out);
   const uint32_t t = light_tris_[i];
   const uint32_t* idx = &data_.indices[size_t(t) * 3];
   Vec3 p0 = data_.positions[idx[0]], p1 = data_.positions[idx[1]], p2 = data_.positions[idx[2]];
