@@ -425,9 +425,7 @@ TEST(Focus, FocusPointRecordedInTheFrameIsTheOneTheCocUses) {
 // axes, and focal distances whose direction under- or overflows a float
 // (generate_ray()'s double fallback, redone lane by lane).
 TEST(Camera, BatchedRaysAreTheSingleRays) {
-  struct SimdSwitch {
-    ~SimdSwitch() { allow_simd(true); }
-  } restore;
+  SimdRestore restore;
   auto same = [](float a, float b) { return std::memcmp(&a, &b, sizeof a) == 0; };
   auto same_ray = [&](const Ray& a, const Ray& b) {
     return same(a.o.x, b.o.x) && same(a.o.y, b.o.y) && same(a.o.z, b.o.z) && same(a.d.x, b.d.x) &&

@@ -302,11 +302,6 @@ RgbImage map_of(int w, int h, Rgb rgb) {
   return img;
 }
 
-// Turns the AVX2 kernels back on when a test that switched them ends.
-struct SimdRestore {
-  ~SimdRestore() { allow_simd(true); }
-};
-
 RgbImage sky_with_a_sun() {
   RgbImage img;
   img.width = 32;

@@ -663,9 +663,7 @@ TEST(Sampler, Get4dStratifiesAPixelAndLensEdgeJointly) {
 // draws do; slots from 0 past the cached 32; samplers fresh and reused
 // (the seed cache filled in a different order).
 TEST(Sampler, BatchedDrawsAreTheSingleDraws) {
-  struct SimdSwitch {
-    ~SimdSwitch() { allow_simd(true); }
-  } restore;
+  SimdRestore restore;
   auto same = [](Vec2 a, Vec2 b) { return a.x == b.x && a.y == b.y; };
   std::vector<bool> modes = {false};
   if (simd_available()) modes.push_back(true);

@@ -15,6 +15,11 @@ namespace dofarm::render {
 bool simd_available();          // this CPU has AVX2 (and this build its kernels)
 void allow_simd(bool allowed);  // process-wide; for tests (default: allowed)
 bool use_simd();                // available and allowed
+// Allows the kernels again when it goes out of scope (a test that switches
+// them off with allow_simd(false) leaves them on for the next).
+struct SimdRestore {
+  ~SimdRestore() { allow_simd(true); }
+};
 
 }  // namespace dofarm::render
 
