@@ -3,8 +3,11 @@
 // of the three light-sampling strategies.
 #include <gtest/gtest.h>
 
+#include <bit>
 #include <cmath>
 #include <cstdio>
+#include <random>
+#include <vector>
 
 #include "tests/render/render_fixtures.h"
 #include "worker/render/integrator.h"
@@ -532,6 +535,92 @@ TEST(Integrator, EmptySceneIsRefused) {
   SceneData d;
   d.source = "empty.gltf";
   EXPECT_THROW(Scene(std::move(d), testing::constant_env(1)), SpecError);
+}
+
+// A material's BSDF constants, computed once by Scene (BsdfConstants), give
+// every hit on it the BSDF its own factors give, bit for bit: values,
+// pdfs and samples. Over every kind of material the constants cover
+// (metal, mirror, layered dielectric, glass, half glass, a coat, a sheen,
+// a specular colour, IOR 1, a black base), and a material with a textured
+// scalar factor has none (each hit computes its own).
+TEST(Integrator, MaterialBsdfConstantsAreEachHitsOwnBsdf) {
+  SceneData d = testing::small_room();
+  std::vector<Material> kinds(12, testing::diffuse(Vec3(0.7f, 0.6f, 0.5f)));
+  kinds[1].metallic = 1.0f;
+  kinds[1].roughness = 0.3f;
+  kinds[2].metallic = 1.0f;
+  kinds[2].roughness = 0.0f;
+  kinds[3].roughness = 0.0f;
+  kinds[4].transmission = 1.0f;
+  kinds[4].roughness = 0.2f;
+  kinds[5].transmission = 0.5f;
+  kinds[5].roughness = 0.0f;
+  kinds[6].clearcoat = 1.0f;
+  kinds[6].clearcoat_roughness = 0.3f;
+  kinds[7].sheen_color = Vec3(0.8f, 0.5f, 0.3f);
+  kinds[7].sheen_roughness = 0.4f;
+  kinds[8].specular = 0.7f;
+  kinds[8].specular_color = Vec3(1.0f, 0.5f, 0.2f);
+  kinds[9].ior = 1.0f;
+  kinds[10].base_color = Vec3(0.0f);
+  kinds[10].metallic = 0.5f;
+  const size_t textured = 11;  // roughness and metallic from a texture
+  Texture grey;
+  grey.width = grey.height = 1;
+  grey.rgb = {0.0f, 0.5f, 0.25f};
+  d.textures.push_back(grey);
+  kinds[textured].metal_rough_tex.index = 0;
+  const size_t first = d.materials.size();
+  for (const Material& m : kinds) d.materials.push_back(m);
+  for (size_t t = 0; t < d.tri_material.size(); ++t)
+    d.tri_material[t] = uint32_t(first + t % kinds.size());
+  const auto scene = make_scene(std::move(d), testing::constant_env(0.3f));
+
+  auto same = [](float a, float b) {
+    return std::bit_cast<uint32_t>(a) == std::bit_cast<uint32_t>(b);
+  };
+  auto same3 = [&](Vec3 a, Vec3 b) { return same(a.x, b.x) && same(a.y, b.y) && same(a.z, b.z); };
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  std::vector<int> seen(kinds.size(), 0);
+  for (int i = 0; i < 20000; ++i) {
+    const Vec3 o = scene->center() + Vec3(u(rng) - 0.5f, u(rng) - 0.5f, u(rng) - 0.5f) * 0.8f;
+    const Vec3 dir = normalize(Vec3(u(rng) - 0.5f, u(rng) - 0.5f, u(rng) - 0.5f), Vec3(0, 1, 0));
+    SurfaceHit hit;
+    if (!scene->intersect({o, dir}, &hit)) continue;
+    const size_t kind = scene->data().tri_material[hit.prim] - first;
+    ++seen[kind];
+    const BsdfConstants* k = scene->bsdf_constants(hit.prim);
+    if (kind == textured) {
+      ASSERT_EQ(k, nullptr) << "a textured roughness has constants";
+      continue;
+    }
+    ASSERT_NE(k, nullptr) << "material kind " << kind;
+    const Bsdf from_constants(*k, hit.ns, hit.ng, hit.base_color, hit.front, hit.coat_ns);
+    const Bsdf own(hit.ns, hit.ng, hit.base_color, hit.metallic, hit.roughness, hit.ior,
+                   {hit.specular, hit.specular_color}, {hit.transmission, hit.front},
+                   {hit.clearcoat, hit.clearcoat_roughness, hit.coat_ns},
+                   {hit.sheen_color, hit.sheen_roughness});
+    const Vec3 wo = -dir;
+    const Bsdf::Outgoing oa = from_constants.outgoing(wo), ob = own.outgoing(wo);
+    for (int j = 0; j < 4; ++j) {
+      const Vec3 wi = normalize(Vec3(u(rng) - 0.5f, u(rng) - 0.5f, u(rng) - 0.5f), hit.ns);
+      float pa = -1, pb = -2;
+      const Vec3 fa = from_constants.evaluate(oa, wi, &pa), fb = own.evaluate(ob, wi, &pb);
+      ASSERT_TRUE(same3(fa, fb) && same(pa, pb)) << "material kind " << kind;
+      const float ul = u(rng);
+      const Vec2 us(u(rng), u(rng));
+      const BsdfSample sa = from_constants.sample(oa, ul, us), sb = own.sample(ob, ul, us);
+      ASSERT_EQ(sa.valid, sb.valid) << "material kind " << kind;
+      ASSERT_EQ(sa.is_delta, sb.is_delta) << "material kind " << kind;
+      if (sa.valid) {
+        ASSERT_TRUE(same3(sa.wi, sb.wi) && same3(sa.weight, sb.weight) && same(sa.pdf, sb.pdf))
+            << "material kind " << kind;
+      }
+    }
+  }
+  for (size_t kind = 0; kind < kinds.size(); ++kind)
+    EXPECT_GT(seen[kind], 20) << "material kind " << kind << " was hardly hit";
 }
 
 }  // namespace

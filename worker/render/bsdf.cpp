@@ -77,10 +77,9 @@ float coat_schlick(float cos_theta) {
 }
 }  // namespace
 
-Bsdf::Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, float ior,
-           const SpecularLayer& specular, const TransmissionLayer& transmission,
-           const ClearcoatLayer& clearcoat, const SheenLayer& sheen)
-    : frame_(ns), ng_(ng) {
+BsdfConstants::BsdfConstants(float metallic, float roughness, float ior,
+                             const SpecularLayer& specular, float transmission,
+                             const ClearcoatLayer& clearcoat, const SheenLayer& sheen) {
   if (sheen.color.x > 0 || sheen.color.y > 0 || sheen.color.z > 0) [[unlikely]] {
     auto channel = [](float c) { return std::isfinite(c) ? clamp01(c) : 0.0f; };
     sheen_color_ = Vec3(channel(sheen.color.x), channel(sheen.color.y), channel(sheen.color.z));
@@ -96,12 +95,9 @@ Bsdf::Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, f
     coat_alpha_ = ggx::alpha_from_roughness(r);
     coat_delta_ = r * r < ggx::kDeltaAlpha;
     if (!coat_delta_) coat_row_ = ggx::albedo_row(ggx::albedo_table(), coat_alpha_);
-    if (is_finite(clearcoat.normal) && dot(clearcoat.normal, clearcoat.normal) > 0.5f) {
-      coat_normal_ = true;
-      coat_frame_ = Frame(clearcoat.normal);
-    }
   }
   metallic = clamp01(metallic);
+  metallic_ = metallic;
   roughness = clamp01(roughness);
   float f = (ior - 1.0f) / (ior + 1.0f);
   const float f0_ior = std::isfinite(f) ? std::min(f * f, 1.0f) : 0.04f;
@@ -119,32 +115,24 @@ Bsdf::Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, f
     dielectric_f0_ = Vec3(f0_of(c.x), f0_of(c.y), f0_of(c.z));
     grey_f0_ = dielectric_f0_.x == dielectric_f0_.y && dielectric_f0_.y == dielectric_f0_.z;
   }
-  metal_f0_ = base_color;
-  metal_weight_ = max_component(base_color) > 0 ? metallic : 0.0f;
   // IOR 1 is no interface whatever the extension says; otherwise the layer
   // is there unless s = 0 (a channel of F0' = 0 still rises at grazing
   // angles, F90 = s, as the extension defines).
   specular_factor_ = f0_ior > 0 ? s : 0.0f;
   // KHR_materials_transmission: the share t of the dielectric that is glass;
   // the layered (opaque) dielectric keeps 1 - t (exactly 1 without it).
-  const float t = std::isfinite(transmission.factor) ? clamp01(transmission.factor) : 0.0f;
+  const float t = std::isfinite(transmission) ? clamp01(transmission) : 0.0f;
   const float opaque = 1.0f - t;
   dielectric_weight_ = specular_factor_ > 0 ? (1.0f - metallic) * opaque * specular_factor_ : 0.0f;
-  diffuse_color_ = base_color * ((1.0f - metallic) * opaque);
-  diffuse_weight_ = max_component(diffuse_color_);
+  diffuse_scale_ = (1.0f - metallic) * opaque;
   alpha_ = ggx::alpha_from_roughness(roughness);
   delta_specular_ = roughness * roughness < ggx::kDeltaAlpha;
   if (t > 0 && metallic < 1.0f) {
     glass_weight_ = (1.0f - metallic) * t;
-    glass_tint_ = base_color;
-    const float n = std::isfinite(ior) && ior >= 1.0f ? std::min(ior, 1e4f) : 1.5f;
-    eta_ = transmission.entering ? n : 1.0f / n;
-    glass_ior_ = n;
-    glass_entering_ = transmission.entering;
+    glass_ior_ = std::isfinite(ior) && ior >= 1.0f ? std::min(ior, 1e4f) : 1.5f;
     // IOR 1 is no interface: light passes unbent whatever the roughness.
-    glass_delta_ = delta_specular_ || n == 1.0f;
+    glass_delta_ = delta_specular_ || glass_ior_ == 1.0f;
   }
-  has_specular_ = metal_weight_ > 0 || dielectric_weight_ > 0;
   // The base's normalisation; a mirror's albedo s F(mu) has the closed-form
   // average s (f0 + (1 - f0) / 21).
   diffuse_norm_ = Vec3(kInvPi);
@@ -156,13 +144,13 @@ Bsdf::Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, f
       diffuse_norm_.z = norm_of(dielectric_f0_.z);
     }
   };
-  if (has_specular_ && delta_specular_ && dielectric_weight_ > 0) {
+  if (delta_specular_ && dielectric_weight_ > 0) {
     per_channel([&](float f0) {
       return kInvPi /
              std::max(1.0f - specular_factor_ * (f0 + (1.0f - f0) * kSchlickWeightAverage), 1e-6f);
     });
   }
-  if (!has_specular_ || delta_specular_) return;  // no table needed
+  if (delta_specular_) return;  // no table needed
   const ggx::AlbedoTable& table = ggx::albedo_table();
   row_ = ggx::albedo_row(table, alpha_);
 
@@ -170,12 +158,32 @@ Bsdf::Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, f
   // E_s(mu) = s (f0 A + B)(1 + f0 k) the dielectric's compensated specular
   // albedo, k = (1 - E) / E; its cosine-weighted average is therefore
   // s (f0 avg(A) + avg(B) + f0^2 avg(A k) + f0 avg(B k)).
-  if (diffuse_weight_ > 0 && dielectric_weight_ > 0) {
+  if (dielectric_weight_ > 0) {
     const ggx::AlbedoTable::Averages avg = ggx::albedo_averages(table, row_);
     per_channel([&](float f0) {
       const float e_avg = specular_factor_ * (f0 * avg.a + avg.b + f0 * f0 * avg.ak + f0 * avg.bk);
       return kInvPi / std::max(1.0f - e_avg, 1e-6f);
     });
+  }
+}
+
+Bsdf::Bsdf(const BsdfConstants& k, Vec3 ns, Vec3 ng, Vec3 base_color, bool entering,
+           Vec3 coat_normal)
+    : BsdfConstants(k), frame_(ns), ng_(ng) {
+  metal_f0_ = base_color;
+  metal_weight_ = max_component(base_color) > 0 ? metallic_ : 0.0f;
+  has_specular_ = metal_weight_ > 0 || dielectric_weight_ > 0;
+  diffuse_color_ = base_color * diffuse_scale_;
+  diffuse_weight_ = max_component(diffuse_color_);
+  if (glass_weight_ > 0) [[unlikely]] {
+    glass_tint_ = base_color;
+    eta_ = entering ? glass_ior_ : 1.0f / glass_ior_;
+    glass_entering_ = entering;
+  }
+  if (coat_weight_ > 0 && is_finite(coat_normal) && dot(coat_normal, coat_normal) > 0.5f)
+      [[unlikely]] {
+    coat_normal_ = true;
+    coat_frame_ = Frame(coat_normal);
   }
 }
 

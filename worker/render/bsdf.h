@@ -116,12 +116,64 @@ struct SheenLayer {
   float roughness = 0.0f;
 };
 
-class Bsdf {
+// What a Bsdf takes from its material's scalar factors alone: everything but
+// the base colour, the normals and the side the light arrives from. The same
+// at every point of a material whose scalar factors are not textured, so
+// Scene computes it once per material (Scene::bsdf_constants) and a hit adds
+// only its own colour and frame (bench/README.md, "A material's BSDF
+// constants computed once"). The members are the Bsdf's own (it derives
+// from this), named as its members are.
+class BsdfConstants {
+ public:
+  BsdfConstants(float metallic, float roughness, float ior, const SpecularLayer& specular = {},
+                float transmission = 0.0f, const ClearcoatLayer& clearcoat = {},
+                const SheenLayer& sheen = {});
+
+ protected:
+  BsdfConstants() = default;
+  ggx::AlbedoRow row_;  // the rough specular lobe's (unused for a mirror)
+  Vec3 dielectric_f0_;  // from the IOR, times the specular colour (clamped to 1)
+  // 1 / (pi (1 - E_s_avg)); 1 / pi without an interface. Only read where
+  // the base has a colour.
+  Vec3 diffuse_norm_;
+  float metallic_;           // clamped to [0, 1]
+  float diffuse_scale_;      // (1 - metallic)(1 - t): the base colour's share in the base lobe
+  float dielectric_weight_;  // of the dielectric's specular lobe: (1 - metallic) s, 0 for IOR 1
+  float specular_factor_;    // s, or 0 without a dielectric interface
+  float alpha_;
+  bool grey_f0_;  // the same F0 in every channel (no specular colour)
+  bool delta_specular_;
+  // The glass lobe (KHR_materials_transmission).
+  bool glass_delta_ = false;
+  float glass_weight_ = 0;  // (1 - metallic) t
+  float glass_ior_ = 1;     // the material's IOR
+  // The clearcoat (KHR_materials_clearcoat).
+  float coat_weight_ = 0;  // c
+  float coat_alpha_;
+  bool coat_delta_;
+  ggx::AlbedoRow coat_row_;
+  // The sheen (KHR_materials_sheen), between the base and the coat.
+  float sheen_weight_ = 0;  // max(C); 0 = no sheen
+  Vec3 sheen_color_;
+  float sheen_roughness_ = 0;
+  float sheen_alpha_ = 0;
+};
+
+class Bsdf : private BsdfConstants {
  public:
   // `ns` shading normal, `ng` geometric normal, both facing wo's side.
   Bsdf(Vec3 ns, Vec3 ng, Vec3 base_color, float metallic, float roughness, float ior,
        const SpecularLayer& specular = {}, const TransmissionLayer& transmission = {},
-       const ClearcoatLayer& clearcoat = {}, const SheenLayer& sheen = {});
+       const ClearcoatLayer& clearcoat = {}, const SheenLayer& sheen = {})
+      : Bsdf(BsdfConstants(metallic, roughness, ior, specular, transmission.factor, clearcoat,
+                           sheen),
+             ns, ng, base_color, transmission.entering, clearcoat.normal) {}
+  // The same from its material's constants: bit for bit the Bsdf of the
+  // constructor above given the factors `k` was computed from.
+  // `entering` and `coat_normal` are TransmissionLayer's and
+  // ClearcoatLayer's.
+  Bsdf(const BsdfConstants& k, Vec3 ns, Vec3 ng, Vec3 base_color, bool entering = true,
+       Vec3 coat_normal = Vec3(0.0f));
 
   // What depends on the outgoing direction alone (its local form, the
   // compensated Fresnel, the base's share, lobe probability, Smith term),
@@ -207,41 +259,19 @@ class Bsdf {
   // through to the base (1 without a dielectric interface), per channel.
   Vec3 base_transmission(const ggx::Albedo& e) const;
 
+  // What the hit adds to its material's constants.
   Frame frame_;
   Vec3 ng_;
-  ggx::AlbedoRow row_;       // set only for a rough specular lobe
-  Vec3 metal_f0_;            // the base colour
-  float metal_weight_;       // metallic; 0 for a black metal (no interface)
-  Vec3 dielectric_f0_;       // from the IOR, times the specular colour (clamped to 1)
-  float dielectric_weight_;  // of the dielectric's specular lobe: (1 - metallic) s, 0 for IOR 1
-  float specular_factor_;    // s, or 0 without a dielectric interface
-  bool grey_f0_;             // the same F0 in every channel (no specular colour)
-  Vec3 diffuse_color_;       // (1 - metallic) * base_color
-  Vec3 diffuse_norm_;        // 1 / (pi (1 - E_s_avg)); 1 / pi without an interface
-  float alpha_;
+  Vec3 metal_f0_;       // the base colour
+  float metal_weight_;  // metallic; 0 for a black metal (no interface)
+  Vec3 diffuse_color_;  // (1 - metallic) * base_color
   float diffuse_weight_;
-  bool delta_specular_;
   bool has_specular_;
-  // The glass lobe (KHR_materials_transmission); last, so that opaque
-  // materials' members keep their places.
-  bool glass_delta_ = false;
-  float glass_weight_ = 0;  // (1 - metallic) t
-  float eta_ = 1;           // IOR beyond the surface over IOR on wo's side
-  float glass_ior_ = 1;     // the material's IOR
+  float eta_ = 1;  // IOR beyond the surface over IOR on wo's side
   bool glass_entering_ = true;
-  Vec3 glass_tint_;         // the base colour, which tints refracted light
-  // The clearcoat (KHR_materials_clearcoat).
-  float coat_weight_ = 0;  // c
-  float coat_alpha_;
-  bool coat_delta_;
-  ggx::AlbedoRow coat_row_;
+  Vec3 glass_tint_;           // the base colour, which tints refracted light
   bool coat_normal_ = false;  // the coat has its own normal, coat_frame_'s
   Frame coat_frame_;
-  // The sheen (KHR_materials_sheen), between the base and the coat.
-  float sheen_weight_ = 0;  // max(C); 0 = no sheen
-  Vec3 sheen_color_;
-  float sheen_roughness_ = 0;
-  float sheen_alpha_ = 0;
 };
 
 }  // namespace dofarm::render

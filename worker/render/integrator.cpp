@@ -256,10 +256,15 @@ class PathBatch {
   // The hit's BSDF, and whether it asks for a light sample.
   void prepare(PathLane& l) const {
     const SurfaceHit& hit = *l.hit;
-    new (&l.bsdf) Bsdf(hit.ns, hit.ng, hit.base_color, hit.metallic, hit.roughness, hit.ior,
-                       {hit.specular, hit.specular_color}, {hit.transmission, hit.front},
-                       {hit.clearcoat, hit.clearcoat_roughness, hit.coat_ns},
-                       {hit.sheen_color, hit.sheen_roughness});
+    // From the material's constants where it has them (the same BSDF).
+    if (const BsdfConstants* k = scene_.bsdf_constants(hit.prim)) [[likely]] {
+      new (&l.bsdf) Bsdf(*k, hit.ns, hit.ng, hit.base_color, hit.front, hit.coat_ns);
+    } else {
+      new (&l.bsdf) Bsdf(hit.ns, hit.ng, hit.base_color, hit.metallic, hit.roughness, hit.ior,
+                         {hit.specular, hit.specular_color}, {hit.transmission, hit.front},
+                         {hit.clearcoat, hit.clearcoat_roughness, hit.coat_ns},
+                         {hit.sheen_color, hit.sheen_roughness});
+    }
     new (&l.out) Bsdf::Outgoing(l.bsdf.outgoing(-l.ray.d));
     l.lit = use_nee_ && l.bsdf.has_non_delta();
     if (l.lit) new (&l.light) LightSample();

@@ -172,6 +172,24 @@ void Scene::build() {
   radius_ = std::max(0.5f * length(hi - lo), 1e-30f);
   offset_scale_ = 1e-5f;
 
+  // Each material's BSDF constants, where no texture varies its scalar
+  // factors over the surface.
+  bsdf_constants_.clear();
+  bsdf_constants_.reserve(data_.materials.size());
+  material_bsdf_.assign(data_.materials.size(), nullptr);
+  for (size_t i = 0; i < data_.materials.size(); ++i) {
+    const Material& m = data_.materials[i];
+    bsdf_constants_.emplace_back(m.metallic, m.roughness, m.ior,
+                                 SpecularLayer{m.specular, m.specular_color}, m.transmission,
+                                 ClearcoatLayer{m.clearcoat, m.clearcoat_roughness, Vec3(0.0f)},
+                                 SheenLayer{m.sheen_color, m.sheen_roughness});
+    const bool textured = m.metal_rough_tex.present() || m.transmission_tex.present() ||
+                          m.clearcoat_tex.present() || m.clearcoat_rough_tex.present() ||
+                          m.specular_tex.present() || m.specular_color_tex.present() ||
+                          m.sheen_color_tex.present() || m.sheen_rough_tex.present();
+    if (!textured) material_bsdf_[i] = &bsdf_constants_[i];
+  }
+
   tri_normal_.resize(data_.triangle_count());
   for (uint32_t t = 0; t < data_.triangle_count(); ++t) {
     const uint32_t* idx = &data_.indices[size_t(t) * 3];

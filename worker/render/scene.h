@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "common/jobspec.h"
+#include "worker/render/bsdf.h"
 #include "worker/render/camera.h"
 #include "worker/render/distribution.h"
 #include "worker/render/environment.h"
@@ -118,6 +119,12 @@ class Scene {
   // Origin for a ray leaving `hit` in direction `dir`, pushed off the surface
   // by an amount that scales with the coordinates (works from 1e-4 to 1e5).
   Vec3 offset_origin(const SurfaceHit& hit, Vec3 dir) const;
+  // The BSDF constants of triangle `prim`'s material, computed once
+  // (BsdfConstants); null where the material textures one of its scalar
+  // factors, and each hit computes its own.
+  const BsdfConstants* bsdf_constants(uint32_t prim) const {
+    return material_bsdf_[data_.tri_material[prim]];
+  }
 
   // The scene's data. Its `textures` are empty: the texels live in
   // textures(), shared by every pose of the scene.
@@ -312,6 +319,9 @@ class Scene {
   std::vector<NearLight> light_tri_near_;
   bool solid_angle_lights_ = true;
   std::vector<int> light_index_of_prim_;  // -1 where not a light
+  // bsdf_constants(): per material, into bsdf_constants_ or null.
+  std::vector<BsdfConstants> bsdf_constants_;
+  std::vector<const BsdfConstants*> material_bsdf_;
   // Selection over light_tris_, then data_.lights, then (if sampled) the
   // environment.
   Distribution1D light_select_;
