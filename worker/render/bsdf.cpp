@@ -211,6 +211,8 @@ Bsdf::Outgoing Bsdf::outgoing(Vec3 wo_w) const {
   o.wo = frame_.to_local(wo_w);
   o.valid = o.wo.z > 0 && dot(wo_w, ng_) > 0;
   if (!o.valid) return o;
+  if (glass_weight_ > 0 || coat_weight_ > 0 || sheen_weight_ > 0) [[unlikely]]
+    o.set_layer_defaults();
   const float mu = o.wo.z;
   Vec3 specular_albedo_o(0);
   ggx::Albedo e;
@@ -222,10 +224,23 @@ Bsdf::Outgoing Bsdf::outgoing(Vec3 wo_w) const {
     // two parts: c0 + c1 w.
     const float k = delta_specular_ ? 0.0f : e.k();
     const Vec3 one(1.0f);
-    const Vec3 metal = (one + metal_f0_ * k) * metal_weight_;
-    const Vec3 dielectric = (one + dielectric_f0_ * k) * dielectric_weight_;
-    o.fresnel_c0 = metal * metal_f0_ + dielectric * dielectric_f0_;
-    o.fresnel_c1 = metal * (one - metal_f0_) + dielectric * (one - dielectric_f0_);
+    // A part of weight 0 adds (+0, +0, +0) to the other's terms (whose
+    // factors are all >= 0): only the present part is computed, and the
+    // +0 keeps the sum's bits (a -0 term becomes +0 as it did).
+    if (metal_weight_ > 0 && dielectric_weight_ > 0) [[unlikely]] {
+      const Vec3 metal = (one + metal_f0_ * k) * metal_weight_;
+      const Vec3 dielectric = (one + dielectric_f0_ * k) * dielectric_weight_;
+      o.fresnel_c0 = metal * metal_f0_ + dielectric * dielectric_f0_;
+      o.fresnel_c1 = metal * (one - metal_f0_) + dielectric * (one - dielectric_f0_);
+    } else if (dielectric_weight_ > 0) {
+      const Vec3 dielectric = (one + dielectric_f0_ * k) * dielectric_weight_;
+      o.fresnel_c0 = Vec3(0.0f) + dielectric * dielectric_f0_;
+      o.fresnel_c1 = Vec3(0.0f) + dielectric * (one - dielectric_f0_);
+    } else {
+      const Vec3 metal = (one + metal_f0_ * k) * metal_weight_;
+      o.fresnel_c0 = metal * metal_f0_ + Vec3(0.0f);
+      o.fresnel_c1 = metal * (one - metal_f0_) + Vec3(0.0f);
+    }
     // The lobe's albedo: c0 E + c1 B (microfacet_albedo.h).
     specular_albedo_o = o.fresnel_c0 * e.e() + o.fresnel_c1 * e.b;
   }

@@ -179,6 +179,10 @@ class Bsdf : private BsdfConstants {
   // compensated Fresnel, the base's share, lobe probability, Smith term),
   // computed once per path vertex and shared by the light sample's
   // evaluate() and sample().
+  // Only `valid` and `specular_prob` have values from the start; the rest
+  // is written where the material has the lobe that reads it (the layers'
+  // terms by set_layer_defaults() first, for a material with a layer), so
+  // an opaque material's vertex pays for no defaults it never reads.
   struct Outgoing {
     Vec3 wo;  // local
     // The specular lobe's Fresnel factor, multiple-scattering compensation
@@ -186,24 +190,39 @@ class Bsdf : private BsdfConstants {
     Vec3 fresnel_c0, fresnel_c1;
     Vec3 diffuse;                  // base lobe's f / (1 - E_s(mu_i)), per channel
     float specular_prob = 0;       // of choosing the specular lobe in sample()
-    float smith_r = 0;             // ggx::smith_r(wo, alpha)
-    float inv_4_cos_o = 0;         // 1 / (4 wo.z), of the microfacet BRDF
-    float specular_pdf_scale = 0;  // specular lobe's pdf over D(h)
-    float glass_prob = 0;          // of choosing the glass lobe in sample()
-    float glass_scale = 1;         // 1 / E_glass(mu_o): multiple-scattering compensation
-    float coat_prob = 0;           // of choosing the clearcoat lobe in sample()
-    float coat_scale = 1;          // 1 - E_c(mu_o): what the coat lets through
-    float coat_fresnel = 0;        // c (1 + F0 k_c(mu_o)): the coat lobe's factor
-    float coat_smith_r = 0;
+    float smith_r;                 // ggx::smith_r(wo, alpha)
+    float inv_4_cos_o;             // 1 / (4 wo.z), of the microfacet BRDF
+    float specular_pdf_scale;      // specular lobe's pdf over D(h)
+    float glass_prob;              // of choosing the glass lobe in sample()
+    float glass_scale;             // 1 / E_glass(mu_o): multiple-scattering compensation
+    float coat_prob;               // of choosing the clearcoat lobe in sample()
+    float coat_scale;              // 1 - E_c(mu_o): what the coat lets through
+    float coat_fresnel;            // c (1 + F0 k_c(mu_o)): the coat lobe's factor
+    float coat_smith_r;
     // wo in the coat's frame (its own normal where it has one and wo lies
     // above it; else wo) and which frame that is.
     Vec3 coat_wo;
-    bool coat_own_frame = false;
-    float sheen_prob = 0;          // of choosing the sheen lobe in sample(), under the coat
-    float sheen_scale = 1;         // 1 - max(C) E_sheen(mu_o): what the sheen lets through
-    float sheen_norm = 1;          // 1 / E_sheen(mu_o) where that exceeds 1 (grazing), else 1
-    float sheen_lambda_o = 0;      // the sheen's shadowing Lambda(mu_o) (sheen.h)
+    bool coat_own_frame;
+    float sheen_prob;              // of choosing the sheen lobe in sample(), under the coat
+    float sheen_scale;             // 1 - max(C) E_sheen(mu_o): what the sheen lets through
+    float sheen_norm;              // 1 / E_sheen(mu_o) where that exceeds 1 (grazing), else 1
+    float sheen_lambda_o;          // the sheen's shadowing Lambda(mu_o) (sheen.h)
     bool valid = false;            // above both the shading and the geometric surface
+    // The layers' terms as a material without those layers has them: no
+    // glass, coat or sheen to choose, all light let through.
+    void set_layer_defaults() {
+      glass_prob = 0;
+      glass_scale = 1;
+      coat_prob = 0;
+      coat_scale = 1;
+      coat_fresnel = 0;
+      coat_smith_r = 0;
+      coat_own_frame = false;
+      sheen_prob = 0;
+      sheen_scale = 1;
+      sheen_norm = 1;
+      sheen_lambda_o = 0;
+    }
   };
   Outgoing outgoing(Vec3 wo) const;
 
