@@ -7,6 +7,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <cstdio>
 #include <iterator>
@@ -22,6 +23,7 @@
 #include "worker/render/bsdf.h"
 #include "worker/render/microfacet.h"
 #include "worker/render/sheen.h"
+#include "worker/render/simd.h"
 
 using dofarm::kInvPi;
 using dofarm::kPi;
@@ -639,6 +641,119 @@ TEST(Bsdf, EveryOutputIsFiniteOnTheEdgesOfItsDomain) {
       }
     }
   }
+}
+
+// ---------------------------------------------------------------------------
+// Evaluation in lanes (Bsdf::evaluate_lanes, the integrator's batches):
+// the two-step evaluate() and sample() give the one-step results bit for
+// bit, with AVX2 on and off, for batches of every size up to 16 (two rounds
+// of eight lanes), of mixed materials in any order, and for records too far
+// apart in memory for the lanes' offsets (one on the stack, the rest on
+// the heap: evaluated one by one).
+
+TEST(Bsdf, EvaluationsInLanesAreEachBsdfsOwn) {
+  dofarm::render::SimdRestore restore;
+  std::mt19937 rng(17);
+  std::uniform_real_distribution<float> u01(0.0f, 1.0f);
+  auto direction = [&](float min_z) {
+    for (;;) {
+      const Vec3 d(2 * u01(rng) - 1, 2 * u01(rng) - 1, 2 * u01(rng) - 1);
+      const float l = dofarm::length(d);
+      if (l > 0.1f && l <= 1.0f && d.z / l >= min_z) return d / l;
+    }
+  };
+  // Everything in_lanes() allows: dielectric, metal and both at once,
+  // rough and mirror, black, IOR 1, a grey specular layer, a normal and
+  // geometric normal apart, grazing directions.
+  std::vector<Bsdf> bsdfs;
+  std::vector<Bsdf::Outgoing> outs;
+  const float roughness[] = {0.0f, 0.03f, 0.05f, 0.3f, 0.9f, 1.0f};
+  for (int i = 0; bsdfs.size() < 120; ++i) {
+    const Vec3 ng = direction(-1.0f);
+    const Vec3 ns = normalize(ng + direction(-1.0f) * 0.3f);
+    const Vec3 base = i % 7 == 0 ? Vec3(0.0f) : Vec3(u01(rng), u01(rng), u01(rng));
+    const float metallic = i % 3 == 0 ? 0.0f : (i % 3 == 1 ? 1.0f : u01(rng));
+    const float ior = i % 11 == 0 ? 1.0f : 1.0f + u01(rng);
+    const dofarm::render::SpecularLayer specular{i % 5 == 0 ? 0.5f : 1.0f, Vec3(1.0f)};
+    Bsdf b(ns, dot(ns, ng) > 0 ? ng : -ng, base, metallic, roughness[i % 6], ior, specular);
+    ASSERT_TRUE(b.in_lanes());
+    const Vec3 wo = i % 9 == 0 ? normalize(Vec3(1.0f, 0.0f, 1e-3f)) : direction(-0.2f);
+    bsdfs.push_back(b);
+    outs.push_back(b.outgoing(dot(ns, ng) > 0 ? wo : -wo));
+  }
+  auto same = [](float a, float b) {
+    return std::bit_cast<uint32_t>(a) == std::bit_cast<uint32_t>(b);
+  };
+  auto same3 = [&](Vec3 a, Vec3 b) { return same(a.x, b.x) && same(a.y, b.y) && same(a.z, b.z); };
+  const Bsdf on_stack = bsdfs[0];
+  const Bsdf::Outgoing out_on_stack = outs[0];
+  size_t evaluated = 0;
+  for (bool simd : {true, false}) {
+    dofarm::render::allow_simd(simd);
+    for (int round = 0; round < 400; ++round) {
+      const int n = 1 + round % 16;
+      const bool far = round % 13 == 0;  // lane 0 on the stack
+      const Bsdf* b[16];
+      const Bsdf::Outgoing* o[16];
+      Vec3 wi[16], wi_world[16], f[16];
+      float pdf[16], ul[16];
+      Vec2 uv[16];
+      bool sampled[16];
+      BsdfSample two_step[16];
+      int m = 0;
+      for (int k = 0; m < n && k < 64; ++k) {
+        const size_t i = std::uniform_int_distribution<size_t>(0, bsdfs.size() - 1)(rng);
+        const Bsdf* bk = far && m == 0 ? &on_stack : &bsdfs[i];
+        const Bsdf::Outgoing* ok = far && m == 0 ? &out_on_stack : &outs[i];
+        // Half the lanes towards a light, half a sample.
+        if (k % 2 == 0) {
+          wi_world[m] = direction(-1.0f);
+          sampled[m] = false;
+          if (!bk->evaluate_direction(*ok, wi_world[m], &wi[m])) {
+            float p = -1;
+            ASSERT_TRUE(same3(bk->evaluate(*ok, wi_world[m], &p), Vec3(0)) && p == 0);
+            continue;
+          }
+        } else {
+          ul[m] = u01(rng);
+          uv[m] = Vec2(u01(rng), u01(rng));
+          sampled[m] = true;
+          if (!bk->sample_direction(*ok, ul[m], uv[m], &two_step[m], &wi[m])) {
+            const BsdfSample one = bk->sample(*ok, ul[m], uv[m]);
+            ASSERT_EQ(one.valid, two_step[m].valid);
+            if (one.valid) {
+              ASSERT_TRUE(same3(one.weight, two_step[m].weight) && one.is_delta);
+            }
+            continue;
+          }
+        }
+        b[m] = bk;
+        o[m] = ok;
+        ++m;
+      }
+      if (m == 0) continue;
+      Bsdf::evaluate_lanes(m, b, o, wi, f, pdf);
+      for (int k = 0; k < m; ++k) {
+        ++evaluated;
+        if (!sampled[k]) {
+          float p = -1;
+          const Vec3 one = b[k]->evaluate(*o[k], wi_world[k], &p);
+          ASSERT_TRUE(same3(one, f[k]) && same(p, pdf[k]))
+              << "simd " << simd << " lane " << k << " of " << m << ": (" << one.x << ", " << one.y
+              << ", " << one.z << ") pdf " << p << " against (" << f[k].x << ", " << f[k].y << ", "
+              << f[k].z << ") pdf " << pdf[k];
+        } else {
+          Bsdf::finish_sample(&two_step[k], f[k], pdf[k]);
+          const BsdfSample one = b[k]->sample(*o[k], ul[k], uv[k]);
+          ASSERT_EQ(one.valid, two_step[k].valid) << "simd " << simd << " lane " << k;
+          ASSERT_TRUE(same3(one.wi, two_step[k].wi) && same(one.pdf, two_step[k].pdf) &&
+                      (!one.valid || same3(one.weight, two_step[k].weight)))
+              << "simd " << simd << " lane " << k << " of " << m;
+        }
+      }
+    }
+  }
+  EXPECT_GT(evaluated, 3000u);
 }
 
 // ---------------------------------------------------------------------------

@@ -1,11 +1,15 @@
 #include "worker/render/bsdf.h"
 
 #include <cmath>
+#include <cstdint>
+#include <limits>
 
 #include "worker/render/glass_albedo.h"
 #include "worker/render/microfacet.h"
 #include "worker/render/sheen.h"
+#include "worker/render/simd.h"
 #include "worker/render/trig.h"
+#include "worker/render/trig8.h"
 
 namespace dofarm::render {
 
@@ -133,6 +137,9 @@ BsdfConstants::BsdfConstants(float metallic, float roughness, float ior,
     // IOR 1 is no interface: light passes unbent whatever the roughness.
     glass_delta_ = delta_specular_ || glass_ior_ == 1.0f;
   }
+  // Evaluated in lanes (evaluate_lanes) where no lobe needs more than
+  // evaluate_local()'s opaque lobes and a grey F0.
+  in_lanes_ = !(glass_weight_ > 0) && !(coat_weight_ > 0) && !(sheen_weight_ > 0) && grey_f0_;
   // The base's normalisation; a mirror's albedo s F(mu) has the closed-form
   // average s (f0 + (1 - f0) / 21).
   diffuse_norm_ = Vec3(kInvPi);
@@ -564,19 +571,33 @@ BsdfSample Bsdf::sample_base(const Outgoing& o, float u_lobe, Vec2 u, bool direc
     if (u_lobe < o.glass_prob) return sample_glass(o, u_lobe / o.glass_prob, u, direction_only);
     u_lobe = rest_of(u_lobe, o.glass_prob);
   }
+  Vec3 wi;
+  if (!reflection_direction(o, u_lobe, u, &s, &wi)) return s;
+  if (direction_only) [[unlikely]] {
+    s.valid = true;
+    return s;
+  }
+  float pdf;
+  const Vec3 f = evaluate_local(o, wi, &pdf);
+  finish_sample(&s, f, pdf);
+  return s;
+}
+
+bool Bsdf::reflection_direction(const Outgoing& o, float u_lobe, Vec2 u, BsdfSample* s,
+                                Vec3* wi_out) const {
   const Vec3 wo = o.wo;
   const float ps = o.specular_prob;
   Vec3 wi;
   if (u_lobe < ps) {
     if (delta_specular_) {
-      if (!mirror(wo, &s.wi)) return s;
+      if (!mirror(wo, &s->wi)) return false;
       // h = n, so wo.h = mu_o.
-      s.weight = (o.fresnel_c0 + o.fresnel_c1 * schlick_weight(wo.z)) / ps;
+      s->weight = (o.fresnel_c0 + o.fresnel_c1 * schlick_weight(wo.z)) / ps;
       if (glass_weight_ > 0) [[unlikely]]
-        s.weight = s.weight / (1.0f - o.glass_prob);
-      s.is_delta = true;
-      s.valid = is_finite(s.weight);
-      return s;
+        s->weight = s->weight / (1.0f - o.glass_prob);
+      s->is_delta = true;
+      s->valid = is_finite(s->weight);
+      return false;
     }
     // The compensated lobe is the single-scattering lobe scaled by a factor
     // of wo alone, so visible normals sample it as well as before.
@@ -585,18 +606,223 @@ BsdfSample Bsdf::sample_base(const Outgoing& o, float u_lobe, Vec2 u, bool direc
   } else {
     wi = cosine_hemisphere(u);
   }
-  if (wi.z <= 0) return s;
-  s.wi = frame_.to_world(wi);
-  if (dot(s.wi, ng_) <= 0) return s;
-  if (direction_only) [[unlikely]] {
-    s.valid = true;
-    return s;
-  }
-  Vec3 f = evaluate_local(o, wi, &s.pdf);
-  if (!(s.pdf > 0)) return s;
-  s.weight = f / s.pdf;
-  s.valid = is_finite(s.weight);
-  return s;
+  if (wi.z <= 0) return false;
+  s->wi = frame_.to_world(wi);
+  if (dot(s->wi, ng_) <= 0) return false;
+  *wi_out = wi;
+  return true;
 }
+
+bool Bsdf::sample_direction(const Outgoing& o, float u_lobe, Vec2 u, BsdfSample* s,
+                            Vec3* wi) const {
+  *s = BsdfSample();
+  if (!o.valid) return false;
+  return reflection_direction(o, u_lobe, u, s, wi);
+}
+
+bool Bsdf::evaluate_direction(const Outgoing& o, Vec3 wi_w, Vec3* wi) const {
+  // evaluate_base()'s way to evaluate_local() (no glass, coat or sheen).
+  if (!o.valid || dot(wi_w, ng_) <= 0) return false;
+  *wi = frame_.to_local(wi_w);
+  return !(wi->z <= 0);
+}
+
+void Bsdf::evaluate_lanes(int n, const Bsdf* const* bsdf, const Outgoing* const* out,
+                          const Vec3* wi, Vec3* f, float* pdf) {
+#ifdef DOFARM_HAVE_AVX2_KERNELS
+  if (use_simd()) {
+    int k = 0;
+    for (; k < n; k += 8)
+      if (!evaluate_lanes_avx2(std::min(8, n - k), bsdf + k, out + k, wi + k, f + k, pdf + k))
+        break;
+    if (k >= n) return;
+    for (; k < n; ++k) f[k] = bsdf[k]->evaluate_local(*out[k], wi[k], &pdf[k]);
+    return;
+  }
+#endif
+  for (int k = 0; k < n; ++k) f[k] = bsdf[k]->evaluate_local(*out[k], wi[k], &pdf[k]);
+}
+
+#ifdef DOFARM_HAVE_AVX2_KERNELS
+namespace {
+
+// Eight floats or ints, each at its lane's byte offset from `base`.
+DOFARM_AVX2 inline __m256 gather8(const void* base, __m256i offsets) {
+  return _mm256_i32gather_ps(static_cast<const float*>(base), offsets, 1);
+}
+DOFARM_AVX2 inline __m256i gather8i(const void* base, __m256i offsets) {
+  return _mm256_i32gather_epi32(static_cast<const int*>(base), offsets, 1);
+}
+// mask ? a : b, lane by lane.
+DOFARM_AVX2 inline __m256 select8(__m256 mask, __m256 a, __m256 b) {
+  return _mm256_blendv_ps(b, a, mask);
+}
+DOFARM_AVX2 inline __m256 sub8(__m256 x, __m256 y) { return _mm256_sub_ps(x, y); }
+DOFARM_AVX2 inline __m256 div8(__m256 x, __m256 y) { return _mm256_div_ps(x, y); }
+DOFARM_AVX2 inline __m256 gt8(__m256 x, __m256 y) { return _mm256_cmp_ps(x, y, _CMP_GT_OQ); }
+// std::max(0.0f, v) and std::min(1.0f, v) as the standard library defines
+// them (v where the comparison holds, else the constant; NaN gives the
+// constant), which max_ps(v, c) and min_ps(v, c) are.
+DOFARM_AVX2 inline __m256 max0_8(__m256 v) { return _mm256_max_ps(v, _mm256_setzero_ps()); }
+DOFARM_AVX2 inline __m256 min1_8(__m256 v) { return _mm256_min_ps(v, k8(1.0f)); }
+// schlick_weight() in lanes.
+DOFARM_AVX2 inline __m256 schlick_weight8(__m256 c) {
+  const __m256 m = sub8(k8(1.0f), min1_8(max0_8(c)));
+  const __m256 m2 = mul8(m, m);
+  return mul8(mul8(m2, m2), m);
+}
+// The byte offsets of p[k] from p[0] for the active lanes (0 for the
+// others, whose p[k] are not read), as 32-bit lanes; false where one does
+// not fit in 32 bits.
+DOFARM_AVX2 inline bool offsets8(const void* const* p, __m256i active, __m256i* out) {
+  const __m256i m_lo = _mm256_cvtepi32_epi64(_mm256_castsi256_si128(active));
+  const __m256i m_hi = _mm256_cvtepi32_epi64(_mm256_extracti128_si256(active, 1));
+  const auto* q = reinterpret_cast<const long long*>(p);
+  const __m256i base =
+      _mm256_set1_epi64x(static_cast<long long>(reinterpret_cast<uintptr_t>(p[0])));
+  const __m256i d_lo =
+      _mm256_and_si256(_mm256_sub_epi64(_mm256_maskload_epi64(q, m_lo), base), m_lo);
+  const __m256i d_hi =
+      _mm256_and_si256(_mm256_sub_epi64(_mm256_maskload_epi64(q + 4, m_hi), base), m_hi);
+  // In range where d + 2^31, as unsigned, has no upper half.
+  const __m256i bias = _mm256_set1_epi64x(0x80000000LL);
+  const __m256i upper = _mm256_or_si256(_mm256_srli_epi64(_mm256_add_epi64(d_lo, bias), 32),
+                                        _mm256_srli_epi64(_mm256_add_epi64(d_hi, bias), 32));
+  if (!_mm256_testz_si256(upper, upper)) return false;
+  const __m256i low_halves = _mm256_setr_epi32(0, 2, 4, 6, 0, 2, 4, 6);
+  *out = _mm256_set_m128i(_mm256_castsi256_si128(_mm256_permutevar8x32_epi32(d_hi, low_halves)),
+                          _mm256_castsi256_si128(_mm256_permutevar8x32_epi32(d_lo, low_halves)));
+  return true;
+}
+// A bool member of each lane's record, as a lane mask (its byte nonzero).
+DOFARM_AVX2 inline __m256 flag8(const bool* p, __m256i offsets) {
+  const __m256i v = _mm256_and_si256(gather8i(p, offsets), _mm256_set1_epi32(0xff));
+  return _mm256_castsi256_ps(
+      _mm256_xor_si256(_mm256_cmpeq_epi32(v, _mm256_setzero_si256()), _mm256_set1_epi32(-1)));
+}
+// ggx::albedo()'s mix, p + (q - p) t.
+DOFARM_AVX2 inline __m256 mix8(__m256 p, __m256 q, __m256 t) {
+  return add8(p, mul8(sub8(q, p), t));
+}
+// The table's float at index at + plus, per lane.
+DOFARM_AVX2 inline __m256 entry8(const float* table, __m256i at, int plus) {
+  return _mm256_i32gather_ps(table, _mm256_add_epi32(at, _mm256_set1_epi32(plus)), 4);
+}
+// dot(a, b) in lanes, summed in dot()'s order.
+DOFARM_AVX2 inline __m256 dot8(const __m256* a, const __m256* b) {
+  return add8(add8(mul8(a[0], b[0]), mul8(a[1], b[1])), mul8(a[2], b[2]));
+}
+
+}  // namespace
+
+DOFARM_AVX2 bool Bsdf::evaluate_lanes_avx2(int n, const Bsdf* const* bsdf,
+                                           const Outgoing* const* out, const Vec3* wi_in,
+                                           Vec3* f_out, float* pdf_out) {
+  // Each lane's records as byte offsets from lane 0's (lanes past n repeat
+  // lane 0); gathers read a field of every lane at once.
+  const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+  const __m256i active = _mm256_cmpgt_epi32(_mm256_set1_epi32(n), lane);
+  __m256i offb, offo;
+  if (!offsets8(reinterpret_cast<const void* const*>(bsdf), active, &offb) ||
+      !offsets8(reinterpret_cast<const void* const*>(out), active, &offo))
+    return false;
+  const __m256i offw =
+      _mm256_and_si256(_mm256_mullo_epi32(lane, _mm256_set1_epi32(int(sizeof(Vec3)))), active);
+  const Bsdf& b = *bsdf[0];
+  const Outgoing& o = *out[0];
+  const __m256 wi[3] = {gather8(&wi_in[0].x, offw), gather8(&wi_in[0].y, offw),
+                        gather8(&wi_in[0].z, offw)};
+  const __m256 wo[3] = {gather8(&o.wo.x, offo), gather8(&o.wo.y, offo), gather8(&o.wo.z, offo)};
+  const __m256 zero = _mm256_setzero_ps();
+  const __m256 delta = flag8(&b.delta_specular_, offb);
+  const __m256 rough = _mm256_andnot_ps(delta, flag8(&b.has_specular_, offb));
+  const __m256 diffuse = gt8(gather8(&b.diffuse_weight_, offb), zero);
+  const __m256 dielectric = gt8(gather8(&b.dielectric_weight_, offb), zero);
+
+  // p = (1 - ps) wi.z / pi.
+  __m256 p = mul8(mul8(sub8(k8(1.0f), gather8(&o.specular_prob, offo)), wi[2]), k8(kInvPi));
+
+  // The base: o.diffuse (1 - E_s(mu_i)) wi.z under a dielectric layer, else
+  // o.diffuse wi.z. E_s(mu_i) from specular_albedo(wi.z): a mirror's
+  // Schlick terms, else the table's bilinear lookup (ggx::albedo).
+  const __m256 mu = wi[2];
+  const __m256 w_mu = schlick_weight8(mu);
+  const __m256 x = mul8(_mm256_sqrt_ps(min1_8(max0_8(mu))), k8(float(ggx::AlbedoTable::kMu - 1)));
+  const __m256i j =
+      _mm256_min_epi32(_mm256_cvttps_epi32(x), _mm256_set1_epi32(ggx::AlbedoTable::kMu - 2));
+  const __m256 s = sub8(x, _mm256_cvtepi32_ps(j));
+  const __m256i row = gather8i(&b.row_.index, offb);
+  const __m256 row_t = gather8(&b.row_.t, offb);
+  const float* table = &ggx::albedo_table().entry[0][0].a;
+  // Float index of entry [row][j].a; .b follows, then [row][j + 1].
+  const __m256i lo = _mm256_slli_epi32(
+      _mm256_add_epi32(_mm256_mullo_epi32(row, _mm256_set1_epi32(ggx::AlbedoTable::kMu)), j), 1);
+  const __m256i hi = _mm256_add_epi32(lo, _mm256_set1_epi32(2 * ggx::AlbedoTable::kMu));
+  const __m256 a_lo = mix8(entry8(table, lo, 0), entry8(table, lo, 2), s);
+  const __m256 b_lo = mix8(entry8(table, lo, 1), entry8(table, lo, 3), s);
+  const __m256 a_hi = mix8(entry8(table, hi, 0), entry8(table, hi, 2), s);
+  const __m256 b_hi = mix8(entry8(table, hi, 1), entry8(table, hi, 3), s);
+  const __m256 e_a = select8(delta, sub8(k8(1.0f), w_mu), mix8(a_lo, a_hi, row_t));
+  const __m256 e_b = select8(delta, w_mu, mix8(b_lo, b_hi, row_t));
+  // base_transmission(): k = (1 - E) / E, E at least 1e-3 (0 for a mirror),
+  // then max(0, 1 - s (f0 A + B)(1 + f0 k)) with the grey F0.
+  const __m256 e = _mm256_max_ps(k8(1e-3f), add8(e_a, e_b));
+  const __m256 kk = select8(delta, zero, div8(sub8(k8(1.0f), e), e));
+  const __m256 f0 = gather8(&b.dielectric_f0_.x, offb);
+  const __m256 through =
+      max0_8(sub8(k8(1.0f), mul8(gather8(&b.specular_factor_, offb),
+                                 mul8(add8(mul8(f0, e_a), e_b), add8(k8(1.0f), mul8(f0, kk))))));
+  const __m256 t_mu = mul8(through, mu);
+  __m256 f[3];
+  const float* od = &o.diffuse.x;
+  for (int c = 0; c < 3; ++c) {
+    const __m256 d = gather8(od + c, offo);
+    const __m256 base = select8(dielectric, mul8(d, t_mu), mul8(d, mu));
+    f[c] = select8(diffuse, add8(zero, base), zero);
+  }
+
+  // The rough specular lobe (reflection_terms(), D, G2, Schlick).
+  __m256 sum[3], h[3];
+  for (int c = 0; c < 3; ++c) sum[c] = add8(wo[c], wi[c]);
+  const __m256 inv_len = div8(k8(1.0f), _mm256_sqrt_ps(dot8(sum, sum)));
+  for (int c = 0; c < 3; ++c) h[c] = mul8(sum[c], inv_len);
+  const __m256 wo_h = dot8(wo, h);
+  const __m256 alpha = gather8(&b.alpha_, offb);
+  const __m256 a2 = mul8(alpha, alpha);
+  const __m256 tt = add8(div8(add8(mul8(h[0], h[0]), mul8(h[1], h[1])), a2), mul8(h[2], h[2]));
+  __m256 dd = div8(k8(1.0f), mul8(mul8(mul8(k8(kPi), a2), tt), tt));
+  const __m256 finite = _mm256_cmp_ps(_mm256_andnot_ps(k8(-0.0f), dd),
+                                      k8(std::numeric_limits<float>::infinity()), _CMP_LT_OQ);
+  dd = select8(_mm256_and_ps(gt8(h[2], zero), finite), dd, zero);
+  const __m256 ro = gather8(&o.smith_r, offo);
+  const __m256 ri = _mm256_sqrt_ps(
+      add8(mul8(wi[2], wi[2]), mul8(a2, add8(mul8(wi[0], wi[0]), mul8(wi[1], wi[1])))));
+  const __m256 den = add8(mul8(wi[2], ro), mul8(wo[2], ri));
+  const __m256 g_ok =
+      _mm256_and_ps(_mm256_and_ps(gt8(wo[2], zero), gt8(wi[2], zero)), gt8(den, zero));
+  const __m256 g = select8(g_ok, min1_8(div8(mul8(mul8(k8(2.0f), wo[2]), wi[2]), den)), zero);
+  const __m256 w_oh = schlick_weight8(wo_h);
+  const __m256 scale = mul8(mul8(dd, g), gather8(&o.inv_4_cos_o, offo));
+  const float* c0 = &o.fresnel_c0.x;
+  const float* c1 = &o.fresnel_c1.x;
+  for (int c = 0; c < 3; ++c) {
+    const __m256 fr = add8(gather8(c0 + c, offo), mul8(gather8(c1 + c, offo), w_oh));
+    f[c] = select8(rough, add8(f[c], mul8(fr, scale)), f[c]);
+  }
+  p = select8(_mm256_and_ps(rough, gt8(wo_h, zero)),
+              add8(p, mul8(dd, gather8(&o.specular_pdf_scale, offo))), p);
+
+  alignas(32) float fx[8], fy[8], fz[8], pp[8];
+  _mm256_store_ps(fx, f[0]);
+  _mm256_store_ps(fy, f[1]);
+  _mm256_store_ps(fz, f[2]);
+  _mm256_store_ps(pp, p);
+  for (int k = 0; k < n; ++k) {
+    f_out[k] = Vec3(fx[k], fy[k], fz[k]);
+    pdf_out[k] = pp[k];
+  }
+  return true;
+}
+#endif
 
 }  // namespace dofarm::render

@@ -143,6 +143,7 @@ class BsdfConstants {
   float alpha_;
   bool grey_f0_;  // the same F0 in every channel (no specular colour)
   bool delta_specular_;
+  bool in_lanes_;  // Bsdf::in_lanes()
   // The glass lobe (KHR_materials_transmission).
   bool glass_delta_ = false;
   float glass_weight_ = 0;  // (1 - metallic) t
@@ -234,6 +235,32 @@ class Bsdf : private BsdfConstants {
   Vec3 evaluate(const Outgoing& o, Vec3 wi, float* pdf) const;
   BsdfSample sample(Vec3 wo, float u_lobe, Vec2 u) const;
   BsdfSample sample(const Outgoing& o, float u_lobe, Vec2 u) const;
+  // Several paths' vertices at once (PathBatch, worker/render/integrator.cpp).
+  // in_lanes(): this BSDF's evaluation can run in a lane of
+  // evaluate_lanes() (no glass, coat or sheen, and a grey F0).
+  bool in_lanes() const { return in_lanes_; }
+  // evaluate() in two steps, for a BSDF in_lanes(): false where it is 0
+  // (with pdf 0) without evaluating; else true, and *wi the local
+  // direction to evaluate in lanes.
+  bool evaluate_direction(const Outgoing& o, Vec3 wi_w, Vec3* wi) const;
+  // sample() in two steps, for a BSDF in_lanes(): false where the sample is
+  // complete (a delta lobe's, or invalid) in *s; else true, with s->wi set
+  // and *wi its local form, whose evaluation (evaluate_lanes) finish_sample()
+  // turns into the sample.
+  bool sample_direction(const Outgoing& o, float u_lobe, Vec2 u, BsdfSample* s, Vec3* wi) const;
+  static void finish_sample(BsdfSample* s, Vec3 f, float pdf) {
+    s->pdf = pdf;
+    if (!(pdf > 0)) return;
+    s->weight = f / pdf;
+    s->valid = is_finite(s->weight);
+  }
+  // bsdf[k]->evaluate_local(*out[k], wi[k], &pdf[k]) for k < n, eight at
+  // a time in AVX2 lanes where the CPU has them (each lane the
+  // scalar arithmetic in its order, so the same bits; simd.h), else one by
+  // one. Every bsdf[k] in_lanes(), every wi[k] from evaluate_direction()
+  // or sample_direction().
+  static void evaluate_lanes(int n, const Bsdf* const* bsdf, const Outgoing* const* out,
+                             const Vec3* wi, Vec3* f, float* pdf);
   bool has_non_delta() const {
     return diffuse_weight_ > 0 || (has_specular_ && !delta_specular_) ||
            (glass_weight_ > 0 && !glass_delta_) || (coat_weight_ > 0 && !coat_delta_) ||
@@ -243,6 +270,10 @@ class Bsdf : private BsdfConstants {
  private:
   // evaluate() with both directions local and above the surfaces.
   Vec3 evaluate_local(const Outgoing& o, Vec3 wi, float* pdf) const;
+  // evaluate_lanes() of n <= 8 in AVX2 lanes; false where it cannot (lanes
+  // too far apart in memory for 32-bit gather offsets).
+  static bool evaluate_lanes_avx2(int n, const Bsdf* const* bsdf, const Outgoing* const* out,
+                                  const Vec3* wi, Vec3* f, float* pdf);
   // The glass lobe for wi below the surface (refraction), rough glass only.
   Vec3 evaluate_refraction(const Outgoing& o, Vec3 wi, float* pdf) const;
   // The glass lobe's reflection, added to f and *pdf (wi above the surface).
@@ -267,6 +298,10 @@ class Bsdf : private BsdfConstants {
   Vec3 evaluate_base(const Outgoing& o, Vec3 wi, float* pdf) const;
   BsdfSample sample_base(const Outgoing& o, float u_lobe, Vec2 u,
                          bool direction_only = false) const;
+  // sample_base()'s reflection lobes (specular or base) for a valid o: false
+  // where the sample is complete in *s (a delta lobe's, or none); else true,
+  // with s->wi set and *wi its local form, still to be evaluated.
+  bool reflection_direction(const Outgoing& o, float u_lobe, Vec2 u, BsdfSample* s, Vec3* wi) const;
   // sample() with a coat or a sheen over the base: picks a layer's lobe for
   // the direction, then weighs it against the whole material.
   BsdfSample sample_layered(const Outgoing& o, float u_lobe, Vec2 u) const;

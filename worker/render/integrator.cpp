@@ -7,6 +7,8 @@
 #include <type_traits>
 
 #include "worker/render/bsdf.h"
+#include "worker/render/scratch.h"
+#include "worker/render/simd.h"
 
 namespace dofarm::render {
 
@@ -66,6 +68,13 @@ struct PathLane {
     LightSample light;
   };
   bool lit = false;
+  // Between PathBatch::shade_lanes' passes: the BSDF's value and pdf
+  // towards the light sample, and the BSDF sample.
+  Vec3 light_f;
+  float light_bsdf_pdf;
+  union {
+    BsdfSample bounce;
+  };
   PathLane() {}
 };
 static_assert(std::is_trivially_destructible_v<Bsdf>);
@@ -104,10 +113,11 @@ class PathBatch {
         env_(scene.environment()),
         use_nee_(settings.strategy != LightStrategy::kBsdfOnly),
         use_bsdf_hits_(settings.strategy != LightStrategy::kNeeOnly),
-        use_mis_(settings.strategy == LightStrategy::kMis) {}
+        use_mis_(settings.strategy == LightStrategy::kMis),
+        lanes_(interleave && use_simd()) {}
 
   void run(PathLane* lanes, int n) const {
-    Environment::Located located[kMaxPaths];
+    Scratch<Environment::Located, kMaxPaths> located;
     int escaping[kMaxPaths];
     for (bool live = true; live;) {
       live = false;
@@ -122,17 +132,21 @@ class PathBatch {
       if (m > 0) {
         // The escaping paths' texels, located together (and loading while
         // the others shade).
-        Vec3 dirs[kMaxPaths];
+        Scratch<Vec3, kMaxPaths> dirs;
         for (int j = 0; j < m; ++j) dirs[j] = lanes[escaping[j]].ray.d;
-        env_->locate(dirs, m, located);
+        env_->locate(dirs.data(), m, located.data());
       }
       for (int k = 0; k < n; ++k)
         if (lanes[k].next == PathLane::Next::kShade) prepare(lanes[k]);
       if (interleave_) sample_lights(lanes, n);
-      for (int k = 0; k < n; ++k) {
-        if (lanes[k].next != PathLane::Next::kShade) continue;
-        shade(lanes[k]);
-        live = live || lanes[k].next == PathLane::Next::kTrace;
+      if (lanes_ && n > 1) {
+        live = shade_lanes(lanes, n);
+      } else {
+        for (int k = 0; k < n; ++k) {
+          if (lanes[k].next != PathLane::Next::kShade) continue;
+          shade(lanes[k]);
+          live = live || lanes[k].next == PathLane::Next::kTrace;
+        }
       }
       for (int j = 0; j < m; ++j) escape(lanes[escaping[j]], located[j]);
     }
@@ -277,7 +291,7 @@ class PathBatch {
   // (Scene::sample_lights); they read what the light choices started
   // loading. A path whose sample fails is not lit.
   void sample_lights(PathLane* lanes, int n) const {
-    Vec3 from[kMaxPaths];
+    Scratch<Vec3, kMaxPaths> from;
     const Scene::LightChoice* choices[kMaxPaths];
     LightSample* out[kMaxPaths];
     bool ok[kMaxPaths];
@@ -291,60 +305,126 @@ class PathBatch {
       who[m++] = k;
     }
     if (m == 0) return;
-    scene_.sample_lights(m, from, choices, out, ok);
+    scene_.sample_lights(m, from.data(), choices, out, ok);
     for (int j = 0; j < m; ++j) lanes[who[j]].lit = ok[j];
   }
 
   // Next-event estimation with the light sample, then the bounce (or the
   // end of the path by roulette or an invalid sample).
   void shade(PathLane& l) const {
-    const SurfaceHit& hit = *l.hit;
-    const int depth = l.depth;
-    const bool roulette = depth + 1 >= settings_.rr_start_depth;
-    l.next = PathLane::Next::kDone;
-    const Bsdf& bsdf = l.bsdf;
-    const Bsdf::Outgoing& out = l.out;
-
     if (l.lit) {
-      const LightSample& ls = l.light;
       float bsdf_pdf;
-      Vec3 f = bsdf.evaluate(out, ls.wi, &bsdf_pdf);
-      if (max_component(f) > 0) {
-        const Vec3 origin = scene_.offset_origin(hit, ls.wi);
-        Vec3 dir = ls.wi;
-        float t_max = ls.distance;
-        if (!std::isinf(ls.distance)) {
-          // Aimed from the offset origin at the light point itself. Along
-          // ls.wi from the moved origin the ray would reach the light's
-          // plane earlier by the offset over the cosine, which exceeds the
-          // 1e-4 margin below for a surface close to and parallel with the
-          // light (a ceiling 2 cm above a light's back face: the light
-          // itself occluded every sample, and NEE lost its share of that
-          // light; tests/render/test_integrator.cpp).
-          const Vec3 to = hit.p + ls.wi * ls.distance - origin;
-          const float len = length(to);
-          if (len > 0) dir = to / len;
-          t_max = len * (1.0f - 1e-4f);
-        }
-        if (!scene_.occluded(origin, dir, t_max)) {
-          float w = use_mis_ && !ls.is_delta ? power_heuristic(ls.pdf, bsdf_pdf) : 1.0f;
-          l.L += l.beta * f * ls.radiance * (w / ls.pdf);
-          if (settings_.observer)
-            settings_.observer->contribution(PathObserver::Kind::kLight, depth,
-                                             l.beta * f * ls.radiance * (w / ls.pdf));
+      const Vec3 f = l.bsdf.evaluate(l.out, l.light.wi, &bsdf_pdf);
+      add_light(l, f, bsdf_pdf);
+    }
+    continue_path(l, l.bsdf.sample(l.out, l.u.lobe, l.u.bsdf));
+  }
+
+  // shade() of every path at a hit, with the BSDF evaluations of those
+  // whose BSDF allows it done together in lanes (Bsdf::evaluate_lanes),
+  // towards the light samples and in the sampled directions (which need
+  // nothing from the light samples) in one call; then the shadow rays and
+  // the bounces. Each path's numbers are shade()'s bit for bit, and its
+  // rays are traced in the same order. Whether any path goes on.
+  bool shade_lanes(PathLane* lanes, int n) const {
+    int at[kMaxPaths], ns = 0;  // the paths at a hit
+    for (int k = 0; k < n; ++k)
+      if (lanes[k].next == PathLane::Next::kShade) at[ns++] = k;
+    // Up to two evaluations per path: towards its light sample, in its
+    // sampled direction.
+    constexpr int kMax = 2 * kMaxPaths;
+    const Bsdf* bsdfs[kMax];
+    const Bsdf::Outgoing* outs[kMax];
+    Scratch<Vec3, kMax> wi, f;
+    float pdf[kMax];
+    int light_at[kMaxPaths], bounce_at[kMaxPaths];  // where each path's are, or -1
+    int m = 0;
+    for (int i = 0; i < ns; ++i) {
+      PathLane& l = lanes[at[i]];
+      light_at[i] = bounce_at[i] = -1;
+      const bool in_lanes = l.bsdf.in_lanes();
+      if (l.lit) {
+        if (!in_lanes) {
+          l.light_f = l.bsdf.evaluate(l.out, l.light.wi, &l.light_bsdf_pdf);
+        } else if (l.bsdf.evaluate_direction(l.out, l.light.wi, &wi[m])) {
+          bsdfs[m] = &l.bsdf;
+          outs[m] = &l.out;
+          light_at[i] = m++;
+        } else {
+          l.light_f = Vec3(0);
+          l.light_bsdf_pdf = 0;
         }
       }
+      if (!in_lanes) {
+        l.bounce = l.bsdf.sample(l.out, l.u.lobe, l.u.bsdf);
+      } else if (l.bsdf.sample_direction(l.out, l.u.lobe, l.u.bsdf, &l.bounce, &wi[m])) {
+        bsdfs[m] = &l.bsdf;
+        outs[m] = &l.out;
+        bounce_at[i] = m++;
+      }
     }
+    if (m > 0) Bsdf::evaluate_lanes(m, bsdfs, outs, wi.data(), f.data(), pdf);
+    bool live = false;
+    for (int i = 0; i < ns; ++i) {
+      PathLane& l = lanes[at[i]];
+      if (l.lit) {
+        const int j = light_at[i];
+        if (j >= 0) {
+          add_light(l, f[j], pdf[j]);
+        } else {
+          add_light(l, l.light_f, l.light_bsdf_pdf);
+        }
+      }
+      if (bounce_at[i] >= 0) Bsdf::finish_sample(&l.bounce, f[bounce_at[i]], pdf[bounce_at[i]]);
+      continue_path(l, l.bounce);
+      live = live || l.next == PathLane::Next::kTrace;
+    }
+    return live;
+  }
 
-    BsdfSample bs = bsdf.sample(out, l.u.lobe, l.u.bsdf);
+  // Next-event estimation with the light sample, whose BSDF value is f
+  // (pdf bsdf_pdf): its shadow ray, and what it adds.
+  void add_light(PathLane& l, Vec3 f, float bsdf_pdf) const {
+    if (!(max_component(f) > 0)) return;
+    const SurfaceHit& hit = *l.hit;
+    const LightSample& ls = l.light;
+    const Vec3 origin = scene_.offset_origin(hit, ls.wi);
+    Vec3 dir = ls.wi;
+    float t_max = ls.distance;
+    if (!std::isinf(ls.distance)) {
+      // Aimed from the offset origin at the light point itself. Along
+      // ls.wi from the moved origin the ray would reach the light's
+      // plane earlier by the offset over the cosine, which exceeds the
+      // 1e-4 margin below for a surface close to and parallel with the
+      // light (a ceiling 2 cm above a light's back face: the light
+      // itself occluded every sample, and NEE lost its share of that
+      // light; tests/render/test_integrator.cpp).
+      const Vec3 to = hit.p + ls.wi * ls.distance - origin;
+      const float len = length(to);
+      if (len > 0) dir = to / len;
+      t_max = len * (1.0f - 1e-4f);
+    }
+    if (scene_.occluded(origin, dir, t_max)) return;
+    float w = use_mis_ && !ls.is_delta ? power_heuristic(ls.pdf, bsdf_pdf) : 1.0f;
+    l.L += l.beta * f * ls.radiance * (w / ls.pdf);
+    if (settings_.observer)
+      settings_.observer->contribution(PathObserver::Kind::kLight, l.depth,
+                                       l.beta * f * ls.radiance * (w / ls.pdf));
+  }
+
+  // The bounce along the BSDF sample bs, or the end of the path (an
+  // invalid sample, or roulette).
+  void continue_path(PathLane& l, const BsdfSample& bs) const {
+    const int depth = l.depth;
+    l.next = PathLane::Next::kDone;
     if (!bs.valid) return;
     l.beta *= bs.weight;
     if (!(max_component(l.beta) > 0) || !is_finite(l.beta)) return;
     l.delta_bounce = bs.is_delta;
     l.prev_bsdf_pdf = bs.pdf;
-    l.prev_p = hit.p;
+    l.prev_p = l.hit->p;
 
-    if (roulette) {
+    if (depth + 1 >= settings_.rr_start_depth) {
       // A weight window's lower bound (Vorba and Krivanek 2016, sec. 4, with
       // a constant window and no splitting): a path whose throughput is at
       // least rr_threshold always continues; below it, it survives with
@@ -356,7 +436,7 @@ class PathBatch {
       if (l.u.roulette >= survive) return;
       l.beta = l.beta / survive;
     }
-    l.ray = {scene_.offset_origin(hit, bs.wi), bs.wi};
+    l.ray = {scene_.offset_origin(*l.hit, bs.wi), bs.wi};
     l.depth = depth + 1;
     l.next = PathLane::Next::kTrace;
   }
@@ -367,6 +447,7 @@ class PathBatch {
   const IntegratorSettings& settings_;
   const Environment* env_;
   const bool use_nee_, use_bsdf_hits_, use_mis_;
+  const bool lanes_;  // interleaved, with AVX2 lanes: shade_lanes()
 };
 
 }  // namespace

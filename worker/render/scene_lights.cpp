@@ -8,6 +8,7 @@
 #include <limits>
 
 #include "worker/render/scene.h"
+#include "worker/render/scratch.h"
 #include "worker/render/spherical_triangle.h"
 #include "worker/render/trig.h"
 
@@ -32,7 +33,7 @@ void Scene::sample_lights(int n, const Vec3* from, const LightChoice* const* cho
                           LightSample* const* out, bool* ok) const {
   // The environment's choices first (sample_light()'s environment branch
   // for each), then every other light alone.
-  Environment::Choice env[kPacket];
+  Scratch<Environment::Choice, kPacket> env;
   int lane[kPacket], m = 0;
   for (int k = 0; k < n; ++k) {
     const LightChoice& c = *choices[k];
@@ -44,8 +45,8 @@ void Scene::sample_lights(int n, const Vec3* from, const LightChoice* const* cho
     }
   }
   if (m == 0) return;
-  EnvSample es[kPacket];
-  environment_->sample(env, m, es);
+  Scratch<EnvSample, kPacket> es;
+  environment_->sample(env.data(), m, es.data());
   for (int j = 0; j < m; ++j) {
     const int k = lane[j];
     ok[k] = environment_light(es[j], choices[k]->pmf, out[k]);
