@@ -651,40 +651,64 @@ TEST(Bsdf, EveryOutputIsFiniteOnTheEdgesOfItsDomain) {
 // apart in memory for the lanes' offsets (one on the stack, the rest on
 // the heap: evaluated one by one).
 
-TEST(Bsdf, EvaluationsInLanesAreEachBsdfsOwn) {
-  dofarm::render::SimdRestore restore;
-  std::mt19937 rng(17);
+namespace {
+
+// A direction from rng, unit, with z at least min_z.
+Vec3 random_direction(std::mt19937& rng, float min_z) {
   std::uniform_real_distribution<float> u01(0.0f, 1.0f);
-  auto direction = [&](float min_z) {
-    for (;;) {
-      const Vec3 d(2 * u01(rng) - 1, 2 * u01(rng) - 1, 2 * u01(rng) - 1);
-      const float l = dofarm::length(d);
-      if (l > 0.1f && l <= 1.0f && d.z / l >= min_z) return d / l;
-    }
-  };
-  // Everything in_lanes() allows: dielectric, metal and both at once,
-  // rough and mirror, black, IOR 1, a grey specular layer, a normal and
-  // geometric normal apart, grazing directions.
+  for (;;) {
+    const Vec3 d(2 * u01(rng) - 1, 2 * u01(rng) - 1, 2 * u01(rng) - 1);
+    const float l = dofarm::length(d);
+    if (l > 0.1f && l <= 1.0f && d.z / l >= min_z) return d / l;
+  }
+}
+
+// BSDFs of everything in_lanes() allows: dielectric, metal and both at
+// once, rough and mirror, black, IOR 1, a grey specular layer, shading and
+// geometric normals apart; and an outgoing direction for each (every
+// ninth grazing, some below a surface).
+std::vector<Bsdf> lane_bsdfs(std::mt19937& rng, std::vector<Vec3>* wo) {
+  std::uniform_real_distribution<float> u01(0.0f, 1.0f);
   std::vector<Bsdf> bsdfs;
-  std::vector<Bsdf::Outgoing> outs;
   const float roughness[] = {0.0f, 0.03f, 0.05f, 0.3f, 0.9f, 1.0f};
   for (int i = 0; bsdfs.size() < 120; ++i) {
-    const Vec3 ng = direction(-1.0f);
-    const Vec3 ns = normalize(ng + direction(-1.0f) * 0.3f);
+    const Vec3 ng = random_direction(rng, -1.0f);
+    const Vec3 ns = normalize(ng + random_direction(rng, -1.0f) * 0.3f);
     const Vec3 base = i % 7 == 0 ? Vec3(0.0f) : Vec3(u01(rng), u01(rng), u01(rng));
     const float metallic = i % 3 == 0 ? 0.0f : (i % 3 == 1 ? 1.0f : u01(rng));
     const float ior = i % 11 == 0 ? 1.0f : 1.0f + u01(rng);
     const dofarm::render::SpecularLayer specular{i % 5 == 0 ? 0.5f : 1.0f, Vec3(1.0f)};
-    Bsdf b(ns, dot(ns, ng) > 0 ? ng : -ng, base, metallic, roughness[i % 6], ior, specular);
-    ASSERT_TRUE(b.in_lanes());
-    const Vec3 wo = i % 9 == 0 ? normalize(Vec3(1.0f, 0.0f, 1e-3f)) : direction(-0.2f);
-    bsdfs.push_back(b);
-    outs.push_back(b.outgoing(dot(ns, ng) > 0 ? wo : -wo));
+    const bool flip = dot(ns, ng) < 0;
+    bsdfs.emplace_back(ns, flip ? -ng : ng, base, metallic, roughness[i % 6], ior, specular);
+    const Vec3 w = i % 9 == 0 ? normalize(Vec3(1.0f, 0.0f, 1e-3f)) : random_direction(rng, -0.2f);
+    wo->push_back(flip ? -w : w);
   }
-  auto same = [](float a, float b) {
-    return std::bit_cast<uint32_t>(a) == std::bit_cast<uint32_t>(b);
-  };
-  auto same3 = [&](Vec3 a, Vec3 b) { return same(a.x, b.x) && same(a.y, b.y) && same(a.z, b.z); };
+  return bsdfs;
+}
+
+bool same_bits(float a, float b) {
+  return std::bit_cast<uint32_t>(a) == std::bit_cast<uint32_t>(b);
+}
+bool same_bits(Vec3 a, Vec3 b) {
+  return same_bits(a.x, b.x) && same_bits(a.y, b.y) && same_bits(a.z, b.z);
+}
+
+}  // namespace
+
+TEST(Bsdf, EvaluationsInLanesAreEachBsdfsOwn) {
+  dofarm::render::SimdRestore restore;
+  std::mt19937 rng(17);
+  std::uniform_real_distribution<float> u01(0.0f, 1.0f);
+  auto direction = [&](float min_z) { return random_direction(rng, min_z); };
+  std::vector<Vec3> wos;
+  const std::vector<Bsdf> bsdfs = lane_bsdfs(rng, &wos);
+  std::vector<Bsdf::Outgoing> outs;
+  for (size_t i = 0; i < bsdfs.size(); ++i) {
+    ASSERT_TRUE(bsdfs[i].in_lanes());
+    outs.push_back(bsdfs[i].outgoing(wos[i]));
+  }
+  auto same = [](float a, float b) { return same_bits(a, b); };
+  auto same3 = [](Vec3 a, Vec3 b) { return same_bits(a, b); };
   const Bsdf on_stack = bsdfs[0];
   const Bsdf::Outgoing out_on_stack = outs[0];
   size_t evaluated = 0;
@@ -754,6 +778,65 @@ TEST(Bsdf, EvaluationsInLanesAreEachBsdfsOwn) {
     }
   }
   EXPECT_GT(evaluated, 3000u);
+}
+
+// The outgoing terms in lanes (Bsdf::outgoing_lanes) are the scalar ones:
+// wo, valid and the lobe choice bit for bit, and every evaluation and
+// sample from them too, AVX2 on and off, in batches up to 16 and with
+// records too far apart for the lanes' offsets.
+TEST(Bsdf, OutgoingTermsInLanesAreEachBsdfsOwn) {
+  dofarm::render::SimdRestore restore;
+  std::mt19937 rng(23);
+  std::uniform_real_distribution<float> u01(0.0f, 1.0f);
+  std::vector<Vec3> wos;
+  const std::vector<Bsdf> bsdfs = lane_bsdfs(rng, &wos);
+  const Bsdf on_stack = bsdfs[1];
+  size_t valid = 0, invalid = 0;
+  for (bool simd : {true, false}) {
+    dofarm::render::allow_simd(simd);
+    for (int round = 0; round < 300; ++round) {
+      const int n = 1 + round % 16;
+      const Bsdf* b[16];
+      Vec3 wo[16];
+      Bsdf::Outgoing lanes[16];
+      Bsdf::Outgoing* out[16];
+      for (int k = 0; k < n; ++k) {
+        const size_t i = std::uniform_int_distribution<size_t>(0, bsdfs.size() - 1)(rng);
+        const bool far = round % 13 == 0 && k == 0;
+        b[k] = far ? &on_stack : &bsdfs[i];
+        // Most from the BSDF's own side, some from anywhere (invalid).
+        wo[k] = far ? wos[1] : (k % 4 == 3 ? random_direction(rng, -1.0f) : wos[i]);
+        out[k] = &lanes[k];
+      }
+      Bsdf::outgoing_lanes(n, b, wo, out);
+      for (int k = 0; k < n; ++k) {
+        const Bsdf::Outgoing one = b[k]->outgoing(wo[k]);
+        ASSERT_EQ(one.valid, lanes[k].valid) << "simd " << simd << " lane " << k << " of " << n;
+        ASSERT_TRUE(same_bits(one.wo, lanes[k].wo) &&
+                    same_bits(one.specular_prob, lanes[k].specular_prob))
+            << "simd " << simd << " lane " << k << " of " << n;
+        (one.valid ? valid : invalid) += 1;
+        for (int j = 0; j < 3; ++j) {
+          const Vec3 wi = random_direction(rng, -1.0f);
+          float p1 = -1, p2 = -2;
+          const Vec3 f1 = b[k]->evaluate(one, wi, &p1), f2 = b[k]->evaluate(lanes[k], wi, &p2);
+          ASSERT_TRUE(same_bits(f1, f2) && same_bits(p1, p2))
+              << "simd " << simd << " lane " << k << " of " << n;
+          const float ul = u01(rng);
+          const Vec2 uv(u01(rng), u01(rng));
+          const BsdfSample s1 = b[k]->sample(one, ul, uv), s2 = b[k]->sample(lanes[k], ul, uv);
+          ASSERT_EQ(s1.valid, s2.valid);
+          if (s1.valid) {
+            ASSERT_TRUE(same_bits(s1.wi, s2.wi) && same_bits(s1.weight, s2.weight) &&
+                        same_bits(s1.pdf, s2.pdf) && s1.is_delta == s2.is_delta)
+                << "simd " << simd << " lane " << k << " of " << n;
+          }
+        }
+      }
+    }
+  }
+  EXPECT_GT(valid, 2000u);
+  EXPECT_GT(invalid, 200u);
 }
 
 // ---------------------------------------------------------------------------

@@ -136,8 +136,12 @@ class PathBatch {
         for (int j = 0; j < m; ++j) dirs[j] = lanes[escaping[j]].ray.d;
         env_->locate(dirs.data(), m, located.data());
       }
-      for (int k = 0; k < n; ++k)
-        if (lanes[k].next == PathLane::Next::kShade) prepare(lanes[k]);
+      if (lanes_ && n > 1) {
+        prepare_lanes(lanes, n);
+      } else {
+        for (int k = 0; k < n; ++k)
+          if (lanes[k].next == PathLane::Next::kShade) prepare(lanes[k]);
+      }
       if (interleave_) sample_lights(lanes, n);
       if (lanes_ && n > 1) {
         live = shade_lanes(lanes, n);
@@ -269,8 +273,40 @@ class PathBatch {
 
   // The hit's BSDF, and whether it asks for a light sample.
   void prepare(PathLane& l) const {
+    make_bsdf(l);
+    new (&l.out) Bsdf::Outgoing(l.bsdf.outgoing(-l.ray.d));
+    // A path alone takes its light sample here (sample_lights gathers a
+    // batch's).
+    if (l.lit && !interleave_) l.lit = scene_.sample_light(l.hit->p, l.light_choice, &l.light);
+  }
+
+  // prepare() of every path at a hit (interleaved), with the outgoing
+  // terms of those whose BSDF allows it computed together in lanes
+  // (Bsdf::outgoing_lanes): the same numbers.
+  void prepare_lanes(PathLane* lanes, int n) const {
+    const Bsdf* bsdfs[kMaxPaths];
+    Bsdf::Outgoing* outs[kMaxPaths];
+    Scratch<Vec3, kMaxPaths> wo;
+    int m = 0;
+    for (int k = 0; k < n; ++k) {
+      PathLane& l = lanes[k];
+      if (l.next != PathLane::Next::kShade) continue;
+      make_bsdf(l);
+      if (l.bsdf.in_lanes()) {
+        bsdfs[m] = &l.bsdf;
+        outs[m] = new (&l.out) Bsdf::Outgoing();
+        wo[m++] = -l.ray.d;
+      } else {
+        new (&l.out) Bsdf::Outgoing(l.bsdf.outgoing(-l.ray.d));
+      }
+    }
+    if (m > 0) Bsdf::outgoing_lanes(m, bsdfs, wo.data(), outs);
+  }
+
+  // The hit's BSDF (its material's constants where it has them: the same
+  // BSDF), and whether it asks for a light sample.
+  void make_bsdf(PathLane& l) const {
     const SurfaceHit& hit = *l.hit;
-    // From the material's constants where it has them (the same BSDF).
     if (const BsdfConstants* k = scene_.bsdf_constants(hit.prim)) [[likely]] {
       new (&l.bsdf) Bsdf(*k, hit.ns, hit.ng, hit.base_color, hit.front, hit.coat_ns);
     } else {
@@ -279,12 +315,8 @@ class PathBatch {
                          {hit.clearcoat, hit.clearcoat_roughness, hit.coat_ns},
                          {hit.sheen_color, hit.sheen_roughness});
     }
-    new (&l.out) Bsdf::Outgoing(l.bsdf.outgoing(-l.ray.d));
     l.lit = use_nee_ && l.bsdf.has_non_delta();
     if (l.lit) new (&l.light) LightSample();
-    // A path alone takes its light sample here (sample_lights gathers a
-    // batch's).
-    if (l.lit && !interleave_) l.lit = scene_.sample_light(hit.p, l.light_choice, &l.light);
   }
 
   // The light samples of the paths that asked, taken together
