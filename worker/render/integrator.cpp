@@ -294,7 +294,7 @@ class PathBatch {
       make_bsdf(l);
       if (l.bsdf.in_lanes()) {
         bsdfs[m] = &l.bsdf;
-        outs[m] = new (&l.out) Bsdf::Outgoing();
+        outs[m] = new (&l.out) Bsdf::Outgoing;
         wo[m++] = -l.ray.d;
       } else {
         new (&l.out) Bsdf::Outgoing(l.bsdf.outgoing(-l.ray.d));
@@ -316,7 +316,7 @@ class PathBatch {
                          {hit.sheen_color, hit.sheen_roughness});
     }
     l.lit = use_nee_ && l.bsdf.has_non_delta();
-    if (l.lit) new (&l.light) LightSample();
+    if (l.lit) new (&l.light) LightSample;
   }
 
   // The light samples of the paths that asked, taken together
