@@ -120,9 +120,9 @@ struct SheenLayer {
 // the base colour, the normals and the side the light arrives from. The same
 // at every point of a material whose scalar factors are not textured, so
 // Scene computes it once per material (Scene::bsdf_constants) and a hit adds
-// only its own colour and frame (bench/README.md, "A material's BSDF
-// constants computed once"). The members are the Bsdf's own (it derives
-// from this), named as its members are.
+// only its own colour and frame (bench/README.md, "A hit's BSDF in
+// lanes"). The members are the Bsdf's own (it derives from this), named as
+// its members are.
 class BsdfConstants {
  public:
   BsdfConstants(float metallic, float roughness, float ior, const SpecularLayer& specular = {},
@@ -130,7 +130,6 @@ class BsdfConstants {
                 const SheenLayer& sheen = {});
 
  protected:
-  BsdfConstants() = default;
   ggx::AlbedoRow row_;  // the rough specular lobe's (unused for a mirror)
   Vec3 dielectric_f0_;  // from the IOR, times the specular colour (clamped to 1)
   // 1 / (pi (1 - E_s_avg)); 1 / pi without an interface. Only read where

@@ -88,10 +88,14 @@ static_assert(std::is_trivially_destructible_v<PathLane>);
 //                  load), adds emission and lamps passed; or it escaped;
 //   (locate)       the escaping paths' environment texels, together
 //                  (Environment::locate in lanes), starting their loads;
-//   prepare        each hit's BSDF and its outgoing direction's terms;
+//   prepare        each hit's BSDF and its outgoing direction's terms
+//                  (those terms in AVX2 lanes where the paths are
+//                  interleaved: prepare_lanes);
 //   sample_lights  the light samples, together (Scene::sample_lights),
 //                  reading the blocks the choices loaded;
-//   shade          next-event estimation and the bounce;
+//   shade          next-event estimation and the bounce (the BSDF's
+//                  evaluations in AVX2 lanes where interleaved:
+//                  shade_lanes);
 //   escape         the environment the escaping paths reach.
 // Between a load's start and its use lie the other paths' passes, which
 // hide it the way a ray traversal did when each path chose and located

@@ -2,7 +2,7 @@
 // every element a pass reads it has written first, and the default values
 // of Vec3 and the like (zeros) would cost stores that nothing reads, 24
 // per array of eight Vec3, at every vertex of every path
-// (bench/README.md, "Batched BSDF evaluation in lanes").
+// (bench/README.md, "A hit's BSDF in lanes").
 #pragma once
 
 #include <type_traits>
