@@ -1,0 +1,339 @@
+// Bsdf's evaluations and outgoing terms of several paths' vertices at once
+// (Bsdf::evaluate_lanes, Bsdf::outgoing_lanes; PathBatch in
+// worker/render/integrator.cpp), in AVX2 lanes where the CPU has them: each
+// lane does the scalar code's operations (bsdf.cpp) in their order, with
+// no fused multiply-add, so a lane's results are the scalar ones bit for
+// bit (simd.h; Bsdf.EvaluationsInLanesAreEachBsdfsOwn,
+// Bsdf.OutgoingTermsInLanesAreEachBsdfsOwn).
+#include <algorithm>
+#include <bit>
+#include <cstdint>
+#include <limits>
+
+#include "worker/render/bsdf.h"
+#include "worker/render/simd.h"
+#include "worker/render/trig8.h"
+
+namespace dofarm::render {
+
+void Bsdf::evaluate_lanes(int n, const Bsdf* const* bsdf, const Outgoing* const* out,
+                          const Vec3* wi, Vec3* f, float* pdf) {
+#ifdef DOFARM_HAVE_AVX2_KERNELS
+  if (use_simd()) {
+    int k = 0;
+    for (; k < n; k += 8)
+      if (!evaluate_lanes_avx2(std::min(8, n - k), bsdf + k, out + k, wi + k, f + k, pdf + k))
+        break;
+    if (k >= n) return;
+    for (; k < n; ++k) f[k] = bsdf[k]->evaluate_local(*out[k], wi[k], &pdf[k]);
+    return;
+  }
+#endif
+  for (int k = 0; k < n; ++k) f[k] = bsdf[k]->evaluate_local(*out[k], wi[k], &pdf[k]);
+}
+
+void Bsdf::outgoing_lanes(int n, const Bsdf* const* bsdf, const Vec3* wo, Outgoing* const* out) {
+#ifdef DOFARM_HAVE_AVX2_KERNELS
+  if (use_simd()) {
+    int k = 0;
+    for (; k < n; k += 8)
+      if (!outgoing_lanes_avx2(std::min(8, n - k), bsdf + k, wo + k, out + k)) break;
+    for (; k < n; ++k) *out[k] = bsdf[k]->outgoing(wo[k]);
+    return;
+  }
+#endif
+  for (int k = 0; k < n; ++k) *out[k] = bsdf[k]->outgoing(wo[k]);
+}
+
+#ifdef DOFARM_HAVE_AVX2_KERNELS
+namespace {
+
+// Eight floats or ints, each at its lane's byte offset from `base`.
+DOFARM_AVX2 inline __m256 gather8(const void* base, __m256i offsets) {
+  return _mm256_i32gather_ps(static_cast<const float*>(base), offsets, 1);
+}
+DOFARM_AVX2 inline __m256i gather8i(const void* base, __m256i offsets) {
+  return _mm256_i32gather_epi32(static_cast<const int*>(base), offsets, 1);
+}
+// mask ? a : b, lane by lane.
+DOFARM_AVX2 inline __m256 select8(__m256 mask, __m256 a, __m256 b) {
+  return _mm256_blendv_ps(b, a, mask);
+}
+DOFARM_AVX2 inline __m256 sub8(__m256 x, __m256 y) { return _mm256_sub_ps(x, y); }
+DOFARM_AVX2 inline __m256 div8(__m256 x, __m256 y) { return _mm256_div_ps(x, y); }
+DOFARM_AVX2 inline __m256 gt8(__m256 x, __m256 y) { return _mm256_cmp_ps(x, y, _CMP_GT_OQ); }
+// std::max(0.0f, v) and std::min(1.0f, v) as the standard library defines
+// them (v where the comparison holds, else the constant; NaN gives the
+// constant), which max_ps(v, c) and min_ps(v, c) are.
+DOFARM_AVX2 inline __m256 max0_8(__m256 v) { return _mm256_max_ps(v, _mm256_setzero_ps()); }
+DOFARM_AVX2 inline __m256 min1_8(__m256 v) { return _mm256_min_ps(v, k8(1.0f)); }
+// schlick_weight() in lanes.
+DOFARM_AVX2 inline __m256 schlick_weight8(__m256 c) {
+  const __m256 m = sub8(k8(1.0f), min1_8(max0_8(c)));
+  const __m256 m2 = mul8(m, m);
+  return mul8(mul8(m2, m2), m);
+}
+// The byte offsets of p[k] from p[0] for the active lanes (0 for the
+// others, whose p[k] are not read), as 32-bit lanes; false where one does
+// not fit in 32 bits.
+DOFARM_AVX2 inline bool offsets8(const void* const* p, __m256i active, __m256i* out) {
+  const __m256i m_lo = _mm256_cvtepi32_epi64(_mm256_castsi256_si128(active));
+  const __m256i m_hi = _mm256_cvtepi32_epi64(_mm256_extracti128_si256(active, 1));
+  const auto* q = reinterpret_cast<const long long*>(p);
+  const __m256i base =
+      _mm256_set1_epi64x(static_cast<long long>(reinterpret_cast<uintptr_t>(p[0])));
+  const __m256i d_lo =
+      _mm256_and_si256(_mm256_sub_epi64(_mm256_maskload_epi64(q, m_lo), base), m_lo);
+  const __m256i d_hi =
+      _mm256_and_si256(_mm256_sub_epi64(_mm256_maskload_epi64(q + 4, m_hi), base), m_hi);
+  // In range where d + 2^31, as unsigned, has no upper half.
+  const __m256i bias = _mm256_set1_epi64x(0x80000000LL);
+  const __m256i upper = _mm256_or_si256(_mm256_srli_epi64(_mm256_add_epi64(d_lo, bias), 32),
+                                        _mm256_srli_epi64(_mm256_add_epi64(d_hi, bias), 32));
+  if (!_mm256_testz_si256(upper, upper)) return false;
+  const __m256i low_halves = _mm256_setr_epi32(0, 2, 4, 6, 0, 2, 4, 6);
+  *out = _mm256_set_m128i(_mm256_castsi256_si128(_mm256_permutevar8x32_epi32(d_hi, low_halves)),
+                          _mm256_castsi256_si128(_mm256_permutevar8x32_epi32(d_lo, low_halves)));
+  return true;
+}
+// A bool member of each lane's record, as a lane mask (its byte nonzero).
+DOFARM_AVX2 inline __m256 flag8(const bool* p, __m256i offsets) {
+  const __m256i v = _mm256_and_si256(gather8i(p, offsets), _mm256_set1_epi32(0xff));
+  return _mm256_castsi256_ps(
+      _mm256_xor_si256(_mm256_cmpeq_epi32(v, _mm256_setzero_si256()), _mm256_set1_epi32(-1)));
+}
+// ggx::albedo()'s mix, p + (q - p) t.
+DOFARM_AVX2 inline __m256 mix8(__m256 p, __m256 q, __m256 t) {
+  return add8(p, mul8(sub8(q, p), t));
+}
+// The table's float at index at + plus, per lane.
+DOFARM_AVX2 inline __m256 entry8(const float* table, __m256i at, int plus) {
+  return _mm256_i32gather_ps(table, _mm256_add_epi32(at, _mm256_set1_epi32(plus)), 4);
+}
+// specular_albedo(mu) in lanes: a mirror's Schlick terms {1 - w, w} where
+// `delta`, else ggx::albedo() of the lane's row (index `row`, weight
+// `row_t`) at mu.
+DOFARM_AVX2 inline void specular_albedo8(__m256 delta, __m256i row, __m256 row_t, __m256 mu,
+                                         __m256* a, __m256* b) {
+  const __m256 w_mu = schlick_weight8(mu);
+  const __m256 x = mul8(_mm256_sqrt_ps(min1_8(max0_8(mu))), k8(float(ggx::AlbedoTable::kMu - 1)));
+  const __m256i j =
+      _mm256_min_epi32(_mm256_cvttps_epi32(x), _mm256_set1_epi32(ggx::AlbedoTable::kMu - 2));
+  const __m256 s = sub8(x, _mm256_cvtepi32_ps(j));
+  const float* table = &ggx::albedo_table().entry[0][0].a;
+  // Float index of entry [row][j].a; .b follows, then [row][j + 1].
+  const __m256i lo = _mm256_slli_epi32(
+      _mm256_add_epi32(_mm256_mullo_epi32(row, _mm256_set1_epi32(ggx::AlbedoTable::kMu)), j), 1);
+  const __m256i hi = _mm256_add_epi32(lo, _mm256_set1_epi32(2 * ggx::AlbedoTable::kMu));
+  const __m256 a_lo = mix8(entry8(table, lo, 0), entry8(table, lo, 2), s);
+  const __m256 b_lo = mix8(entry8(table, lo, 1), entry8(table, lo, 3), s);
+  const __m256 a_hi = mix8(entry8(table, hi, 0), entry8(table, hi, 2), s);
+  const __m256 b_hi = mix8(entry8(table, hi, 1), entry8(table, hi, 3), s);
+  *a = select8(delta, sub8(k8(1.0f), w_mu), mix8(a_lo, a_hi, row_t));
+  *b = select8(delta, w_mu, mix8(b_lo, b_hi, row_t));
+}
+// Albedo::k() in lanes, (1 - E) / E with E at least 1e-3; 0 where `delta`.
+DOFARM_AVX2 inline __m256 albedo_k8(__m256 delta, __m256 a, __m256 b) {
+  const __m256 e = _mm256_max_ps(k8(1e-3f), add8(a, b));
+  return select8(delta, _mm256_setzero_ps(), div8(sub8(k8(1.0f), e), e));
+}
+// base_transmission() for a grey F0 under a dielectric layer:
+// max(0, 1 - s (f0 A + B)(1 + f0 k)).
+DOFARM_AVX2 inline __m256 through8(__m256 s, __m256 f0, __m256 a, __m256 b, __m256 k) {
+  return max0_8(sub8(k8(1.0f), mul8(s, mul8(add8(mul8(f0, a), b), add8(k8(1.0f), mul8(f0, k))))));
+}
+// ggx::smith_r() in lanes.
+DOFARM_AVX2 inline __m256 smith_r8(const __m256* w, __m256 a2) {
+  return _mm256_sqrt_ps(add8(mul8(w[2], w[2]), mul8(a2, add8(mul8(w[0], w[0]), mul8(w[1], w[1])))));
+}
+// luminance() in lanes.
+DOFARM_AVX2 inline __m256 luminance8(const __m256* c) {
+  return add8(add8(mul8(k8(0.2126f), c[0]), mul8(k8(0.7152f), c[1])), mul8(k8(0.0722f), c[2]));
+}
+// dot(a, b) in lanes, summed in dot()'s order.
+DOFARM_AVX2 inline __m256 dot8(const __m256* a, const __m256* b) {
+  return add8(add8(mul8(a[0], b[0]), mul8(a[1], b[1])), mul8(a[2], b[2]));
+}
+
+}  // namespace
+
+DOFARM_AVX2 bool Bsdf::evaluate_lanes_avx2(int n, const Bsdf* const* bsdf,
+                                           const Outgoing* const* out, const Vec3* wi_in,
+                                           Vec3* f_out, float* pdf_out) {
+  // Each lane's records as byte offsets from lane 0's (lanes past n repeat
+  // lane 0); gathers read a field of every lane at once.
+  const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+  const __m256i active = _mm256_cmpgt_epi32(_mm256_set1_epi32(n), lane);
+  __m256i offb, offo;
+  if (!offsets8(reinterpret_cast<const void* const*>(bsdf), active, &offb) ||
+      !offsets8(reinterpret_cast<const void* const*>(out), active, &offo))
+    return false;
+  const __m256i offw =
+      _mm256_and_si256(_mm256_mullo_epi32(lane, _mm256_set1_epi32(int(sizeof(Vec3)))), active);
+  const Bsdf& b = *bsdf[0];
+  const Outgoing& o = *out[0];
+  const __m256 wi[3] = {gather8(&wi_in[0].x, offw), gather8(&wi_in[0].y, offw),
+                        gather8(&wi_in[0].z, offw)};
+  const __m256 wo[3] = {gather8(&o.wo.x, offo), gather8(&o.wo.y, offo), gather8(&o.wo.z, offo)};
+  const __m256 zero = _mm256_setzero_ps();
+  const __m256 delta = flag8(&b.delta_specular_, offb);
+  const __m256 rough = _mm256_andnot_ps(delta, flag8(&b.has_specular_, offb));
+  const __m256 diffuse = gt8(gather8(&b.diffuse_weight_, offb), zero);
+  const __m256 dielectric = gt8(gather8(&b.dielectric_weight_, offb), zero);
+
+  // p = (1 - ps) wi.z / pi.
+  __m256 p = mul8(mul8(sub8(k8(1.0f), gather8(&o.specular_prob, offo)), wi[2]), k8(kInvPi));
+
+  // The base: o.diffuse (1 - E_s(mu_i)) wi.z under a dielectric layer, else
+  // o.diffuse wi.z. E_s(mu_i) from specular_albedo(wi.z): a mirror's
+  // Schlick terms, else the table's bilinear lookup (ggx::albedo).
+  const __m256 mu = wi[2];
+  __m256 e_a, e_b;
+  specular_albedo8(delta, gather8i(&b.row_.index, offb), gather8(&b.row_.t, offb), mu, &e_a, &e_b);
+  const __m256 through =
+      through8(gather8(&b.specular_factor_, offb), gather8(&b.dielectric_f0_.x, offb), e_a, e_b,
+               albedo_k8(delta, e_a, e_b));
+  const __m256 t_mu = mul8(through, mu);
+  __m256 f[3];
+  const float* od = &o.diffuse.x;
+  for (int c = 0; c < 3; ++c) {
+    const __m256 d = gather8(od + c, offo);
+    const __m256 base = select8(dielectric, mul8(d, t_mu), mul8(d, mu));
+    f[c] = select8(diffuse, add8(zero, base), zero);
+  }
+
+  // The rough specular lobe (reflection_terms(), D, G2, Schlick).
+  __m256 sum[3], h[3];
+  for (int c = 0; c < 3; ++c) sum[c] = add8(wo[c], wi[c]);
+  const __m256 inv_len = div8(k8(1.0f), _mm256_sqrt_ps(dot8(sum, sum)));
+  for (int c = 0; c < 3; ++c) h[c] = mul8(sum[c], inv_len);
+  const __m256 wo_h = dot8(wo, h);
+  const __m256 alpha = gather8(&b.alpha_, offb);
+  const __m256 a2 = mul8(alpha, alpha);
+  const __m256 tt = add8(div8(add8(mul8(h[0], h[0]), mul8(h[1], h[1])), a2), mul8(h[2], h[2]));
+  __m256 dd = div8(k8(1.0f), mul8(mul8(mul8(k8(kPi), a2), tt), tt));
+  const __m256 finite = _mm256_cmp_ps(_mm256_andnot_ps(k8(-0.0f), dd),
+                                      k8(std::numeric_limits<float>::infinity()), _CMP_LT_OQ);
+  dd = select8(_mm256_and_ps(gt8(h[2], zero), finite), dd, zero);
+  const __m256 ro = gather8(&o.smith_r, offo);
+  const __m256 ri = smith_r8(wi, a2);
+  const __m256 den = add8(mul8(wi[2], ro), mul8(wo[2], ri));
+  const __m256 g_ok =
+      _mm256_and_ps(_mm256_and_ps(gt8(wo[2], zero), gt8(wi[2], zero)), gt8(den, zero));
+  const __m256 g = select8(g_ok, min1_8(div8(mul8(mul8(k8(2.0f), wo[2]), wi[2]), den)), zero);
+  const __m256 w_oh = schlick_weight8(wo_h);
+  const __m256 scale = mul8(mul8(dd, g), gather8(&o.inv_4_cos_o, offo));
+  const float* c0 = &o.fresnel_c0.x;
+  const float* c1 = &o.fresnel_c1.x;
+  for (int c = 0; c < 3; ++c) {
+    const __m256 fr = add8(gather8(c0 + c, offo), mul8(gather8(c1 + c, offo), w_oh));
+    f[c] = select8(rough, add8(f[c], mul8(fr, scale)), f[c]);
+  }
+  p = select8(_mm256_and_ps(rough, gt8(wo_h, zero)),
+              add8(p, mul8(dd, gather8(&o.specular_pdf_scale, offo))), p);
+
+  alignas(32) float fx[8], fy[8], fz[8], pp[8];
+  _mm256_store_ps(fx, f[0]);
+  _mm256_store_ps(fy, f[1]);
+  _mm256_store_ps(fz, f[2]);
+  _mm256_store_ps(pp, p);
+  for (int k = 0; k < n; ++k) {
+    f_out[k] = Vec3(fx[k], fy[k], fz[k]);
+    pdf_out[k] = pp[k];
+  }
+  return true;
+}
+DOFARM_AVX2 bool Bsdf::outgoing_lanes_avx2(int n, const Bsdf* const* bsdf, const Vec3* wo_in,
+                                           Outgoing* const* out) {
+  const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+  const __m256i active = _mm256_cmpgt_epi32(_mm256_set1_epi32(n), lane);
+  __m256i offb;
+  if (!offsets8(reinterpret_cast<const void* const*>(bsdf), active, &offb)) return false;
+  const __m256i offw =
+      _mm256_and_si256(_mm256_mullo_epi32(lane, _mm256_set1_epi32(int(sizeof(Vec3)))), active);
+  const Bsdf& b = *bsdf[0];
+  const __m256 zero = _mm256_setzero_ps(), one = k8(1.0f);
+  __m256 v[3], t[3], bt[3], nn[3], ng[3];
+  for (int c = 0; c < 3; ++c) {
+    v[c] = gather8(&wo_in[0].x + c, offw);
+    t[c] = gather8(&b.frame_.t.x + c, offb);
+    bt[c] = gather8(&b.frame_.b.x + c, offb);
+    nn[c] = gather8(&b.frame_.n.x + c, offb);
+    ng[c] = gather8(&b.ng_.x + c, offb);
+  }
+  // o.wo = frame_.to_local(wo), valid above both surfaces.
+  const __m256 wo[3] = {dot8(v, t), dot8(v, bt), dot8(v, nn)};
+  const __m256 valid = _mm256_and_ps(gt8(wo[2], zero), gt8(dot8(v, ng), zero));
+  const __m256 delta = flag8(&b.delta_specular_, offb);
+  const __m256 specular = flag8(&b.has_specular_, offb);
+  // e = specular_albedo(mu) where there is a specular lobe, else {0, 0}.
+  __m256 e_a, e_b;
+  specular_albedo8(delta, gather8i(&b.row_.index, offb), gather8(&b.row_.t, offb), wo[2], &e_a,
+                   &e_b);
+  e_a = select8(specular, e_a, zero);
+  e_b = select8(specular, e_b, zero);
+  const __m256 k = albedo_k8(delta, e_a, e_b);
+  // The Fresnel terms with Turquin's compensation, of the parts present.
+  const __m256 mw = gather8(&b.metal_weight_, offb), dw = gather8(&b.dielectric_weight_, offb);
+  const __m256 metal_on = gt8(mw, zero), dielectric_on = gt8(dw, zero);
+  const __m256 both = _mm256_and_ps(metal_on, dielectric_on);
+  const __m256 df0 = gather8(&b.dielectric_f0_.x, offb);
+  const __m256 dielectric = mul8(add8(one, mul8(df0, k)), dw);
+  const __m256 d0 = mul8(dielectric, df0), d1 = mul8(dielectric, sub8(one, df0));
+  const __m256 e_e = add8(e_a, e_b);
+  __m256 c0[3], c1[3], albedo[3];
+  for (int c = 0; c < 3; ++c) {
+    const __m256 mf0 = gather8(&b.metal_f0_.x + c, offb);
+    const __m256 metal = mul8(add8(one, mul8(mf0, k)), mw);
+    const __m256 m0 = mul8(metal, mf0), m1 = mul8(metal, sub8(one, mf0));
+    c0[c] = select8(both, add8(m0, d0), select8(dielectric_on, add8(zero, d0), add8(m0, zero)));
+    c1[c] = select8(both, add8(m1, d1), select8(dielectric_on, add8(zero, d1), add8(m1, zero)));
+    albedo[c] = add8(mul8(c0[c], e_e), mul8(c1[c], e_b));
+  }
+  // The base: what the dielectric layer lets through, and the lobe choice.
+  const __m256 diffuse_on = gt8(gather8(&b.diffuse_weight_, offb), zero);
+  const __m256 through =
+      select8(dielectric_on, through8(gather8(&b.specular_factor_, offb), df0, e_a, e_b, k), one);
+  __m256 diffuse[3], dc[3];
+  for (int c = 0; c < 3; ++c) {
+    dc[c] = gather8(&b.diffuse_color_.x + c, offb);
+    diffuse[c] = mul8(dc[c], mul8(through, gather8(&b.diffuse_norm_.x + c, offb)));
+  }
+  const __m256 fs = luminance8(albedo);
+  const __m256 sum = add8(fs, mul8(luminance8(dc), through));
+  const __m256 ratio = div8(fs, sum);
+  const __m256 clamped = select8(_mm256_cmp_ps(ratio, k8(0.05f), _CMP_LT_OQ), k8(0.05f),
+                                 select8(gt8(ratio, k8(0.95f)), k8(0.95f), ratio));
+  const __m256 mixed = select8(gt8(sum, zero), clamped, k8(0.5f));
+  __m256 ps = select8(diffuse_on, select8(specular, mixed, zero), select8(specular, one, zero));
+  ps = select8(valid, ps, zero);
+  // The rough lobe's terms.
+  const __m256 alpha = gather8(&b.alpha_, offb);
+  const __m256 smith = smith_r8(wo, mul8(alpha, alpha));
+  const __m256 inv4 = div8(one, mul8(k8(4.0f), wo[2]));
+  const __m256 pdf_scale = div8(ps, mul8(k8(2.0f), add8(wo[2], smith)));
+
+  // Lane by lane into the records: what a valid one's readers read.
+  alignas(32) float lanes[17][8];
+  const __m256 rows[17] = {wo[0], wo[1], wo[2], c0[0],      c0[1],      c0[2],
+                           c1[0], c1[1], c1[2], diffuse[0], diffuse[1], diffuse[2],
+                           ps,    smith, inv4,  pdf_scale,  valid};
+  for (int r = 0; r < 17; ++r) _mm256_store_ps(lanes[r], rows[r]);
+  for (int j = 0; j < n; ++j) {
+    Outgoing& o = *out[j];
+    o.wo = Vec3(lanes[0][j], lanes[1][j], lanes[2][j]);
+    o.valid = std::bit_cast<uint32_t>(lanes[16][j]) != 0;
+    o.specular_prob = lanes[12][j];
+    if (!o.valid) continue;
+    o.fresnel_c0 = Vec3(lanes[3][j], lanes[4][j], lanes[5][j]);
+    o.fresnel_c1 = Vec3(lanes[6][j], lanes[7][j], lanes[8][j]);
+    o.diffuse = Vec3(lanes[9][j], lanes[10][j], lanes[11][j]);
+    o.smith_r = lanes[13][j];
+    o.inv_4_cos_o = lanes[14][j];
+    o.specular_pdf_scale = lanes[15][j];
+  }
+  return true;
+}
+#endif
+
+}  // namespace dofarm::render
