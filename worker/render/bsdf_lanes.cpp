@@ -8,7 +8,6 @@
 #include <algorithm>
 #include <bit>
 #include <cstdint>
-#include <limits>
 
 #include "worker/render/bsdf.h"
 #include "worker/render/simd.h"
@@ -16,33 +15,49 @@
 
 namespace dofarm::render {
 
+namespace {
+
+// Runs lanes(first, m) over n items eight at a time where the CPU has AVX2
+// (false: that batch cannot run in lanes), and one(k) for every item the
+// lanes did not do.
+template <class Lanes, class One>
+void in_lanes_of_eight(int n, Lanes&& lanes, One&& one) {
+  int k = 0;
+#ifdef DOFARM_HAVE_AVX2_KERNELS
+  if (use_simd())
+    for (; k < n; k += 8)
+      if (!lanes(k, std::min(8, n - k))) break;
+#endif
+  for (; k < n; ++k) one(k);
+}
+
+}  // namespace
+
 void Bsdf::evaluate_lanes(int n, const Bsdf* const* bsdf, const Outgoing* const* out,
                           const Vec3* wi, Vec3* f, float* pdf) {
+  in_lanes_of_eight(
+      n,
+      [&](int k, int m) {
 #ifdef DOFARM_HAVE_AVX2_KERNELS
-  if (use_simd()) {
-    int k = 0;
-    for (; k < n; k += 8)
-      if (!evaluate_lanes_avx2(std::min(8, n - k), bsdf + k, out + k, wi + k, f + k, pdf + k))
-        break;
-    if (k >= n) return;
-    for (; k < n; ++k) f[k] = bsdf[k]->evaluate_local(*out[k], wi[k], &pdf[k]);
-    return;
-  }
+        return evaluate_lanes_avx2(m, bsdf + k, out + k, wi + k, f + k, pdf + k);
+#else
+        return false;
 #endif
-  for (int k = 0; k < n; ++k) f[k] = bsdf[k]->evaluate_local(*out[k], wi[k], &pdf[k]);
+      },
+      [&](int k) { f[k] = bsdf[k]->evaluate_local(*out[k], wi[k], &pdf[k]); });
 }
 
 void Bsdf::outgoing_lanes(int n, const Bsdf* const* bsdf, const Vec3* wo, Outgoing* const* out) {
+  in_lanes_of_eight(
+      n,
+      [&](int k, int m) {
 #ifdef DOFARM_HAVE_AVX2_KERNELS
-  if (use_simd()) {
-    int k = 0;
-    for (; k < n; k += 8)
-      if (!outgoing_lanes_avx2(std::min(8, n - k), bsdf + k, wo + k, out + k)) break;
-    for (; k < n; ++k) *out[k] = bsdf[k]->outgoing(wo[k]);
-    return;
-  }
+        return outgoing_lanes_avx2(m, bsdf + k, wo + k, out + k);
+#else
+        return false;
 #endif
-  for (int k = 0; k < n; ++k) *out[k] = bsdf[k]->outgoing(wo[k]);
+      },
+      [&](int k) { *out[k] = bsdf[k]->outgoing(wo[k]); });
 }
 
 #ifdef DOFARM_HAVE_AVX2_KERNELS
@@ -55,12 +70,10 @@ DOFARM_AVX2 inline __m256 gather8(const void* base, __m256i offsets) {
 DOFARM_AVX2 inline __m256i gather8i(const void* base, __m256i offsets) {
   return _mm256_i32gather_epi32(static_cast<const int*>(base), offsets, 1);
 }
-// mask ? a : b, lane by lane.
-DOFARM_AVX2 inline __m256 select8(__m256 mask, __m256 a, __m256 b) {
-  return _mm256_blendv_ps(b, a, mask);
+// A Vec3 member of each lane's record.
+DOFARM_AVX2 inline V3x8 gather_vec8(const Vec3* first, __m256i offsets) {
+  return {gather8(&first->x, offsets), gather8(&first->y, offsets), gather8(&first->z, offsets)};
 }
-DOFARM_AVX2 inline __m256 sub8(__m256 x, __m256 y) { return _mm256_sub_ps(x, y); }
-DOFARM_AVX2 inline __m256 div8(__m256 x, __m256 y) { return _mm256_div_ps(x, y); }
 DOFARM_AVX2 inline __m256 gt8(__m256 x, __m256 y) { return _mm256_cmp_ps(x, y, _CMP_GT_OQ); }
 // std::max(0.0f, v) and std::min(1.0f, v) as the standard library defines
 // them (v where the comparison holds, else the constant; NaN gives the
@@ -72,6 +85,10 @@ DOFARM_AVX2 inline __m256 schlick_weight8(__m256 c) {
   const __m256 m = sub8(k8(1.0f), min1_8(max0_8(c)));
   const __m256 m2 = mul8(m, m);
   return mul8(mul8(m2, m2), m);
+}
+// The lanes in use: the first n of eight.
+DOFARM_AVX2 inline __m256i active8(int n) {
+  return _mm256_cmpgt_epi32(_mm256_set1_epi32(n), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7));
 }
 // The byte offsets of p[k] from p[0] for the active lanes (0 for the
 // others, whose p[k] are not read), as 32-bit lanes; false where one does
@@ -95,6 +112,11 @@ DOFARM_AVX2 inline bool offsets8(const void* const* p, __m256i active, __m256i* 
   *out = _mm256_set_m128i(_mm256_castsi256_si128(_mm256_permutevar8x32_epi32(d_hi, low_halves)),
                           _mm256_castsi256_si128(_mm256_permutevar8x32_epi32(d_lo, low_halves)));
   return true;
+}
+// The offsets of the active lanes' entries of a Vec3 array.
+DOFARM_AVX2 inline __m256i vec3_offsets8(__m256i active) {
+  const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+  return _mm256_and_si256(_mm256_mullo_epi32(lane, _mm256_set1_epi32(int(sizeof(Vec3)))), active);
 }
 // A bool member of each lane's record, as a lane mask (its byte nonzero).
 DOFARM_AVX2 inline __m256 flag8(const bool* p, __m256i offsets) {
@@ -142,17 +164,14 @@ DOFARM_AVX2 inline __m256 albedo_k8(__m256 delta, __m256 a, __m256 b) {
 DOFARM_AVX2 inline __m256 through8(__m256 s, __m256 f0, __m256 a, __m256 b, __m256 k) {
   return max0_8(sub8(k8(1.0f), mul8(s, mul8(add8(mul8(f0, a), b), add8(k8(1.0f), mul8(f0, k))))));
 }
-// ggx::smith_r() in lanes.
-DOFARM_AVX2 inline __m256 smith_r8(const __m256* w, __m256 a2) {
-  return _mm256_sqrt_ps(add8(mul8(w[2], w[2]), mul8(a2, add8(mul8(w[0], w[0]), mul8(w[1], w[1])))));
+// ggx::detail::sin2() and ggx::smith_r() in lanes.
+DOFARM_AVX2 inline __m256 sin2_8(V3x8 w) { return add8(mul8(w.x, w.x), mul8(w.y, w.y)); }
+DOFARM_AVX2 inline __m256 smith_r8(V3x8 w, __m256 a2) {
+  return _mm256_sqrt_ps(add8(mul8(w.z, w.z), mul8(a2, sin2_8(w))));
 }
 // luminance() in lanes.
-DOFARM_AVX2 inline __m256 luminance8(const __m256* c) {
-  return add8(add8(mul8(k8(0.2126f), c[0]), mul8(k8(0.7152f), c[1])), mul8(k8(0.0722f), c[2]));
-}
-// dot(a, b) in lanes, summed in dot()'s order.
-DOFARM_AVX2 inline __m256 dot8(const __m256* a, const __m256* b) {
-  return add8(add8(mul8(a[0], b[0]), mul8(a[1], b[1])), mul8(a[2], b[2]));
+DOFARM_AVX2 inline __m256 luminance8(V3x8 c) {
+  return add8(add8(mul8(k8(0.2126f), c.x), mul8(k8(0.7152f), c.y)), mul8(k8(0.0722f), c.z));
 }
 
 }  // namespace
@@ -162,19 +181,15 @@ DOFARM_AVX2 bool Bsdf::evaluate_lanes_avx2(int n, const Bsdf* const* bsdf,
                                            Vec3* f_out, float* pdf_out) {
   // Each lane's records as byte offsets from lane 0's (lanes past n repeat
   // lane 0); gathers read a field of every lane at once.
-  const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
-  const __m256i active = _mm256_cmpgt_epi32(_mm256_set1_epi32(n), lane);
+  const __m256i active = active8(n);
   __m256i offb, offo;
   if (!offsets8(reinterpret_cast<const void* const*>(bsdf), active, &offb) ||
       !offsets8(reinterpret_cast<const void* const*>(out), active, &offo))
     return false;
-  const __m256i offw =
-      _mm256_and_si256(_mm256_mullo_epi32(lane, _mm256_set1_epi32(int(sizeof(Vec3)))), active);
   const Bsdf& b = *bsdf[0];
   const Outgoing& o = *out[0];
-  const __m256 wi[3] = {gather8(&wi_in[0].x, offw), gather8(&wi_in[0].y, offw),
-                        gather8(&wi_in[0].z, offw)};
-  const __m256 wo[3] = {gather8(&o.wo.x, offo), gather8(&o.wo.y, offo), gather8(&o.wo.z, offo)};
+  const V3x8 wi = gather_vec8(wi_in, vec3_offsets8(active));
+  const V3x8 wo = gather_vec8(&o.wo, offo);
   const __m256 zero = _mm256_setzero_ps();
   const __m256 delta = flag8(&b.delta_specular_, offb);
   const __m256 rough = _mm256_andnot_ps(delta, flag8(&b.has_specular_, offb));
@@ -182,60 +197,54 @@ DOFARM_AVX2 bool Bsdf::evaluate_lanes_avx2(int n, const Bsdf* const* bsdf,
   const __m256 dielectric = gt8(gather8(&b.dielectric_weight_, offb), zero);
 
   // p = (1 - ps) wi.z / pi.
-  __m256 p = mul8(mul8(sub8(k8(1.0f), gather8(&o.specular_prob, offo)), wi[2]), k8(kInvPi));
+  __m256 p = mul8(mul8(sub8(k8(1.0f), gather8(&o.specular_prob, offo)), wi.z), k8(kInvPi));
 
   // The base: o.diffuse (1 - E_s(mu_i)) wi.z under a dielectric layer, else
   // o.diffuse wi.z. E_s(mu_i) from specular_albedo(wi.z): a mirror's
   // Schlick terms, else the table's bilinear lookup (ggx::albedo).
-  const __m256 mu = wi[2];
+  const __m256 mu = wi.z;
   __m256 e_a, e_b;
   specular_albedo8(delta, gather8i(&b.row_.index, offb), gather8(&b.row_.t, offb), mu, &e_a, &e_b);
   const __m256 through =
       through8(gather8(&b.specular_factor_, offb), gather8(&b.dielectric_f0_.x, offb), e_a, e_b,
                albedo_k8(delta, e_a, e_b));
   const __m256 t_mu = mul8(through, mu);
-  __m256 f[3];
-  const float* od = &o.diffuse.x;
-  for (int c = 0; c < 3; ++c) {
-    const __m256 d = gather8(od + c, offo);
-    const __m256 base = select8(dielectric, mul8(d, t_mu), mul8(d, mu));
-    f[c] = select8(diffuse, add8(zero, base), zero);
-  }
+  const V3x8 d = gather_vec8(&o.diffuse, offo);
+  auto base = [&](__m256 dc) DOFARM_AVX2 {  // f += the base lobe's channel
+    return select8(diffuse, add8(zero, select8(dielectric, mul8(dc, t_mu), mul8(dc, mu))), zero);
+  };
+  V3x8 f{base(d.x), base(d.y), base(d.z)};
 
   // The rough specular lobe (reflection_terms(), D, G2, Schlick).
-  __m256 sum[3], h[3];
-  for (int c = 0; c < 3; ++c) sum[c] = add8(wo[c], wi[c]);
+  const V3x8 sum{add8(wo.x, wi.x), add8(wo.y, wi.y), add8(wo.z, wi.z)};
   const __m256 inv_len = div8(k8(1.0f), _mm256_sqrt_ps(dot8(sum, sum)));
-  for (int c = 0; c < 3; ++c) h[c] = mul8(sum[c], inv_len);
+  const V3x8 h{mul8(sum.x, inv_len), mul8(sum.y, inv_len), mul8(sum.z, inv_len)};
   const __m256 wo_h = dot8(wo, h);
   const __m256 alpha = gather8(&b.alpha_, offb);
   const __m256 a2 = mul8(alpha, alpha);
-  const __m256 tt = add8(div8(add8(mul8(h[0], h[0]), mul8(h[1], h[1])), a2), mul8(h[2], h[2]));
+  const __m256 tt = add8(div8(sin2_8(h), a2), mul8(h.z, h.z));
   __m256 dd = div8(k8(1.0f), mul8(mul8(mul8(k8(kPi), a2), tt), tt));
-  const __m256 finite = _mm256_cmp_ps(_mm256_andnot_ps(k8(-0.0f), dd),
-                                      k8(std::numeric_limits<float>::infinity()), _CMP_LT_OQ);
-  dd = select8(_mm256_and_ps(gt8(h[2], zero), finite), dd, zero);
+  dd = select8(_mm256_and_ps(gt8(h.z, zero), is_finite8(dd)), dd, zero);
   const __m256 ro = gather8(&o.smith_r, offo);
   const __m256 ri = smith_r8(wi, a2);
-  const __m256 den = add8(mul8(wi[2], ro), mul8(wo[2], ri));
+  const __m256 den = add8(mul8(wi.z, ro), mul8(wo.z, ri));
   const __m256 g_ok =
-      _mm256_and_ps(_mm256_and_ps(gt8(wo[2], zero), gt8(wi[2], zero)), gt8(den, zero));
-  const __m256 g = select8(g_ok, min1_8(div8(mul8(mul8(k8(2.0f), wo[2]), wi[2]), den)), zero);
+      _mm256_and_ps(_mm256_and_ps(gt8(wo.z, zero), gt8(wi.z, zero)), gt8(den, zero));
+  const __m256 g = select8(g_ok, min1_8(div8(mul8(mul8(k8(2.0f), wo.z), wi.z), den)), zero);
   const __m256 w_oh = schlick_weight8(wo_h);
   const __m256 scale = mul8(mul8(dd, g), gather8(&o.inv_4_cos_o, offo));
-  const float* c0 = &o.fresnel_c0.x;
-  const float* c1 = &o.fresnel_c1.x;
-  for (int c = 0; c < 3; ++c) {
-    const __m256 fr = add8(gather8(c0 + c, offo), mul8(gather8(c1 + c, offo), w_oh));
-    f[c] = select8(rough, add8(f[c], mul8(fr, scale)), f[c]);
-  }
+  const V3x8 c0 = gather_vec8(&o.fresnel_c0, offo), c1 = gather_vec8(&o.fresnel_c1, offo);
+  auto specular = [&](__m256 fc, __m256 c0c, __m256 c1c) DOFARM_AVX2 {
+    return select8(rough, add8(fc, mul8(add8(c0c, mul8(c1c, w_oh)), scale)), fc);
+  };
+  f = {specular(f.x, c0.x, c1.x), specular(f.y, c0.y, c1.y), specular(f.z, c0.z, c1.z)};
   p = select8(_mm256_and_ps(rough, gt8(wo_h, zero)),
               add8(p, mul8(dd, gather8(&o.specular_pdf_scale, offo))), p);
 
   alignas(32) float fx[8], fy[8], fz[8], pp[8];
-  _mm256_store_ps(fx, f[0]);
-  _mm256_store_ps(fy, f[1]);
-  _mm256_store_ps(fz, f[2]);
+  _mm256_store_ps(fx, f.x);
+  _mm256_store_ps(fy, f.y);
+  _mm256_store_ps(fz, f.z);
   _mm256_store_ps(pp, p);
   for (int k = 0; k < n; ++k) {
     f_out[k] = Vec3(fx[k], fy[k], fz[k]);
@@ -243,32 +252,25 @@ DOFARM_AVX2 bool Bsdf::evaluate_lanes_avx2(int n, const Bsdf* const* bsdf,
   }
   return true;
 }
+
 DOFARM_AVX2 bool Bsdf::outgoing_lanes_avx2(int n, const Bsdf* const* bsdf, const Vec3* wo_in,
                                            Outgoing* const* out) {
-  const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
-  const __m256i active = _mm256_cmpgt_epi32(_mm256_set1_epi32(n), lane);
+  const __m256i active = active8(n);
   __m256i offb;
   if (!offsets8(reinterpret_cast<const void* const*>(bsdf), active, &offb)) return false;
-  const __m256i offw =
-      _mm256_and_si256(_mm256_mullo_epi32(lane, _mm256_set1_epi32(int(sizeof(Vec3)))), active);
   const Bsdf& b = *bsdf[0];
   const __m256 zero = _mm256_setzero_ps(), one = k8(1.0f);
-  __m256 v[3], t[3], bt[3], nn[3], ng[3];
-  for (int c = 0; c < 3; ++c) {
-    v[c] = gather8(&wo_in[0].x + c, offw);
-    t[c] = gather8(&b.frame_.t.x + c, offb);
-    bt[c] = gather8(&b.frame_.b.x + c, offb);
-    nn[c] = gather8(&b.frame_.n.x + c, offb);
-    ng[c] = gather8(&b.ng_.x + c, offb);
-  }
+  const V3x8 v = gather_vec8(wo_in, vec3_offsets8(active));
   // o.wo = frame_.to_local(wo), valid above both surfaces.
-  const __m256 wo[3] = {dot8(v, t), dot8(v, bt), dot8(v, nn)};
-  const __m256 valid = _mm256_and_ps(gt8(wo[2], zero), gt8(dot8(v, ng), zero));
+  const V3x8 wo{dot8(v, gather_vec8(&b.frame_.t, offb)), dot8(v, gather_vec8(&b.frame_.b, offb)),
+                dot8(v, gather_vec8(&b.frame_.n, offb))};
+  const __m256 valid =
+      _mm256_and_ps(gt8(wo.z, zero), gt8(dot8(v, gather_vec8(&b.ng_, offb)), zero));
   const __m256 delta = flag8(&b.delta_specular_, offb);
   const __m256 specular = flag8(&b.has_specular_, offb);
   // e = specular_albedo(mu) where there is a specular lobe, else {0, 0}.
   __m256 e_a, e_b;
-  specular_albedo8(delta, gather8i(&b.row_.index, offb), gather8(&b.row_.t, offb), wo[2], &e_a,
+  specular_albedo8(delta, gather8i(&b.row_.index, offb), gather8(&b.row_.t, offb), wo.z, &e_a,
                    &e_b);
   e_a = select8(specular, e_a, zero);
   e_b = select8(specular, e_b, zero);
@@ -281,24 +283,26 @@ DOFARM_AVX2 bool Bsdf::outgoing_lanes_avx2(int n, const Bsdf* const* bsdf, const
   const __m256 dielectric = mul8(add8(one, mul8(df0, k)), dw);
   const __m256 d0 = mul8(dielectric, df0), d1 = mul8(dielectric, sub8(one, df0));
   const __m256 e_e = add8(e_a, e_b);
-  __m256 c0[3], c1[3], albedo[3];
-  for (int c = 0; c < 3; ++c) {
-    const __m256 mf0 = gather8(&b.metal_f0_.x + c, offb);
-    const __m256 metal = mul8(add8(one, mul8(mf0, k)), mw);
-    const __m256 m0 = mul8(metal, mf0), m1 = mul8(metal, sub8(one, mf0));
-    c0[c] = select8(both, add8(m0, d0), select8(dielectric_on, add8(zero, d0), add8(m0, zero)));
-    c1[c] = select8(both, add8(m1, d1), select8(dielectric_on, add8(zero, d1), add8(m1, zero)));
-    albedo[c] = add8(mul8(c0[c], e_e), mul8(c1[c], e_b));
-  }
+  const V3x8 mf0 = gather_vec8(&b.metal_f0_, offb);
+  auto fresnel = [&](__m256 f0, __m256* c0, __m256* c1) DOFARM_AVX2 {  // one channel's
+    const __m256 metal = mul8(add8(one, mul8(f0, k)), mw);
+    const __m256 m0 = mul8(metal, f0), m1 = mul8(metal, sub8(one, f0));
+    *c0 = select8(both, add8(m0, d0), select8(dielectric_on, add8(zero, d0), add8(m0, zero)));
+    *c1 = select8(both, add8(m1, d1), select8(dielectric_on, add8(zero, d1), add8(m1, zero)));
+  };
+  V3x8 c0, c1;
+  fresnel(mf0.x, &c0.x, &c1.x);
+  fresnel(mf0.y, &c0.y, &c1.y);
+  fresnel(mf0.z, &c0.z, &c1.z);
+  const V3x8 albedo{add8(mul8(c0.x, e_e), mul8(c1.x, e_b)), add8(mul8(c0.y, e_e), mul8(c1.y, e_b)),
+                    add8(mul8(c0.z, e_e), mul8(c1.z, e_b))};
   // The base: what the dielectric layer lets through, and the lobe choice.
   const __m256 diffuse_on = gt8(gather8(&b.diffuse_weight_, offb), zero);
   const __m256 through =
       select8(dielectric_on, through8(gather8(&b.specular_factor_, offb), df0, e_a, e_b, k), one);
-  __m256 diffuse[3], dc[3];
-  for (int c = 0; c < 3; ++c) {
-    dc[c] = gather8(&b.diffuse_color_.x + c, offb);
-    diffuse[c] = mul8(dc[c], mul8(through, gather8(&b.diffuse_norm_.x + c, offb)));
-  }
+  const V3x8 dc = gather_vec8(&b.diffuse_color_, offb), dn = gather_vec8(&b.diffuse_norm_, offb);
+  const V3x8 diffuse{mul8(dc.x, mul8(through, dn.x)), mul8(dc.y, mul8(through, dn.y)),
+                     mul8(dc.z, mul8(through, dn.z))};
   const __m256 fs = luminance8(albedo);
   const __m256 sum = add8(fs, mul8(luminance8(dc), through));
   const __m256 ratio = div8(fs, sum);
@@ -310,14 +314,14 @@ DOFARM_AVX2 bool Bsdf::outgoing_lanes_avx2(int n, const Bsdf* const* bsdf, const
   // The rough lobe's terms.
   const __m256 alpha = gather8(&b.alpha_, offb);
   const __m256 smith = smith_r8(wo, mul8(alpha, alpha));
-  const __m256 inv4 = div8(one, mul8(k8(4.0f), wo[2]));
-  const __m256 pdf_scale = div8(ps, mul8(k8(2.0f), add8(wo[2], smith)));
+  const __m256 inv4 = div8(one, mul8(k8(4.0f), wo.z));
+  const __m256 pdf_scale = div8(ps, mul8(k8(2.0f), add8(wo.z, smith)));
 
   // Lane by lane into the records: what a valid one's readers read.
   alignas(32) float lanes[17][8];
-  const __m256 rows[17] = {wo[0], wo[1], wo[2], c0[0],      c0[1],      c0[2],
-                           c1[0], c1[1], c1[2], diffuse[0], diffuse[1], diffuse[2],
-                           ps,    smith, inv4,  pdf_scale,  valid};
+  const __m256 rows[17] = {wo.x, wo.y,  wo.z, c0.x,      c0.y,      c0.z,
+                           c1.x, c1.y,  c1.z, diffuse.x, diffuse.y, diffuse.z,
+                           ps,   smith, inv4, pdf_scale, valid};
   for (int r = 0; r < 17; ++r) _mm256_store_ps(lanes[r], rows[r]);
   for (int j = 0; j < n; ++j) {
     Outgoing& o = *out[j];

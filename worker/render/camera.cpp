@@ -127,19 +127,11 @@ struct LensCamera {
   float near, far;
 };
 
-// Eight-lane Vec3 arithmetic, each operation the scalar one of common/math.h
-// in the same order.
-struct V3x8 {
-  __m256 x, y, z;
-};
+// cross() in lanes (V3x8, dot8: trig8.h).
 DOFARM_AVX2 inline V3x8 cross8(V3x8 a, V3x8 b) {
   return {_mm256_sub_ps(_mm256_mul_ps(a.y, b.z), _mm256_mul_ps(a.z, b.y)),
           _mm256_sub_ps(_mm256_mul_ps(a.z, b.x), _mm256_mul_ps(a.x, b.z)),
           _mm256_sub_ps(_mm256_mul_ps(a.x, b.y), _mm256_mul_ps(a.y, b.x))};
-}
-DOFARM_AVX2 inline __m256 dot8(V3x8 a, V3x8 b) {
-  return _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(a.x, b.x), _mm256_mul_ps(a.y, b.y)),
-                       _mm256_mul_ps(a.z, b.z));
 }
 // Quat::rotate: v + t w + cross(u, t), t = 2 cross(u, v).
 DOFARM_AVX2 inline V3x8 rotate8(const Quat& q, V3x8 v) {
@@ -151,10 +143,6 @@ DOFARM_AVX2 inline V3x8 rotate8(const Quat& q, V3x8 v) {
   return {_mm256_add_ps(_mm256_add_ps(v.x, _mm256_mul_ps(t.x, w)), c.x),
           _mm256_add_ps(_mm256_add_ps(v.y, _mm256_mul_ps(t.y, w)), c.y),
           _mm256_add_ps(_mm256_add_ps(v.z, _mm256_mul_ps(t.z, w)), c.z)};
-}
-DOFARM_AVX2 inline __m256 is_finite8(__m256 v) {  // |v| <= FLT_MAX: false for Inf and NaN
-  const __m256 abs = _mm256_andnot_ps(_mm256_set1_ps(-0.0f), v);
-  return _mm256_cmp_ps(abs, _mm256_set1_ps(FLT_MAX), _CMP_LE_OQ);
 }
 // generate_ray() of a perspective lens camera in eight lanes; returns the
 // lanes whose rays are complete (bit k set), the others need

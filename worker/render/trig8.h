@@ -1,8 +1,11 @@
-// trig.h's functions in eight AVX2 lanes, for the kernels of simd.h: each
-// lane does the scalar function's operations in its order (branches become
-// blends of both sides), with no fused multiply-add, so a lane's result is
-// the scalar one bit for bit (Trig.LanesAreTheScalarFunctions).
+// Lane arithmetic and trig.h's functions in eight AVX2 lanes, for the
+// kernels of simd.h: each lane does the scalar function's operations in its
+// order (branches become blends of both sides), with no fused multiply-add,
+// so a lane's result is the scalar one bit for bit
+// (Trig.LanesAreTheScalarFunctions).
 #pragma once
+
+#include <cfloat>
 
 #include "worker/render/simd.h"
 #include "worker/render/trig.h"
@@ -17,6 +20,26 @@ DOFARM_AVX2 inline __m128 remainder4(__m128 a, __m128 q) {  // float(double(a) -
 DOFARM_AVX2 inline __m256 k8(float v) { return _mm256_set1_ps(v); }
 DOFARM_AVX2 inline __m256 mul8(__m256 x, __m256 y) { return _mm256_mul_ps(x, y); }
 DOFARM_AVX2 inline __m256 add8(__m256 x, __m256 y) { return _mm256_add_ps(x, y); }
+DOFARM_AVX2 inline __m256 sub8(__m256 x, __m256 y) { return _mm256_sub_ps(x, y); }
+DOFARM_AVX2 inline __m256 div8(__m256 x, __m256 y) { return _mm256_div_ps(x, y); }
+// mask ? a : b, lane by lane.
+DOFARM_AVX2 inline __m256 select8(__m256 mask, __m256 a, __m256 b) {
+  return _mm256_blendv_ps(b, a, mask);
+}
+DOFARM_AVX2 inline __m256 is_finite8(__m256 v) {  // |v| <= FLT_MAX: false for Inf and NaN
+  const __m256 abs = _mm256_andnot_ps(_mm256_set1_ps(-0.0f), v);
+  return _mm256_cmp_ps(abs, _mm256_set1_ps(FLT_MAX), _CMP_LE_OQ);
+}
+
+// Eight-lane Vec3 arithmetic, each operation the scalar one of common/math.h
+// in the same order.
+struct V3x8 {
+  __m256 x, y, z;
+};
+DOFARM_AVX2 inline __m256 dot8(V3x8 a, V3x8 b) {
+  return _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(a.x, b.x), _mm256_mul_ps(a.y, b.y)),
+                       _mm256_mul_ps(a.z, b.z));
+}
 
 // precise_sincos (trig.h): the quadrant rounded as round_to_integer does,
 // the remainder in double, sincos_quarter's polynomials, the quadrant's
