@@ -430,21 +430,16 @@ Vec3 Bsdf::evaluate(const Outgoing& o, Vec3 wi_w, float* pdf_out) const {
 
 Vec3 Bsdf::evaluate_base(const Outgoing& o, Vec3 wi_w, float* pdf_out) const {
   *pdf_out = 0;
-  if (!o.valid) return Vec3(0);
-  // Reflection with both directions above the geometric surface, refraction
-  // with wi below both surfaces, so that light never leaks through a
-  // surface because of a bent shading normal.
-  const float side = dot(wi_w, ng_);
-  if (side <= 0) {
-    if (glass_weight_ > 0 && !glass_delta_ && side < 0) [[unlikely]] {
-      const Vec3 wi = frame_.to_local(wi_w);
-      if (wi.z < 0) return evaluate_refraction(o, wi, pdf_out);
-    }
-    return Vec3(0);
+  // Reflection with both directions above the geometric surface
+  // (evaluate_direction), refraction with wi below both surfaces, so that
+  // light never leaks through a surface because of a bent shading normal.
+  Vec3 wi;
+  if (evaluate_direction(o, wi_w, &wi)) return evaluate_local(o, wi, pdf_out);
+  if (glass_weight_ > 0 && !glass_delta_ && o.valid && dot(wi_w, ng_) < 0) [[unlikely]] {
+    wi = frame_.to_local(wi_w);
+    if (wi.z < 0) return evaluate_refraction(o, wi, pdf_out);
   }
-  const Vec3 wi = frame_.to_local(wi_w);
-  if (wi.z <= 0) return Vec3(0);
-  return evaluate_local(o, wi, pdf_out);
+  return Vec3(0);
 }
 
 Vec3 Bsdf::evaluate(Vec3 wo_w, Vec3 wi_w, float* pdf_out) const {
@@ -618,7 +613,7 @@ bool Bsdf::sample_direction(const Outgoing& o, float u_lobe, Vec2 u, BsdfSample*
 }
 
 bool Bsdf::evaluate_direction(const Outgoing& o, Vec3 wi_w, Vec3* wi) const {
-  // evaluate_base()'s way to evaluate_local() (no glass, coat or sheen).
+  // wo and wi above both surfaces: the reflection evaluate_base() evaluates.
   if (!o.valid || dot(wi_w, ng_) <= 0) return false;
   *wi = frame_.to_local(wi_w);
   return !(wi->z <= 0);
