@@ -7,6 +7,7 @@
 
 #include "common/error.h"
 #include "tests/render/render_fixtures.h"
+#include "tests/render/same_bits.h"
 #include "worker/render/camera.h"
 #include "worker/render/render_job.h"
 #include "worker/render/simd.h"
@@ -426,11 +427,9 @@ TEST(Focus, FocusPointRecordedInTheFrameIsTheOneTheCocUses) {
 // (generate_ray()'s double fallback, redone lane by lane).
 TEST(Camera, BatchedRaysAreTheSingleRays) {
   SimdRestore restore;
-  auto same = [](float a, float b) { return std::memcmp(&a, &b, sizeof a) == 0; };
   auto same_ray = [&](const Ray& a, const Ray& b) {
-    return same(a.o.x, b.o.x) && same(a.o.y, b.o.y) && same(a.o.z, b.o.z) && same(a.d.x, b.d.x) &&
-           same(a.d.y, b.d.y) && same(a.d.z, b.d.z) && same(a.t_min, b.t_min) &&
-           same(a.t_max, b.t_max);
+    return test::same_bits(a.o, b.o) && test::same_bits(a.d, b.d) &&
+           test::same_bits(a.t_min, b.t_min) && test::same_bits(a.t_max, b.t_max);
   };
   std::vector<Vec2> lens = {{0.5f, 0.5f},  {0.0f, 0.0f}, {0.9f, 0.9f},    {0.1f, 0.9f},
                             {0.5f, 0.0f},  {0.0f, 0.5f}, {0.99f, 0.5f},   {0.5f, 0.25f},

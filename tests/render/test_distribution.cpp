@@ -4,11 +4,11 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
-#include <cstring>
 #include <random>
 #include <vector>
 
 #include "chi2.h"
+#include "tests/render/same_bits.h"
 #include "worker/render/distribution.h"
 #include "worker/render/environment.h"
 #include "worker/render/simd.h"
@@ -494,7 +494,6 @@ TEST(Environment, BatchedSamplesAreTheSingleSamples) {
     return Vec3(v, 0.5f * v, 1.0f);
   });
   SimdRestore restore;
-  auto same = [](float a, float b) { return std::memcmp(&a, &b, sizeof a) == 0; };
   std::mt19937_64 rng(59);
   std::uniform_real_distribution<float> uni(0.0f, 1.0f);
   for (float rotation : {0.0f, 75.0f}) {
@@ -514,11 +513,9 @@ TEST(Environment, BatchedSamplesAreTheSingleSamples) {
           for (int k = 0; k < n; ++k) {
             const EnvSample want = env.sample(choices[i + size_t(k)]);
             zero += !(want.pdf > 0);
-            differ += !(same(got[k].pdf, want.pdf) && same(got[k].wi.x, want.wi.x) &&
-                        same(got[k].wi.y, want.wi.y) && same(got[k].wi.z, want.wi.z) &&
-                        same(got[k].radiance.x, want.radiance.x) &&
-                        same(got[k].radiance.y, want.radiance.y) &&
-                        same(got[k].radiance.z, want.radiance.z));
+            differ +=
+                !(test::same_bits(got[k].pdf, want.pdf) && test::same_bits(got[k].wi, want.wi) &&
+                  test::same_bits(got[k].radiance, want.radiance));
           }
         }
       EXPECT_EQ(i, choices.size());

@@ -3,13 +3,13 @@
 // of the three light-sampling strategies.
 #include <gtest/gtest.h>
 
-#include <bit>
 #include <cmath>
 #include <cstdio>
 #include <random>
 #include <vector>
 
 #include "tests/render/render_fixtures.h"
+#include "tests/render/same_bits.h"
 #include "worker/render/integrator.h"
 
 namespace dofarm::render {
@@ -576,10 +576,6 @@ TEST(Integrator, MaterialBsdfConstantsAreEachHitsOwnBsdf) {
     d.tri_material[t] = uint32_t(first + t % kinds.size());
   const auto scene = make_scene(std::move(d), testing::constant_env(0.3f));
 
-  auto same = [](float a, float b) {
-    return std::bit_cast<uint32_t>(a) == std::bit_cast<uint32_t>(b);
-  };
-  auto same3 = [&](Vec3 a, Vec3 b) { return same(a.x, b.x) && same(a.y, b.y) && same(a.z, b.z); };
   std::mt19937 rng(5);
   std::uniform_real_distribution<float> u(0.0f, 1.0f);
   std::vector<int> seen(kinds.size(), 0);
@@ -607,14 +603,15 @@ TEST(Integrator, MaterialBsdfConstantsAreEachHitsOwnBsdf) {
       const Vec3 wi = normalize(Vec3(u(rng) - 0.5f, u(rng) - 0.5f, u(rng) - 0.5f), hit.ns);
       float pa = -1, pb = -2;
       const Vec3 fa = from_constants.evaluate(oa, wi, &pa), fb = own.evaluate(ob, wi, &pb);
-      ASSERT_TRUE(same3(fa, fb) && same(pa, pb)) << "material kind " << kind;
+      ASSERT_TRUE(test::same_bits(fa, fb) && test::same_bits(pa, pb)) << "material kind " << kind;
       const float ul = u(rng);
       const Vec2 us(u(rng), u(rng));
       const BsdfSample sa = from_constants.sample(oa, ul, us), sb = own.sample(ob, ul, us);
       ASSERT_EQ(sa.valid, sb.valid) << "material kind " << kind;
       ASSERT_EQ(sa.is_delta, sb.is_delta) << "material kind " << kind;
       if (sa.valid) {
-        ASSERT_TRUE(same3(sa.wi, sb.wi) && same3(sa.weight, sb.weight) && same(sa.pdf, sb.pdf))
+        ASSERT_TRUE(test::same_bits(sa.wi, sb.wi) && test::same_bits(sa.weight, sb.weight) &&
+                    test::same_bits(sa.pdf, sb.pdf))
             << "material kind " << kind;
       }
     }

@@ -14,6 +14,7 @@
 
 #include "common/jobspec.h"
 #include "tests/render/render_fixtures.h"
+#include "tests/render/same_bits.h"
 #include "worker/render/camera.h"
 #include "worker/render/integrator.h"
 #include "worker/render/render_job.h"
@@ -22,11 +23,7 @@
 namespace dofarm::render {
 namespace {
 
-bool same_bits(float a, float b) { return std::memcmp(&a, &b, sizeof a) == 0; }
-bool same_bits(Vec3 a, Vec3 b) {
-  return same_bits(a.x, b.x) && same_bits(a.y, b.y) && same_bits(a.z, b.z);
-}
-bool same_bits(Vec2 a, Vec2 b) { return same_bits(a.x, b.x) && same_bits(a.y, b.y); }
+using test::same_bits;
 
 // Two triangles that share a corner (by position: a mesh's vertices may be
 // split along seams).
