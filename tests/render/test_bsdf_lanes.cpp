@@ -1,7 +1,6 @@
-// Evaluation in lanes (Bsdf::evaluate_lanes, Bsdf::outgoing_lanes: the
-// integrator's batches, worker/render/bsdf_lanes.cpp): the two-step
-// evaluate() and sample() and the outgoing terms in lanes give the
-// one-step results bit for bit, with AVX2 on and off, for batches of every
+// Evaluation in lanes (Bsdf::evaluate_lanes: the integrator's batches,
+// worker/render/bsdf_lanes.cpp): the two-step evaluate() and sample() in
+// lanes give the one-step results bit for bit, with AVX2 on and off, for batches of every
 // size up to 16 (two rounds of eight lanes), of mixed materials in any
 // order, and for records too far apart in memory for the lanes' offsets
 // (one on the stack, the rest on the heap: evaluated one by one).
@@ -140,63 +139,4 @@ TEST(Bsdf, EvaluationsInLanesAreEachBsdfsOwn) {
     }
   }
   EXPECT_GT(evaluated, 3000u);
-}
-
-// The outgoing terms in lanes (Bsdf::outgoing_lanes) are the scalar ones:
-// wo, valid and the lobe choice bit for bit, and every evaluation and
-// sample from them too, AVX2 on and off, in batches up to 16 and with
-// records too far apart for the lanes' offsets.
-TEST(Bsdf, OutgoingTermsInLanesAreEachBsdfsOwn) {
-  dofarm::render::SimdRestore restore;
-  std::mt19937 rng(23);
-  std::uniform_real_distribution<float> u01(0.0f, 1.0f);
-  std::vector<Vec3> wos;
-  const std::vector<Bsdf> bsdfs = lane_bsdfs(rng, &wos);
-  const Bsdf on_stack = bsdfs[1];
-  size_t valid = 0, invalid = 0;
-  for (bool simd : {true, false}) {
-    dofarm::render::allow_simd(simd);
-    for (int round = 0; round < 300; ++round) {
-      const int n = 1 + round % 16;
-      const Bsdf* b[16];
-      Vec3 wo[16];
-      Bsdf::Outgoing lanes[16];
-      Bsdf::Outgoing* out[16];
-      for (int k = 0; k < n; ++k) {
-        const size_t i = std::uniform_int_distribution<size_t>(0, bsdfs.size() - 1)(rng);
-        const bool far = round % 13 == 0 && k == 0;
-        b[k] = far ? &on_stack : &bsdfs[i];
-        // Most from the BSDF's own side, some from anywhere (invalid).
-        wo[k] = far ? wos[1] : (k % 4 == 3 ? random_direction(rng, -1.0f) : wos[i]);
-        out[k] = &lanes[k];
-      }
-      Bsdf::outgoing_lanes(n, b, wo, out);
-      for (int k = 0; k < n; ++k) {
-        const Bsdf::Outgoing one = b[k]->outgoing(wo[k]);
-        ASSERT_EQ(one.valid, lanes[k].valid) << "simd " << simd << " lane " << k << " of " << n;
-        ASSERT_TRUE(same_bits(one.wo, lanes[k].wo) &&
-                    same_bits(one.specular_prob, lanes[k].specular_prob))
-            << "simd " << simd << " lane " << k << " of " << n;
-        (one.valid ? valid : invalid) += 1;
-        for (int j = 0; j < 3; ++j) {
-          const Vec3 wi = random_direction(rng, -1.0f);
-          float p1 = -1, p2 = -2;
-          const Vec3 f1 = b[k]->evaluate(one, wi, &p1), f2 = b[k]->evaluate(lanes[k], wi, &p2);
-          ASSERT_TRUE(same_bits(f1, f2) && same_bits(p1, p2))
-              << "simd " << simd << " lane " << k << " of " << n;
-          const float ul = u01(rng);
-          const Vec2 uv(u01(rng), u01(rng));
-          const BsdfSample s1 = b[k]->sample(one, ul, uv), s2 = b[k]->sample(lanes[k], ul, uv);
-          ASSERT_EQ(s1.valid, s2.valid);
-          if (s1.valid) {
-            ASSERT_TRUE(same_bits(s1.wi, s2.wi) && same_bits(s1.weight, s2.weight) &&
-                        same_bits(s1.pdf, s2.pdf) && s1.is_delta == s2.is_delta)
-                << "simd " << simd << " lane " << k << " of " << n;
-          }
-        }
-      }
-    }
-  }
-  EXPECT_GT(valid, 2000u);
-  EXPECT_GT(invalid, 200u);
 }

@@ -238,11 +238,6 @@ class Bsdf : private BsdfConstants {
   // in_lanes(): this BSDF's evaluation can run in a lane of
   // evaluate_lanes() (no glass, coat or sheen, and a grey F0).
   bool in_lanes() const { return in_lanes_; }
-  // *out[k] = bsdf[k]->outgoing(wo[k]) for k < n, eight at a time in AVX2
-  // lanes where the CPU has them (else one by one), for BSDFs in_lanes():
-  // every member a BSDF in_lanes() reads is the scalar one bit for bit.
-  // Each *out[k] is constructed.
-  static void outgoing_lanes(int n, const Bsdf* const* bsdf, const Vec3* wo, Outgoing* const* out);
   // evaluate() in two steps, for a BSDF in_lanes(): false where it is 0
   // (with pdf 0) without evaluating; else true, and *wi the local
   // direction to evaluate in lanes.
@@ -278,8 +273,6 @@ class Bsdf : private BsdfConstants {
   // too far apart in memory for 32-bit gather offsets).
   static bool evaluate_lanes_avx2(int n, const Bsdf* const* bsdf, const Outgoing* const* out,
                                   const Vec3* wi, Vec3* f, float* pdf);
-  static bool outgoing_lanes_avx2(int n, const Bsdf* const* bsdf, const Vec3* wo,
-                                  Outgoing* const* out);
   // The glass lobe for wi below the surface (refraction), rough glass only.
   Vec3 evaluate_refraction(const Outgoing& o, Vec3 wi, float* pdf) const;
   // The glass lobe's reflection, added to f and *pdf (wi above the surface).

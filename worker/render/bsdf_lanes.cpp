@@ -1,10 +1,11 @@
-// Bsdf's evaluations and outgoing terms of several paths' vertices at once
-// (Bsdf::evaluate_lanes, Bsdf::outgoing_lanes; PathBatch in
-// worker/render/integrator.cpp), in AVX2 lanes where the CPU has them: each
-// lane does the scalar code's operations (bsdf.cpp) in their order, with
-// no fused multiply-add, so a lane's results are the scalar ones bit for
-// bit (simd.h; Bsdf.EvaluationsInLanesAreEachBsdfsOwn,
-// Bsdf.OutgoingTermsInLanesAreEachBsdfsOwn).
+// Bsdf's evaluations of several paths' vertices at once
+// (Bsdf::evaluate_lanes; PathBatch in worker/render/integrator.cpp), in
+// AVX2 lanes where the CPU has them: each lane does the scalar code's
+// operations (bsdf.cpp) in their order, with no fused multiply-add, so a
+// lane's results are the scalar ones bit for bit (simd.h;
+// Bsdf.EvaluationsInLanesAreEachBsdfsOwn). The outgoing terms
+// (Bsdf::outgoing) stay scalar: in lanes they cost the courtyard 3% of its
+// render time (bench/README.md, "ab_time.sh").
 #include <algorithm>
 #include <bit>
 #include <cstdint>
@@ -45,19 +46,6 @@ void Bsdf::evaluate_lanes(int n, const Bsdf* const* bsdf, const Outgoing* const*
 #endif
       },
       [&](int k) { f[k] = bsdf[k]->evaluate_local(*out[k], wi[k], &pdf[k]); });
-}
-
-void Bsdf::outgoing_lanes(int n, const Bsdf* const* bsdf, const Vec3* wo, Outgoing* const* out) {
-  in_lanes_of_eight(
-      n,
-      [&](int k, int m) {
-#ifdef DOFARM_HAVE_AVX2_KERNELS
-        return outgoing_lanes_avx2(m, bsdf + k, wo + k, out + k);
-#else
-        return false;
-#endif
-      },
-      [&](int k) { *out[k] = bsdf[k]->outgoing(wo[k]); });
 }
 
 #ifdef DOFARM_HAVE_AVX2_KERNELS
@@ -169,10 +157,6 @@ DOFARM_AVX2 inline __m256 sin2_8(V3x8 w) { return add8(mul8(w.x, w.x), mul8(w.y,
 DOFARM_AVX2 inline __m256 smith_r8(V3x8 w, __m256 a2) {
   return _mm256_sqrt_ps(add8(mul8(w.z, w.z), mul8(a2, sin2_8(w))));
 }
-// luminance() in lanes.
-DOFARM_AVX2 inline __m256 luminance8(V3x8 c) {
-  return add8(add8(mul8(k8(0.2126f), c.x), mul8(k8(0.7152f), c.y)), mul8(k8(0.0722f), c.z));
-}
 
 }  // namespace
 
@@ -253,91 +237,6 @@ DOFARM_AVX2 bool Bsdf::evaluate_lanes_avx2(int n, const Bsdf* const* bsdf,
   return true;
 }
 
-DOFARM_AVX2 bool Bsdf::outgoing_lanes_avx2(int n, const Bsdf* const* bsdf, const Vec3* wo_in,
-                                           Outgoing* const* out) {
-  const __m256i active = active8(n);
-  __m256i offb;
-  if (!offsets8(reinterpret_cast<const void* const*>(bsdf), active, &offb)) return false;
-  const Bsdf& b = *bsdf[0];
-  const __m256 zero = _mm256_setzero_ps(), one = k8(1.0f);
-  const V3x8 v = gather_vec8(wo_in, vec3_offsets8(active));
-  // o.wo = frame_.to_local(wo), valid above both surfaces.
-  const V3x8 wo{dot8(v, gather_vec8(&b.frame_.t, offb)), dot8(v, gather_vec8(&b.frame_.b, offb)),
-                dot8(v, gather_vec8(&b.frame_.n, offb))};
-  const __m256 valid =
-      _mm256_and_ps(gt8(wo.z, zero), gt8(dot8(v, gather_vec8(&b.ng_, offb)), zero));
-  const __m256 delta = flag8(&b.delta_specular_, offb);
-  const __m256 specular = flag8(&b.has_specular_, offb);
-  // e = specular_albedo(mu) where there is a specular lobe, else {0, 0}.
-  __m256 e_a, e_b;
-  specular_albedo8(delta, gather8i(&b.row_.index, offb), gather8(&b.row_.t, offb), wo.z, &e_a,
-                   &e_b);
-  e_a = select8(specular, e_a, zero);
-  e_b = select8(specular, e_b, zero);
-  const __m256 k = albedo_k8(delta, e_a, e_b);
-  // The Fresnel terms with Turquin's compensation, of the parts present.
-  const __m256 mw = gather8(&b.metal_weight_, offb), dw = gather8(&b.dielectric_weight_, offb);
-  const __m256 metal_on = gt8(mw, zero), dielectric_on = gt8(dw, zero);
-  const __m256 both = _mm256_and_ps(metal_on, dielectric_on);
-  const __m256 df0 = gather8(&b.dielectric_f0_.x, offb);
-  const __m256 dielectric = mul8(add8(one, mul8(df0, k)), dw);
-  const __m256 d0 = mul8(dielectric, df0), d1 = mul8(dielectric, sub8(one, df0));
-  const __m256 e_e = add8(e_a, e_b);
-  const V3x8 mf0 = gather_vec8(&b.metal_f0_, offb);
-  auto fresnel = [&](__m256 f0, __m256* c0, __m256* c1) DOFARM_AVX2 {  // one channel's
-    const __m256 metal = mul8(add8(one, mul8(f0, k)), mw);
-    const __m256 m0 = mul8(metal, f0), m1 = mul8(metal, sub8(one, f0));
-    *c0 = select8(both, add8(m0, d0), select8(dielectric_on, add8(zero, d0), add8(m0, zero)));
-    *c1 = select8(both, add8(m1, d1), select8(dielectric_on, add8(zero, d1), add8(m1, zero)));
-  };
-  V3x8 c0, c1;
-  fresnel(mf0.x, &c0.x, &c1.x);
-  fresnel(mf0.y, &c0.y, &c1.y);
-  fresnel(mf0.z, &c0.z, &c1.z);
-  const V3x8 albedo{add8(mul8(c0.x, e_e), mul8(c1.x, e_b)), add8(mul8(c0.y, e_e), mul8(c1.y, e_b)),
-                    add8(mul8(c0.z, e_e), mul8(c1.z, e_b))};
-  // The base: what the dielectric layer lets through, and the lobe choice.
-  const __m256 diffuse_on = gt8(gather8(&b.diffuse_weight_, offb), zero);
-  const __m256 through =
-      select8(dielectric_on, through8(gather8(&b.specular_factor_, offb), df0, e_a, e_b, k), one);
-  const V3x8 dc = gather_vec8(&b.diffuse_color_, offb), dn = gather_vec8(&b.diffuse_norm_, offb);
-  const V3x8 diffuse{mul8(dc.x, mul8(through, dn.x)), mul8(dc.y, mul8(through, dn.y)),
-                     mul8(dc.z, mul8(through, dn.z))};
-  const __m256 fs = luminance8(albedo);
-  const __m256 sum = add8(fs, mul8(luminance8(dc), through));
-  const __m256 ratio = div8(fs, sum);
-  const __m256 clamped = select8(_mm256_cmp_ps(ratio, k8(0.05f), _CMP_LT_OQ), k8(0.05f),
-                                 select8(gt8(ratio, k8(0.95f)), k8(0.95f), ratio));
-  const __m256 mixed = select8(gt8(sum, zero), clamped, k8(0.5f));
-  __m256 ps = select8(diffuse_on, select8(specular, mixed, zero), select8(specular, one, zero));
-  ps = select8(valid, ps, zero);
-  // The rough lobe's terms.
-  const __m256 alpha = gather8(&b.alpha_, offb);
-  const __m256 smith = smith_r8(wo, mul8(alpha, alpha));
-  const __m256 inv4 = div8(one, mul8(k8(4.0f), wo.z));
-  const __m256 pdf_scale = div8(ps, mul8(k8(2.0f), add8(wo.z, smith)));
-
-  // Lane by lane into the records: what a valid one's readers read.
-  alignas(32) float lanes[17][8];
-  const __m256 rows[17] = {wo.x, wo.y,  wo.z, c0.x,      c0.y,      c0.z,
-                           c1.x, c1.y,  c1.z, diffuse.x, diffuse.y, diffuse.z,
-                           ps,   smith, inv4, pdf_scale, valid};
-  for (int r = 0; r < 17; ++r) _mm256_store_ps(lanes[r], rows[r]);
-  for (int j = 0; j < n; ++j) {
-    Outgoing& o = *out[j];
-    o.wo = Vec3(lanes[0][j], lanes[1][j], lanes[2][j]);
-    o.valid = std::bit_cast<uint32_t>(lanes[16][j]) != 0;
-    o.specular_prob = lanes[12][j];
-    if (!o.valid) continue;
-    o.fresnel_c0 = Vec3(lanes[3][j], lanes[4][j], lanes[5][j]);
-    o.fresnel_c1 = Vec3(lanes[6][j], lanes[7][j], lanes[8][j]);
-    o.diffuse = Vec3(lanes[9][j], lanes[10][j], lanes[11][j]);
-    o.smith_r = lanes[13][j];
-    o.inv_4_cos_o = lanes[14][j];
-    o.specular_pdf_scale = lanes[15][j];
-  }
-  return true;
-}
 #endif
 
 }  // namespace dofarm::render

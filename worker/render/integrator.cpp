@@ -88,9 +88,7 @@ static_assert(std::is_trivially_destructible_v<PathLane>);
 //                  load), adds emission and lamps passed; or it escaped;
 //   (locate)       the escaping paths' environment texels, together
 //                  (Environment::locate in lanes), starting their loads;
-//   prepare        each hit's BSDF and its outgoing direction's terms
-//                  (those terms in AVX2 lanes where the paths are
-//                  interleaved: prepare_lanes);
+//   prepare        each hit's BSDF and its outgoing direction's terms;
 //   sample_lights  the light samples, together (Scene::sample_lights),
 //                  reading the blocks the choices loaded;
 //   shade          next-event estimation and the bounce (the BSDF's
@@ -140,12 +138,8 @@ class PathBatch {
         for (int j = 0; j < m; ++j) dirs[j] = lanes[escaping[j]].ray.d;
         env_->locate(dirs.data(), m, located.data());
       }
-      if (lanes_ && n > 1) {
-        prepare_lanes(lanes, n);
-      } else {
-        for (int k = 0; k < n; ++k)
-          if (lanes[k].next == PathLane::Next::kShade) prepare(lanes[k]);
-      }
+      for (int k = 0; k < n; ++k)
+        if (lanes[k].next == PathLane::Next::kShade) prepare(lanes[k]);
       if (interleave_) sample_lights(lanes, n);
       if (lanes_ && n > 1) {
         live = shade_lanes(lanes, n);
@@ -282,29 +276,6 @@ class PathBatch {
     // A path alone takes its light sample here (sample_lights gathers a
     // batch's).
     if (l.lit && !interleave_) l.lit = scene_.sample_light(l.hit->p, l.light_choice, &l.light);
-  }
-
-  // prepare() of every path at a hit (interleaved), with the outgoing
-  // terms of those whose BSDF allows it computed together in lanes
-  // (Bsdf::outgoing_lanes): the same numbers.
-  void prepare_lanes(PathLane* lanes, int n) const {
-    const Bsdf* bsdfs[kMaxPaths];
-    Bsdf::Outgoing* outs[kMaxPaths];
-    Scratch<Vec3, kMaxPaths> wo;
-    int m = 0;
-    for (int k = 0; k < n; ++k) {
-      PathLane& l = lanes[k];
-      if (l.next != PathLane::Next::kShade) continue;
-      make_bsdf(l);
-      if (l.bsdf.in_lanes()) {
-        bsdfs[m] = &l.bsdf;
-        outs[m] = new (&l.out) Bsdf::Outgoing;
-        wo[m++] = -l.ray.d;
-      } else {
-        new (&l.out) Bsdf::Outgoing(l.bsdf.outgoing(-l.ray.d));
-      }
-    }
-    if (m > 0) Bsdf::outgoing_lanes(m, bsdfs, wo.data(), outs);
   }
 
   // The hit's BSDF (its material's constants where it has them: the same
