@@ -3,7 +3,8 @@
 // (a) The renderer: one frame of the job through render_frame() with all
 //     threads; RenderStats gives the camera paths (pixels x (versions +
 //     reference spp)) and every ray the renderer traced (closest-hit and
-//     shadow, albedo and aux rays included), counted inside Scene.
+//     shadow, albedo and aux rays included), counted inside Scene, and how
+//     many of its light samples were followed by a shadow ray.
 // (b) Its own rays, replayed: the same frame rendered once more (untimed, one
 //     thread) with a RaySink on the Scene that records every closest-hit and
 //     shadow query in the order the renderer made it (camera rays, bounces,
@@ -123,6 +124,7 @@ double seconds_since(Clock::time_point t0) {
 struct RendererFigures {
   double seconds = 0;  // best of the repeats
   uint64_t paths = 0, rays = 0;
+  uint64_t shadow_rays = 0, light_samples = 0;
 };
 
 // Rays are generated before the clock starts, so the timing holds only
@@ -307,6 +309,8 @@ void run_scene(const char* name, const char* job, int frame, const Args& args) {
       const RenderStats stats = renderer_pass(*scene, spec, frame, args.threads);
       rf.paths = stats.paths;
       rf.rays = stats.rays;
+      rf.shadow_rays = stats.shadow_rays;
+      rf.light_samples = stats.light_samples;
       rf.seconds = std::min(rf.seconds, stats.seconds);
       scene->set_packet_tracing(false);
       const RenderStats single = render_once(*scene, spec, frame, args.threads);
@@ -373,6 +377,11 @@ void run_scene(const char* name, const char* job, int frame, const Args& args) {
   std::printf("  paths %llu  rays %llu  (%.2f rays/path)\n", (unsigned long long)rf.paths,
               (unsigned long long)rf.rays, rays_per_path);
   std::printf("  %.3f Mpaths/s  %.3f Mrays/s\n", paths_per_s * 1e-6, rays_per_s * 1e-6);
+  // A light sample the BSDF rejects (behind the surface) cost its sampling
+  // and traces nothing.
+  std::printf("  light samples %llu, of which %.1f%% reached a shadow ray\n",
+              (unsigned long long)rf.light_samples,
+              rf.light_samples ? 100.0 * double(rf.shadow_rays) / double(rf.light_samples) : 0.0);
   std::printf(
       "  camera rays one at a time instead of in packets (Scene::set_packet_tracing): "
       "%.3f s, %.3f Mrays/s (packets %.2fx as fast)\n",

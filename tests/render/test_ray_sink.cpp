@@ -45,12 +45,49 @@ TEST(RaySink, SeesEveryCountedRayAndChangesNoPixel) {
   }
   EXPECT_GT(shadow, 0u);
   EXPECT_LT(shadow, recorder.rays.size());
+  EXPECT_EQ(stats.shadow_rays, shadow);
+  EXPECT_GE(stats.light_samples, stats.shadow_rays);
   EXPECT_GT(hits, 0u);
 
   // Off again: nothing more arrives.
   const size_t before = recorder.rays.size();
   render_frame(*scene, spec, 0, std::nullopt, options);
   EXPECT_EQ(recorder.rays.size(), before);
+}
+
+// RenderStats' light samples, against a known answer: a camera that sees
+// only a diffuse floor under a uniform sky, one vertex per path
+// (max_depth 1). Every camera path then takes exactly one light sample (the
+// sky's samples never fail), and the BSDF keeps those above the floor, half
+// of the sky by its symmetry: half of the samples get a shadow ray. Once
+// with a constant sky (the paths traced one by one) and once with a uniform
+// map (sampled by its tables, the paths of a packet traced together).
+TEST(RenderStats, CountsEveryLightSampleAndTheShadowRaysThatFollow) {
+  for (const bool map : {false, true}) {
+    SCOPED_TRACE(map ? "map" : "constant");
+    SceneData d;
+    add_quad(d, Vec3(0), Vec3(0, 0, 100), Vec3(100, 0, 0), testing::diffuse(Vec3(0.5f)));  // +y
+    RgbImage sky;
+    sky.width = 16;
+    sky.height = 8;
+    sky.rgb.assign(size_t(sky.width) * sky.height * 3, 1.0f);
+    auto scene = testing::make_scene(std::move(d),
+                                     map ? std::make_unique<Environment>(std::move(sky), 1.0f, 0.0f)
+                                         : testing::constant_env(1.0f));
+    JobSpec spec = testing::make_spec(16, 12, Vec3(0, 1, 0.5f), Vec3(0, 0, -0.5f), 40);
+    spec.max_depth = 1;
+    RenderOptions options;
+    options.threads = 2;
+    options.block_size = 4;
+    RenderStats stats;
+    options.stats = &stats;
+    render_frame(*scene, spec, 0, std::nullopt, options);
+    ASSERT_EQ(stats.paths, uint64_t(16 * 12 * (spec.versions + spec.reference_spp)));
+    EXPECT_EQ(stats.light_samples, stats.paths);
+    const double followed = double(stats.shadow_rays) / double(stats.light_samples);
+    EXPECT_GT(followed, 0.45);
+    EXPECT_LT(followed, 0.55);
+  }
 }
 
 }  // namespace

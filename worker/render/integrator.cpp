@@ -275,7 +275,10 @@ class PathBatch {
     new (&l.out) Bsdf::Outgoing(l.bsdf.outgoing(-l.ray.d));
     // A path alone takes its light sample here (sample_lights gathers a
     // batch's).
-    if (l.lit && !interleave_) l.lit = scene_.sample_light(l.hit->p, l.light_choice, &l.light);
+    if (l.lit && !interleave_) {
+      l.lit = scene_.sample_light(l.hit->p, l.light_choice, &l.light);
+      count_light_samples(l.lit ? 1 : 0);
+    }
   }
 
   // The hit's BSDF (its material's constants where it has them: the same
@@ -313,7 +316,12 @@ class PathBatch {
     }
     if (m == 0) return;
     scene_.sample_lights(m, from.data(), choices, out, ok);
-    for (int j = 0; j < m; ++j) lanes[who[j]].lit = ok[j];
+    uint64_t taken = 0;
+    for (int j = 0; j < m; ++j) {
+      lanes[who[j]].lit = ok[j];
+      taken += ok[j] ? 1 : 0;
+    }
+    count_light_samples(taken);
   }
 
   // Next-event estimation with the light sample, then the bounce (or the

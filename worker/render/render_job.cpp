@@ -366,7 +366,7 @@ FrameBuffers render_frame(const Scene& loaded, const JobSpec& spec, int frame,
   int threads = options.threads > 0 ? options.threads : cpus_available();
   threads = std::clamp(threads, 1, std::max(1, blocks));
   std::atomic<int> next{0};
-  std::atomic<uint64_t> rays{0};
+  std::atomic<uint64_t> rays{0}, shadow_rays{0}, light_samples{0};
   std::optional<Progress> progress;
   if (options.progress)
     progress.emplace("frame " + std::to_string(frame), int64_t(blocks), "blocks");
@@ -378,7 +378,7 @@ FrameBuffers render_frame(const Scene& loaded, const JobSpec& spec, int frame,
            (options.cancel_also && options.cancel_also->load(std::memory_order_relaxed));
   };
   auto work = [&] {
-    const uint64_t rays_before = thread_ray_count().total();
+    const RayCount before = thread_ray_count();
     try {
       for (int b = next++; b < blocks; b = next++) {
         int x0 = (b % bx) * bs, y0 = (b / bx) * bs;
@@ -397,7 +397,10 @@ FrameBuffers render_frame(const Scene& loaded, const JobSpec& spec, int frame,
       if (!error) error = std::current_exception();
       next = blocks;
     }
-    rays += thread_ray_count().total() - rays_before;
+    const RayCount after = thread_ray_count();
+    rays += after.total() - before.total();
+    shadow_rays += after.shadow - before.shadow;
+    light_samples += after.light_samples - before.light_samples;
   };
   std::vector<std::thread> pool;
   for (int t = 1; t < threads; ++t) pool.emplace_back(work);
@@ -407,6 +410,8 @@ FrameBuffers render_frame(const Scene& loaded, const JobSpec& spec, int frame,
   if (progress) progress->finish();
   if (options.stats) {
     options.stats->rays += rays;
+    options.stats->shadow_rays += shadow_rays;
+    options.stats->light_samples += light_samples;
     options.stats->paths += uint64_t(rect.w) * rect.h * pixels.paths_per_pixel_hint();
     options.stats->threads = threads;
     options.stats->seconds +=

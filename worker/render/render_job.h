@@ -18,6 +18,8 @@ namespace dofarm::render {
 struct RenderStats {
   uint64_t paths = 0;  // camera paths traced (noisy versions + reference samples)
   uint64_t rays = 0;   // closest-hit + shadow rays, albedo and aux rays included
+  uint64_t shadow_rays = 0;    // of those, next-event estimation's shadow rays
+  uint64_t light_samples = 0;  // NEE's light samples (RayCount::light_samples)
   double seconds = 0;
   int threads = 0;  // the threads the last render_frame() ran on
 };

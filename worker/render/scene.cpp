@@ -398,6 +398,7 @@ Vec3 Scene::material_emission(const Material& m, Vec2 uv) const {
 }
 
 RayCount thread_ray_count() { return t_rays; }
+void count_light_samples(uint64_t n) { t_rays.light_samples += n; }
 
 bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
   ++t_rays.closest;

@@ -339,9 +339,15 @@ class Scene {
 struct RayCount {
   uint64_t closest = 0;
   uint64_t shadow = 0;
+  // Light samples next-event estimation took (a point or direction of
+  // positive pdf); a shadow ray follows only those the BSDF does not
+  // reject (facing away from the surface).
+  uint64_t light_samples = 0;
   uint64_t total() const { return closest + shadow; }
 };
 RayCount thread_ray_count();
+// Adds n to this thread's light samples (the integrator's).
+void count_light_samples(uint64_t n);
 
 // The job's scene file with what the job adds to it: its lamps' sizes
 // ([lights]; a warning where a Blender file's lamps stay points).
