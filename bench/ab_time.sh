@@ -33,7 +33,7 @@ usage() {
   echo "usage: bench/ab_time.sh BINARY_A BINARY_B [OUT_DIR]" >&2
   exit 2
 }
-[ $# -ge 2 ] && [ $# -le 3 ] || usage
+if [ $# -lt 2 ] || [ $# -gt 3 ]; then usage; fi
 a=$1
 b=$2
 out=${3:-/tmp/ab_time}
@@ -62,8 +62,10 @@ case "$scene" in
     ;;
 esac
 for v in spp frame rounds size; do
-  [[ "${!v}" =~ ^[0-9]+$ ]] && [ "${!v}" -gt 0 -o "$v" = frame ] ||
-    { echo "ab_time.sh: ${v^^} must be a positive number, got '${!v}'" >&2; exit 2; }
+  if ! [[ "${!v}" =~ ^[0-9]+$ ]] || { [ "${!v}" -eq 0 ] && [ "$v" != frame ]; }; then
+    echo "ab_time.sh: ${v^^} must be a positive number, got '${!v}'" >&2
+    exit 2
+  fi
 done
 pin=()
 if command -v taskset >/dev/null; then
