@@ -4,8 +4,9 @@
 // operations (bsdf.cpp) in their order, with no fused multiply-add, so a
 // lane's results are the scalar ones bit for bit (simd.h;
 // Bsdf.EvaluationsInLanesAreEachBsdfsOwn). The outgoing terms
-// (Bsdf::outgoing) stay scalar: in lanes they cost the courtyard 3% of its
-// render time (bench/README.md, "ab_time.sh").
+// (Bsdf::outgoing) stay scalar: in lanes they saved no time (the courtyard
+// 1.2% faster without them in render_spp, the same within 1% in
+// render_throughput; bench/README.md, "ab_time.sh").
 #include <algorithm>
 #include <bit>
 #include <cstdint>
