@@ -18,7 +18,9 @@
 # "instruction_budget.sh".
 #
 # usage: bench/instruction_budget.sh [BUILD_DIR] [OUT_DIR]
-#   env: SCENE (courtyard or cornell), SIZE (image width, 128), TOP (20)
+#   env: SCENE (courtyard or cornell), SIZE (image width, 128), TOP (20),
+#        SKY (map, the job's own; constant: the map replaced by a grey sky of
+#        its mean luminance, render_throughput --constant-sky)
 # Needs valgrind (callgrind_annotate) and BUILD_DIR/bench/render_throughput.
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
@@ -27,6 +29,7 @@ out=${2:-/tmp/instruction_budget}
 scene=${SCENE:-courtyard}
 size=${SIZE:-128}
 top=${TOP:-20}
+sky=${SKY:-map}
 case "$scene" in
   courtyard | cornell) ;;
   *)
@@ -36,14 +39,19 @@ case "$scene" in
 esac
 [[ "$size" =~ ^[0-9]+$ ]] || { echo "instruction_budget.sh: SIZE must be a number, got '$size'" >&2; exit 2; }
 [[ "$top" =~ ^[0-9]+$ ]] || { echo "instruction_budget.sh: TOP must be a number, got '$top'" >&2; exit 2; }
+if [ "$sky" != map ] && [ "$sky" != constant ]; then
+  echo "instruction_budget.sh: SKY must be map or constant, got '$sky'" >&2
+  exit 2
+fi
 bin=$build/bench/render_throughput
 [ -x "$bin" ] || { echo "instruction_budget.sh: no $bin (ninja -C BUILD_DIR bench/render_throughput)" >&2; exit 2; }
 command -v valgrind >/dev/null && command -v callgrind_annotate >/dev/null ||
   { echo "instruction_budget.sh: needs valgrind (apt install valgrind)" >&2; exit 2; }
 mkdir -p "$out"
 args=(--scene "$scene" --size "$size" --threads 1 --rays 1000)
+[ "$sky" = constant ] && args+=(--constant-sky)
 
-echo "instruction_budget.sh: $scene, width $size, 1 thread -> $out" >&2
+echo "instruction_budget.sh: $scene ($sky sky), width $size, 1 thread -> $out" >&2
 for pass in renderer_pass replay_scene_pass replay_bare_pass; do
   echo "  callgrind, counting $pass ..." >&2
   valgrind --tool=callgrind --callgrind-out-file="$out/$pass.cg" --collect-atstart=no \
@@ -75,8 +83,8 @@ embree=$(awk -F'\t' '$2 ~ /libembree/ {s += $1} END {printf "%.0f", s}' "$out/fu
 time_ratio=$(sed -nE 's/^ratio renderer \/ own rays replayed: ([0-9]+)% \(Scene\).*/\1/p' "$out/native.txt")
 
 awk -v r="$renderer" -v e="$embree" -v s="$replay" -v b="$bare" -v n="$rays" -v p="$paths" \
-    -v scene="$scene" -v size="$size" -v tr="$time_ratio" 'BEGIN {
-  printf "\n%s, width %d, one frame, 1 thread: %d paths, %d rays (%.2f per path)\n", scene, size, p, n, n / p
+    -v scene="$scene" -v size="$size" -v tr="$time_ratio" -v sky="$sky" 'BEGIN {
+  printf "\n%s (%s sky), width %d, one frame, 1 thread: %d paths, %d rays (%.2f per path)\n", scene, sky, size, p, n, n / p
   printf "| part | instructions | per ray |\n| --- | --- | --- |\n"
   printf "| renderer | %.0f | %.0f |\n", r, r / n
   printf "| of it in libembree3 | %.0f | %.0f |\n", e, e / n

@@ -19,6 +19,11 @@
 //     origins uniform in the scene's bounding sphere, directions uniform on
 //     the sphere, through Scene::intersect and Scene::occluded, weighted by the
 //     renderer's closest/shadow mix.
+// --constant-sky replaces the job's environment map by a grey sky of the
+// map's mean luminance before anything is rendered: the same geometry,
+// materials, camera and lens, with no map to sample or look up, so that
+// the ratio shows what the map's tables and texels cost the renderer
+// (bench/README.md, "What the courtyard's map costs").
 // (a) is also timed with Scene::set_packet_tracing(false): the renderer as
 // it is, but each camera ray traced alone (rtcIntersect1) instead of in the
 // per-pixel packets of 8 (rtcIntersect8); the same rays, the same image.
@@ -32,7 +37,7 @@
 // under callgrind (--toggle-collect).
 //
 // Usage: render_throughput [--size W] [--rays N] [--threads T] [--repeats R] [--area-lights]
-//                          [--scene cornell|courtyard]
+//                          [--scene cornell|courtyard] [--constant-sky]
 // Prints figures; asserts nothing.
 #include <algorithm>
 #include <atomic>
@@ -74,6 +79,7 @@ struct Args {
   int repeats = 2;  // the best of R timings is reported (shared machines)
   bool area_lights = false;  // every triangle light by area (Scene::set_solid_angle_lights)
   std::string scene;         // empty: both scenes
+  bool constant_sky = false;  // the map replaced by a grey sky of its mean luminance
 };
 
 Args parse_args(int argc, char** argv) {
@@ -94,6 +100,8 @@ Args parse_args(int argc, char** argv) {
       a.threads = int(value("--threads"));
     } else if (!std::strcmp(argv[i], "--area-lights")) {
       a.area_lights = true;
+    } else if (!std::strcmp(argv[i], "--constant-sky")) {
+      a.constant_sky = true;
     } else if (!std::strcmp(argv[i], "--repeats")) {
       a.repeats = int(value("--repeats"));
     } else if (!std::strcmp(argv[i], "--scene") && i + 1 < argc) {
@@ -106,7 +114,7 @@ Args parse_args(int argc, char** argv) {
     } else {
       std::fprintf(stderr,
                    "usage: render_throughput [--size 256] [--rays 2000000] [--threads 0] "
-                   "[--repeats 2] [--area-lights] [--scene cornell|courtyard]\n");
+                   "[--repeats 2] [--area-lights] [--scene cornell|courtyard] [--constant-sky]\n");
       std::exit(2);
     }
   }
@@ -254,6 +262,8 @@ void run_scene(const char* name, const char* job, int frame, const Args& args) {
   // As load_scene(), but not const: the capture sets a RaySink on it.
   std::unique_ptr<dofarm::render::Environment> env;
   if (spec.environment) env = dofarm::render::Environment::from_spec(*spec.environment);
+  const bool replace_map = args.constant_sky && env && env->has_map();
+  if (replace_map) env = std::make_unique<dofarm::render::Environment>(Vec3(env->mean_luminance()));
   auto scene = std::make_shared<Scene>(dofarm::render::load_job_scene_data(spec), std::move(env));
   scene->set_solid_angle_lights(!args.area_lights);
   const double load_s = seconds_since(t0);
@@ -262,6 +272,11 @@ void run_scene(const char* name, const char* job, int frame, const Args& args) {
   std::printf("\n== %s (jobs/%s, frame %d, %dx%d, %zu triangles, load + BVH %.2f s, %d threads)\n",
               name, job, frame, spec.width, spec.height, scene->data().indices.size() / 3, load_s,
               threads);
+  if (replace_map)
+    std::printf(
+        "the environment map replaced by a grey sky of its mean luminance, %.4g "
+        "(--constant-sky)\n",
+        double(scene->environment()->mean_luminance()));
 
   // The renderer's own rays, recorded by an untimed one-thread render (the
   // same rays as any thread count: renders are deterministic).
