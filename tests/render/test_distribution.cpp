@@ -9,6 +9,7 @@
 
 #include "chi2.h"
 #include "tests/render/same_bits.h"
+#include "worker/render/bsdf.h"
 #include "worker/render/distribution.h"
 #include "worker/render/environment.h"
 #include "worker/render/simd.h"
@@ -523,6 +524,87 @@ TEST(Environment, BatchedSamplesAreTheSingleSamples) {
       RecordProperty("samples_of_pdf_0", zero);
     }
   }
+}
+
+// choose(u, n) makes choose(u)'s choice, and marks it below exactly when
+// its block lies wholly below the plane of n: every sample of a marked
+// choice points below n (so a BSDF that rejects directions below its
+// geometric normal returns 0 for it), and every sample further below than
+// the bound on a block's angular radius allows is marked. Maps with blocks
+// past their edge (90 x 45) and whole ones (256 x 128), turned and not;
+// batched (AVX2) and single samples.
+TEST(Environment, ChoicesBelowASurfaceHaveEverySampleBelowIt) {
+  SimdRestore restore;
+  std::mt19937_64 rng(61);
+  std::uniform_real_distribution<float> uni(0.0f, 1.0f);
+  auto unit_vector = [&] {
+    const float z = 1.0f - 2.0f * uni(rng), phi = kTwoPi * uni(rng);
+    const float r = std::sqrt(std::max(0.0f, 1.0f - z * z));
+    return Vec3(r * std::cos(phi), z, r * std::sin(phi));
+  };
+  for (int size : {90, 256})
+    for (float rotation : {0.0f, 75.0f}) {
+      const int w = size, h = size / 2;
+      const RgbImage img = map_of(w, h, [](int x, int y) {
+        const float v = (x + 2 * y) % 9 == 0 ? 0.0f : 0.2f + float((x * 7 + y * 3) % 11);
+        return Vec3(v, 0.5f * v, 1.0f);
+      });
+      const Environment env(img, 1.0f, rotation);
+      // The bound the marking may not be looser than: twice a block's
+      // angular radius (its centre within one radius of the sample, and
+      // the plane within one more), plus the margin, plus slack.
+      const float radius = 0.5f * (kPi * 4.0f / float(h) + kTwoPi * 4.0f / float(w));
+      const float sure_cos = -std::sin(2.0f * radius + 2e-3f);
+      // A white diffuse BSDF and a rough dielectric with n as geometric normal.
+      int marked = 0, unmarked_far = 0, above = 0, lit = 0, total = 0;
+      std::vector<Environment::Choice> batch;
+      std::vector<Vec3> normals;
+      for (int i = 0; i < 20000; ++i) {
+        const Vec3 n = unit_vector();
+        const Vec2 u(uni(rng), uni(rng));
+        const Environment::Choice plain = env.choose(u);
+        const Environment::Choice c = env.choose(u, n);
+        ASSERT_EQ(c.block, plain.block);
+        ASSERT_TRUE(test::same_bits(c.r.x, plain.r.x) && test::same_bits(c.r.y, plain.r.y));
+        EXPECT_FALSE(plain.below);
+        EXPECT_FALSE(env.choose(u, n * 2.0f).below);  // not a unit normal: never marked
+        batch.push_back(c);
+        normals.push_back(n);
+      }
+      for (bool simd : {true, false}) {
+        allow_simd(simd);
+        std::vector<EnvSample> got(batch.size());
+        for (size_t i = 0; i < batch.size(); i += 8)
+          env.sample(&batch[i], int(std::min<size_t>(8, batch.size() - i)), &got[i]);
+        for (size_t i = 0; i < batch.size(); ++i) {
+          const EnvSample& s = got[i];
+          if (!(s.pdf > 0)) continue;
+          ++total;
+          const Vec3& n = normals[i];
+          const float cos_n = dot(s.wi, n);
+          if (batch[i].below) {
+            ++marked;
+            above += !(cos_n < 0.0f);
+            const Vec3 ns = normalize(n + unit_vector() * 0.2f);
+            for (float metallic : {0.0f, 1.0f}) {
+              const Bsdf bsdf(dot(ns, n) > 0 ? ns : n, n, Vec3(1.0f), metallic, 0.5f, 1.5f);
+              ASSERT_TRUE(bsdf.in_lanes());
+              float pdf = -1;
+              const Vec3 f = bsdf.evaluate(normalize(n + unit_vector() * 0.5f), s.wi, &pdf);
+              lit += max_component(f) > 0 || pdf != 0;
+            }
+          } else {
+            unmarked_far += cos_n < sure_cos;
+          }
+        }
+      }
+      SCOPED_TRACE(testing::Message() << w << " x " << h << ", rotation " << rotation);
+      EXPECT_EQ(above, 0);
+      EXPECT_EQ(lit, 0);
+      EXPECT_EQ(unmarked_far, 0);
+      // Random normals see about half of the sky: a good share is marked.
+      EXPECT_GT(marked, total / 4);
+    }
 }
 
 TEST(Environment, SamplesFollowThePdfOnAMapNotMadeOfWholeBlocks) {

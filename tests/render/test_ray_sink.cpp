@@ -68,8 +68,11 @@ TEST(RenderStats, CountsEveryLightSampleAndTheShadowRaysThatFollow) {
     SceneData d;
     add_quad(d, Vec3(0), Vec3(0, 0, 100), Vec3(100, 0, 0), testing::diffuse(Vec3(0.5f)));  // +y
     RgbImage sky;
-    sky.width = 16;
-    sky.height = 8;
+    // Blocks of 4 x 4 texels small enough (22 degrees) for the light
+    // samples they leave below the floor to be skipped, and counted, before
+    // they are made (Environment::Choice::below).
+    sky.width = 64;
+    sky.height = 32;
     sky.rgb.assign(size_t(sky.width) * sky.height * 3, 1.0f);
     auto scene = testing::make_scene(std::move(d),
                                      map ? std::make_unique<Environment>(std::move(sky), 1.0f, 0.0f)

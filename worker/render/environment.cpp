@@ -80,6 +80,29 @@ Environment::Environment(RgbImage image, float intensity, float rotation_deg)
     }
   block_distribution_ = CompactDistribution2D(block_sums, blocks_w_, blocks_h_);
 
+  // Centre directions and the angular radius of a block. A direction of a
+  // block (theta within d_theta / 2 of the centre's, phi within d_phi / 2)
+  // is reached from the centre along its meridian (at most d_theta / 2)
+  // and then along its circle of latitude (sin(theta) |phi - phi_c| <=
+  // d_phi / 2): the angle between them is at most r = (d_theta + d_phi) / 2.
+  // A centre more than 90 degrees + r from n (cos < -sin r) leaves the
+  // whole block below the plane of n; 1e-3 more covers the rounding of
+  // the centres and of the samples' directions (uv_to_dir, directions8:
+  // errors near 1e-6).
+  block_row_trig_.resize(size_t(blocks_h_));
+  for (int by = 0; by < blocks_h_; ++by) {
+    const double theta = kPi * (double(by) + 0.5) * kBlock / double(h);
+    block_row_trig_[size_t(by)] = Vec2(float(std::sin(theta)), float(std::cos(theta)));
+  }
+  block_column_trig_.resize(size_t(blocks_w_));
+  for (int bx = 0; bx < blocks_w_; ++bx) {
+    const double phi =
+        ((double(bx) + 0.5) * kBlock / double(w) - 0.5) * 2.0 * kPi + double(rotation_);
+    block_column_trig_[size_t(bx)] = Vec2(float(std::sin(phi)), float(std::cos(phi)));
+  }
+  const double radius = 0.5 * (kPi * kBlock / double(h) + 2.0 * kPi * kBlock / double(w));
+  below_cos_ = radius < 0.5 * kPi ? float(-std::sin(radius) - 1e-3) : -2.0f;
+
   // Each block's inversion tables, and each texel's pdf over the map's unit
   // square from exactly the probabilities sampling uses: the block's pmf
   // (CompactDistribution2D), then the row's and the column's share as the float
@@ -141,6 +164,26 @@ Environment::Choice Environment::choose(Vec2 u) const {
   c.block = uint32_t(block_distribution_.sample_discrete(u, &c.r));
   const char* b = reinterpret_cast<const char*>(&blocks_[c.block]);
   for (size_t line = 0; line < sizeof(Block); line += 64) __builtin_prefetch(b + line);
+  return c;
+}
+
+Environment::Choice Environment::choose(Vec2 u, Vec3 n) const {
+  Choice c;
+  c.u = u;
+  if (blocks_.empty()) return c;
+  c.block = uint32_t(block_distribution_.sample_discrete(u, &c.r));
+  // The centre's cosine with n, for a unit n only (anything else: not below).
+  const float n2 = dot(n, n);
+  if (n2 > 0.999f && n2 < 1.001f) {
+    const Vec2 t = block_row_trig_[c.block / uint32_t(blocks_w_)];
+    const Vec2 p = block_column_trig_[c.block % uint32_t(blocks_w_)];
+    const Vec3 centre(t.x * p.x, t.y, -t.x * p.y);
+    c.below = dot(centre, n) < below_cos_;
+  }
+  if (!c.below) {
+    const char* b = reinterpret_cast<const char*>(&blocks_[c.block]);
+    for (size_t line = 0; line < sizeof(Block); line += 64) __builtin_prefetch(b + line);
+  }
   return c;
 }
 

@@ -56,8 +56,18 @@ class Environment {
     Vec2 u;         // the sample's numbers
     Vec2 r;         // u rescaled to [0, 1)^2 within the block
     uint32_t block = 0;
+    // Every direction of the block lies strictly below the plane through
+    // the origin with the normal choose(u, n) was given: its sample is
+    // certain to point below that surface. Its record is then not loaded.
+    bool below = false;
   };
   Choice choose(Vec2 u) const;
+  // choose(u) for a light sample seen from a surface of unit normal n: the
+  // same choice, and whether it lies below the surface (Choice::below),
+  // from the block's centre direction and a bound on its angular radius
+  // (a caller whose BSDF rejects every direction below n can skip the
+  // sample; bench/README.md, "Light samples the surface turns away").
+  Choice choose(Vec2 u, Vec3 n) const;
   EnvSample sample(const Choice& choice) const;
   // sample(choice) of n choices at once (the light samples of a batch of
   // paths): the same samples, the texel-to-direction maps computed in AVX2
@@ -129,6 +139,13 @@ class Environment {
 
   int width_ = 0, height_ = 0;
   int blocks_w_ = 0, blocks_h_ = 0;
+  // The blocks' centre directions, uv_to_dir() of each block's centre, as
+  // (sin, cos) of theta per block row and of phi (rotation included) per
+  // block column; and the cosine below which a centre direction puts its
+  // whole block below a plane: -(sin of the blocks' angular radius) less a
+  // margin for rounding.
+  std::vector<Vec2> block_row_trig_, block_column_trig_;
+  float below_cos_ = -2.0f;
   // Row 0 = top; empty for a constant environment. Texels past the map's
   // edge (in blocks at the right and bottom) have weight 0.
   std::vector<Block> blocks_;

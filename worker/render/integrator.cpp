@@ -203,7 +203,7 @@ class PathBatch {
     const int depth = l.depth;
     const bool found = l.hit != nullptr;
     if (found && use_nee_ && depth < settings_.max_depth)
-      l.light_choice = scene_.choose_light(l.u.select, l.u.light);
+      l.light_choice = scene_.choose_light(l.u.select, l.u.light, &l.hit->ng);
     if (depth == 0 && l.albedo) *l.albedo = primary_albedo(l.hit);
     // Lamps with a size that this bounce ray passes (not the camera ray:
     // Cycles does not show lamps to the camera either), weighed like an
@@ -276,9 +276,26 @@ class PathBatch {
     // A path alone takes its light sample here (sample_lights gathers a
     // batch's).
     if (l.lit && !interleave_) {
+      if (rejected_below(l)) {
+        l.lit = false;
+        count_light_samples(1);
+        return;
+      }
       l.lit = scene_.sample_light(l.hit->p, l.light_choice, &l.light);
       count_light_samples(l.lit ? 1 : 0);
     }
+  }
+
+  // Whether the light sample the path chose is certain to point below its
+  // surface's geometric normal, which its BSDF rejects (a BSDF in lanes
+  // evaluates nothing there: Bsdf::evaluate_direction): the sample is then
+  // counted as taken, and neither made nor evaluated. Its estimate is the
+  // same bit for bit (the rejected sample added nothing); what it saves is
+  // the block record's load, the texel's choice and the direction, for
+  // about half of the courtyard's sky samples (bench/README.md, "Light
+  // samples the surface turns away").
+  bool rejected_below(const PathLane& l) const {
+    return l.light_choice.below() && l.bsdf.in_lanes();
   }
 
   // The hit's BSDF (its material's constants where it has them: the same
@@ -306,17 +323,26 @@ class PathBatch {
     LightSample* out[kMaxPaths];
     bool ok[kMaxPaths];
     int who[kMaxPaths], m = 0;
+    uint64_t below = 0;  // samples rejected_below(): taken, not made
     for (int k = 0; k < n; ++k) {
       PathLane& l = lanes[k];
       if (l.next != PathLane::Next::kShade || !l.lit) continue;
+      if (rejected_below(l)) {
+        l.lit = false;
+        ++below;
+        continue;
+      }
       from[m] = l.hit->p;
       choices[m] = &l.light_choice;
       out[m] = &l.light;
       who[m++] = k;
     }
-    if (m == 0) return;
+    if (m == 0) {
+      count_light_samples(below);
+      return;
+    }
     scene_.sample_lights(m, from.data(), choices, out, ok);
-    uint64_t taken = 0;
+    uint64_t taken = below;
     for (int j = 0; j < m; ++j) {
       lanes[who[j]].lit = ok[j];
       taken += ok[j] ? 1 : 0;

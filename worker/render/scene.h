@@ -149,14 +149,19 @@ class Scene {
   // environment map's memory traffic behind it): choose_light() selects the
   // light and, for the environment, its map block (starting to load it);
   // sample_light(from, choice) gives exactly what sample_light(from,
-  // u_select, u) gives.
+  // u_select, u) gives. With `facing` (the unit geometric normal of the
+  // surface that asks, facing the ray that arrived), an environment block
+  // that lies wholly below that surface is marked (below()) and not
+  // loaded: a BSDF that rejects every direction below its geometric normal
+  // (Bsdf::in_lanes()) need not take the sample at all.
   struct LightChoice {
     size_t light = 0;  // index in the selection (triangles, punctual, environment)
     float pmf = 0;     // its selection probability
     Vec2 u;
     Environment::Choice env;  // when the environment was selected
+    bool below() const { return env.below; }
   };
-  LightChoice choose_light(float u_select, Vec2 u) const;
+  LightChoice choose_light(float u_select, Vec2 u, const Vec3* facing = nullptr) const;
   bool sample_light(Vec3 from, const LightChoice& choice, LightSample* out) const;
   // sample_light(from[k], *choices[k], out[k]) for k < n at once, its
   // result in ok[k]: the same samples, the environment's taken together

@@ -20,12 +20,12 @@ namespace {
 constexpr double kMinSolidAngle = 1e-12;
 }  // namespace
 
-Scene::LightChoice Scene::choose_light(float u_select, Vec2 u) const {
+Scene::LightChoice Scene::choose_light(float u_select, Vec2 u, const Vec3* facing) const {
   LightChoice c;
   c.u = u;
   c.light = light_select_.sample_discrete(u_select, &c.pmf);
   if (env_sampled_ && c.light >= light_tris_.size() + data_.lights.size())
-    c.env = environment_->choose(u);
+    c.env = facing ? environment_->choose(u, *facing) : environment_->choose(u);
   return c;
 }
 
