@@ -132,7 +132,7 @@ double seconds_since(Clock::time_point t0) {
 struct RendererFigures {
   double seconds = 0;  // best of the repeats
   uint64_t paths = 0, rays = 0;
-  uint64_t shadow_rays = 0, light_samples = 0;
+  uint64_t shadow_rays = 0, light_samples = 0, light_samples_skipped = 0;
 };
 
 // Rays are generated before the clock starts, so the timing holds only
@@ -326,6 +326,7 @@ void run_scene(const char* name, const char* job, int frame, const Args& args) {
       rf.rays = stats.rays;
       rf.shadow_rays = stats.shadow_rays;
       rf.light_samples = stats.light_samples;
+      rf.light_samples_skipped = stats.light_samples_skipped;
       rf.seconds = std::min(rf.seconds, stats.seconds);
       scene->set_packet_tracing(false);
       const RenderStats single = render_once(*scene, spec, frame, args.threads);
@@ -392,11 +393,16 @@ void run_scene(const char* name, const char* job, int frame, const Args& args) {
   std::printf("  paths %llu  rays %llu  (%.2f rays/path)\n", (unsigned long long)rf.paths,
               (unsigned long long)rf.rays, rays_per_path);
   std::printf("  %.3f Mpaths/s  %.3f Mrays/s\n", paths_per_s * 1e-6, rays_per_s * 1e-6);
-  // A light sample the BSDF rejects (behind the surface) cost its sampling
-  // and traces nothing.
-  std::printf("  light samples %llu, of which %.1f%% reached a shadow ray\n",
-              (unsigned long long)rf.light_samples,
-              rf.light_samples ? 100.0 * double(rf.shadow_rays) / double(rf.light_samples) : 0.0);
+  // A light sample the BSDF rejects (behind the surface) traces nothing; it
+  // costs its sampling, unless it was known to fall below the surface
+  // before it was made (Environment::Choice::below: skipped).
+  auto share = [&](uint64_t part) {
+    return rf.light_samples ? 100.0 * double(part) / double(rf.light_samples) : 0.0;
+  };
+  std::printf(
+      "  light samples %llu, of which %.1f%% reached a shadow ray, %.1f%% skipped below "
+      "their surface before they were made\n",
+      (unsigned long long)rf.light_samples, share(rf.shadow_rays), share(rf.light_samples_skipped));
   std::printf(
       "  camera rays one at a time instead of in packets (Scene::set_packet_tracing): "
       "%.3f s, %.3f Mrays/s (packets %.2fx as fast)\n",

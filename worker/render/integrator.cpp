@@ -278,7 +278,7 @@ class PathBatch {
     if (l.lit && !interleave_) {
       if (rejected_below(l)) {
         l.lit = false;
-        count_light_samples(1);
+        count_light_samples(1, 1);
         return;
       }
       l.lit = scene_.sample_light(l.hit->p, l.light_choice, &l.light);
@@ -338,7 +338,7 @@ class PathBatch {
       who[m++] = k;
     }
     if (m == 0) {
-      count_light_samples(below);
+      count_light_samples(below, below);
       return;
     }
     scene_.sample_lights(m, from.data(), choices, out, ok);
@@ -347,7 +347,7 @@ class PathBatch {
       lanes[who[j]].lit = ok[j];
       taken += ok[j] ? 1 : 0;
     }
-    count_light_samples(taken);
+    count_light_samples(taken, below);
   }
 
   // Next-event estimation with the light sample, then the bounce (or the

@@ -366,7 +366,7 @@ FrameBuffers render_frame(const Scene& loaded, const JobSpec& spec, int frame,
   int threads = options.threads > 0 ? options.threads : cpus_available();
   threads = std::clamp(threads, 1, std::max(1, blocks));
   std::atomic<int> next{0};
-  std::atomic<uint64_t> rays{0}, shadow_rays{0}, light_samples{0};
+  std::atomic<uint64_t> rays{0}, shadow_rays{0}, light_samples{0}, light_samples_skipped{0};
   std::optional<Progress> progress;
   if (options.progress)
     progress.emplace("frame " + std::to_string(frame), int64_t(blocks), "blocks");
@@ -401,6 +401,7 @@ FrameBuffers render_frame(const Scene& loaded, const JobSpec& spec, int frame,
     rays += after.total() - before.total();
     shadow_rays += after.shadow - before.shadow;
     light_samples += after.light_samples - before.light_samples;
+    light_samples_skipped += after.light_samples_skipped - before.light_samples_skipped;
   };
   std::vector<std::thread> pool;
   for (int t = 1; t < threads; ++t) pool.emplace_back(work);
@@ -412,6 +413,7 @@ FrameBuffers render_frame(const Scene& loaded, const JobSpec& spec, int frame,
     options.stats->rays += rays;
     options.stats->shadow_rays += shadow_rays;
     options.stats->light_samples += light_samples;
+    options.stats->light_samples_skipped += light_samples_skipped;
     options.stats->paths += uint64_t(rect.w) * rect.h * pixels.paths_per_pixel_hint();
     options.stats->threads = threads;
     options.stats->seconds +=

@@ -20,6 +20,8 @@ struct RenderStats {
   uint64_t rays = 0;   // closest-hit + shadow rays, albedo and aux rays included
   uint64_t shadow_rays = 0;    // of those, next-event estimation's shadow rays
   uint64_t light_samples = 0;  // NEE's light samples (RayCount::light_samples)
+  // Of those, the ones skipped below their surface (RayCount::light_samples_skipped)
+  uint64_t light_samples_skipped = 0;
   double seconds = 0;
   int threads = 0;  // the threads the last render_frame() ran on
 };

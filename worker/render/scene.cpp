@@ -398,7 +398,10 @@ Vec3 Scene::material_emission(const Material& m, Vec2 uv) const {
 }
 
 RayCount thread_ray_count() { return t_rays; }
-void count_light_samples(uint64_t n) { t_rays.light_samples += n; }
+void count_light_samples(uint64_t n, uint64_t skipped) {
+  t_rays.light_samples += n;
+  t_rays.light_samples_skipped += skipped;
+}
 
 bool Scene::intersect(const Ray& ray, SurfaceHit* hit) const {
   ++t_rays.closest;

@@ -348,11 +348,15 @@ struct RayCount {
   // positive pdf); a shadow ray follows only those the BSDF does not
   // reject (facing away from the surface).
   uint64_t light_samples = 0;
+  // Of those, the ones known to fall below their surface before they were
+  // made (Environment::Choice::below), and so never made.
+  uint64_t light_samples_skipped = 0;
   uint64_t total() const { return closest + shadow; }
 };
 RayCount thread_ray_count();
-// Adds n to this thread's light samples (the integrator's).
-void count_light_samples(uint64_t n);
+// Adds n to this thread's light samples (the integrator's), `skipped` of
+// them never made.
+void count_light_samples(uint64_t n, uint64_t skipped = 0);
 
 // The job's scene file with what the job adds to it: its lamps' sizes
 // ([lights]; a warning where a Blender file's lamps stay points).
