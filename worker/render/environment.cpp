@@ -157,16 +157,6 @@ Environment::Environment(RgbImage image, float intensity, float rotation_deg)
     }
 }
 
-Environment::Choice Environment::choose(Vec2 u) const {
-  Choice c;
-  c.u = u;
-  if (blocks_.empty()) return c;
-  c.block = uint32_t(block_distribution_.sample_discrete(u, &c.r));
-  const char* b = reinterpret_cast<const char*>(&blocks_[c.block]);
-  for (size_t line = 0; line < sizeof(Block); line += 64) __builtin_prefetch(b + line);
-  return c;
-}
-
 Environment::Choice Environment::choose(Vec2 u, Vec3 n) const {
   Choice c;
   c.u = u;

@@ -61,12 +61,13 @@ class Environment {
     // certain to point below that surface. Its record is then not loaded.
     bool below = false;
   };
-  Choice choose(Vec2 u) const;
+  Choice choose(Vec2 u) const { return choose(u, Vec3(0.0f)); }
   // choose(u) for a light sample seen from a surface of unit normal n: the
   // same choice, and whether it lies below the surface (Choice::below),
   // from the block's centre direction and a bound on its angular radius
   // (a caller whose BSDF rejects every direction below n can skip the
-  // sample; bench/README.md, "Light samples the surface turns away").
+  // sample; bench/README.md, "Light samples the surface turns away"). A
+  // normal that is not unit (zero: no surface) marks nothing.
   Choice choose(Vec2 u, Vec3 n) const;
   EnvSample sample(const Choice& choice) const;
   // sample(choice) of n choices at once (the light samples of a batch of

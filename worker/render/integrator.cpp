@@ -337,11 +337,7 @@ class PathBatch {
       out[m] = &l.light;
       who[m++] = k;
     }
-    if (m == 0) {
-      count_light_samples(below, below);
-      return;
-    }
-    scene_.sample_lights(m, from.data(), choices, out, ok);
+    if (m > 0) scene_.sample_lights(m, from.data(), choices, out, ok);
     uint64_t taken = below;
     for (int j = 0; j < m; ++j) {
       lanes[who[j]].lit = ok[j];

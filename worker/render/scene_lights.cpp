@@ -25,7 +25,7 @@ Scene::LightChoice Scene::choose_light(float u_select, Vec2 u, const Vec3* facin
   c.u = u;
   c.light = light_select_.sample_discrete(u_select, &c.pmf);
   if (env_sampled_ && c.light >= light_tris_.size() + data_.lights.size())
-    c.env = facing ? environment_->choose(u, *facing) : environment_->choose(u);
+    c.env = environment_->choose(u, facing ? *facing : Vec3(0.0f));
   return c;
 }
 
