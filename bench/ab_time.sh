@@ -113,7 +113,7 @@ for ((r = 1; r <= rounds; ++r)); do
   echo "$ta $tb" >>"$out/times.txt"
 done
 
-awk -v rounds="$rounds" '
+awk '
   { a[NR] = $1; b[NR] = $2; r[NR] = $2 / $1; faster += ($2 < $1) }
   END {
     n = NR
