@@ -221,10 +221,7 @@ void Environment::locate(const Vec3* dirs, int n, Located* out) const {
     return;
   }
 #ifdef DOFARM_HAVE_AVX2_KERNELS
-  // In lanes even for one direction (most batches have one escaping path):
-  // eight lanes' mapping costs less than the scalar one's two
-  // precise_atan2 (bench/README.md, "ab_time.sh").
-  if (use_simd()) {
+  if (n > 1 && use_simd()) {
     for (int first = 0; first < n; first += 8) {
       const int m = std::min(8, n - first);
       alignas(32) float d[24];
@@ -360,7 +357,7 @@ DOFARM_AVX2 void directions8(const float* uv, float rotation, float* d) {
 
 void Environment::sample(const Choice* choices, int n, EnvSample* out) const {
 #ifdef DOFARM_HAVE_AVX2_KERNELS
-  if (!blocks_.empty() && use_simd()) {  // even for one choice, as locate()
+  if (!blocks_.empty() && n > 1 && use_simd()) {
     for (int first = 0; first < n; first += 8) {
       const int m = std::min(8, n - first);
       Picked picked[8];
